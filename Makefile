@@ -1,0 +1,47 @@
+# dualtalker-lite: every target creates/reuses the virtual environment .venv itself.
+#   make lab    open JupyterLab on notebooks/         (main job, interactive)
+#   make demo   headless end-to-end run -> runs/demo/ (main job, no browser)
+#   make test   unit tests + nbval over every notebook (what CI runs)
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+export OMP_NUM_THREADS ?= 2
+export MPLBACKEND ?= Agg
+
+.PHONY: lab demo test unit nbval env sample bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	# CPU wheel first: with torch 2.13.0 present, nothing else pulls CUDA packages.
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e ".[notebooks,speech,dev]"
+	touch $(STAMP)
+
+env: $(STAMP)
+
+lab: $(STAMP)
+	$(VENV)/bin/jupyter lab notebooks/
+
+demo: $(STAMP)
+	$(PY) -m dualtalker_lite.demo --out runs/demo
+
+test: $(STAMP)
+	$(PY) -m pytest tests notebooks --nbval-lax --durations=15
+
+unit: $(STAMP)
+	$(PY) -m pytest tests
+
+nbval: $(STAMP)
+	$(PY) -m pytest notebooks --nbval-lax
+
+# Regenerate the shipped sample bit for bit (needs the [speech] extra, installed by default).
+sample: $(STAMP)
+	$(PY) -m dualtalker_lite.data.generate --preset sample --out data_samples
+
+bench: $(STAMP)
+	$(PY) benchmarks/run_all.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache
