@@ -12,7 +12,15 @@ Layout (data -> features -> blocks -> models -> losses -> metrics -> training ->
 - ``dualtalker_lite.train``    plain training loop, checkpoints
 - ``dualtalker_lite.viz``      matplotlib renders, mp4 with sound, pythreejs viewer
 """
-from .utils import check_shape, set_seed
-
 __version__ = "0.1.0"
 __all__ = ["check_shape", "set_seed", "__version__"]
+
+
+def __getattr__(name: str):
+    # Lazy: `import dualtalker_lite.data.speech` (run in many short-lived worker processes while
+    # generating a corpus) must not pay for importing torch.
+    if name in ("check_shape", "set_seed"):
+        from . import utils
+
+        return getattr(utils, name)
+    raise AttributeError(f"module 'dualtalker_lite' has no attribute {name!r}")
