@@ -1,0 +1,18 @@
+"""Data: real synthesized speech (espeak-ng), clip synthesis on the face rig, corpus I/O, torch datasets.
+
+Kept import-light on purpose (no torch here): corpus generation runs many short-lived worker processes.
+Import the pieces you need: ``data.speech``, ``data.generate``, ``data.corpus``, ``data.dataset``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["sample_path"]
+
+
+def sample_path() -> Path:
+    """The small pre-generated corpus shipped in the repository (``data_samples/``)."""
+    path = Path(__file__).resolve().parents[2] / "data_samples"
+    if not (path / "metadata.json").is_file():
+        raise FileNotFoundError(f"the shipped sample is missing at {path}; regenerate it with `make sample`")
+    return path
