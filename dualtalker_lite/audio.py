@@ -1,0 +1,256 @@
+"""Audio I/O and per-mesh-frame speech features A_{1:T} (design.md, "Units and rates").
+
+Pipeline, for a mono 16 kHz wave of N samples and a clip of T mesh frames at 30 fps:
+
+1. STFT: Hann window of 400 samples (25 ms), hop 160 (10 ms), n_fft 512, ``center=True`` with zero
+   padding -> ``1 + N // 160`` frames at 100 Hz; power spectrum ``|X|^2``.
+2. Mel: ``80`` triangular filters on the **HTK** mel scale ``mel(f) = 2595 log10(1 + f / 700)``;
+   ``log(mel + 1e-6)`` (the epsilon keeps digital silence finite: log(1e-6) = -13.8).
+3. Linear interpolation in time (``align_corners=True``, as FaceFormer does for wav2vec 2.0 features)
+   to exactly ``2 T`` frames (60 Hz), then stacking two frames per mesh frame -> ``A``: ``(T, 160)``.
+
+Extractors are pluggable (:class:`FeatureExtractor`): anything with ``sample_rate``, ``dim`` and
+``__call__(wave, n_frames) -> (n_frames, dim)`` can replace :class:`LogMelExtractor`.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+__all__ = [
+    "SAMPLE_RATE", "N_FFT", "WIN_LENGTH", "HOP_LENGTH", "N_MELS", "LOG_EPS",
+    "load_audio", "resample", "validate_wave", "hz_to_mel", "mel_to_hz", "mel_filterbank",
+    "log_mel_spectrogram", "interpolate_frames", "FeatureExtractor", "LogMelExtractor", "Wav2Vec2Extractor",
+]
+
+SAMPLE_RATE = 16000  # Hz
+N_FFT = 512          # FFT size (257 frequency bins)
+WIN_LENGTH = 400     # 25 ms analysis window
+HOP_LENGTH = 160     # 10 ms hop -> 100 feature frames per second
+N_MELS = 80
+LOG_EPS = 1e-6       # log(mel + LOG_EPS)
+
+
+# ----------------------------------------------------------------------------------------- I/O
+def resample(wave: np.ndarray, orig_sr: int, target_sr: int) -> np.ndarray:
+    """Polyphase resampling by the rational factor ``target_sr / orig_sr`` (reduced with gcd)."""
+    if orig_sr == target_sr:
+        return np.asarray(wave, dtype=np.float32)
+    from scipy.signal import resample_poly  # scipy import is slow-ish; only pay when needed
+
+    g = math.gcd(int(orig_sr), int(target_sr))
+    return resample_poly(wave, target_sr // g, orig_sr // g, axis=0).astype(np.float32)
+
+
+def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample: bool = True,
+               mono: str = "error") -> np.ndarray:
+    """Read a WAV/FLAC file as float32 ``(N,)`` in [-1, 1] at ``sample_rate``.
+
+    ``mono="error"`` (default) refuses multichannel files; ``mono="mean"`` averages the channels.
+    A different file rate is resampled (``resample=True``) or refused. Every error names the file.
+    """
+    import soundfile as sf
+
+    if mono not in ("error", "mean"):
+        raise ValueError(f"mono must be 'error' or 'mean', got {mono!r}")
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"audio file not found: {path}")
+    try:
+        data, file_sr = sf.read(str(path), dtype="float32", always_2d=True)  # (N, C)
+    except (sf.SoundFileError, RuntimeError) as e:  # LibsndfileError: corrupt / unsupported format
+        raise ValueError(f"could not decode audio file {path} (corrupt or not WAV/FLAC?): {e}") from e
+    if data.shape[1] > 1:
+        if mono != "mean":
+            raise ValueError(f"{path} has {data.shape[1]} channels; downmix it to mono "
+                             f"(e.g. `sox in.wav -c 1 out.wav`) or pass mono='mean'")
+        data = data.mean(axis=1, keepdims=True)
+    wave = data[:, 0]
+    if wave.size == 0:
+        raise ValueError(f"{path} contains no audio samples")
+    if not np.isfinite(wave).all():
+        raise ValueError(f"{path} contains NaN or infinite samples")
+    if file_sr != sample_rate:
+        if not resample:
+            raise ValueError(f"{path} is sampled at {file_sr} Hz, expected {sample_rate} Hz "
+                             f"(pass resample=True to resample)")
+        wave = _resample(wave, file_sr, sample_rate)
+    return np.ascontiguousarray(wave, dtype=np.float32)
+
+
+_resample = resample  # `load_audio` has a parameter called `resample`
+
+
+def validate_wave(wave: np.ndarray | torch.Tensor, sample_rate: int, expected: int = SAMPLE_RATE) -> None:
+    """Raise ValueError unless ``wave`` is a non-empty, finite, 1-D (mono) signal at ``expected`` Hz."""
+    if sample_rate != expected:
+        raise ValueError(f"wave sampled at {sample_rate} Hz, this extractor expects {expected} Hz; "
+                         f"resample it first (dualtalker_lite.audio.resample)")
+    if wave.ndim != 1:
+        raise ValueError(f"wave must be 1-D mono (N,), got shape {tuple(wave.shape)}; downmix stereo first")
+    if wave.shape[0] == 0:
+        raise ValueError("wave is empty")
+    finite = torch.isfinite(wave).all() if isinstance(wave, torch.Tensor) else np.isfinite(wave).all()
+    if not finite:
+        raise ValueError("wave contains NaN or infinite samples")
+
+
+# ---------------------------------------------------------------------------------- log-mel
+def hz_to_mel(f):
+    """HTK mel scale: ``2595 log10(1 + f / 700)`` (1000 Hz -> 1000 mel)."""
+    return 2595.0 * np.log10(1.0 + np.asarray(f, dtype=np.float64) / 700.0)
+
+
+def mel_to_hz(m):
+    """Inverse of :func:`hz_to_mel`."""
+    return 700.0 * (10.0 ** (np.asarray(m, dtype=np.float64) / 2595.0) - 1.0)
+
+
+def mel_filterbank(n_fft: int = N_FFT, n_mels: int = N_MELS, sample_rate: int = SAMPLE_RATE,
+                   f_min: float = 0.0, f_max: float | None = 8000.0, slaney_norm: bool = False) -> torch.Tensor:
+    """Triangular mel filters ``(n_mels, n_fft // 2 + 1)`` on the HTK mel scale.
+
+    ``n_mels + 2`` points equally spaced in mel between ``f_min`` and ``f_max`` give filter m its left
+    edge, centre (peak 1) and right edge; each triangle is evaluated at the FFT bin frequencies
+    ``k * sample_rate / n_fft`` (torchaudio ``melscale_fbanks(mel_scale="htk")`` convention).
+    ``slaney_norm=True`` scales filter m by ``2 / (f_right - f_left)`` (equal area instead of equal peak).
+    """
+    f_max = sample_rate / 2 if f_max is None else f_max
+    if not 0 <= f_min < f_max <= sample_rate / 2:
+        raise ValueError(f"need 0 <= f_min < f_max <= sample_rate/2, got f_min={f_min}, f_max={f_max}")
+    freqs = np.linspace(0, sample_rate / 2, n_fft // 2 + 1)                       # (K,) bin frequencies
+    edges = mel_to_hz(np.linspace(hz_to_mel(f_min), hz_to_mel(f_max), n_mels + 2))  # (M+2,)
+    edges[0], edges[-1] = f_min, f_max                                              # exact, no round-off
+    left, centre, right = edges[:-2, None], edges[1:-1, None], edges[2:, None]      # (M, 1) each
+    up = (freqs - left) / (centre - left)                                           # rising slope
+    down = (right - freqs) / (right - centre)                                       # falling slope
+    fb = np.maximum(0.0, np.minimum(up, down))                                      # (M, K)
+    if slaney_norm:
+        fb *= 2.0 / (right - left)
+    return torch.from_numpy(fb.astype(np.float32))
+
+
+_FB_CACHE: dict[tuple, torch.Tensor] = {}
+_WIN_CACHE: dict[int, torch.Tensor] = {}
+
+
+def log_mel_spectrogram(wave: np.ndarray | torch.Tensor, sample_rate: int = SAMPLE_RATE, n_fft: int = N_FFT,
+                        win_length: int = WIN_LENGTH, hop_length: int = HOP_LENGTH, n_mels: int = N_MELS,
+                        f_min: float = 0.0, f_max: float | None = None, slaney_norm: bool = False) -> torch.Tensor:
+    """``log(mel(|STFT|^2) + 1e-6)`` as float32 ``(1 + N // hop_length, n_mels)`` (time first).
+
+    Hann window (periodic, ``win_length`` samples, zero-padded to ``n_fft``), ``center=True`` with zero
+    padding of ``n_fft // 2`` on both sides, so frame t is centred on sample ``t * hop_length``.
+    """
+    validate_wave(wave, sample_rate, expected=sample_rate)
+    x = torch.as_tensor(wave, dtype=torch.float32)
+    if win_length not in _WIN_CACHE:
+        _WIN_CACHE[win_length] = torch.hann_window(win_length)
+    spec = torch.stft(x, n_fft, hop_length=hop_length, win_length=win_length, window=_WIN_CACHE[win_length],
+                      center=True, pad_mode="constant", return_complex=True)   # (K, L)
+    power = spec.real ** 2 + spec.imag ** 2                                     # |X|^2
+    key = (n_fft, n_mels, sample_rate, f_min, f_max, slaney_norm)
+    if key not in _FB_CACHE:
+        _FB_CACHE[key] = mel_filterbank(n_fft, n_mels, sample_rate, f_min, f_max, slaney_norm)
+    mel = _FB_CACHE[key] @ power                                                # (M, L)
+    return torch.log(mel + LOG_EPS).T.contiguous()                              # (L, M)
+
+
+def interpolate_frames(x: torch.Tensor, n_out: int) -> torch.Tensor:
+    """Linearly resample a feature sequence ``(L, d) -> (n_out, d)`` in time (``align_corners=True``)."""
+    if n_out < 1:
+        raise ValueError(f"n_out must be >= 1, got {n_out}")
+    if x.shape[0] == n_out:
+        return x
+    return F.interpolate(x.T[None], size=n_out, mode="linear", align_corners=True)[0].T.contiguous()
+
+
+# ------------------------------------------------------------------------------- extractors
+@runtime_checkable
+class FeatureExtractor(Protocol):
+    """Maps a mono wave ``(N,)`` to per-mesh-frame features ``(n_frames, dim)`` float32."""
+
+    sample_rate: int
+    dim: int
+
+    def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor: ...
+
+
+class LogMelExtractor:
+    """Log-mel A_{1:T}: ``(T, frames_per_mesh_frame * n_mels)`` = ``(T, 160)`` by default.
+
+    ``mean``/``std`` (per band, ``(n_mels,)``) optionally standardise each band with *fixed* statistics,
+    e.g. from :meth:`band_statistics` over the training split. Default: raw log-mel (no normalisation).
+    """
+
+    def __init__(self, n_mels: int = N_MELS, frames_per_mesh_frame: int = 2, fps: int = 30,
+                 sample_rate: int = SAMPLE_RATE, n_fft: int = N_FFT, win_length: int = WIN_LENGTH,
+                 hop_length: int = HOP_LENGTH, f_min: float = 0.0, f_max: float | None = None,
+                 mean=None, std=None):
+        self.n_mels, self.frames_per_mesh_frame, self.fps = n_mels, frames_per_mesh_frame, fps
+        self.sample_rate, self.n_fft, self.win_length, self.hop_length = sample_rate, n_fft, win_length, hop_length
+        self.f_min, self.f_max = f_min, f_max
+        self.dim = frames_per_mesh_frame * n_mels
+        self.mean = None if mean is None else torch.as_tensor(mean, dtype=torch.float32).reshape(n_mels)
+        self.std = None if std is None else torch.as_tensor(std, dtype=torch.float32).reshape(n_mels)
+
+    def log_mel(self, wave: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """The 100 Hz log-mel ``(1 + N // hop, n_mels)`` before interpolation and stacking."""
+        return log_mel_spectrogram(wave, self.sample_rate, self.n_fft, self.win_length, self.hop_length,
+                                   self.n_mels, self.f_min, self.f_max)
+
+    def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
+        validate_wave(wave, self.sample_rate, expected=self.sample_rate)
+        k = self.frames_per_mesh_frame
+        feats = interpolate_frames(self.log_mel(wave), k * n_frames)   # (k T, n_mels) at k * fps Hz
+        if self.mean is not None:
+            feats = feats - self.mean
+        if self.std is not None:
+            feats = feats / self.std
+        return feats.reshape(n_frames, self.dim)                       # (T, k * n_mels)
+
+    def band_statistics(self, waves) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-band mean and std ``(n_mels,)`` of the raw log-mel pooled over ``waves`` (for ``mean``/``std``)."""
+        feats = torch.cat([self.log_mel(w) for w in waves])             # (sum L, n_mels)
+        return feats.mean(0), feats.std(0).clamp_min(1e-5)
+
+
+class Wav2Vec2Extractor:
+    """Placeholder showing how to plug in wav2vec 2.0 (FaceFormer / DualTalker's audio encoder input).
+
+    ``model_dir`` is a *local* Hugging Face directory (``config.json`` + weights); nothing is ever
+    downloaded (``local_files_only=True``). Hidden states (50 Hz) of layer ``layer`` are linearly
+    interpolated to ``frames_per_mesh_frame * n_frames`` and stacked like :class:`LogMelExtractor`.
+    Needs the optional ``transformers`` package. Untested with real weights in this repo.
+    """
+
+    def __init__(self, model_dir: str | os.PathLike, fps: int = 30, frames_per_mesh_frame: int = 1,
+                 layer: int = -1, sample_rate: int = SAMPLE_RATE):
+        model_dir = Path(model_dir)
+        if not model_dir.is_dir():
+            raise FileNotFoundError(f"wav2vec 2.0 model directory not found: {model_dir} "
+                                    f"(a local folder with config.json and weights; nothing is downloaded)")
+        try:
+            from transformers import Wav2Vec2Model
+        except ImportError as e:
+            raise ImportError("Wav2Vec2Extractor needs the optional package 'transformers' "
+                              "(pip install transformers); LogMelExtractor needs nothing extra") from e
+        self.model = Wav2Vec2Model.from_pretrained(str(model_dir), local_files_only=True).eval()
+        self.fps, self.frames_per_mesh_frame, self.layer, self.sample_rate = fps, frames_per_mesh_frame, layer, sample_rate
+        self.dim = frames_per_mesh_frame * self.model.config.hidden_size
+
+    @torch.no_grad()
+    def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
+        validate_wave(wave, self.sample_rate, expected=SAMPLE_RATE)
+        x = torch.as_tensor(wave, dtype=torch.float32)
+        x = (x - x.mean()) / (x.std() + 1e-7)                         # Wav2Vec2FeatureExtractor normalisation
+        out = self.model(x[None], output_hidden_states=True)
+        hidden = out.hidden_states[self.layer][0]                     # (L, hidden) at 50 Hz
+        k = self.frames_per_mesh_frame
+        return interpolate_frames(hidden.float(), k * n_frames).reshape(n_frames, self.dim)

@@ -1,0 +1,198 @@
+"""Read a talking-face corpus from disk, in either layout of design.md ("Corpus on disk").
+
+- ``faceformer``: ``wav/<clip>.wav`` + ``vertices_npy/<clip>.npy`` (T, V*3) + ``templates.npz``.
+- ``compact``: ``audio/<clip>.flac`` + ``controls.npz`` (T, C) rig controls + ``speakers.json``;
+  vertices are rebuilt with :class:`dualtalker_lite.face.FaceRig` (imported only for this format).
+
+Both share ``faces.npy``, ``regions.json`` and ``metadata.json``. Loaded arrays are cached; every
+error names the clip or file at fault.
+
+>>> corpus = Corpus("data_samples")                          # doctest: +SKIP
+>>> corpus.vertices(corpus.split("train")[0]).shape           # doctest: +SKIP
+(75, 3*V)
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH"]
+
+FORMATS = ("faceformer", "compact")
+MAX_FRAME_MISMATCH = 2  # |T - duration * fps| tolerated between a clip's mesh and its audio, in frames
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        raise FileNotFoundError(f"corpus file not found: {path}")
+    return path
+
+
+class Corpus:
+    """A corpus directory: clip names, splits, speakers, templates, vertices and waves."""
+
+    def __init__(self, path: str | os.PathLike, cache: bool = True):
+        self.root = Path(path)
+        self.metadata: dict = json.loads(_need(self.root / "metadata.json").read_text())
+        self.format: str = self.metadata.get("format", "faceformer")
+        if self.format not in FORMATS:
+            raise ValueError(f"{self.root / 'metadata.json'}: unknown format {self.format!r}, expected one of {FORMATS}")
+        self.fps: int = int(self.metadata.get("fps", 30))
+        self.sample_rate: int = int(self.metadata.get("sample_rate", 16000))
+        self.emotions: list[str] = list(self.metadata.get("emotions", ["neutral"]))
+        self.phoneme_inventory: list[str] = list(self.metadata.get("phoneme_inventory", []))
+        self.viseme_inventory: list[str] = list(self.metadata.get("viseme_inventory", []))
+        self.clips: list[str] = list(self.metadata["clips"])
+        self._clip_set = set(self.clips)
+        subjects = self.metadata.get("speakers") or {self.meta(c)["subject"] for c in self.clips}
+        self.speakers: list[str] = sorted(subjects)
+        self.train_speakers: list[str] = sorted({self.meta(c)["subject"] for c in self.split("train")}) \
+            if "train" in self.metadata.get("splits", {}) else []
+        self._train_index = {s: i for i, s in enumerate(self.train_speakers)}
+        self.cache = cache
+        self._vertices: dict[str, np.ndarray] = {}
+        self._waves: dict[str, np.ndarray] = {}
+        self._templates: dict[str, np.ndarray] = {}
+        self._rigs: dict = {}
+        self._rig_params: dict | None = None
+        self._controls: dict[str, np.ndarray] | None = None
+        self._faces: np.ndarray | None = None
+        self._regions: dict[str, np.ndarray] | None = None
+
+    def __repr__(self) -> str:
+        return (f"Corpus({str(self.root)!r}, format={self.format!r}, clips={len(self.clips)}, "
+                f"speakers={len(self.speakers)}, fps={self.fps}, sample_rate={self.sample_rate})")
+
+    def __len__(self) -> int:
+        return len(self.clips)
+
+    # ------------------------------------------------------------------------- metadata
+    def meta(self, name: str) -> dict:
+        """The metadata entry of clip ``name`` (subject, text, emotion, level, segments, ...)."""
+        if name not in self._clip_set:
+            raise KeyError(f"unknown clip {name!r} in {self.root} ({len(self.clips)} clips, e.g. {self.clips[:3]})")
+        return self.metadata["clips"][name]
+
+    def split(self, name: str) -> list[str]:
+        """Clip names of split ``name`` (``train``, ``val``, ``test_a``, ``test_b``, ...)."""
+        splits = self.metadata.get("splits", {})
+        if name not in splits:
+            raise KeyError(f"unknown split {name!r} in {self.root}; known splits: {sorted(splits)}")
+        missing = [c for c in splits[name] if c not in self._clip_set]
+        if missing:
+            raise ValueError(f"split {name!r} lists clips missing from metadata['clips']: {missing[:5]}")
+        return list(splits[name])
+
+    def speaker_index(self, name: str) -> int:
+        """Index of speaker ``name`` in ``train_speakers``; -1 for a known speaker unseen in training."""
+        if name not in self.speakers:
+            raise KeyError(f"unknown speaker {name!r}; known speakers: {self.speakers}")
+        return self._train_index.get(name, -1)
+
+    @property
+    def faces(self) -> np.ndarray:
+        """Triangle indices ``(F, 3)`` int64 of the shared topology."""
+        if self._faces is None:
+            self._faces = np.load(_need(self.root / "faces.npy"), allow_pickle=False).astype(np.int64)
+        return self._faces
+
+    @property
+    def regions(self) -> dict[str, np.ndarray]:
+        """``{region_name: vertex indices (int64)}`` (lips, eyes, forehead, ...)."""
+        if self._regions is None:
+            raw = json.loads(_need(self.root / "regions.json").read_text())
+            self._regions = {k: np.asarray(v, dtype=np.int64) for k, v in raw.items()}
+        return self._regions
+
+    # ----------------------------------------------------------------------------- arrays
+    def template(self, subject: str) -> np.ndarray:
+        """Neutral template ``h`` of ``subject``: float32 ``(V*3,)`` in metres."""
+        if subject not in self._templates:
+            if subject not in self.speakers:
+                raise KeyError(f"unknown speaker {subject!r}; known speakers: {self.speakers}")
+            if self.format == "faceformer":
+                path = _need(self.root / "templates.npz")
+                with np.load(path, allow_pickle=False) as npz:
+                    if subject not in npz.files:
+                        raise KeyError(f"{path} has no template for speaker {subject!r} (has {sorted(npz.files)})")
+                    tpl = npz[subject]
+            else:
+                tpl = self._rig(subject).template
+            tpl = np.asarray(tpl, dtype=np.float32).reshape(-1)
+            n_vertices = self.metadata.get("n_vertices")
+            if n_vertices is not None and tpl.size != 3 * n_vertices:
+                raise ValueError(f"template of {subject!r} has {tpl.size // 3} vertices, "
+                                 f"metadata.json says n_vertices={n_vertices}")
+            self._templates[subject] = tpl
+        return self._templates[subject]
+
+    def vertices(self, name: str) -> np.ndarray:
+        """Absolute vertex positions ``M_{1:T} + h`` of clip ``name``: float32 ``(T, V*3)`` in metres."""
+        if name in self._vertices:
+            return self._vertices[name]
+        meta = self.meta(name)
+        if self.format == "faceformer":
+            path = _need(self.root / "vertices_npy" / f"{name}.npy")
+            verts = np.load(path, allow_pickle=False)
+        else:
+            controls = self._all_controls()
+            if name not in controls:
+                raise KeyError(f"{self.root / 'controls.npz'} has no control track for clip {name!r}")
+            verts = self._rig(meta["subject"]).animate(controls[name])      # (T, V, 3)
+        verts = np.asarray(verts, dtype=np.float32)
+        verts = verts.reshape(verts.shape[0], -1)                            # (T, V*3)
+        tpl = self.template(meta["subject"])
+        if verts.shape[1] != tpl.size:
+            raise ValueError(f"clip {name!r} has {verts.shape[1] // 3} vertices per frame but the template of "
+                             f"{meta['subject']!r} has {tpl.size // 3}")
+        if "n_frames" in meta and verts.shape[0] != meta["n_frames"]:
+            raise ValueError(f"clip {name!r} has {verts.shape[0]} mesh frames, metadata says {meta['n_frames']}")
+        if "n_samples" in meta:
+            self.check_alignment(name, verts.shape[0], meta["n_samples"])
+        if self.cache:
+            self._vertices[name] = verts
+        return verts
+
+    def wave(self, name: str) -> np.ndarray:
+        """Speech of clip ``name``: float32 ``(N,)`` mono at ``sample_rate``."""
+        if name in self._waves:
+            return self._waves[name]
+        from ..audio import load_audio  # lazy: reading metadata and vertices needs no torch
+
+        meta = self.meta(name)
+        sub, ext = ("wav", "wav") if self.format == "faceformer" else ("audio", "flac")
+        wave = load_audio(self.root / sub / f"{name}.{ext}", sample_rate=self.sample_rate)
+        if "n_frames" in meta:
+            self.check_alignment(name, meta["n_frames"], wave.shape[0])
+        if self.cache:
+            self._waves[name] = wave
+        return wave
+
+    def check_alignment(self, name: str, n_frames: int, n_samples: int) -> None:
+        """Raise ValueError unless ``n_frames`` ≈ audio duration * fps (within ``MAX_FRAME_MISMATCH``)."""
+        expected = n_samples / self.sample_rate * self.fps
+        if abs(n_frames - expected) > MAX_FRAME_MISMATCH:
+            raise ValueError(f"clip {name!r}: {n_frames} mesh frames but its audio lasts "
+                             f"{n_samples / self.sample_rate:.3f} s = {expected:.1f} frames at {self.fps} fps")
+
+    # ------------------------------------------------------------------- compact format
+    def _all_controls(self) -> dict[str, np.ndarray]:
+        if self._controls is None:
+            with np.load(_need(self.root / "controls.npz"), allow_pickle=False) as npz:
+                self._controls = {k: npz[k].astype(np.float32, copy=False) for k in npz.files}
+        return self._controls
+
+    def _rig(self, subject: str):
+        if subject not in self._rigs:
+            from ..face import FaceRig, Speaker  # lazy: only the compact format needs the rig
+
+            path = _need(self.root / "speakers.json")
+            if self._rig_params is None:
+                self._rig_params = json.loads(path.read_text())
+            if subject not in self._rig_params:
+                raise KeyError(f"{path} has no rig parameters for speaker {subject!r}")
+            self._rigs[subject] = FaceRig(Speaker.from_dict(self._rig_params[subject]))
+        return self._rigs[subject]

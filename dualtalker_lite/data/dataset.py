@@ -1,0 +1,155 @@
+"""PyTorch Dataset over a :class:`~dualtalker_lite.data.corpus.Corpus` split, plus padding collate.
+
+Every item is a dict with exactly the keys of design.md ("Dataset item"):
+
+==============  ================  =====================================================
+key             item shape        meaning
+==============  ================  =====================================================
+``name``        str               clip name
+``audio``       (T, 160) float32  A_{1:T}: log-mel stacked per mesh frame
+``vertices``    (T, V*3) float32  M_{1:T} + template, metres
+``template``    (V*3,) float32    neutral template h
+``speaker``     int               index into ``corpus.train_speakers``, -1 if unseen
+``emotion``     int               index into ``corpus.emotions`` (0 = neutral)
+``level``       int               emotion intensity 0/1/2
+``phonemes``    (T,) long         phoneme id per mesh frame (0 = silence)
+``visemes``     (T,) long         viseme id per mesh frame (0 = silence)
+==============  ================  =====================================================
+
+Features are computed once at construction, so an epoch only slices tensors. ``collate`` pads a
+batch to its longest clip (zeros) and adds ``mask`` (B, T) bool and ``lengths`` (B,) long.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from ..audio import FeatureExtractor, LogMelExtractor, resample
+from .corpus import Corpus
+
+__all__ = ["ITEM_KEYS", "TalkingFaceDataset", "collate", "make_loader", "segments_to_frames"]
+
+ITEM_KEYS = ("name", "audio", "vertices", "template", "speaker", "emotion", "level", "phonemes", "visemes")
+_PER_FRAME = ("audio", "vertices", "phonemes", "visemes")  # keys with a time axis (cropped, padded)
+
+
+def segments_to_frames(segments, inventory: list[str], n_frames: int, fps: int, clip: str = "?") -> torch.Tensor:
+    """Label ``(T,)`` long: mesh frame t (at time t / fps) gets the id of the segment ``[start, end)``
+    containing it; ids index ``inventory`` (entry 0 is silence); uncovered frames get 0."""
+    ids = torch.zeros(n_frames, dtype=torch.long)
+    times = torch.arange(n_frames, dtype=torch.float64) / fps          # (T,) seconds
+    lookup = {label: i for i, label in enumerate(inventory)}
+    for label, start, end in segments or ():
+        if label not in lookup:
+            raise ValueError(f"clip {clip!r}: label {label!r} is not in the inventory {inventory}")
+        ids[(times >= start) & (times < end)] = lookup[label]
+    return ids
+
+
+def _as_tensor(a: np.ndarray) -> torch.Tensor:
+    # Share memory with the corpus cache when possible (no copy of the vertex arrays).
+    return torch.from_numpy(a) if a.flags.writeable else torch.tensor(a)
+
+
+class TalkingFaceDataset(Dataset):
+    """Clips of one split with precomputed audio features; optional random crop to ``max_frames``.
+
+    Crops draw their start frame from ``generator`` (seeded 0 by default), so a run is reproducible
+    with ``num_workers=0``; worker processes would each get a copy of the same generator state.
+    Item tensors share memory with the corpus cache: do not modify them in place.
+    """
+
+    def __init__(self, corpus: Corpus | str | os.PathLike, split: str = "train",
+                 extractor: FeatureExtractor | None = None, max_frames: int | None = None,
+                 generator: torch.Generator | None = None, threads: int | None = 1):
+        """``threads``: torch CPU threads while precomputing features (restored afterwards). Default 1:
+        hundreds of small STFTs gain nothing from intra-op threads and slow down a lot on busy cores;
+        use ``None`` (keep the current setting) for heavy extractors such as wav2vec 2.0."""
+        self.corpus = corpus if isinstance(corpus, Corpus) else Corpus(corpus)
+        self.split = split
+        self.extractor = LogMelExtractor(fps=self.corpus.fps) if extractor is None else extractor
+        if max_frames is not None and max_frames < 1:
+            raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
+        self.max_frames = max_frames
+        self.generator = torch.Generator().manual_seed(0) if generator is None else generator
+        self.names = self.corpus.split(split)
+        previous = torch.get_num_threads()
+        if threads is not None:
+            torch.set_num_threads(threads)
+        try:
+            self.items = [self._build(name) for name in self.names]
+        finally:
+            torch.set_num_threads(previous)
+
+    def _build(self, name: str) -> dict:
+        c, meta = self.corpus, self.corpus.meta(name)
+        verts = c.vertices(name)                                          # (T, V*3)
+        wave = c.wave(name)                                               # (N,)
+        n_frames = verts.shape[0]
+        c.check_alignment(name, n_frames, wave.shape[0])
+        if self.extractor.sample_rate != c.sample_rate:
+            wave = resample(wave, c.sample_rate, self.extractor.sample_rate)
+        audio = self.extractor(wave, n_frames)                            # (T, dim)
+        if tuple(audio.shape) != (n_frames, self.extractor.dim):
+            raise ValueError(f"extractor returned {tuple(audio.shape)} for clip {name!r}, "
+                             f"expected {(n_frames, self.extractor.dim)}")
+        emotion = meta.get("emotion", "neutral")
+        if emotion not in c.emotions:
+            raise ValueError(f"clip {name!r}: emotion {emotion!r} not in metadata emotions {c.emotions}")
+        return {
+            "name": name,
+            "audio": audio.float(),
+            "vertices": _as_tensor(verts),
+            "template": _as_tensor(c.template(meta["subject"])),
+            "speaker": c.speaker_index(meta["subject"]),
+            "emotion": c.emotions.index(emotion),
+            "level": int(meta.get("level", 0)),
+            "phonemes": segments_to_frames(meta.get("phonemes"), c.phoneme_inventory, n_frames, c.fps, name),
+            "visemes": segments_to_frames(meta.get("visemes"), c.viseme_inventory, n_frames, c.fps, name),
+        }
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, index: int) -> dict:
+        item = dict(self.items[index])
+        n_frames = item["audio"].shape[0]
+        if self.max_frames is not None and n_frames > self.max_frames:
+            start = int(torch.randint(0, n_frames - self.max_frames + 1, (1,), generator=self.generator))
+            for key in _PER_FRAME:
+                item[key] = item[key][start:start + self.max_frames]
+        return item
+
+    def __repr__(self) -> str:
+        return (f"TalkingFaceDataset(split={self.split!r}, clips={len(self)}, "
+                f"extractor={type(self.extractor).__name__}, max_frames={self.max_frames})")
+
+
+def collate(items: list[dict]) -> dict:
+    """Stack items into a batch; pad time axes with zeros to the longest clip; add ``mask``, ``lengths``."""
+    lengths = torch.tensor([it["audio"].shape[0] for it in items], dtype=torch.long)    # (B,)
+    batch_size, t_max = len(items), int(lengths.max())
+    batch: dict = {"name": [it["name"] for it in items]}
+    for key in _PER_FRAME:
+        first = items[0][key]
+        out = first.new_zeros((batch_size, t_max) + tuple(first.shape[1:]))             # (B, T, ...)
+        for b, it in enumerate(items):
+            out[b, : it[key].shape[0]] = it[key]
+        batch[key] = out
+    batch["template"] = torch.stack([it["template"] for it in items])                  # (B, V*3)
+    for key in ("speaker", "emotion", "level"):
+        batch[key] = torch.tensor([it[key] for it in items], dtype=torch.long)         # (B,)
+    batch["mask"] = torch.arange(t_max)[None, :] < lengths[:, None]                     # (B, T) bool
+    batch["lengths"] = lengths
+    return batch
+
+
+def make_loader(dataset: Dataset, batch_size: int = 8, shuffle: bool = True, seed: int = 0,
+                num_workers: int = 0, drop_last: bool = False) -> DataLoader:
+    """DataLoader with :func:`collate` and a generator seeded with ``seed`` (same order every run)."""
+    return DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, collate_fn=collate,
+                      generator=torch.Generator().manual_seed(seed), num_workers=num_workers,
+                      drop_last=drop_last)
