@@ -1,0 +1,273 @@
+"""DualTalker: cross-modal dual learning for speech-driven 3D facial animation (Su et al.; Figs. 1-3, eqs. 1-7).
+
+Two tasks share the audio encoder, the motion encoder and the style embeddings (section III-C):
+
+    primal, facial animation (eq. 1):  m̂_t = FacialAnimation(m̂_{<t}, S_n, A)
+        A -> extractor -> audio encoder -> X                                     (B, T, d)
+        [S_n, Me(m_1), ..., Me(m_{T-1})] + PPE -> fusion (Fig. 2, eq. 6) -> Y̆    (B, T, d)  ``y_fused``
+        Y̆ -> motion decoder -> M̂; vertices = template + M̂                        (B, T, V*3)
+    dual, lip reading (eq. 2):         â_t = LipReading(â_{<t}, S_n, M)
+        M -> motion encoder Me -> Y                                              (B, T, d)
+        [S_n, Ae(a_1), ..., Ae(a_{T-1})] + PPE -> dual fusion (eq. 7) -> X̆         (B, T, d)  ``x_fused``
+        X̆ -> audio decoder -> Ã                                                  (B, T, D_a)
+
+Design decisions (the paper leaves these open; see also ``blocks.fusion`` for the reading of eq. 6):
+
+- The start token of each autoregressive stream is the style embedding S_n, as in FaceFormer's inference
+  (FaceFormer's teacher forcing feeds Me(0) + S_n instead, i.e. the encoder bias leaks into frame 0; we use
+  S_n in training too, so ``generate`` equals ``forward`` fed with its own predictions).
+- The dual stream embeds the *past* audio frames per frame, Ae(a) = audio_encoder(feature_projection(a)):
+  the contextual layers of the extractor see the whole clip and would leak a_t into the input at t.
+- The motion decoder is zero-initialised, so an untrained model outputs the template (FaceFormer).
+- ``share_enc_dec`` (the paper's negative ablation, section IV-F): the motion decoder uses the transpose of
+  the motion encoder's weight, and the audio decoder d -> C -> D_a uses the transposes of the audio encoder
+  (C -> d) and of the extractor's feature projection (D_a -> C); biases stay separate. The zero
+  initialisation (and "first frame = template") is then impossible.
+- ``dual=False`` builds the primal task alone (no dual fusion, no audio decoder; ``audio``/``x_fused`` None).
+- Scheduled sampling (``scheduled_sampling = p > 0``, training mode only): a first, gradient-free
+  teacher-forced pass predicts every frame; each previous frame fed to the motion stream is then replaced
+  by that prediction with probability p (two-pass scheduled sampling for transformers, Mihaylova & Martins
+  2019). Only the primal task is sampled: inference uses the primal task only (supplementary A).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..blocks.fusion import DualFusionLayer
+from ..blocks.positional import PeriodicPositionalEncoding
+from .audio_encoder import AudioFeatureExtractor
+
+__all__ = ["DualTalkerConfig", "faceformer_config", "TransposedLinear", "DualTalker"]
+
+
+@dataclass
+class DualTalkerConfig:
+    """Sizes and switches of :class:`DualTalker`. Defaults: the paper's VOCASET sizes (supp. A), small audio stand-in."""
+
+    n_vertices: int = 1500  # V: the mesh has V*3 coordinates per frame
+    audio_dim: int = 160  # D_a: log-mel 2 x 80 per mesh frame (or n_phonemes for the one-hot ablation)
+    n_speakers: int = 8  # training speakers = rows of the style embedding table
+    d_model: int = 128  # d (128 VOCASET, 256 BIWI)
+    n_heads: int = 4
+    d_ff: int = 2048
+    n_layers: int = 1
+    gate_reduction: int = 16  # r of the speaker-aware gate (eq. 5)
+    period: int = 30  # PPE / ALiBi period in frames
+    align_window: int = 2  # integration window (see blocks.fusion; 1 = FaceFormer's diagonal)
+    query_from: str = "encoder"  # "encoder" (paper, eq. 6) | "decoder" (FaceFormer)
+    dual: bool = True  # False: primal task only ("w/o dual training" ablation)
+    speaker_gate: bool = True  # eq. 5 on/off
+    share_enc_dec: bool = False  # decoders = transposed encoders (negative ablation)
+    add_style_to_motion: bool = False  # FaceFormer: S_n added to every stream token
+    audio_hidden: int = 256  # C: width of the wav2vec 2.0 stand-in (768 in the paper)
+    audio_heads: int = 4
+    audio_conv_layers: int = 2
+    audio_kernel: int = 5
+    audio_layers: int = 1
+    dropout: float = 0.1
+    scheduled_sampling: float = 0.0  # probability of feeding back a prediction in training
+
+    def __post_init__(self):
+        if self.query_from not in ("encoder", "decoder"):
+            raise ValueError(f"query_from must be 'encoder' or 'decoder', got {self.query_from!r}")
+        if not 0.0 <= self.scheduled_sampling <= 1.0:
+            raise ValueError(f"scheduled_sampling is a probability, got {self.scheduled_sampling}")
+        for name in ("d_model", "audio_hidden"):
+            if getattr(self, name) % (self.n_heads if name == "d_model" else self.audio_heads):
+                raise ValueError(f"{name}={getattr(self, name)} must be divisible by its number of heads")
+
+    @classmethod
+    def tiny(cls, **overrides) -> "DualTalkerConfig":
+        """d=64, 4 heads, FF 128, 1 layer, r=4, no dropout: trains on a CPU in about a minute."""
+        base = dict(d_model=64, n_heads=4, d_ff=128, n_layers=1, gate_reduction=4, audio_hidden=64,
+                    audio_heads=4, dropout=0.0)
+        return cls(**{**base, **overrides})
+
+    @classmethod
+    def paper(cls, **overrides) -> "DualTalkerConfig":
+        """The paper's VOCASET decoder sizes (d=128, FF 2048, r=16); BIWI uses d_model=256."""
+        return cls(**overrides)
+
+
+def faceformer_config(base: DualTalkerConfig | None = None, **overrides) -> DualTalkerConfig:
+    """FaceFormer-style baseline with the sizes of ``base`` (default ``tiny()``): primal only, no gate,
+    queries from the motion stream with the diagonal alignment, S_n added to every motion token."""
+    cfg = replace(base or DualTalkerConfig.tiny(), dual=False, speaker_gate=False, query_from="decoder",
+                  align_window=1, add_style_to_motion=True, share_enc_dec=False)
+    return replace(cfg, **overrides)
+
+
+class TransposedLinear(nn.Module):
+    """Section IV-F weight sharing: y = x W_enc + b, a decoder tied to an encoder ``nn.Linear`` (W_enc: (out, in))."""
+
+    def __init__(self, encoder: nn.Linear):
+        super().__init__()
+        self.encoder_weight = encoder.weight  # the same Parameter object: one tensor, two uses
+        self.bias = nn.Parameter(torch.zeros(encoder.in_features))
+
+    def forward(self, x: Tensor) -> Tensor:
+        """(..., out_features) -> (..., in_features) with the transposed encoder weight."""
+        return F.linear(x, self.encoder_weight.t(), self.bias)  # (..., in_features)
+
+
+class DualTalker(nn.Module):
+    """Primal (eq. 1) and dual (eq. 2) tasks with shared encoders and a shared dual integration (Fig. 1)."""
+
+    def __init__(self, cfg: DualTalkerConfig):
+        super().__init__()
+        self.cfg = cfg
+        d, c, v3 = cfg.d_model, cfg.audio_hidden, 3 * cfg.n_vertices
+        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
+                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout)
+        self.audio_encoder = nn.Linear(c, d)  # linear "MLP" audio encoder: C -> d (supplementary A)
+        self.motion_encoder = nn.Linear(v3, d)  # Me: V*3 -> d
+        self.style = nn.Embedding(cfg.n_speakers, d)  # S_1..S_n
+        self.ppe = PeriodicPositionalEncoding(d, cfg.period, cfg.dropout)
+        self.layers = nn.ModuleList(
+            DualFusionLayer(d, cfg.n_heads, cfg.d_ff, cfg.gate_reduction, cfg.align_window, cfg.query_from,
+                            cfg.period, cfg.speaker_gate, cfg.dual, cfg.dropout) for _ in range(cfg.n_layers))
+        if cfg.share_enc_dec:
+            self.motion_decoder = TransposedLinear(self.motion_encoder)  # d -> V*3
+        else:
+            self.motion_decoder = nn.Linear(d, v3)  # d -> V*3, zero: first prediction = template
+            nn.init.zeros_(self.motion_decoder.weight)
+            nn.init.zeros_(self.motion_decoder.bias)
+        self.audio_decoder = None
+        if cfg.dual:
+            if cfg.share_enc_dec:
+                self.audio_decoder = nn.Sequential(TransposedLinear(self.audio_encoder), nn.ReLU(),
+                                                   TransposedLinear(self.extractor.feature_projection))
+            else:
+                self.audio_decoder = nn.Sequential(nn.Linear(d, c), nn.ReLU(), nn.Linear(c, cfg.audio_dim))
+
+    # ---- inputs -------------------------------------------------------------------------------------
+    def num_parameters(self) -> int:
+        """Number of trainable scalars (shared tensors, Fig. 3 / section IV-F, counted once)."""
+        return sum(p.numel() for p in self.parameters() if p.requires_grad)
+
+    def speaker_style(self, speaker: Tensor) -> Tensor:
+        """Style embedding S_n (section III-A) for each clip: speaker (B,) long in [0, n_speakers) -> (B, d)."""
+        n = self.cfg.n_speakers
+        if speaker.dim() != 1 or speaker.dtype not in (torch.int32, torch.int64):
+            raise ValueError(f"speaker: expected a (B,) integer tensor, got {tuple(speaker.shape)} {speaker.dtype}")
+        bad = (speaker < 0) | (speaker >= n)
+        if bad.any():
+            raise ValueError(f"unknown speaker index {speaker[bad].tolist()}: the model has {n} training speakers "
+                             f"(0..{n - 1}); condition unseen speakers (-1) on a training speaker's style")
+        return self.style(speaker)  # (B, d)
+
+    def _check(self, audio: Tensor, template: Tensor, speaker: Tensor, vertices: Tensor | None = None) -> None:
+        """Raise a ValueError naming expected vs got for inputs of the wrong shape (A, h, M + h, n of eq. 1)."""
+        v3, da = 3 * self.cfg.n_vertices, self.cfg.audio_dim
+        if audio.dim() != 3 or audio.shape[-1] != da:
+            raise ValueError(f"audio: expected (B, T, {da}) features, got {tuple(audio.shape)}")
+        b, t = audio.shape[:2]
+        if template.shape != (b, v3):
+            raise ValueError(f"template: expected (B, V*3) = ({b}, {v3}) for n_vertices={self.cfg.n_vertices}, "
+                             f"got {tuple(template.shape)}")
+        if vertices is not None and vertices.shape != (b, t, v3):
+            raise ValueError(f"vertices: expected (B, T, V*3) = ({b}, {t}, {v3}) for n_vertices="
+                             f"{self.cfg.n_vertices} and the audio's T, got {tuple(vertices.shape)}")
+        if speaker.shape != (b,):
+            raise ValueError(f"speaker: expected shape ({b},), got {tuple(speaker.shape)}")
+
+    # ---- building blocks of both tasks ------------------------------------------------------------
+    def encode_audio(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
+        """X_{1:T} = audio_encoder(extractor(A)) (section III-A, Fig. 1): (B, T, D_a) -> (B, T, d)."""
+        return self.audio_encoder(self.extractor(audio, mask))  # (B, T, d)
+
+    def _stream(self, features: Tensor, style: Tensor) -> Tensor:
+        """The past of eqs. 1-2, shifted right: [S_n, f_1, ..., f_{T-1}] -> (B, T, d).
+
+        With ``add_style_to_motion`` (FaceFormer) S_n is also added to every f_t.
+        """
+        if self.cfg.add_style_to_motion:
+            features = features + style[:, None, :]
+        return torch.cat([style[:, None, :], features[:, :-1]], dim=1)  # (B, T, d)
+
+    def _fuse(self, stream: Tensor, given: Tensor, style: Tensor, direction: str, key_mask: Tensor | None,
+              weights: list | None = None) -> Tensor:
+        """PPE, then the fusion layers (Fig. 2, eqs. 3-7) over a whole shifted stream (teacher forcing) -> (B, T, d)."""
+        h = self.ppe(stream)  # (B, T, d)
+        for layer in self.layers:
+            h, w = layer(h, given, style, direction, key_mask=key_mask, need_weights=weights is not None)
+            if weights is not None:
+                weights.append(w)
+        return h  # (B, T, d)
+
+    # ---- training: teacher forcing ----------------------------------------------------------------
+    def forward(self, batch: dict, need_weights: bool = False) -> dict:
+        """Eqs. 1 and 2 with teacher forcing on a batch (``docs/design.md``) -> dict of predictions and features.
+
+        Keys: vertices, motion (B, T, V*3); audio Ã (B, T, D_a) or None; x, y, x_fused (or None), y_fused
+        (B, T, d); with ``need_weights`` also "attention": {"primal": [...], "dual": [...]} per layer.
+        """
+        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
+        self._check(audio, template, speaker, vertices)
+        mask = batch.get("mask")
+        motion = vertices - template[:, None, :]  # (B, T, V*3) M_{1:T}
+        if mask is not None:  # padding may hold anything (even NaN): keep it out of every product
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+            motion = motion.masked_fill(~mask[..., None], 0.0)
+        style = self.speaker_style(speaker)  # (B, d) S_n
+        x = self.encode_audio(audio, mask)  # (B, T, d) X
+        y = self.motion_encoder(motion)  # (B, T, d) Y
+        fed = y  # motion features fed back to the stream (teacher forcing)
+        if self.training and self.cfg.scheduled_sampling > 0:
+            with torch.no_grad():
+                guess = self.motion_decoder(self._fuse(self._stream(y, style), x, style, "primal", mask))  # (B, T, V*3)
+            pick = torch.rand(motion.shape[:2], device=motion.device)[..., None] < self.cfg.scheduled_sampling
+            fed = self.motion_encoder(torch.where(pick, guess, motion))  # (B, T, d)
+        w_primal = [] if need_weights else None
+        y_fused = self._fuse(self._stream(fed, style), x, style, "primal", mask, w_primal)  # (B, T, d) Y̆
+        motion_hat = self.motion_decoder(y_fused)  # (B, T, V*3) M̂
+        out = {"vertices": template[:, None, :] + motion_hat, "motion": motion_hat, "audio": None,
+               "x": x, "y": y, "x_fused": None, "y_fused": y_fused}
+        w_dual = [] if need_weights else None
+        if self.cfg.dual:
+            past_audio = self.audio_encoder(self.extractor.embed_frames(audio))  # (B, T, d) Ae(a_t), per frame
+            x_fused = self._fuse(self._stream(past_audio, style), y, style, "dual", mask, w_dual)  # (B, T, d) X̆
+            out["x_fused"], out["audio"] = x_fused, self.audio_decoder(x_fused)  # Ã (B, T, D_a)
+        if need_weights:
+            out["attention"] = {"primal": w_primal, "dual": w_dual}
+        return out
+
+    # ---- inference: the primal task, autoregressively ---------------------------------------------
+    @torch.no_grad()
+    def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
+                 mask: Tensor | None = None) -> Tensor:
+        """Eq. 1 frame by frame: A (B, T, D_a), template (B, V*3), speaker (B,) -> vertices (B, T, V*3).
+
+        ``use_cache=True`` keeps the keys/values of every attention, so frame t costs O(t); ``False``
+        re-runs the fusion layers on the whole prefix at every frame (O(t^2)). Call ``model.eval()`` first.
+        """
+        self._check(audio, template, speaker)
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        style = self.speaker_style(speaker)  # (B, d)
+        x = self.encode_audio(audio, mask)  # (B, T, d)
+        caches = [layer.new_cache() for layer in self.layers] if use_cache else None
+        token = style[:, None, :]  # (B, 1, d) start token S_n
+        tokens, motions = [token], []
+        for t in range(audio.shape[1]):
+            if use_cache:
+                h = self.ppe(token, offset=t)  # (B, 1, d)
+                for layer, cache in zip(self.layers, caches):
+                    h, _ = layer(h, x, style, "primal", offset=t, key_mask=mask, cache=cache)
+            else:
+                h = self.ppe(torch.cat(tokens, dim=1))  # (B, t+1, d) the whole prefix, again
+                for layer in self.layers:
+                    h, _ = layer(h, x, style, "primal", key_mask=mask)
+                h = h[:, -1:]  # (B, 1, d)
+            m_t = self.motion_decoder(h)  # (B, 1, V*3) m̂_t
+            motions.append(m_t)
+            token = self.motion_encoder(m_t)  # (B, 1, d) fed back
+            if self.cfg.add_style_to_motion:
+                token = token + style[:, None, :]
+            tokens.append(token)
+        return template[:, None, :] + torch.cat(motions, dim=1)  # (B, T, V*3)

@@ -1,0 +1,190 @@
+"""DualTalker model: outputs, autoregressive generation (cache, consistency), input checks, training sanity."""
+import pytest
+import torch
+
+from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+
+V, DA, NS = 20, 12, 3  # tiny sizes keep the tests fast
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """Tiny tensors: a second intra-op thread only adds synchronisation, and thrashes on a busy CI box."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _cfg(**kw):
+    return DualTalkerConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, d_model=32, d_ff=64, audio_hidden=32, **kw)
+
+
+def _batch(b=2, t=12, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    template = torch.randn(b, V * 3, generator=g) * 0.1
+    motion = torch.cumsum(torch.randn(b, t, V * 3, generator=g) * 0.01, dim=1)  # smooth-ish trajectories
+    return {"audio": torch.randn(b, t, DA, generator=g), "vertices": template[:, None] + motion,
+            "template": template, "speaker": torch.arange(b) % NS, "mask": torch.ones(b, t, dtype=torch.bool)}
+
+
+def _model(seed=0, perturb=True, **kw):
+    torch.manual_seed(seed)
+    model = DualTalker(_cfg(**kw)).eval()
+    if perturb:  # a zero motion decoder would make every frame the template: make feedback matter
+        torch.nn.init.normal_(model.motion_decoder.weight, std=0.05)
+    return model
+
+
+def test_forward_keys_and_shapes():
+    batch = _batch()
+    out = _model()(batch)
+    assert out["vertices"].shape == out["motion"].shape == (2, 12, V * 3)
+    assert out["audio"].shape == (2, 12, DA)
+    for k in ("x", "y", "x_fused", "y_fused"):
+        assert out[k].shape == (2, 12, 32), k
+    torch.testing.assert_close(out["vertices"], batch["template"][:, None] + out["motion"])
+    primal = _model(dual=False)(batch)
+    assert primal["audio"] is None and primal["x_fused"] is None and primal["y_fused"].shape == (2, 12, 32)
+
+
+def test_untrained_first_frame_is_the_template():
+    batch = _batch()
+    model = _model(perturb=False)
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    assert torch.equal(pred[:, 0], batch["template"])
+
+
+@pytest.mark.parametrize("kw", [{}, {"query_from": "decoder", "align_window": 3}, {"n_layers": 2},
+                                {"add_style_to_motion": True, "speaker_gate": False}])
+def test_cached_generation_equals_uncached(kw):
+    batch = _batch(t=40)
+    model = _model(**kw)
+    fast = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=True)
+    slow = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=False)
+    torch.testing.assert_close(fast, slow, atol=1e-5, rtol=0)
+    assert (fast - batch["template"][:, None]).abs().amax() > 1e-3  # the check is not vacuous
+
+
+@pytest.mark.parametrize("kw", [{}, {"query_from": "decoder", "align_window": 1}])
+def test_generate_equals_teacher_forcing_on_own_predictions(kw):
+    batch = _batch(t=35)
+    model = _model(**kw)
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    with torch.no_grad():
+        out = model({**batch, "vertices": pred})
+    torch.testing.assert_close(out["vertices"], pred, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("query_from", ["encoder", "decoder"])
+def test_teacher_forcing_never_sees_the_frame_it_predicts(query_from):
+    model, batch = _model(query_from=query_from, align_window=3), _batch()
+    moved = {**batch, "vertices": batch["vertices"].clone()}
+    moved["vertices"][:, 6:] += 0.1  # motion from frame 6 on: primal predictions of frames 0..6 must not move
+    louder = {**batch, "audio": batch["audio"].clone()}
+    louder["audio"][:, 6:] += 1.0  # audio from frame 6 on: dual predictions of frames 0..6 must not move
+    with torch.no_grad():
+        ref, m, a = model(batch), model(moved), model(louder)
+    torch.testing.assert_close(m["motion"][:, :7], ref["motion"][:, :7])
+    assert not torch.allclose(m["motion"][:, 7:], ref["motion"][:, 7:])
+    torch.testing.assert_close(a["audio"][:, :7], ref["audio"][:, :7])
+    assert not torch.allclose(a["audio"][:, 7:], ref["audio"][:, 7:])
+
+
+@pytest.mark.parametrize("t", [1, 7, 200])
+def test_any_clip_length(t):
+    batch = _batch(b=1, t=t)
+    model = _model()
+    assert model.generate(batch["audio"], batch["template"], batch["speaker"]).shape == (1, t, V * 3)
+    assert model(batch)["audio"].shape == (1, t, DA)
+
+
+def test_padding_does_not_change_valid_frames():
+    model = _model()
+    long, short = _batch(b=1, t=15, seed=1), _batch(b=1, t=9, seed=1)
+    padded = {k: v.clone() for k, v in long.items()}
+    for k in ("audio", "vertices"):
+        padded[k][:, :9] = short[k]
+        padded[k][:, 9:] = float("nan")  # padding may hold anything
+    padded["template"], padded["mask"] = short["template"], torch.arange(15)[None] < 9
+    with torch.no_grad():
+        a, b = model(padded), model(short)
+    for k in ("vertices", "audio", "x", "y_fused", "x_fused"):
+        torch.testing.assert_close(a[k][:, :9], b[k], atol=1e-5, rtol=1e-5)
+    gen = model.generate(padded["audio"], padded["template"], padded["speaker"], mask=padded["mask"])
+    torch.testing.assert_close(gen[:, :9], model.generate(short["audio"], short["template"], short["speaker"]),
+                               atol=1e-5, rtol=1e-5)
+
+
+def test_input_errors_are_clear():
+    model, batch = _model(), _batch()
+    with pytest.raises(ValueError, match="unknown speaker index"):
+        model.generate(batch["audio"], batch["template"], torch.tensor([0, NS]))
+    with pytest.raises(ValueError, match="unknown speaker index"):
+        model({**batch, "speaker": torch.tensor([-1, 0])})
+    with pytest.raises(ValueError, match=rf"template: expected .*\(2, {V * 3}\).*got \(2, {V * 3 - 3}\)"):
+        model.generate(batch["audio"], batch["template"][:, :-3], batch["speaker"])
+    with pytest.raises(ValueError, match=rf"vertices: expected .*got \(2, 12, {V * 3 + 3}\)"):
+        model({**batch, "vertices": torch.zeros(2, 12, V * 3 + 3)})
+    with pytest.raises(ValueError, match="audio: expected"):
+        model.generate(batch["audio"][..., :-1], batch["template"], batch["speaker"])
+
+
+def test_shared_encoder_decoder_ablation_ties_weights():
+    model = _model(perturb=False, share_enc_dec=True)
+    assert model.motion_decoder.encoder_weight is model.motion_encoder.weight
+    assert model.audio_decoder[0].encoder_weight is model.audio_encoder.weight
+    assert model.audio_decoder[2].encoder_weight is model.extractor.feature_projection.weight
+    out = model(_batch())
+    assert out["motion"].shape == (2, 12, V * 3) and out["audio"].shape == (2, 12, DA)
+    assert model.num_parameters() < _model(perturb=False).num_parameters()
+
+
+def test_faceformer_config_is_the_same_class():
+    cfg = faceformer_config(_cfg())
+    assert (cfg.dual, cfg.speaker_gate, cfg.query_from, cfg.align_window, cfg.add_style_to_motion) == \
+        (False, False, "decoder", 1, True)
+    model = DualTalker(cfg).eval()
+    batch = _batch()
+    assert model(batch)["audio"] is None
+    assert model.generate(batch["audio"], batch["template"], batch["speaker"]).shape == (2, 12, V * 3)
+
+
+def test_scheduled_sampling():
+    batch = _batch()
+    torch.manual_seed(0)
+    model = _model(scheduled_sampling=1.0).train()
+    torch.manual_seed(1)
+    sampled = model(batch)["vertices"]
+    model.cfg.scheduled_sampling = 0.0
+    teacher = model(batch)["vertices"]
+    assert not torch.allclose(sampled, teacher)
+    model.eval().cfg.scheduled_sampling = 1.0
+    torch.testing.assert_close(model(batch)["vertices"], teacher)  # evaluation never samples
+    with pytest.raises(ValueError):
+        _cfg(scheduled_sampling=1.5)
+
+
+def test_same_seed_same_output():
+    batch = _batch()
+    outs = []
+    for _ in range(2):
+        torch.manual_seed(7)
+        model = DualTalker(_cfg(dropout=0.1)).train()
+        outs.append(model(batch)["audio"])
+    torch.testing.assert_close(outs[0], outs[1], atol=0, rtol=0)
+
+
+def test_loss_falls_when_overfitting_one_batch():
+    batch = _batch(b=2, t=20)
+    torch.manual_seed(0)
+    model = DualTalker(_cfg()).train()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(60):
+        loss = (model(batch)["vertices"] - batch["vertices"]).square().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.5 * losses[0], losses[::10]
