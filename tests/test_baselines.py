@@ -1,0 +1,154 @@
+"""Baselines: shapes, zero-init = template, the ±W receptive field, overfitting, determinism, clear errors."""
+import pytest
+import torch
+
+from dualtalker_lite.models.baselines import DUAL_ONLY_KEYS, StaticTemplate, VocaConfig, VocaStyle
+
+B, T, V, D_A, N_SPK = 2, 12, 10, 160, 3
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    """Tiny tensors: one thread is fastest, and avoids oversubscription when the CPU is shared. Restored after."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _batch(seed: int = 0, T: int = T) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    template = torch.randn(B, V * 3, generator=g) * 0.05
+    motion = torch.randn(B, T, V * 3, generator=g) * 0.003
+    return {"audio": torch.randn(B, T, D_A, generator=g), "template": template,
+            "vertices": template[:, None] + motion, "speaker": torch.tensor([0, 2]),
+            "mask": torch.ones(B, T, dtype=torch.bool)}
+
+
+def _model(seed: int = 0, **overrides) -> VocaStyle:
+    torch.manual_seed(seed)
+    return VocaStyle(VocaConfig.tiny(n_vertices=V, n_speakers=N_SPK, **overrides))
+
+
+def test_static_template_predicts_the_template():
+    batch = _batch()
+    out = StaticTemplate(n_vertices=V)(batch)
+    assert out["vertices"].shape == out["motion"].shape == (B, T, V * 3)
+    assert torch.equal(out["vertices"], batch["template"][:, None].expand(B, T, V * 3))
+    assert all(out[k] is None for k in DUAL_ONLY_KEYS)
+    gen = StaticTemplate().generate(batch["audio"], batch["template"], batch["speaker"])
+    assert torch.equal(gen, out["vertices"])
+    with pytest.raises(ValueError, match="V\\*3"):
+        StaticTemplate(n_vertices=V + 1)(batch)
+
+
+def test_voca_shapes_and_dual_only_keys():
+    batch = _batch()
+    out = _model()(batch)
+    assert out["vertices"].shape == out["motion"].shape == (B, T, V * 3)
+    assert set(out) == {"vertices", "motion", *DUAL_ONLY_KEYS}
+    assert all(out[k] is None for k in DUAL_ONLY_KEYS)
+    assert _model().generate(batch["audio"], batch["template"], batch["speaker"]).shape == (B, T, V * 3)
+
+
+def test_zero_initialised_decoder_outputs_the_template():
+    batch = _batch()
+    out = _model()(batch)
+    assert torch.equal(out["vertices"], batch["template"][:, None].expand(B, T, V * 3))
+    assert torch.equal(out["vertices"][:, 0], batch["template"])  # the first prediction in particular
+
+
+@pytest.mark.parametrize("t", [0, 5, T - 1])
+def test_frame_t_depends_only_on_audio_within_the_window(t):
+    model, batch = _model(zero_init_decoder=False), _batch()
+    W = model.cfg.window
+    base = model(batch)["vertices"][:, t]
+    outside = [s for s in range(T) if abs(s - t) > W]
+    inside = [s for s in range(T) if abs(s - t) <= W]
+    far = dict(batch, audio=batch["audio"].clone())
+    far["audio"][:, outside] += 5.0 * torch.randn(B, len(outside), D_A)
+    assert torch.equal(model(far)["vertices"][:, t], base)
+    for s in (inside[0], inside[-1]):  # both window edges matter
+        near = dict(batch, audio=batch["audio"].clone())
+        near["audio"][:, s] += 5.0
+        assert not torch.allclose(model(near)["vertices"][:, t], base)
+
+
+def test_padding_does_not_change_a_clips_output():
+    model, batch = _model(zero_init_decoder=False), _batch()
+    short = {k: (v[:1, :7] if k in ("audio", "vertices", "mask") else v[:1]) for k, v in batch.items()}
+    alone = model(short)["vertices"]                                   # (1, 7, V*3)
+    padded = dict(batch, mask=batch["mask"].clone())
+    padded["mask"][0, 7:] = False
+    padded["audio"] = batch["audio"].clone()
+    padded["audio"][0, 7:] = 0.0                                       # what a collate function pads with
+    torch.testing.assert_close(model(padded)["vertices"][:1, :7], alone)
+
+
+def test_speaker_condition_changes_the_output_and_unknown_speakers_fail():
+    model, batch = _model(zero_init_decoder=False), _batch()
+    other = dict(batch, speaker=torch.tensor([1, 1]))
+    assert not torch.allclose(model(batch)["vertices"], model(other)["vertices"])
+    for bad in ([0, -1], [0, N_SPK]):
+        with pytest.raises(ValueError, match="training speaker"):
+            model(dict(batch, speaker=torch.tensor(bad)))
+
+
+def test_wrong_vertex_count_is_a_clear_error():
+    model, batch = _model(), _batch()
+    with pytest.raises(ValueError, match="V = 10"):
+        model(dict(batch, template=batch["template"][:, :-3]))
+    with pytest.raises(ValueError, match="vertices"):
+        model(dict(batch, vertices=batch["vertices"][..., :-3]))
+    with pytest.raises(ValueError, match="audio"):
+        model(dict(batch, audio=batch["audio"][..., :80]))
+
+
+def test_outputs_plug_into_the_shared_joint_loss():
+    from dualtalker_lite.losses import LossWeights, joint_loss
+
+    model, batch = _model(zero_init_decoder=False), _batch()
+    total, terms = joint_loss(model(batch), batch, LossWeights())       # λ2..λ4 > 0 but their inputs are None
+    assert terms["dual"] == terms["dr"] == terms["ccrl"] == 0
+    torch.testing.assert_close(total, terms["primal"])
+    total.backward()
+    assert model.decoder.weight.grad.abs().sum() > 0
+
+
+def _overfit(seed: int, steps: int = 60) -> tuple[list[float], VocaStyle]:
+    model, batch = _model(seed), _batch(seed)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(steps):
+        out = model(batch)
+        loss = ((out["vertices"] - batch["vertices"]) ** 2)[batch["mask"]].mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    return losses, model
+
+
+def test_overfits_one_small_batch():
+    losses, _ = _overfit(seed=0)
+    assert losses[-1] < 0.5 * losses[0], (losses[0], losses[-1])
+
+
+def test_same_seed_same_output():
+    batch = _batch(1)
+    outs = [_overfit(seed=0, steps=5)[1](batch)["vertices"] for _ in range(2)]
+    assert torch.equal(outs[0], outs[1])
+    assert not torch.equal(outs[0], _overfit(seed=1, steps=5)[1](batch)["vertices"])
+
+
+def test_pca_decoder_init_spans_the_training_motion():
+    model = _model()
+    g = torch.Generator().manual_seed(0)
+    motion = torch.randn(40, 3, generator=g) @ torch.randn(3, V * 3, generator=g) + 0.01  # rank 3 + mean offset
+    ratios = model.init_decoder_pca(motion)
+    assert ratios.shape == (model.cfg.latent,) and ratios[:3].sum() == pytest.approx(1.0, abs=1e-5)
+    torch.testing.assert_close(model.decoder.bias, motion.mean(0))
+    # every training motion is D l + b for some latent l: projecting onto D's column space leaves no residual
+    D, centred = model.decoder.weight.detach(), (motion - motion.mean(0)).T  # (V*3, latent), (V*3, N)
+    l = torch.linalg.pinv(D, rtol=1e-4) @ centred                       # (latent, N); rtol drops the ~0 directions
+    torch.testing.assert_close(D @ l, centred, atol=1e-4, rtol=1e-4)
