@@ -1,0 +1,27 @@
+"""Visualisation on plain arrays: vertices (V, 3) or (T, V, 3) in metres (y up, face towards +z), faces (F, 3).
+
+- ``render``   matplotlib mesh renderer: orthographic views, back-face culling, painter's algorithm, Lambert shading,
+               per-vertex colour maps; ``render_frame_rgb`` -> uint8 (H, W, 3)
+- ``plots``    figures: mesh frame grids, per-vertex (error) maps, lip distance and waveform with phonemes
+- ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback
+- ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
+"""
+from .animate import ClipAnimation, animate_clip
+from .plots import plot_frames, plot_lip_distance, plot_vertex_map, plot_waveform_and_phonemes
+from .render import VIEWS, MeshRenderer, draw_mesh, render_frame_rgb
+from .viewer import MeshViewer, static_html
+
+__all__ = [
+    "VIEWS",
+    "MeshRenderer",
+    "draw_mesh",
+    "render_frame_rgb",
+    "plot_frames",
+    "plot_vertex_map",
+    "plot_lip_distance",
+    "plot_waveform_and_phonemes",
+    "ClipAnimation",
+    "animate_clip",
+    "MeshViewer",
+    "static_html",
+]
