@@ -80,7 +80,7 @@ def predict(model: torch.nn.Module, batch: dict, use_cache: bool = True) -> torc
     """Autoregressive prediction of absolute vertices for a padded batch -> (B, T, V*3)."""
     model.eval()
     speaker = batch["speaker"].clamp(min=0)  # unseen speakers (-1) are conditioned on training speaker 0
-    return model.generate(batch["audio"], batch["template"], speaker, use_cache=use_cache)
+    return model.generate(batch["audio"], batch["template"], speaker, use_cache=use_cache, mask=batch.get("mask"))
 
 
 @torch.no_grad()

@@ -47,15 +47,31 @@ def parse_percent(text: str) -> nbformat.NotebookNode:
     return nb
 
 
+def _merge_streams(outputs: list) -> list:
+    """Join consecutive stdout/stderr pieces: how a print is split into messages varies between runs."""
+    merged: list = []
+    for o in outputs:
+        if o.get("output_type") == "stream" and merged and merged[-1].get("output_type") == "stream" \
+                and merged[-1]["name"] == o["name"]:
+            merged[-1]["text"] += o["text"]
+        else:
+            merged.append(o)
+    return merged
+
+
 def strip(nb: nbformat.NotebookNode) -> None:
+    """Drop timestamps and session noise; number code cells 1, 2, ... (nbval needs counts on cells with outputs)."""
+    n = 0
     for i, cell in enumerate(nb.cells):
         cell.metadata = {k: v for k, v in cell.metadata.items() if k in ("tags",)}
         cell["id"] = f"c{i:02d}"
         if cell.cell_type == "code":
-            cell.execution_count = None
+            n += 1
+            cell.execution_count = n
+            cell.outputs = _merge_streams(cell.outputs)
             for o in cell.outputs:
                 if "execution_count" in o:
-                    o["execution_count"] = None
+                    o["execution_count"] = n
                 o.get("metadata", {}).pop("execution", None)
     nb.metadata.pop("widgets", None)
 

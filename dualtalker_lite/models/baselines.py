@@ -61,8 +61,9 @@ class StaticTemplate(nn.Module):
         return _outputs(template, motion)
 
     @torch.no_grad()
-    def generate(self, audio: torch.Tensor, template: torch.Tensor,
-                 speaker: torch.Tensor | None = None) -> torch.Tensor:
+    def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor | None = None,
+                 use_cache: bool = True, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Same signature as ``DualTalker.generate``; ``use_cache`` and ``mask`` do not apply."""
         return self({"audio": audio, "template": template})["vertices"]  # (B, T, V*3)
 
 
@@ -148,9 +149,13 @@ class VocaStyle(nn.Module):
         return _outputs(template, motion)
 
     @torch.no_grad()
-    def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor) -> torch.Tensor:
-        """Inference: (B, T, D_a), (B, V*3), (B,) -> vertices (B, T, V*3)."""
-        return self({"audio": audio, "template": template, "speaker": speaker})["vertices"]
+    def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor,
+                 use_cache: bool = True, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Inference: (B, T, D_a), (B, V*3), (B,) -> vertices (B, T, V*3). Non-autoregressive: no cache."""
+        batch = {"audio": audio, "template": template, "speaker": speaker}
+        if mask is not None:
+            batch["mask"] = mask
+        return self(batch)["vertices"]
 
     @torch.no_grad()
     def init_decoder_pca(self, motion: torch.Tensor) -> torch.Tensor:
