@@ -40,7 +40,7 @@ class TrainConfig:
     @classmethod
     def tiny(cls, **kw) -> "TrainConfig":
         """A budget that trains the tiny models on ``data_samples/`` in well under a minute."""
-        return cls(**{"epochs": 12, "batch_size": 8, "lr": 2e-3, **kw})
+        return cls(**{"epochs": 20, "batch_size": 8, "lr": 3e-3, **kw})
 
 
 @dataclass

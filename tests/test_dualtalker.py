@@ -17,6 +17,9 @@ def one_thread():
 
 
 def _cfg(**kw):
+    # The toy batches here are on a unit scale, not in metres: no mm scaling of the motion.
+    # Mechanism tests: no stochastic past-motion dropout unless a test asks for it.
+    kw = {"motion_scale": 1.0, "motion_dropout": 0.0, **kw}
     return DualTalkerConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, d_model=32, d_ff=64, audio_hidden=32, **kw)
 
 
@@ -82,7 +85,9 @@ def test_teacher_forcing_never_sees_the_frame_it_predicts(query_from):
     moved = {**batch, "vertices": batch["vertices"].clone()}
     moved["vertices"][:, 6:] += 0.1  # motion from frame 6 on: primal predictions of frames 0..6 must not move
     louder = {**batch, "audio": batch["audio"].clone()}
-    louder["audio"][:, 6:] += 1.0  # audio from frame 6 on: dual predictions of frames 0..6 must not move
+    # audio from frame 6 on (a spectral change: the input LayerNorm ignores a constant offset per frame):
+    # dual predictions of frames 0..6 must not move
+    louder["audio"][:, 6:] += torch.randn(louder["audio"][:, 6:].shape, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         ref, m, a = model(batch), model(moved), model(louder)
     torch.testing.assert_close(m["motion"][:, :7], ref["motion"][:, :7])
@@ -163,6 +168,18 @@ def test_scheduled_sampling():
     torch.testing.assert_close(model(batch)["vertices"], teacher)  # evaluation never samples
     with pytest.raises(ValueError):
         _cfg(scheduled_sampling=1.5)
+
+
+def test_motion_dropout_hides_the_past_motion_in_training_only():
+    batch = _batch()
+    still = {**batch, "vertices": batch["template"][:, None].expand_as(batch["vertices"]).clone()}
+    model = _model(motion_dropout=1.0).train()
+    # every fed-back frame is the template: the primal prediction cannot depend on the true motion
+    torch.testing.assert_close(model(batch)["motion"], model(still)["motion"])
+    model.eval()
+    assert not torch.allclose(model(batch)["motion"], model(still)["motion"])  # evaluation never drops
+    with pytest.raises(ValueError, match="motion_dropout"):
+        _cfg(motion_dropout=-0.1)
 
 
 def test_same_seed_same_output():

@@ -54,6 +54,9 @@ class AudioFeatureExtractor(nn.Module):
         super().__init__()
         if kernel_size % 2 == 0:
             raise ValueError(f"kernel_size must be odd ('same' padding), got {kernel_size}")
+        # Log-mel values are un-normalised (about -14..+2); a per-frame LayerNorm puts them on a unit scale
+        # (wav2vec 2.0 likewise normalises its input). Spectral shape, not loudness, carries the visemes.
+        self.input_norm = nn.LayerNorm(audio_dim)
         self.feature_projection = nn.Linear(audio_dim, hidden)  # per frame: D_a -> C
         self.convs = nn.ModuleList(nn.Conv1d(hidden, hidden, kernel_size, padding=kernel_size // 2)
                                    for _ in range(conv_layers))
@@ -64,7 +67,7 @@ class AudioFeatureExtractor(nn.Module):
 
     def embed_frames(self, audio: Tensor) -> Tensor:
         """Per-frame (non-contextual) feature projection (section III-B stand-in): (B, T, D_a) -> (B, T, C)."""
-        return self.feature_projection(audio)  # (B, T, C)
+        return self.feature_projection(self.input_norm(audio))  # (B, T, C)
 
     def forward(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
         """Section III-B / supplementary A: A (B, T, D_a), mask (B, T) True on valid frames -> features (B, T, C)."""
