@@ -35,6 +35,7 @@ class TrainConfig:
     time_budget_s: float | None = None  # stop after the epoch in which this many seconds have passed
     validate_every: int = 1            # epochs between validation LVE measurements (0 = never)
     progress: bool = True
+    device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
     weights: LossWeights = field(default_factory=LossWeights)
 
     @classmethod
@@ -79,6 +80,8 @@ def _crop(batch: dict, max_frames: int | None, gen: torch.Generator) -> dict:
 def predict(model: torch.nn.Module, batch: dict, use_cache: bool = True) -> torch.Tensor:
     """Autoregressive prediction of absolute vertices for a padded batch -> (B, T, V*3)."""
     model.eval()
+    device = next(model.parameters(), torch.empty(0)).device
+    batch = _to_device(batch, device)
     speaker = batch["speaker"].clamp(min=0)  # unseen speakers (-1) are conditioned on training speaker 0
     return model.generate(batch["audio"], batch["template"], speaker, use_cache=use_cache, mask=batch.get("mask"))
 
@@ -92,7 +95,7 @@ def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
     for batch in loader:
         pred = predict(model, batch)
         for i, n in enumerate(batch["lengths"].tolist()):
-            preds.append(pred[i, :n])
+            preds.append(pred[i, :n].cpu())
             gts.append(batch["vertices"][i, :n])
     return float(lve_euclidean(preds, gts, lip_idx))
 
@@ -105,6 +108,7 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
+    model.to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     hist, t0 = History(), time.perf_counter()
     bar = tqdm(range(cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
@@ -113,7 +117,7 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
         sums: dict[str, float] = {}
         n_steps = 0
         for batch in train_loader:
-            batch = _crop(batch, cfg.max_frames, gen)
+            batch = _to_device(_crop(batch, cfg.max_frames, gen), torch.device(cfg.device))
             out = model(batch)
             total, terms = joint_loss(out, batch, cfg.weights)
             opt.zero_grad(set_to_none=True)
