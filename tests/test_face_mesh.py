@@ -111,3 +111,18 @@ def test_shape_parameters_move_landmarks():
     assert corner_x(wide) == pytest.approx(0.028, abs=1e-4) and corner_x(narrow) == pytest.approx(0.022, abs=1e-4)
     gap = lip_distance(build_template(FaceShape(lip_gap=0.0025)).vertices, wide)
     assert gap == pytest.approx(0.0025, abs=2e-4)
+
+
+def test_vertex_normals_match_trimesh_closely():
+    """Area-weighted normals (numpy, no trimesh import at load time) vs trimesh's angle-weighted ones."""
+    from dualtalker_lite.face.mesh import build_template, vertex_normals
+
+    mesh = build_template()
+    ours = vertex_normals(mesh.vertices, mesh.faces)
+    ref = np.asarray(mesh.to_trimesh().vertex_normals)
+    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-9)
+    angle = np.degrees(np.arccos(np.clip((ours * ref).sum(1), -1.0, 1.0)))
+    assert np.median(angle) < 2.0 and angle[mesh.regions["cheeks"]].max() < 15.0
+    # a single triangle: the normal of the plane, oriented by the winding
+    tri = vertex_normals(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]))
+    np.testing.assert_allclose(tri, [[0, 0, 1]] * 3)

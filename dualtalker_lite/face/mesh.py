@@ -41,9 +41,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-import trimesh
 
-__all__ = ["FaceShape", "TemplateMesh", "REGION_NAMES", "build_template", "grid_size", "lip_distance"]
+__all__ = ["FaceShape", "TemplateMesh", "REGION_NAMES", "build_template", "grid_size", "lip_distance",
+           "vertex_normals"]
 
 # The default grid: 34 rings x 44 columns + 2 poles + 11 lower-lip copies + 49 mouth-bag vertices = 1558.
 BASE_VERTICES, BASE_ROWS, BASE_HALF_COLS = 1500, 34, 22
@@ -158,8 +158,10 @@ class TemplateMesh:
     def n_vertices(self) -> int:
         return int(self.vertices.shape[0])
 
-    def to_trimesh(self) -> trimesh.Trimesh:
+    def to_trimesh(self) -> "trimesh.Trimesh":  # noqa: F821
         """The mesh as ``trimesh.Trimesh`` (``process=False``: vertex order and duplicates are kept)."""
+        import trimesh  # lazy: importing trimesh costs ~1 s, and loading a corpus does not need it
+
         return trimesh.Trimesh(self.vertices.astype(np.float64), self.faces, process=False)
 
     @property
@@ -419,6 +421,16 @@ def build_template(shape: FaceShape | None = None, n_vertices: int = BASE_VERTIC
                         regions={k: v.copy() for k, v in canon["regions"].items()},
                         lip_midpoints=(int(slit[0, mid]), int(slit[1, mid])), slit=slit.copy(),
                         landmarks=dict(g["landmarks"]), grid=g["grid"], shape=shape)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (V, 3), unit length: the sum of the adjacent triangles' cross products."""
+    v = np.asarray(vertices, dtype=np.float64)
+    cross = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])  # (F, 3), |.| = 2 x area
+    acc = np.zeros_like(v)
+    for corner in range(3):
+        np.add.at(acc, faces[:, corner], cross)
+    return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-12)
 
 
 def lip_distance(vertices: np.ndarray, mesh: TemplateMesh) -> np.ndarray:

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import BASE_VERTICES, FaceShape, TemplateMesh, build_template, cosine_falloff, smoothstep
+from .mesh import BASE_VERTICES, FaceShape, TemplateMesh, build_template, cosine_falloff, smoothstep, vertex_normals
 
 __all__ = ["CONTROL_NAMES", "CONTROL_INDEX", "CONTROL_RANGES", "CONTROL_REGIONS", "JAW_MAX_ANGLE",
            "CONTROL_QUANTUM", "FaceRig", "control_vector", "snap_controls"]
@@ -169,7 +169,7 @@ class FaceRig:
         put("eye_wide", w_eye * above, dy=0.004)
         put("eye_wide", w_eye * (1.0 - above), dy=-0.0015)
         # Cheeks puff out along the surface normal.
-        normals = np.asarray(self.mesh.to_trimesh().vertex_normals)
+        normals = vertex_normals(self.mesh.vertices, self.mesh.faces)  # (V, 3)
         put("cheek_puff", ellipse(xc + 0.018, ym + 0.012, 0.022, 0.022, xx=ax),
             dx=0.006 * normals[:, 0], dy=0.006 * normals[:, 1], dz=0.006 * normals[:, 2])
         return D
