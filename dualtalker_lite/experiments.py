@@ -1,0 +1,551 @@
+"""Experiment runner: the analogues of DualTalker's Table I (main comparison), Table IV (ablations) and a CCRL sweep.
+
+Every run follows one protocol ("same features, same data, same training budget"):
+
+1. build the model with ``set_seed(seed)`` (tiny sizes: ``DualTalkerConfig.tiny``, ``VocaConfig.tiny``);
+2. train on the ``train`` split of the corpus (``data_samples/`` by default) for a FIXED number of epochs,
+   the same for every model; no early stopping and no model selection (so no test-set peeking);
+3. generate test-A autoregressively (``train.predict``, as at inference time) and measure:
+
+   ========================  ======  =================================================================
+   key                       unit    meaning (``metrics`` module docstring has the formulas)
+   ========================  ======  =================================================================
+   ``lve_published``         mm^2    mean over frames of max over lip vertices of the squared error
+   ``lve_euclidean``         mm      the same with the Euclidean error (the papers' text)
+   ``fdd_published``         mm^2    upper-face dynamics deviation, squared-norm reading; signed
+   ``fdd_paper``             mm      the same on the displacement norm (eq. 12's text); signed
+   ``eve_published``         mm^2    the LVE computation on the ``eyes_forehead`` region
+   ``smoothing_lips``        ratio   over-smoothing ratio on the lips (:func:`over_smoothing_ratio`)
+   ``smoothing_upper``       ratio   the same on the upper face
+   ========================  ======  =================================================================
+
+   plus training seconds and the number of trainable parameters.
+
+Runs are independent jobs ``(row, seed)``; ``--processes N`` spreads them over N worker processes, each with one
+torch thread, and the metrics do not depend on N (each run reseeds everything and builds its own loader).
+Identical configurations that appear in several requested tables (e.g. the full DualTalker in all three) run once.
+
+Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker), ``ablation`` (w/o CCRL,
+w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared encoder/decoder
+weights) and ``sweep`` (λ4 and the CCRL kernel bandwidth σ).
+
+    python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
+    python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
+
+Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact command) and ``<out>/<table>.md``
+(mean ± sample std over seeds, with a note column comparing each row with the table's reference row).
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import datetime as _dt
+import json
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import Dataset
+
+__all__ = ["TABLES", "METRICS", "RunSpec", "table_specs", "phoneme_onehot", "PhonemeOneHot", "over_smoothing_ratio",
+           "typical_bandwidth", "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs",
+           "summarize", "write_table", "main"]
+
+TABLES = ("main", "ablation", "sweep")
+TEST_SPLIT = "test_a"
+QUICK_CLIPS = {"train": 16, TEST_SPLIT: 4}  # --quick: the first clips of each split
+# (key, column header, digits) of the Markdown tables, in order.
+METRICS = (
+    ("lve_published", "LVE_pub (mm²) ↓", 2),
+    ("lve_euclidean", "LVE (mm) ↓", 3),
+    ("fdd_published", "FDD_pub (mm², →0)", 3),
+    ("fdd_paper", "FDD (mm, →0)", 4),
+    ("eve_published", "EVE_pub (mm²) ↓", 3),
+    ("smoothing_lips", "lip motion ratio (→1)", 3),
+    ("smoothing_upper", "upper-face motion ratio (→1)", 3),
+)
+TITLES = {
+    "main": "Table I analogue: comparison with the baselines on test-A",
+    "ablation": "Table IV analogue: ablations of DualTalker on test-A",
+    "sweep": "CCRL sweep: weight λ4 and kernel bandwidth σ on test-A",
+}
+
+
+# ------------------------------------------------------------------------------------------- configurations
+@dataclass
+class RunSpec:
+    """One row of a table: which model, which overrides, which features. A run is a (RunSpec, seed) pair."""
+
+    row: str                                            # label in the table
+    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker"
+    model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
+    loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
+    features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
+    note: str = ""                                      # fixed part of the Markdown note column
+    reference: bool = False                             # the row every other row of the table is compared with
+    expect: str = ""                                    # the paper's claim vs the reference: "worse" | "better" | ""
+
+    def key(self) -> str:
+        """Identity of the computation (everything but the label and the notes): equal keys = equal runs."""
+        return json.dumps({"model": self.model, "model_overrides": self.model_overrides, "loss": self.loss,
+                           "features": self.features}, sort_keys=True)
+
+
+PRIMAL_ONLY = {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}  # baselines: the reconstruction loss alone
+
+
+def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
+    """The rows of ``table``. ``bandwidth`` (metres, the typical median-heuristic σ) sets the sweep's fixed σ's."""
+    full = dict(model="dualtalker")
+    if table == "main":
+        return [
+            RunSpec("Static template", "template", note="zero motion: the floor to beat"),
+            RunSpec("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
+            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
+                    expect="worse"),
+            RunSpec("DualTalker", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+        ]
+    if table == "ablation":
+        return [
+            RunSpec("DualTalker (full)", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+            RunSpec("w/o CCRL", **full, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
+            RunSpec("w/o dual training", **full, model_overrides={"dual": False},
+                    loss={"lambda2": 0.0, "lambda3": 0.0},
+                    note="no lip reading, λ2=λ3=0; CCRL kept (λ4=0.01 on X, Y)", expect="worse"),
+            RunSpec("phoneme one-hot features", **full, features="phonemes",
+                    note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
+                         "driving signal, so an easier input than in the paper)", expect="worse"),
+            RunSpec("shared enc/dec weights", **full, model_overrides={"share_enc_dec": True},
+                    note="decoders = transposed encoders", expect="worse"),
+        ]
+    if table == "sweep":
+        if bandwidth is None:
+            raise ValueError("the sweep needs the typical bandwidth (see typical_bandwidth)")
+        rows = [
+            RunSpec("λ4=0", **full, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
+            RunSpec("λ4=0.01, σ=median", **full, note="the default", reference=True),
+            RunSpec("λ4=0.1, σ=median", **full, loss={"lambda4": 0.1}),
+        ]
+        for factor in (0.5, 2.0):
+            sigma = factor * bandwidth
+            rows.append(RunSpec(f"λ4=0.1, σ={factor:g}×typ = {sigma * 1e3:.3g} mm", **full,
+                                loss={"lambda4": 0.1, "bandwidth": sigma},
+                                note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
+        return rows
+    raise ValueError(f"unknown table {table!r}; choose from {TABLES}")
+
+
+# ------------------------------------------------------------------------------------------- features
+def phoneme_onehot(phonemes: torch.Tensor, n_phonemes: int) -> torch.Tensor:
+    """Per-frame phoneme ids (T,) long -> one-hot "audio" features (T, n_phonemes) float32 (id 0 = silence)."""
+    phonemes = torch.as_tensor(phonemes, dtype=torch.long)
+    if phonemes.numel() and (phonemes.min() < 0 or phonemes.max() >= n_phonemes):
+        raise ValueError(f"phoneme ids must lie in [0, {n_phonemes}), got [{int(phonemes.min())}, "
+                         f"{int(phonemes.max())}]")
+    return F.one_hot(phonemes, n_phonemes).float()  # (T, n_phonemes)
+
+
+class PhonemeOneHot(Dataset):
+    """A dataset whose ``audio`` is the one-hot of its per-frame ``phonemes`` (the DeepSpeech-ablation analogue).
+
+    The paper replaces wav2vec 2.0 by DeepSpeech's per-frame character probabilities (29 x 1); here the
+    counterpart of "higher-level, transcript-like features" is the phoneme identity itself, which also drops
+    everything else speech carries (prosody, loudness, emotion, speaker voice). ``audio_dim = n_phonemes``.
+    """
+
+    def __init__(self, base: Dataset, n_phonemes: int):
+        self.base, self.n_phonemes = base, n_phonemes
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, index: int) -> dict:
+        item = dict(self.base[index])
+        item["audio"] = phoneme_onehot(item["phonemes"], self.n_phonemes)  # (T, n_phonemes)
+        return item
+
+
+# ------------------------------------------------------------------------------------------- metrics
+def over_smoothing_ratio(preds: Sequence, gts: Sequence, idx) -> float:
+    r"""How much the prediction moves compared with the ground truth on the vertices ``idx``.
+
+    ratio_i = \sum_{v} σ_t(p_{tv}) / \sum_{v} σ_t(g_{tv}),   σ_t(x_{tv}) = \sqrt{\sum_{xyz} Var_t(x_{tv})}  (ddof 0)
+
+    σ_t is the temporal standard deviation of vertex v's 3-D position, i.e. of its displacement from the
+    template (the template cancels). Returns the mean of ratio_i over sequences i (each a (T, V, 3) or (T, V*3)
+    array, metres). 1 = as much motion as the ground truth; < 1 = over-smoothed (0 for the static template);
+    > 1 = more motion than the ground truth.
+    """
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    ratios = []
+    for p, g in zip(preds, gts):
+        p = np.asarray(p, dtype=np.float64).reshape(len(p), -1, 3)[:, idx]  # (T, |idx|, 3)
+        g = np.asarray(g, dtype=np.float64).reshape(len(g), -1, 3)[:, idx]
+        sg = np.sqrt(g.var(axis=0).sum(-1)).sum()
+        if sg > 0:
+            ratios.append(np.sqrt(p.var(axis=0).sum(-1)).sum() / sg)
+    return float(np.mean(ratios)) if ratios else math.nan
+
+
+def typical_bandwidth(dataset: Dataset) -> float:
+    """The median over clips of the per-clip median heuristic of ``losses.rbf_kernel_weights`` (metres).
+
+    Per clip: the lower median over frame pairs t ≠ k of sqrt(mean_j (M_kj - M_tj)^2), the RMS per-coordinate
+    motion difference, exactly what ``bandwidth=None`` uses for that clip (when it is not cropped).
+    """
+    sigmas = []
+    for i in range(len(dataset)):
+        item = dataset[i]
+        m = (item["vertices"] - item["template"][None, :]).double()  # (T, V*3)
+        d2 = torch.cdist(m, m).square() / m.shape[1]  # (T, T) mean squared coordinate difference
+        off = ~torch.eye(len(m), dtype=torch.bool)
+        if off.any():
+            sigmas.append(float(d2[off].sqrt().median()))  # torch's median is the lower median
+    return float(np.median(sigmas))
+
+
+# ------------------------------------------------------------------------------------------- data and models
+_DATA: dict = {}  # per process: (corpus path, quick) -> data dict (features are computed once per process)
+
+
+def _trimmed(corpus, counts: dict):
+    """A shallow view of ``corpus`` whose splits keep only their first ``counts[split]`` clips (--quick)."""
+    view = copy.copy(corpus)
+    splits = dict(corpus.metadata["splits"])
+    for split, n in counts.items():
+        splits[split] = list(splits[split])[:n]
+    view.metadata = {**corpus.metadata, "splits": splits}
+    return view
+
+
+def load_data(corpus_path: str | Path | None = None, quick: bool = False) -> dict:
+    """Corpus, train and test-A datasets (log-mel), regions, sizes; cached per process."""
+    from .data import sample_path
+    from .data.corpus import Corpus
+    from .data.dataset import TalkingFaceDataset
+
+    path = str(Path(corpus_path or sample_path()).resolve())
+    key = (path, quick)
+    if key not in _DATA:
+        corpus = Corpus(path)
+        view = _trimmed(corpus, QUICK_CLIPS) if quick else corpus
+        train_set, test_set = TalkingFaceDataset(view, "train"), TalkingFaceDataset(view, TEST_SPLIT)
+        _DATA[key] = {"corpus": corpus, "path": path, "train": train_set, "test": test_set,
+                      "n_vertices": int(train_set[0]["template"].numel() // 3),
+                      "n_speakers": len(corpus.train_speakers), "n_phonemes": len(corpus.phoneme_inventory)}
+    return _DATA[key]
+
+
+def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset, int]:
+    if features == "logmel":
+        return dataset, int(dataset[0]["audio"].shape[-1])
+    if features == "phonemes":
+        return PhonemeOneHot(dataset, n_phonemes), n_phonemes
+    raise ValueError(f"unknown features {features!r}; expected 'logmel' or 'phonemes'")
+
+
+def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int) -> tuple[torch.nn.Module, object]:
+    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template."""
+    from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
+    from .models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+
+    sizes = dict(n_vertices=n_vertices, audio_dim=audio_dim, n_speakers=n_speakers)
+    if spec.model == "template":
+        return StaticTemplate(n_vertices), None
+    if spec.model == "voca":
+        cfg = VocaConfig.tiny(**sizes, **spec.model_overrides)
+        return VocaStyle(cfg), cfg
+    if spec.model == "faceformer":
+        cfg = faceformer_config(DualTalkerConfig.tiny(**sizes), **spec.model_overrides)
+        return DualTalker(cfg), cfg
+    if spec.model == "dualtalker":
+        cfg = DualTalkerConfig.tiny(**sizes, **spec.model_overrides)
+        return DualTalker(cfg), cfg
+    raise ValueError(f"unknown model {spec.model!r}")
+
+
+def _unpad(batch_pred: torch.Tensor, batch: dict, preds: list, gts: list, templates: list, names: list) -> None:
+    for i, n in enumerate(batch["lengths"].tolist()):
+        preds.append(batch_pred[i, :n].numpy())
+        gts.append(batch["vertices"][i, :n].numpy())
+        templates.append(batch["template"][i].numpy())
+        names.append(batch["name"][i])
+
+
+def predict_split(model: torch.nn.Module, dataset: Dataset) -> dict:
+    """Autoregressive predictions for every clip of ``dataset`` -> lists of (T_i, V*3) arrays, names, templates."""
+    from .data.dataset import make_loader
+    from .train import predict
+
+    preds, gts, templates, names = [], [], [], []
+    for batch in make_loader(dataset, batch_size=16, shuffle=False):
+        _unpad(predict(model, batch), batch, preds, gts, templates, names)
+    return {"preds": preds, "gts": gts, "templates": templates, "names": names}
+
+
+def split_metrics(out: dict, regions: dict) -> dict:
+    """The table's metrics from :func:`predict_split` output (plain floats, units in the module docstring)."""
+    from .metrics import evaluate
+
+    m = evaluate(out["preds"], out["gts"], out["templates"], regions, unit="mm", lip="lips", upper="upper_face",
+                 eye_forehead="eyes_forehead")
+    res = {k: float(m[k]) for k, _, _ in METRICS if k in m}
+    res["eve_euclidean"] = float(m["eve_euclidean"])
+    res["smoothing_lips"] = over_smoothing_ratio(out["preds"], out["gts"], regions["lips"])
+    res["smoothing_upper"] = over_smoothing_ratio(out["preds"], out["gts"], regions["upper_face"])
+    return res
+
+
+def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,
+            checkpoint: str | Path | None = None, time_budget_s: float | None = None) -> dict:
+    """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on test-A -> a result dict.
+
+    ``checkpoint``: also save the trained model there. ``time_budget_s`` (the demo only; the tables never use it):
+    stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
+    """
+    from .data.dataset import make_loader
+    from .losses import LossWeights
+    from .train import TrainConfig, save_checkpoint, train
+    from .utils import set_seed
+
+    spec = RunSpec(**spec) if isinstance(spec, dict) else spec
+    threads = torch.get_num_threads()
+    try:
+        data = load_data(corpus_path, quick)
+        train_set, audio_dim = _features(data["train"], spec.features, data["n_phonemes"])
+        test_set, _ = _features(data["test"], spec.features, data["n_phonemes"])
+        set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
+        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
+        train_cfg = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, progress=False,
+                                     weights=LossWeights(**spec.loss), time_budget_s=time_budget_s)
+        t0 = time.perf_counter()
+        history = None
+        if any(p.requires_grad for p in model.parameters()):
+            history = train(model, make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=seed), train_cfg)
+        train_seconds = time.perf_counter() - t0
+        if checkpoint is not None and model_cfg is not None:
+            save_checkpoint(checkpoint, model, model_cfg, train_cfg, history)
+        t1 = time.perf_counter()
+        out = predict_split(model, test_set)
+        metrics = split_metrics(out, data["corpus"].regions)
+        return {"row": spec.row, "key": spec.key(), "seed": seed, "epochs": len(history.terms) if history else 0,
+                "metrics": metrics, "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
+                "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
+                "model_config": asdict(model_cfg) if model_cfg is not None else None,
+                "train_config": {k: v for k, v in asdict(train_cfg).items()},
+                "loss_history": history.terms if history else [],
+                "test_clips": out["names"], "n_train_clips": len(train_set), "pid": os.getpid()}
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _worker_init() -> None:
+    torch.set_num_threads(1)
+
+
+def _job(args: tuple) -> tuple[int, dict]:
+    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget = args
+    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget)
+
+
+def run_specs(jobs: list[tuple[RunSpec, int]], epochs: int, processes: int = 1, corpus_path: str | None = None,
+              quick: bool = False, checkpoints: list | None = None, progress: bool = True,
+              time_budget_s: float | None = None) -> list[dict]:
+    """Run (spec, seed) jobs, in this process (``processes=1``) or in a spawn pool; results in job order.
+
+    ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``."""
+    from tqdm.auto import tqdm
+
+    checkpoints = checkpoints or [None] * len(jobs)
+    args = [(i, asdict(spec), seed, epochs, corpus_path, quick, ckpt, time_budget_s)
+            for i, ((spec, seed), ckpt) in enumerate(zip(jobs, checkpoints))]
+    results: list = [None] * len(jobs)
+    bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)
+    if processes <= 1:
+        for a in args:
+            i, res = _job(a)
+            results[i] = res
+            bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
+            bar.update()
+    else:
+        with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"),
+                                 initializer=_worker_init) as pool:
+            futures = [pool.submit(_job, a) for a in args]
+            for fut in as_completed(futures):
+                i, res = fut.result()
+                results[i] = res
+                bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
+                bar.update()
+    bar.close()
+    return results
+
+
+# ------------------------------------------------------------------------------------------- tables
+def summarize(runs: list[dict]) -> dict:
+    """Per metric: mean, sample std (ddof=1; 0 for one seed) and n over the given runs."""
+    keys = [k for k, _, _ in METRICS] + ["lve_euclidean", "eve_euclidean"]
+    out = {}
+    for k in dict.fromkeys(keys + ["train_seconds"]):
+        vals = np.array([r["train_seconds"] if k == "train_seconds" else r["metrics"][k] for r in runs], float)
+        out[k] = {"mean": float(vals.mean()), "std": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
+                  "n": int(len(vals))}
+    return out
+
+
+def _compare(row: dict, ref: dict, name: str, expect: str = "") -> str:
+    """'LVE +0.12 mm vs <ref>: worse|better|within seed noise' (2-standard-error rule over seeds), and whether
+    that matches the paper's claim ``expect`` ("worse"/"better" than the reference)."""
+    a, b = row["lve_euclidean"], ref["lve_euclidean"]
+    diff = a["mean"] - b["mean"]
+    se = math.sqrt(a["std"] ** 2 / a["n"] + b["std"] ** 2 / b["n"])
+    if a["n"] < 2 or b["n"] < 2:
+        return f"LVE {diff:+.3f} mm vs {name} (one seed, no error bar)"
+    verdict = "within seed noise" if abs(diff) <= 2 * se else ("worse" if diff > 0 else "better")
+    text = f"LVE {diff:+.3f} mm vs {name}: {verdict}"
+    if expect and verdict != expect:
+        text += f" (paper: {expect}; **not reproduced**)"
+    return text
+
+
+def _fmt(s: dict, digits: int) -> str:
+    if s["n"] < 2:
+        return f"{s['mean']:.{digits}f}"
+    return f"{s['mean']:.{digits}f} ± {s['std']:.{digits}f}"
+
+
+def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, out: Path) -> tuple[Path, Path]:
+    """Write ``<out>/<table>.json`` (all runs) and ``<out>/<table>.md`` (mean ± std over seeds) -> both paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
+    ref = next((s for s in specs if s.reference), None)
+    rows_json = [{**asdict(s), "summary": summary[s.row]} for s in specs]
+    payload = {"table": table, "title": TITLES[table], **meta, "rows": rows_json, "runs": runs,
+               "metric_units": {"lve_published": "mm^2", "lve_euclidean": "mm", "fdd_published": "mm^2",
+                                "fdd_paper": "mm", "eve_published": "mm^2", "eve_euclidean": "mm",
+                                "smoothing_lips": "ratio", "smoothing_upper": "ratio", "train_seconds": "s"},
+               "definitions": DEFINITIONS}
+    json_path = out / f"{table}.json"
+    json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+
+    params = {s.row: next(r["n_parameters"] for r in runs if r["row"] == s.row) for s in specs}
+    seeds = meta["seeds"]
+    quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
+    lines = [f"# {TITLES[table]}", "",
+             f"Command: `{meta['command']}`", "",
+             f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
+             f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
+             f"{TEST_SPLIT} clips: {meta['n_test_clips']}{quick}; "
+             f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
+             f"commit {meta['git']}; {meta['created']}.", "",
+             "| model | " + " | ".join(h for _, h, _ in METRICS) + " | train (s) | params | note |",
+             "|---" * (len(METRICS) + 4) + "|"]
+    for s in specs:
+        sm = summary[s.row]
+        note = s.note
+        if ref is not None and s.row != ref.row and s.model != "template":
+            cmp = _compare(sm, summary[ref.row], ref.row, s.expect)
+            note = f"{note}; {cmp}" if note else cmp
+        cells = [_fmt(sm[k], d) for k, _, d in METRICS]
+        cells += [f"{sm['train_seconds']['mean']:.0f}", f"{params[s.row]:,}", note]
+        lines.append(f"| {s.row} | " + " | ".join(cells) + " |")
+    lines += ["", *(f"- {d}" for d in DEFINITIONS), ""]
+    md_path = out / f"{table}.md"
+    md_path.write_text("\n".join(lines))
+    return json_path, md_path
+
+
+DEFINITIONS = (
+    "LVE_pub: mean over all test frames (pooled) of the max over lip vertices of the squared error, mm² "
+    "(the published tables' convention); LVE: the same with the Euclidean error, mm (the papers' text).",
+    "FDD_pub / FDD: per clip, mean over upper-face vertices of the temporal std of the squared (FDD_pub, mm²) "
+    "or plain (FDD, mm) displacement norm, ground truth minus prediction, averaged over clips. Signed: "
+    "positive = the prediction's upper face moves less than the ground truth; the static template's FDD is the "
+    "ground truth's own dynamics. Closer to 0 is better.",
+    "EVE_pub: the LVE_pub computation on the `eyes_forehead` region (eyes, brows, forehead), mm².",
+    "Motion ratio (over-smoothing): per clip, sum over the region's vertices of the temporal std of the "
+    "predicted 3-D displacement divided by the same sum for the ground truth, averaged over clips; "
+    "1 = as lively as the ground truth, < 1 = over-smoothed (0 = static), > 1 = more motion than the ground truth.",
+    "train (s): wall-clock training seconds, one torch thread, on a 2-core machine shared with other jobs: "
+    "only roughly comparable between rows. params: trainable parameters (tied weights counted once).",
+    "Note column: the fixed description of the row, then its LVE (mm) difference from the reference row with "
+    "a 2-standard-error rule over seeds (\"within seed noise\" = no measurable effect), and \"not reproduced\" "
+    "when that contradicts the paper's claim for the row (Table I: DualTalker beats the baselines; Table IV: "
+    "every ablated component helps).",
+)
+
+
+# ------------------------------------------------------------------------------------------- command line
+def _git() -> str:
+    from .utils import repo_root
+
+    try:
+        run = lambda *a: subprocess.run(["git", "-C", str(repo_root()), *a], capture_output=True,  # noqa: E731
+                                        text=True, timeout=10).stdout.strip()
+        head = run("rev-parse", "--short", "HEAD")
+        return f"{head}{'+dirty' if run('status', '--porcelain', '--untracked-files=no') else ''}" or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m dualtalker_lite.experiments", description=__doc__.split("\n")[0])
+    p.add_argument("--table", nargs="+", default=["main"], choices=[*TABLES, "all"],
+                   help="one or more tables (identical runs shared between them), or 'all'")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    p.add_argument("--epochs", type=int, default=15, help="fixed training budget of every trained model")
+    p.add_argument("--processes", type=int, default=1, help="worker processes, one torch thread each")
+    p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
+    p.add_argument("--quick", action="store_true", help="smoke test: 1 epoch, first seed only, few clips")
+    p.add_argument("--no-progress", action="store_true")
+    return p.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Run the requested tables and write them; returns {table: (json path, md path)}."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parse_args(argv)
+    tables = list(TABLES) if "all" in args.table else list(dict.fromkeys(args.table))
+    epochs, seeds = (1, args.seeds[:1]) if args.quick else (args.epochs, args.seeds)
+    torch.set_num_threads(1)
+    data = load_data(args.corpus, args.quick)
+    bandwidth = typical_bandwidth(data["train"]) if "sweep" in tables else None
+    specs = {t: table_specs(t, bandwidth) for t in tables}
+    unique: dict[tuple, tuple[RunSpec, int]] = {}
+    for t in tables:
+        for s in specs[t]:
+            for seed in seeds:
+                unique.setdefault((s.key(), seed), (s, seed))
+    cost = {"template": 0, "voca": 1}  # longest jobs first: the pool finishes together
+    jobs = sorted(unique.values(), key=lambda job: -cost.get(job[0].model, 3))
+    print(f"{len(jobs)} distinct runs ({', '.join(tables)}; seeds {seeds}; {epochs} epochs; "
+          f"{args.processes} process(es))", flush=True)
+    results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, progress=not args.no_progress)
+    by_key = {(r["key"], r["seed"]): r for r in results}
+    meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
+            "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
+            "corpus": data["path"], "test_split": TEST_SPLIT, "n_train_clips": len(data["train"]),
+            "n_test_clips": len(data["test"]), "typical_bandwidth_m": bandwidth, "git": _git(),
+            "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
+            "torch_threads_per_process": 1}
+    written = {}
+    for t in tables:
+        runs = [{**by_key[(s.key(), seed)], "row": s.row} for s in specs[t] for seed in seeds]
+        written[t] = write_table(t, specs[t], runs, meta, Path(args.out))
+        print(Path(written[t][1]).read_text(), flush=True)
+    return written
+
+
+if __name__ == "__main__":
+    main()

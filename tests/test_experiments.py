@@ -1,0 +1,144 @@
+"""Experiment runner and demo: smoke runs (--quick), independent metric checks, determinism, feature option."""
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from dualtalker_lite import experiments as ex
+from dualtalker_lite.losses import rbf_kernel_weights
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def quick_tables(tmp_path_factory):
+    """All three tables in --quick mode (1 epoch, 1 seed, few clips), in this process."""
+    out = tmp_path_factory.mktemp("tables")
+    ex.main(["--table", "all", "--quick", "--out", str(out), "--no-progress"])
+    return out
+
+
+# ------------------------------------------------------------------------------ features and small helpers
+def test_phoneme_onehot_hand_checked():
+    ids = torch.tensor([0, 2, 1, 2])
+    expected = torch.tensor([[1, 0, 0], [0, 0, 1], [0, 1, 0], [0, 0, 1]], dtype=torch.float32)
+    got = ex.phoneme_onehot(ids, 3)
+    assert got.dtype == torch.float32 and torch.equal(got, expected)
+    with pytest.raises(ValueError, match="phoneme ids"):
+        ex.phoneme_onehot(torch.tensor([0, 3]), 3)
+
+
+def test_phoneme_dataset_replaces_audio_only():
+    base = [{"name": "a", "audio": torch.randn(4, 160), "phonemes": torch.tensor([0, 2, 2, 1]),
+             "vertices": torch.zeros(4, 6)}]
+    ds = ex.PhonemeOneHot(base, n_phonemes=3)
+    item = ds[0]
+    assert len(ds) == 1 and item["audio"].shape == (4, 3)
+    assert torch.equal(item["audio"].argmax(-1), base[0]["phonemes"])
+    assert torch.equal(item["audio"].sum(-1), torch.ones(4))
+    assert item["vertices"] is base[0]["vertices"] and base[0]["audio"].shape == (4, 160)  # base untouched
+
+
+def test_over_smoothing_ratio_hand_checked():
+    g = np.random.default_rng(0).normal(size=(20, 4, 3))
+    idx = [0, 2]
+    assert ex.over_smoothing_ratio([g], [g], idx) == pytest.approx(1.0)
+    assert ex.over_smoothing_ratio([0.5 * g + 3.0], [g], idx) == pytest.approx(0.5)  # offsets do not count
+    assert ex.over_smoothing_ratio([np.repeat(g[:1], 20, 0)], [g], idx) == pytest.approx(0.0, abs=1e-12)  # static
+
+
+def test_typical_bandwidth_is_the_median_heuristic_of_one_clip():
+    g = torch.Generator().manual_seed(0)
+    template = torch.randn(9, generator=g)
+    verts = template + torch.cumsum(torch.randn(15, 9, generator=g), 0) * 1e-3
+    sigma = ex.typical_bandwidth([{"vertices": verts, "template": template}])
+    motion, mask = (verts - template)[None], torch.ones(1, 15, dtype=torch.bool)
+    torch.testing.assert_close(rbf_kernel_weights(motion.double(), None, mask),
+                               rbf_kernel_weights(motion.double(), sigma, mask))
+
+
+def test_compare_note():
+    row = {"lve_euclidean": {"mean": 5.0, "std": 0.1, "n": 3}}
+    ref = {"lve_euclidean": {"mean": 4.0, "std": 0.1, "n": 3}}
+    assert ex._compare(row, ref, "ref", "worse").endswith("worse")
+    assert "not reproduced" in ex._compare(ref, row, "ref", "worse")
+    assert "within seed noise" in ex._compare(row, {"lve_euclidean": {"mean": 5.05, "std": 0.1, "n": 3}}, "ref")
+
+
+# ------------------------------------------------------------------------------ the runner
+def test_tables_written_with_every_row(quick_tables):
+    for table in ex.TABLES:
+        data = json.loads((quick_tables / f"{table}.json").read_text())
+        md = (quick_tables / f"{table}.md").read_text()
+        assert data["quick"] and data["seeds"] == [0] and data["epochs"] == 1
+        assert "--quick" in data["command"] and data["command"] in md
+        rows = [s.row for s in ex.table_specs(table, data["typical_bandwidth_m"])]
+        assert [r["row"] for r in data["rows"]] == rows
+        assert [r["row"] for r in data["runs"]] == rows  # one seed: one run per row
+        for row in rows:
+            assert f"| {row} |" in md
+        for run in data["runs"]:
+            assert all(math.isfinite(v) for v in run["metrics"].values()), run["row"]
+            assert math.isfinite(run["train_seconds"]) and run["n_parameters"] >= 0
+
+
+def test_template_lve_matches_an_independent_computation(quick_tables):
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+
+    data = json.loads((quick_tables / "main.json").read_text())
+    run = next(r for r in data["runs"] if r["row"] == "Static template")
+    corpus = Corpus(sample_path())
+    lips = corpus.regions["lips"]
+    worst = []
+    for name in run["test_clips"]:
+        gt = corpus.vertices(name).astype(np.float64).reshape(-1, corpus.metadata["n_vertices"], 3)
+        tpl = corpus.template(corpus.meta(name)["subject"]).astype(np.float64).reshape(-1, 3)
+        sq = (((gt[:, lips] - tpl[lips]) * 1000.0) ** 2).sum(-1)  # (T, |lips|) mm^2
+        worst.append(sq.max(1))
+    worst = np.concatenate(worst)
+    assert len(run["test_clips"]) == ex.QUICK_CLIPS[ex.TEST_SPLIT]
+    assert run["metrics"]["lve_published"] == pytest.approx(worst.mean(), rel=1e-9)
+    assert run["metrics"]["lve_euclidean"] == pytest.approx(np.sqrt(worst).mean(), rel=1e-9)
+    assert run["metrics"]["smoothing_lips"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_same_seed_same_metrics(quick_tables, tmp_path):
+    """A second quick run of the main table: identical metrics and loss histories.
+
+    (``--processes 2`` gives the same numbers too; not run here: spawning workers costs ~10 s of CPU.)"""
+    ex.main(["--table", "main", "--quick", "--out", str(tmp_path), "--no-progress"])
+    first = json.loads((quick_tables / "main.json").read_text())["runs"]
+    second = json.loads((tmp_path / "main.json").read_text())["runs"]
+    assert [r["row"] for r in first] == [r["row"] for r in second]
+    for a, b in zip(first, second):
+        assert a["metrics"] == b["metrics"], a["row"]
+        assert a["loss_history"] == b["loss_history"], a["row"]
+
+
+# ------------------------------------------------------------------------------ the demo
+def test_demo_quick_writes_every_file(tmp_path):
+    from dualtalker_lite import demo
+    from dualtalker_lite.train import load_checkpoint
+    from dualtalker_lite.viz.animate import stream_info
+
+    res = demo.main(["--out", str(tmp_path), "--quick", "--no-progress"])
+    for name in ("metrics.md", "metrics.json", "lip_distance.png", "error_map.png", "side_by_side.mp4",
+                 "dualtalker.pt", "faceformer.pt"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    info = stream_info(tmp_path / "side_by_side.mp4")
+    assert "Video:" in info and "Audio:" in info
+    payload = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(payload["models"]) == set(demo.MODELS)
+    assert all(math.isfinite(v) for m in payload["models"].values() for v in m["metrics"].values())
+    model, _ = load_checkpoint(tmp_path / "dualtalker.pt")
+    assert type(model).__name__ == "DualTalker" and model.cfg.dual
+    assert res["metrics"]["DualTalker"] == payload["models"]["DualTalker"]["metrics"]
