@@ -21,8 +21,11 @@ $(STAMP): pyproject.toml
 
 env: $(STAMP)
 
+# Jupyter refuses to run as root unless told to (containers, CI-like machines): allow it there only.
+LAB_FLAGS ?= $(if $(filter 0,$(shell id -u)),--allow-root,)
+
 lab: $(STAMP)
-	$(VENV)/bin/jupyter lab notebooks/
+	$(VENV)/bin/jupyter lab $(LAB_FLAGS) notebooks/
 
 demo: $(STAMP)
 	$(PY) -m dualtalker_lite.demo --out runs/demo
