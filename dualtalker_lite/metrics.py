@@ -239,10 +239,11 @@ def _region(regions: Mapping[str, Sequence[int]], names) -> np.ndarray:
 
 def evaluate(preds: Seqs, gts: Seqs, templates, regions: Mapping[str, Sequence[int]], *, mask=None,
              unit: str = "mm", lip: str | None = "lips", upper: str | None = "upper_face",
-             eye_forehead: str | Sequence[str] | None = ("eyes", "forehead"),
+             eye_forehead: str | Sequence[str] | None = "auto",
              lip_mid: tuple | str | None = None) -> dict:
     """All metrics for a test set. ``lip``/``upper``/``eye_forehead`` name entries of ``regions`` (None skips that
-    metric); ``lip_mid=(upper_mid, lower_mid)``, or the name of a region holding those two indices, adds
+    metric; ``eye_forehead="auto"`` takes the corpus's ``eyes_forehead`` region (eyes, brows, forehead) when there
+    is one, else ``("eyes", "forehead")``); ``lip_mid=(upper_mid, lower_mid)``, or the name of a region holding those two indices, adds
     per-sequence lip-distance curves (pred and gt). ``out["units"]`` gives the unit of every entry."""
     P, G = _pair(preds, gts, mask)                                     # convert once; lists pass through below
     sq = f"{unit}^2"
@@ -259,6 +260,8 @@ def evaluate(preds: Seqs, gts: Seqs, templates, regions: Mapping[str, Sequence[i
         out["fdd_published"] = fdd_published(P, G, templates, idx, unit=unit)
         out["fdd_paper"] = fdd_paper(P, G, templates, idx, unit=unit)
         units.update(fdd_published=sq, fdd_paper=unit)
+    if eye_forehead == "auto":
+        eye_forehead = "eyes_forehead" if "eyes_forehead" in regions else ("eyes", "forehead")
     if eye_forehead is not None:
         idx = _region(regions, eye_forehead)
         out["eve_published"] = eve(P, G, idx, convention="published", unit=unit)

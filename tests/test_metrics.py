@@ -179,6 +179,10 @@ def test_evaluate_collects_everything_with_units():
     out_m = M.evaluate(preds, gts, h, regions, unit="m", eye_forehead=None)
     assert "eve_published" not in out_m and out_m["units"]["fdd_published"] == "m^2"
     by_name = M.evaluate(preds, gts, h, {**regions, "lip_midpoints": [0, 2]}, lip_mid="lip_midpoints")
+    # "auto" prefers the corpus's combined eyes_forehead region when it exists
+    only_eye = M.evaluate(preds, gts, h, {**regions, "eyes_forehead": [0]})
+    assert only_eye["eve_published"] == M.eve(preds, gts, [0]) != M.eve(preds, gts, [0, 1])
+    assert out["eve_published"] == M.eve(preds, gts, [0, 1])
     np.testing.assert_allclose(by_name["lip_distance_pred"][1], out["lip_distance_pred"][1])
     with pytest.raises(KeyError, match="available"):
         M.evaluate(preds, gts, h, {"lips": [0]})
