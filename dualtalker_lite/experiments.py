@@ -17,6 +17,11 @@ Every run follows one protocol ("same features, same data, same training budget"
    ``eve_published``         mm^2    the LVE computation on the ``eyes_forehead`` region
    ``smoothing_lips``        ratio   over-smoothing ratio on the lips (:func:`over_smoothing_ratio`)
    ``smoothing_upper``       ratio   the same on the upper face
+   ``bilabial_closure_2mm``  ratio   lip sync (``metrics.lip_sync_metrics``, from the phoneme timing):
+   ``bilabial_closure_1mm``          fraction of /p b m/ segments whose min lip distance is < 2 / < 1 mm,
+   ``bilabial_min_mm``       mm      the mean of those minima, the mean max lip distance at open vowels
+   ``open_vowel_max_mm``     mm      (``*_gt``: the same on the ground truth), the mean per-clip correlation
+   ``lip_distance_corr``     r       of predicted and true lip-distance curves
    ========================  ======  =================================================================
 
    plus training seconds and the number of trainable parameters.
@@ -74,7 +79,15 @@ METRICS = (
     ("eve_published", "EVE_pub (mm²) ↓", 3),
     ("smoothing_lips", "lip motion ratio (→1)", 3),
     ("smoothing_upper", "upper-face motion ratio (→1)", 3),
+    ("bilabial_closure_2mm", "closed <2 mm at /p b m/ ↑", 3),
+    ("bilabial_closure_1mm", "closed <1 mm at /p b m/ ↑", 3),
+    ("bilabial_min_mm", "min lip dist. at /p b m/ (mm) ↓", 2),
+    ("open_vowel_max_mm", "max lip dist. at open vowels (mm, →GT)", 2),
+    ("lip_distance_corr", "lip-distance corr. ↑", 3),
 )
+LIP_SYNC_KEYS = ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "open_vowel_max_mm",
+                 "lip_distance_corr", "lip_motion_ratio", "bilabial_closure_2mm_gt", "bilabial_closure_1mm_gt",
+                 "bilabial_min_mm_gt", "open_vowel_max_mm_gt")
 TITLES = {
     "main": "Table I analogue: comparison with the baselines on test-A",
     "ablation": "Table IV analogue: ablations of DualTalker on test-A",
@@ -178,24 +191,11 @@ class PhonemeOneHot(Dataset):
 
 # ------------------------------------------------------------------------------------------- metrics
 def over_smoothing_ratio(preds: Sequence, gts: Sequence, idx) -> float:
-    r"""How much the prediction moves compared with the ground truth on the vertices ``idx``.
+    """The motion ratio of ``metrics.motion_ratio`` (kept under its old name): per clip, the summed temporal std
+    of the predicted vertices ``idx`` over the ground truth's, averaged over clips; 1 = as lively, 0 = static."""
+    from .metrics import motion_ratio
 
-    ratio_i = \sum_{v} σ_t(p_{tv}) / \sum_{v} σ_t(g_{tv}),   σ_t(x_{tv}) = \sqrt{\sum_{xyz} Var_t(x_{tv})}  (ddof 0)
-
-    σ_t is the temporal standard deviation of vertex v's 3-D position, i.e. of its displacement from the
-    template (the template cancels). Returns the mean of ratio_i over sequences i (each a (T, V, 3) or (T, V*3)
-    array, metres). 1 = as much motion as the ground truth; < 1 = over-smoothed (0 for the static template);
-    > 1 = more motion than the ground truth.
-    """
-    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
-    ratios = []
-    for p, g in zip(preds, gts):
-        p = np.asarray(p, dtype=np.float64).reshape(len(p), -1, 3)[:, idx]  # (T, |idx|, 3)
-        g = np.asarray(g, dtype=np.float64).reshape(len(g), -1, 3)[:, idx]
-        sg = np.sqrt(g.var(axis=0).sum(-1)).sum()
-        if sg > 0:
-            ratios.append(np.sqrt(p.var(axis=0).sum(-1)).sum() / sg)
-    return float(np.mean(ratios)) if ratios else math.nan
+    return motion_ratio(list(preds), list(gts), idx)
 
 
 def typical_bandwidth(dataset: Dataset) -> float:
@@ -294,9 +294,12 @@ def predict_split(model: torch.nn.Module, dataset: Dataset) -> dict:
     return {"preds": preds, "gts": gts, "templates": templates, "names": names}
 
 
-def split_metrics(out: dict, regions: dict) -> dict:
-    """The table's metrics from :func:`predict_split` output (plain floats, units in the module docstring)."""
-    from .metrics import evaluate
+def split_metrics(out: dict, regions: dict, segments: list | None = None) -> dict:
+    """The table's metrics from :func:`predict_split` output (plain floats, units in the module docstring).
+
+    ``segments``: per clip of ``out["names"]``, its phoneme segments (``corpus.meta(name)["phonemes"]``); with
+    them the lip-sync metrics of ``metrics.lip_sync_metrics`` are added (without them those keys are nan)."""
+    from .metrics import evaluate, lip_sync_metrics
 
     m = evaluate(out["preds"], out["gts"], out["templates"], regions, unit="mm", lip="lips", upper="upper_face",
                  eye_forehead="eyes_forehead")
@@ -304,6 +307,11 @@ def split_metrics(out: dict, regions: dict) -> dict:
     res["eve_euclidean"] = float(m["eve_euclidean"])
     res["smoothing_lips"] = over_smoothing_ratio(out["preds"], out["gts"], regions["lips"])
     res["smoothing_upper"] = over_smoothing_ratio(out["preds"], out["gts"], regions["upper_face"])
+    if segments is not None:
+        ls = lip_sync_metrics(out["preds"], out["gts"], segments, regions)
+        res.update({k: float(ls[k]) for k in LIP_SYNC_KEYS})
+    else:
+        res.update({k: math.nan for k in LIP_SYNC_KEYS})
     return res
 
 
@@ -338,7 +346,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
             save_checkpoint(checkpoint, model, model_cfg, train_cfg, history)
         t1 = time.perf_counter()
         out = predict_split(model, test_set)
-        metrics = split_metrics(out, data["corpus"].regions)
+        corpus = data["corpus"]
+        metrics = split_metrics(out, corpus.regions, [corpus.meta(n)["phonemes"] for n in out["names"]])
         return {"row": spec.row, "key": spec.key(), "seed": seed, "epochs": len(history.terms) if history else 0,
                 "metrics": metrics, "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
                 "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
@@ -397,7 +406,8 @@ def summarize(runs: list[dict]) -> dict:
     keys = [k for k, _, _ in METRICS] + ["lve_euclidean", "eve_euclidean"]
     out = {}
     for k in dict.fromkeys(keys + ["train_seconds"]):
-        vals = np.array([r["train_seconds"] if k == "train_seconds" else r["metrics"][k] for r in runs], float)
+        vals = np.array([r["train_seconds"] if k == "train_seconds" else r["metrics"].get(k, math.nan)
+                         for r in runs], float)
         out[k] = {"mean": float(vals.mean()), "std": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
                   "n": int(len(vals))}
     return out
@@ -433,7 +443,10 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
     payload = {"table": table, "title": TITLES[table], **meta, "rows": rows_json, "runs": runs,
                "metric_units": {"lve_published": "mm^2", "lve_euclidean": "mm", "fdd_published": "mm^2",
                                 "fdd_paper": "mm", "eve_published": "mm^2", "eve_euclidean": "mm",
-                                "smoothing_lips": "ratio", "smoothing_upper": "ratio", "train_seconds": "s"},
+                                "smoothing_lips": "ratio", "smoothing_upper": "ratio", "train_seconds": "s",
+                                "bilabial_closure_2mm": "fraction", "bilabial_closure_1mm": "fraction",
+                                "bilabial_min_mm": "mm", "open_vowel_max_mm": "mm", "lip_distance_corr": "r",
+                                "lip_motion_ratio": "ratio"},
                "definitions": DEFINITIONS}
     json_path = out / f"{table}.json"
     json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
@@ -473,6 +486,14 @@ DEFINITIONS = (
     "positive = the prediction's upper face moves less than the ground truth; the static template's FDD is the "
     "ground truth's own dynamics. Closer to 0 is better.",
     "EVE_pub: the LVE_pub computation on the `eyes_forehead` region (eyes, brows, forehead), mm².",
+    "Lip sync, from the phoneme timing of each clip (frames whose time lies in a phoneme's segment; the nearest "
+    "frame for a segment shorter than a frame) and the lip distance between the upper- and lower-lip midpoints: "
+    "closed <2 / <1 mm = fraction of /p b m/ segments whose minimum predicted lip distance is under 2 / 1 mm "
+    "(the ground truth closes all of them under 2 mm; the rig's rest gap is about 2 mm, so a static face passes "
+    "the 2 mm test for some speakers: read it with the 1 mm rate and the vowel opening); min lip dist. = mean of "
+    "those minima; max lip dist. at open vowels = mean over /a A: 0 V aI aU .../ segments of the maximum; "
+    "lip-distance corr. = mean over clips of the Pearson correlation of predicted and true curves (0 for a flat "
+    "prediction). `metrics.lip_sync_metrics`.",
     "Motion ratio (over-smoothing): per clip, sum over the region's vertices of the temporal std of the "
     "predicted 3-D displacement divided by the same sum for the ground truth, averaged over clips; "
     "1 = as lively as the ground truth, < 1 = over-smoothed (0 = static), > 1 = more motion than the ground truth.",

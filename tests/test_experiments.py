@@ -109,6 +109,10 @@ def test_template_lve_matches_an_independent_computation(quick_tables):
     assert run["metrics"]["lve_published"] == pytest.approx(worst.mean(), rel=1e-9)
     assert run["metrics"]["lve_euclidean"] == pytest.approx(np.sqrt(worst).mean(), rel=1e-9)
     assert run["metrics"]["smoothing_lips"] == pytest.approx(0.0, abs=1e-12)
+    # lip sync: the ground truth closes at every bilabial; the static face has a flat lip-distance curve
+    m = run["metrics"]
+    assert m["bilabial_closure_2mm_gt"] == 1.0 and m["lip_distance_corr"] == 0.0
+    assert m["bilabial_closure_1mm"] == 0.0 and m["open_vowel_max_mm"] < 0.25 * m["open_vowel_max_mm_gt"]
 
 
 def test_same_seed_same_metrics(quick_tables, tmp_path):
