@@ -55,14 +55,24 @@ def test_over_smoothing_ratio_hand_checked():
     assert ex.over_smoothing_ratio([np.repeat(g[:1], 20, 0)], [g], idx) == pytest.approx(0.0, abs=1e-12)  # static
 
 
-def test_typical_bandwidth_is_the_median_heuristic_of_one_clip():
-    g = torch.Generator().manual_seed(0)
-    template = torch.randn(9, generator=g)
-    verts = template + torch.cumsum(torch.randn(15, 9, generator=g), 0) * 1e-3
-    sigma = ex.typical_bandwidth([{"vertices": verts, "template": template}])
-    motion, mask = (verts - template)[None], torch.ones(1, 15, dtype=torch.bool)
-    torch.testing.assert_close(rbf_kernel_weights(motion.double(), None, mask),
-                               rbf_kernel_weights(motion.double(), sigma, mask))
+def test_typical_bandwidth_hand_computed():
+    """Three clips, one vertex (3 coordinates), motions in mm; per pair the RMS coordinate difference
+    sqrt(|Δ|² / 3), per clip the lower median over ordered pairs t ≠ k, then the median over clips.
+
+    clip A: (0,0,0), (3,0,0), (3,4,0): |Δ| = 3, 5, 4 -> sqrt(9/3), sqrt(25/3), sqrt(16/3) = 1.732, 2.887, 2.309,
+            each twice; the lower median of the 6 sorted values is the 3rd: 4/sqrt(3) = 2.309 mm
+    clip B: (0,0,0), (0,0,6): sqrt(36/3) = 3.464 mm;   clip C: (1,1,1), (2.5,1,1): sqrt(2.25/3) = 0.866 mm
+    median over clips: 2.309 mm = 4/sqrt(3) mm. A template offset changes nothing (only differences count).
+    """
+    mm = 1e-3
+    template = torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
+    clips = [[(0, 0, 0), (3, 0, 0), (3, 4, 0)], [(0, 0, 0), (0, 0, 6)], [(1, 1, 1), (2.5, 1, 1)]]
+    data = [{"vertices": template + torch.tensor(c, dtype=torch.float64) * mm, "template": template} for c in clips]
+    assert ex.typical_bandwidth(data) == pytest.approx(4 / math.sqrt(3) * mm, rel=1e-9)
+    # the per-clip value is what rbf_kernel_weights(bandwidth=None) uses: there w = exp(-1/2) at that distance
+    motion = (data[0]["vertices"] - template)[None]
+    w = rbf_kernel_weights(motion, None, torch.ones(1, 3, dtype=torch.bool))
+    assert w[0, 0, 2].item() == pytest.approx(math.exp(-0.5 * (25 / 3) / (16 / 3)), rel=1e-9)  # |Δ| = 5 pair
 
 
 def test_compare_note():
