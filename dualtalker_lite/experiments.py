@@ -36,7 +36,7 @@ Identical configurations that appear in several requested tables (e.g. the full 
 
 Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker), ``ablation`` (w/o CCRL,
 w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared encoder/decoder
-weights) and ``sweep`` (λ4 and the CCRL kernel bandwidth σ).
+weights) and ``sweep`` (λ4, the CCRL kernel bandwidth σ, and the kernel-weighted vs InfoNCE reading of eq. 9).
 
     python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
     python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
@@ -57,7 +57,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Sequence
@@ -71,7 +71,7 @@ __all__ = ["TABLES", "METRICS", "RunSpec", "table_specs", "phoneme_onehot", "Pho
            "typical_bandwidth", "swap_partners", "AudioSwapped", "audio_sensitivity", "collapse_reasons",
            "is_collapsed",
            "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
-           "write_table", "main"]
+           "write_table", "load_table", "table_markdown", "main"]
 
 TABLES = ("main", "ablation", "sweep")
 TEST_SPLIT = "test_a"
@@ -155,6 +155,8 @@ def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
             RunSpec("λ4=0", **full, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
             RunSpec("λ4=0.01, σ=median", **full, note="the default", reference=True),
             RunSpec("λ4=0.1, σ=median", **full, loss={"lambda4": 0.1}),
+            RunSpec("λ4=0.1, σ=median, InfoNCE reading", **full, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
+                    note="CCRL with one positive in the denominator (the reading before issue 8)"),
         ]
         for factor in (0.5, 2.0):
             sigma = factor * bandwidth
@@ -544,6 +546,8 @@ def _collapse_note(spec: RunSpec, runs: list[dict], sm: dict) -> str:
 
 
 def _fmt(s: dict, digits: int) -> str:
+    if not math.isfinite(s["mean"]):
+        return "—"  # not measured in these runs (e.g. results written before the metric existed)
     if s["n"] < 2:
         return f"{s['mean']:.{digits}f}"
     return f"{s['mean']:.{digits}f} ± {s['std']:.{digits}f}"
@@ -553,7 +557,6 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
     """Write ``<out>/<table>.json`` (all runs) and ``<out>/<table>.md`` (mean ± std over seeds) -> both paths."""
     out.mkdir(parents=True, exist_ok=True)
     summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
-    ref = next((s for s in specs if s.reference), None)
     rows_json = [{**asdict(s), "summary": summary[s.row]} for s in specs]
     payload = {"table": table, "title": TITLES[table], **meta, "rows": rows_json, "runs": runs,
                "metric_units": {"lve_published": "mm^2", "lve_euclidean": "mm", "fdd_published": "mm^2",
@@ -565,7 +568,24 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
                "definitions": DEFINITIONS}
     json_path = out / f"{table}.json"
     json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+    md_path = out / f"{table}.md"
+    md_path.write_text(table_markdown(table, specs, runs, meta))
+    return json_path, md_path
 
+
+def load_table(path: str | Path) -> tuple[list[RunSpec], list[dict], dict]:
+    """Read a ``<table>.json`` written by :func:`write_table` -> (row specs, runs, the whole payload)."""
+    payload = json.loads(Path(path).read_text())
+    names = [f.name for f in fields(RunSpec)]
+    specs = [RunSpec(**{k: row[k] for k in names if k in row}) for row in payload["rows"]]
+    return specs, payload["runs"], payload
+
+
+def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dict) -> str:
+    """The Markdown table of :func:`write_table`, from the runs (summaries recomputed with the current collapse
+    rule, so older results get the flags too); metrics a run does not have are shown as "—"."""
+    summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
+    ref = next((s for s in specs if s.reference), None)
     params = {s.row: next(r["n_parameters"] for r in runs if r["row"] == s.row) for s in specs}
     seeds = meta["seeds"]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
@@ -574,7 +594,7 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
              f"{TEST_SPLIT} clips: {meta['n_test_clips']}{quick}; "
-             f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
+             f"autoregressive generation; mean ± sample std over seeds. Corpus `{_display_path(meta['corpus'])}`; "
              f"commit {meta['git']}; {meta['created']}.", "",
              "| model | " + " | ".join(h for _, h, _ in METRICS) + " | collapsed | train (s) | params | note |",
              "|---" * (len(METRICS) + 5) + "|"]
@@ -593,9 +613,7 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
                   f"{params[s.row]:,}", note]
         lines.append(f"| {s.row} | " + " | ".join(cells) + " |")
     lines += ["", *(f"- {d}" for d in DEFINITIONS), ""]
-    md_path = out / f"{table}.md"
-    md_path.write_text("\n".join(lines))
-    return json_path, md_path
+    return "\n".join(lines)
 
 
 DEFINITIONS = (

@@ -262,6 +262,15 @@ def test_tables_exclude_and_name_collapsed_runs(tmp_path):
     assert "**1 of 3 runs collapsed** (seed 0: lip motion ratio 0.001 < 0.1, audio sensitivity 0.000 < 0.1)" in row_a
     assert "excluded from mean ± std" in row_a
     assert "| 0/3 |" in next(line for line in md.splitlines() if line.startswith("| B |"))
+    specs_back, runs_back, payload = ex.load_table(json_path)  # the notebook's path: JSON -> the same Markdown
+    assert specs_back == specs and ex.table_markdown("main", specs_back, runs_back, payload) == md
+    runs_old = [{**r, "metrics": {k: v for k, v in r["metrics"].items() if not k.startswith("bilabial")}}
+                for r in runs]  # results written before the lip-sync metrics: "—", not nan
+    for r in runs_old:
+        r.pop("collapsed")  # ... and before the flag: the rule is applied to their metrics
+    old_md = ex.table_markdown("main", specs, runs_old, meta)
+    row_a = next(line for line in old_md.splitlines() if line.startswith("| A |"))
+    assert "| — |" in row_a and "nan" not in old_md and "**1/3**" in row_a
     # every run collapsed: the numbers are theirs, and the note says so
     runs_all = [_fake_run("A", s, 9.0 + s, collapsed=True) for s in range(3)] + runs[3:]
     _, md_path = ex.write_table("main", specs, runs_all, meta, tmp_path)
