@@ -188,7 +188,8 @@ def test_ccrl_matches_per_anchor_loop(second_term, anchor_weighting, reading, te
 
 # The hand case: T = 2 frames, d = 2, kernel weight w_01 = w_10 = 1/2 (w_00 = w_11 = 1).
 #   X_0 = (1, 0), X_1 = (0, 1), Y_0 = (1, 0), Y_1 = (3, 4) (unit: (0.6, 0.8))
-#   cos(X_0, Y_0) = 1, cos(X_0, Y_1) = 0.6, cos(X_1, Y_0) = 0, cos(X_1, Y_1) = 0.8, cos(X_0, X_1) = 0, cos(Y_0, Y_1) = 0.6
+#   cos(X_0, Y_0) = 1, cos(X_0, Y_1) = 0.6, cos(X_1, Y_0) = 0, cos(X_1, Y_1) = 0.8,
+#   cos(X_0, X_1) = 0, cos(Y_0, Y_1) = 0.6
 HAND_X = [[1.0, 0.0], [0.0, 1.0]]
 HAND_Y = [[1.0, 0.0], [3.0, 4.0]]
 HAND_W = [[1.0, 0.5], [0.5, 1.0]]
@@ -204,7 +205,8 @@ def _hand(reading, second_term):
 def test_ccrl_kernel_reading_hand_computed():
     """Eq. 9-10 with kernel-weighted positives, by hand from the printed formula (not from the code).
 
-    l_a = -1/(sum_k w_ak) sum_k w_ak log(e^{s_ak} / s'_a),  s'_a = sum_{t != a} e^{s^inter_at (1-w_at)} + e^{s^intra_at (1-w_at)}
+    l_a = -1/(sum_k w_ak) sum_k w_ak log(e^{s_ak} / s'_a),
+    s'_a = sum_{t != a} e^{s^inter_at (1-w_at)} + e^{s^intra_at (1-w_at)}
     L(X, Y), anchor X_0: positives Y_0 (w 1, s 1), Y_1 (w .5, s .6): weighted mean s = 1.3 / 1.5 = 13/15
                          s' = e^{0.6 * .5} + e^{0 * .5} = 1 + e^{0.3}          -> l = ln(1 + e^0.3) - 13/15 = -0.012312
              anchor X_1: positives Y_1 (w 1, s .8), Y_0 (w .5, s 0): 0.8 / 1.5 = 8/15

@@ -58,8 +58,16 @@ def _merge_streams(outputs: list) -> list:
     return merged
 
 
+def _relative_paths(text):
+    """The checkout's absolute path removed from an output text (e.g. a repr naming a file under runs/)."""
+    if isinstance(text, list):
+        return [_relative_paths(t) for t in text]
+    return text.replace(str(ROOT) + "/", "").replace(str(ROOT), ".") if isinstance(text, str) else text
+
+
 def strip(nb: nbformat.NotebookNode) -> None:
-    """Drop timestamps and session noise; number code cells 1, 2, ... (nbval needs counts on cells with outputs)."""
+    """Drop timestamps and session noise; number code cells 1, 2, ... (nbval needs counts on cells with outputs);
+    no machine-specific paths in the outputs (the checkout's location becomes a relative path)."""
     n = 0
     for i, cell in enumerate(nb.cells):
         cell.metadata = {k: v for k, v in cell.metadata.items() if k in ("tags",)}
@@ -72,6 +80,11 @@ def strip(nb: nbformat.NotebookNode) -> None:
                 if "execution_count" in o:
                     o["execution_count"] = n
                 o.get("metadata", {}).pop("execution", None)
+                if "text" in o:
+                    o["text"] = _relative_paths(o["text"])
+                for mime in ("text/plain", "text/markdown"):
+                    if mime in o.get("data", {}):
+                        o["data"][mime] = _relative_paths(o["data"][mime])
     nb.metadata.pop("widgets", None)
     nb.metadata["kernelspec"] = dict(KERNELSPEC)  # whatever the executing kernel reported
 

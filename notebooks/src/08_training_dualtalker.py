@@ -22,7 +22,6 @@
 import time
 from dataclasses import asdict
 
-import ipywidgets as widgets
 import matplotlib.pyplot as plt
 import numpy as np
 import torch
@@ -33,11 +32,12 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loader
 from dualtalker_lite.losses import LossWeights, joint_loss
-from dualtalker_lite.metrics import lip_distance, lve_euclidean
+from dualtalker_lite.metrics import lip_distance, lip_sync_metrics, lve_euclidean
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.train import TrainConfig, load_checkpoint, predict, save_checkpoint, train
 from dualtalker_lite.utils import check_shape, runs_dir, set_seed
 from dualtalker_lite.viz import animate_clip, plot_lip_distance
+from dualtalker_lite.viz.widgets import RetrainPanel, progress_loader
 
 # One thread, not two: the tensors here are tiny, and on a busy 2-core machine a second intra-op thread makes
 # each training step 10-30x slower (threads wait for each other). The thread count is part of determinism too.
@@ -210,6 +210,23 @@ print(f"test-A LVE: DualTalker (tiny) {lve_model:.2f} mm, static template {lve_s
 assert lve_model < lve_static
 
 # %% [markdown]
+# The field judges lip sync first by the closures at /p/ /b/ /m/ and the opening on vowels. `lip_sync_metrics`
+# measures both from the phoneme timing of each clip (`metrics` module docstring): the fraction of bilabials at
+# which the lips come within 2 mm (and 1 mm), the mean smallest lip distance there, the mean largest at open
+# vowels, and the correlation of the lip-distance curves; `*_gt` is the ground truth's own score.
+
+# %%
+lengths = test_batch["lengths"].tolist()
+unpad = lambda x: [x[i, :n] for i, n in enumerate(lengths)]  # noqa: E731 padded (B, T, V*3) -> list of (T_i, V*3)
+sync = lip_sync_metrics(unpad(pred), unpad(test_batch["vertices"]),
+                        [corpus.meta(c)["phonemes"] for c in test_batch["name"]], corpus.regions)
+for key in ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "open_vowel_max_mm"):
+    print(f"{key:<22} model {sync[key]:6.2f}   ground truth {sync[key + '_gt']:6.2f}")
+print(f"lip_distance_corr      {sync['lip_distance_corr']:.2f}; lip motion ratio {sync['lip_motion_ratio']:.2f}; "
+      f"{sync['n_bilabials']} bilabials, {sync['n_open_vowels']} open vowels")
+assert sync["bilabial_closure_2mm_gt"] == 1.0 and sync["n_bilabials"] > 0
+
+# %% [markdown]
 # DualTalker's Fig. 5 compares methods by the distance between the midpoints of the upper and lower lips over a
 # test sequence. The same for one clip, with its phonemes:
 
@@ -229,9 +246,9 @@ plot_lip_distance(times, {"ground truth": gt_lips, "DualTalker (tiny)": pred_lip
                   title=f"Lip distance, {CLIP}: '{corpus.meta(CLIP)['text']}' (cf. DualTalker Fig. 5)")
 
 # %% [markdown]
-# The generated lip distance rises and falls roughly in time with the true one (the correlation printed above),
-# but with a smaller amplitude; in this clip the generated mouth is also more open on average and never
-# quite closes for /p/, /m/, /b/. Short training gives roughly the mean mouth, modulated by the speech.
+# Compare the generated curve with the true one: the timing of openings and closures, the amplitude, and whether
+# the lips close at /p/, /m/, /b/ (the closure rates above). A short training run gives roughly the mean mouth,
+# modulated by the speech: the curve follows the timing with too small an amplitude.
 #
 # And as an animation with the speech: ground truth on the left, the generated motion on the right.
 
@@ -254,34 +271,19 @@ animate_clip({"ground truth": test_batch["vertices"][b, :n_b].reshape(n_b, V, 3)
 # with the default values.
 
 # %%
-# NBVAL_IGNORE_OUTPUT
 tiny_set = Subset(train_ds, mine(train_ds)[:8])
-DEFAULTS = LossWeights()
 
 
-def log_slider(value: float, description: str, lo: float = -4, hi: float = 1) -> widgets.FloatLogSlider:
-    return widgets.FloatLogSlider(value=value, base=10, min=lo, max=hi, step=0.1, description=description,
-                                  readout_format=".1e", continuous_update=False)
-
-
-lam_sliders = {i: log_slider(getattr(DEFAULTS, f"lambda{i}"), f"λ{i}") for i in (1, 2, 3, 4)}
-lam_on = {i: widgets.Checkbox(value=True, description="on", indent=False, layout=widgets.Layout(width="60px"))
-          for i in (1, 2, 3, 4)}
-sigma_slider = log_slider(1.0, "σ (mm)", lo=-1, hi=1)
-median_box = widgets.Checkbox(value=DEFAULTS.bandwidth is None, description="median", indent=False)
-steps_slider = widgets.IntSlider(value=10, min=5, max=60, step=5, description="steps", continuous_update=False)
-button = widgets.Button(description="Train", button_style="primary")
-retrain_out = widgets.Output()
-
-
-def retrain(lambdas: tuple[float, float, float, float], bandwidth_mm: float | None, epochs: int = 10):
-    """Train a fresh tiny DualTalker on ``tiny_set`` with these weights; draw loss curves + lip distance."""
+def retrain(lambdas: tuple[float, float, float, float], bandwidth_mm: float | None, epochs: int = 10,
+            on_step=lambda: None):
+    """Train a fresh tiny DualTalker on ``tiny_set`` with these weights -> (history, lip distance, figure).
+    ``on_step()`` runs before every training step (the panel's progress bar)."""
     w = LossWeights(**{f"lambda{i + 1}": lam for i, lam in enumerate(lambdas)},
                     bandwidth=None if bandwidth_mm is None else bandwidth_mm * 1e-3)
     cfg_tiny = TrainConfig.tiny(epochs=epochs, lr=6e-3, max_frames=40, validate_every=0, progress=False, weights=w)
     set_seed(0)
     net = DualTalker(cfg)
-    hist = train(net, make_loader(tiny_set, batch_size=8, seed=0), cfg_tiny)
+    hist = train(net, progress_loader(make_loader(tiny_set, batch_size=8, seed=0), on_step), cfg_tiny)
     lips = lip_distance(predict(net, test_batch)[b, :n_b], upper_mid, lower_mid)
     fig, axes = plt.subplots(1, 2, figsize=(14, 3.6), constrained_layout=True)
     for key in ("primal", "dual", "dr", "ccrl", "total"):
@@ -289,48 +291,45 @@ def retrain(lambdas: tuple[float, float, float, float], bandwidth_mm: float | No
             axes[0].plot(np.arange(1, epochs + 1), hist.term(key), marker="o", ms=3, label=key)
     axes[0].set(title="loss terms (unweighted; 'total' weighted)", xlabel="training step (= epoch)",
                 ylabel="loss", yscale="log")
-    axes[0].legend(fontsize=8)
     axes[1].plot(times, gt_lips, label="ground truth")
     axes[1].plot(times, lips, label="retrained model")
     axes[1].set(title=f"lip distance, {CLIP}", xlabel="time (s)", ylabel="lip distance (mm)")
-    axes[1].legend(fontsize=8)
+    for ax in axes:
+        ax.legend(fontsize=8)
     sigma = "median" if bandwidth_mm is None else f"{bandwidth_mm:.2f} mm"
     fig.suptitle(f"λ = {tuple(round(x, 4) for x in lambdas)}, σ = {sigma}, {epochs} steps")
     plt.close(fig)
-    with retrain_out:
-        retrain_out.clear_output(wait=True)
-        display(fig)
     return hist, lips, fig
 
 
-def current_settings() -> tuple[tuple[float, ...], float | None, int]:
-    """(λ1..λ4 with 0 for unticked terms, bandwidth in mm or None for the median heuristic, steps)."""
-    lambdas = tuple(lam_sliders[i].value if lam_on[i].value else 0.0 for i in (1, 2, 3, 4))
-    return lambdas, None if median_box.value else sigma_slider.value, steps_slider.value
+# %% [markdown]
+# The panel (`dualtalker_lite.viz.widgets.RetrainPanel`) holds the controls. "Train" is disabled while a run is
+# going, the progress bar follows the training steps, and the line under it says how long the last run took.
+# The panel runs once here with the default values, exactly as a click would.
 
-
-button.on_click(lambda _: retrain(*current_settings()))
-controls = [widgets.HBox([lam_sliders[i], lam_on[i]]) for i in (1, 2, 3, 4)]
-controls += [widgets.HBox([sigma_slider, median_box]), steps_slider, button]
-display(widgets.HBox([widgets.VBox(controls), retrain_out]))
-t0 = time.perf_counter()
-hist_a, lips_a, fig_a = retrain(*current_settings())                            # the default values, once
-print(f"retrained in {time.perf_counter() - t0:.1f} s")
+# %%
+# NBVAL_IGNORE_OUTPUT
+panel = RetrainPanel(retrain, defaults=LossWeights(), steps=10)
+display(panel.widget)
+hist_a, lips_a, fig_a = panel.run()                                      # the default values, once
+print(panel.status.value)
 
 # %% [markdown]
 # The non-interactive run checks the retrain path: the default settings are the package's `LossWeights()`, the
-# loss falls, and retraining with the same settings reproduces the history exactly (same seed, same data order,
-# same thread count; only the wall-clock times differ). Below: the figure of the default run (in a live kernel it
-# appears in the widget's output area).
+# progress bar counted every step, the button is enabled again, the loss falls, and retraining with the same
+# settings reproduces the history exactly (same seed, same data order, same thread count; only the wall-clock
+# times differ). Below: the figure of the default run (in a live kernel it appears in the panel's output area).
 
 # %%
-assert current_settings() == ((1.0, 0.1, 0.1, 0.01), None, 10)
+assert panel.settings() == ((1.0, 0.1, 0.1, 0.01), None, 10)
+assert panel.progress.value == panel.progress.max == 10 and not panel.button.disabled
+assert panel.status.value.startswith("retrained in ")
 assert hist_a.term("total")[-1] < hist_a.term("total")[0] and hist_a.term("primal")[-1] < hist_a.term("primal")[0]
-hist_b, lips_b, _ = retrain(*current_settings())
+hist_b, lips_b, _ = retrain(*panel.settings())
 assert hist_b.terms == hist_a.terms and hist_b.val_lve == hist_a.val_lve
 np.testing.assert_array_equal(lips_b, lips_a)
 print(f"total loss {hist_a.term('total')[0]:.3f} -> {hist_a.term('total')[-1]:.3f}; second run identical")
-fig_a  # what the Train button draws with the default settings (inside the widget when the kernel runs)
+fig_a  # what the Train button draws with the default settings (inside the panel when the kernel runs)
 
 # %% [markdown]
 # ## Summary
@@ -341,8 +340,9 @@ fig_a  # what the Train button draws with the default settings (inside the widge
 # - `train` logs every term per epoch and the validation LVE of *generated* motion; 96 steps on two speakers
 #   bring the tiny model well below the static template.
 # - `save_checkpoint` / `load_checkpoint` round-trip the model exactly (bit-identical predictions).
-# - The generated lips follow the timing of the openings and closures only roughly, with too small an amplitude
-#   and too open on average: 30 seconds of training is far from a trained model (notebook 07: over-smoothing).
+# - The generated lips follow the timing of the openings and closures only roughly, with too small an amplitude:
+#   30 seconds of training is far from a trained model (notebook 07: over-smoothing). `lip_sync_metrics` says how
+#   often they close at /p b m/ and how far they open at vowels, next to the ground truth's own scores.
 # - Training is deterministic for a given seed and thread count: the same settings give the same history.
 #
 # ## Exercises
