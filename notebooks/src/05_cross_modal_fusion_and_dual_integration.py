@@ -36,7 +36,7 @@ from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.utils import check_shape, set_seed
 
 torch.set_num_threads(2)
-set_seed(0)
+_ = set_seed(0)  # (it also returns a seeded generator, not needed here)
 
 # %% [markdown]
 # ## Symbols
