@@ -160,24 +160,27 @@ def _brow_height_mm(sample, name):
 
 
 def test_linear_probe_predicts_upper_face_from_prosody(sample):
-    """Ridge regression from audio prosody (train, neutral) to brow height on test_a (unseen sentences):
-    R^2 well above a constant's 0, and near 0 when each test clip gets another clip's audio."""
-    def data(names, audio_of=None):
-        X, y = [], []
-        for i, name in enumerate(names):
-            target = _brow_height_mm(sample, name)
-            source = names[(i + 1) % len(names)] if audio_of == "other" else name
-            feats = _prosody_features(sample.wave(source).astype(np.float64), sample.meta(source)["n_frames"])
-            n = min(len(target), len(feats))
-            X.append(feats[:n] - feats[:n].mean(0)), y.append(target[:n])
-        return np.concatenate(X), np.concatenate(y)
+    """Ridge regression from audio prosody (every other train clip, neutral) to brow height on test_a (unseen
+    sentences): R^2 well above a constant's 0, and about 0 when each test clip gets the next clip's audio."""
+    def data(names):
+        feats, targets = [], []
+        for name in names:
+            f = _prosody_features(sample.wave(name).astype(np.float64), sample.meta(name)["n_frames"])
+            feats.append(f - f.mean(0)), targets.append(_brow_height_mm(sample, name))
+        return feats, targets
 
-    X, y = data(sample.split("train"))
+    def stack(feats, targets):
+        n = [min(len(f), len(y)) for f, y in zip(feats, targets)]
+        return (np.concatenate([f[:k] for f, k in zip(feats, n)]),
+                np.concatenate([y[:k] - y[:k].mean() for y, k in zip(targets, n)]))
+
+    X, y = stack(*data(sample.split("train")[::2]))
     w = np.linalg.solve(X.T @ X + 1.0 * np.eye(X.shape[1]), X.T @ y)
-    Xt, yt = data(sample.split("test_a"))
+    feats, targets = data(sample.split("test_a"))
+    Xt, yt = stack(feats, targets)
+    Xs, ys = stack(feats[1:] + feats[:1], targets)                              # another clip's audio
     r2 = 1 - ((yt - Xt @ w) ** 2).sum() / ((yt - yt.mean()) ** 2).sum()
-    Xs, ys = data(sample.split("test_a"), audio_of="other")
     r2_shuffled = 1 - ((ys - Xs @ w) ** 2).sum() / ((ys - ys.mean()) ** 2).sum()
     assert yt.std() < 2.0                                       # weak: brow motion of about a mm
-    assert r2 > 0.2, r2
+    assert r2 > 0.15, r2                                        # measured: 0.24
     assert r2_shuffled < 0.05, r2_shuffled
