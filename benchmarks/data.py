@@ -1,4 +1,4 @@
-"""Data figures: the sample's size and splits, time to load all of it, time to generate it, upper-face probe.
+"""Data figures: the sample's size and splits, time to load all of it, upper-face probe, time to generate it.
 
     .venv/bin/python benchmarks/data.py [--processes 2] [--skip-generation]
 
@@ -49,6 +49,15 @@ long = [meta["clips"][n]["n_samples"] / meta["sample_rate"] for n in meta["split
 print(f"long clips: {', '.join(f'{d:.1f} s' for d in long)}")
 print(f"loading the whole sample (all {len(sets)} splits: rig reconstruction + log-mel features): "
       f"{t_load:.2f} s wall, {c_load:.2f} s CPU (+ {t_import:.1f} s of imports)")
+
+from dualtalker_lite.data.probe import stress_onset_precision, upper_face_probe  # noqa: E402
+
+probe = upper_face_probe(corpus, corpus.split("train")[::2], corpus.split("test_a"))
+print(f"linear probe, audio prosody -> brow height (train[::2] -> test_a): R^2 {probe['r2']:.3f} "
+      f"(constant 0; another clip's audio {probe['r2_other_audio']:.3f}); brow std {probe['std_mm']:.2f} mm")
+onsets = stress_onset_precision(corpus, corpus.split("train") + corpus.split("test_a"))
+print(f"brow-raise onsets within -150..+50 ms of a primary-stressed vowel: {onsets['precision']:.3f} of "
+      f"{onsets['onsets']} (chance {onsets['chance']:.3f}); recall of stressed vowels {onsets['recall']:.3f}")
 
 if not args.skip_generation:
     with tempfile.TemporaryDirectory() as tmp:

@@ -184,3 +184,27 @@ def test_linear_probe_predicts_upper_face_from_prosody(sample):
     assert yt.std() < 2.0                                       # weak: brow motion of about a mm
     assert r2 > 0.15, r2                                        # measured: 0.24
     assert r2_shuffled < 0.05, r2_shuffled
+
+
+def test_accents_scale_with_emotion_and_speaker():
+    """Level-2 gains of ACCENT_EMOTION, by hand: surprised 1.6x the neutral raise, sad 0.6 x (1 - 0.3) raise plus a
+    0.6 x 0.3 furrow, angry 0.7 x 0.2 raise plus 0.7 x 0.8 furrow; level 1 half way; a speaker's `accent` scales all."""
+    from dualtalker_lite.face.upper import upper_face_controls
+
+    phonemes = [("_", 0.0, 0.2), ("b", 0.2, 0.3), ("0", 0.3, 0.5), ("t", 0.5, 0.8), ("_", 0.8, 1.2)]
+    stress, n = [0, 0, 2, 0, 0], 36
+    zeros, speech = np.zeros(n), np.zeros((n, len(C)))
+
+    def peak(emotion, level, accent=0.2):
+        spk = Speaker("x", accent=accent, pitch_brow=0.0)
+        out, _ = upper_face_controls(phonemes, stress, zeros, zeros.astype(bool), speech, spk, emotion, level,
+                                     np.random.default_rng(0))
+        return out[:, C["brow_raise"]].max(), out[:, C["brow_furrow"]].max()
+
+    raise0, furrow0 = peak("neutral", 0)
+    assert raise0 > 0 and furrow0 == 0
+    assert peak("surprised", 2)[0] == pytest.approx(1.6 * raise0)
+    assert peak("surprised", 1)[0] == pytest.approx(1.3 * raise0)
+    assert peak("sad", 2) == pytest.approx((0.6 * 0.7 * raise0, 0.6 * 0.3 * raise0))
+    assert peak("angry", 2) == pytest.approx((0.7 * 0.2 * raise0, 0.7 * 0.8 * raise0))
+    assert peak("neutral", 0, accent=0.1)[0] == pytest.approx(0.5 * raise0)

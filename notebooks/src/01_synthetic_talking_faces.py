@@ -53,6 +53,7 @@ from matplotlib.patches import Patch
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
+from dualtalker_lite.data.probe import stress_onset_precision, upper_face_probe
 from dualtalker_lite.data.speech import emotional_prosody, speaker_voices, synthesize
 from dualtalker_lite.face import (CONTROL_INDEX, CONTROL_NAMES, CONTROL_RANGES, CONTROL_REGIONS, EMOTIONS, VISEMES,
                                   FaceRig, build_template, clip_controls, coarticulate, control_vector,
@@ -561,48 +562,18 @@ plt.show()
 # How much of the upper face can a model predict from the audio? A linear probe answers it: ridge regression
 # from prosody features of the audio alone (F0, voicing and loudness, +-8 frames of context) to brow height,
 # fitted on every other neutral `train` clip and scored on `test_a` (unseen sentences). A constant scores $R^2 = 0$;
-# the same probe fed another clip's audio scores about 0 too. (`tests/test_upper_face.py` asserts both.)
+# the same probe fed another clip's audio scores about 0 or below. `dualtalker_lite.data.probe` has the probe and
+# the stress-onset check (`tests/test_upper_face.py` checks both claims with its own code).
 
 # %%
-def prosody_features(w, n, context=8):
-    """(T, 3 (2 context + 1)): F0 semitones x voiced, voiced, log RMS of 40 ms around each frame, stacked in time."""
-    st, vo = pitch_track(w, n)
-    centres = np.round(np.arange(n) / FPS * SR).astype(int)
-    energy = np.log(np.array([np.sqrt(np.mean(w[max(0, c - 320):c + 320] ** 2)) for c in centres]) + 1e-4)
-    base = np.pad(np.stack([np.clip(st, -6, 6) * vo, vo.astype(float), energy], 1), ((context, context), (0, 0)),
-                  mode="edge")
-    return np.concatenate([base[k:k + n] for k in range(2 * context + 1)], 1)
-
-
-def probe_data(names):
-    """Per clip: prosody features of its audio (T, 51) and its brow height (T,) in mm, both centred."""
-    feats, targets = [], []
-    for name in names:
-        x = corpus.vertices(name).reshape(-1, V, 3)
-        target = 1000 * x[:, brows, 1].mean(1)
-        f = prosody_features(corpus.wave(name).astype(np.float64), corpus.meta(name)["n_frames"])
-        feats.append(f - f.mean(0)), targets.append(target - target.mean())
-    return feats, targets
-
-
-def r_squared(feats, targets, w):
-    n = [min(len(f), len(y)) for f, y in zip(feats, targets)]
-    X = np.concatenate([f[:k] for f, k in zip(feats, n)])
-    y = np.concatenate([t[:k] for t, k in zip(targets, n)])
-    return 1 - ((y - X @ w) ** 2).sum() / ((y - y.mean()) ** 2).sum(), y
-
-
-F_tr, Y_tr = probe_data(corpus.split("train")[::2])                        # every other training clip (speed)
-X_tr, y_tr = np.concatenate(F_tr), np.concatenate(Y_tr)
-w_probe = np.linalg.solve(X_tr.T @ X_tr + np.eye(X_tr.shape[1]), X_tr.T @ y_tr)
-F_te, Y_te = probe_data(corpus.split("test_a"))
-scores = {}
-scores["own audio"], y_te = r_squared(F_te, Y_te, w_probe)
-scores["another clip's audio"], _ = r_squared(F_te[1:] + F_te[:1], Y_te, w_probe)   # each target, the next clip's audio
-own, other = scores["own audio"], scores["another clip's audio"]
-print(f"brow height on test_a: std {y_te.std():.2f} mm; probe R^2 with its own audio {own:.2f}, "
-      f"with another clip's audio {other:.2f}")
-assert own > 0.2 and other < 0.05
+probe = upper_face_probe(corpus, corpus.split("train")[::2], corpus.split("test_a"))  # every other train clip
+print(f"brow height on test_a: std {probe['std_mm']:.2f} mm; probe R^2 with its own audio {probe['r2']:.2f}, "
+      f"with another clip's audio {probe['r2_other_audio']:.2f}")
+onsets = stress_onset_precision(corpus, corpus.split("train") + corpus.split("test_a"))
+print(f"brow-raise onsets within -150..+50 ms of a stressed vowel: {100 * onsets['precision']:.0f} % of "
+      f"{onsets['onsets']} (chance {100 * onsets['chance']:.0f} %); stressed vowels with an onset: "
+      f"{100 * onsets['recall']:.0f} %")
+assert probe["r2"] > 0.15 and probe["r2_other_audio"] < 0.05 and onsets["precision"] > 0.8
 
 # %% [markdown]
 # ## 10. An animation with sound, and a live rig
