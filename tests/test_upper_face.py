@@ -208,3 +208,17 @@ def test_accents_scale_with_emotion_and_speaker():
     assert peak("sad", 2) == pytest.approx((0.6 * 0.7 * raise0, 0.6 * 0.3 * raise0))
     assert peak("angry", 2) == pytest.approx((0.7 * 0.2 * raise0, 0.7 * 0.8 * raise0))
     assert peak("neutral", 0, accent=0.1)[0] == pytest.approx(0.5 * raise0)
+
+
+def test_prosody_features_stack_context_frames():
+    """(T, 3 (2c+1)); block k is the frame t + k - c (edge-padded); a steady tone is voiced at its own median F0."""
+    from dualtalker_lite.data.probe import prosody_features
+
+    wave = np.round(_harmonic(150, 1.0) * 0.3 * 32767) / 32768
+    f = prosody_features(wave, 30, context=2)
+    assert f.shape == (30, 15)
+    base = f[:, 6:9]                                          # k = c: the frame itself
+    np.testing.assert_array_equal(f[5:, 0:3], base[3:-2])    # k = 0: frame t - 2
+    np.testing.assert_array_equal(f[:3, 0:3], np.repeat(base[:1], 3, 0))   # t - 2 < 0: the first frame (edge)
+    np.testing.assert_array_equal(f[:-2, 12:15], base[2:])   # k = 4: frame t + 2
+    assert (base[2:-2, 1] == 1).all() and np.abs(base[2:-2, 0]).max() < 0.2   # voiced, at the median F0
