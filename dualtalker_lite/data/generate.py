@@ -79,10 +79,12 @@ class CorpusSpec:
         if not 0 <= self.unseen_speakers < self.speakers:
             raise ValueError("unseen_speakers must be smaller than speakers")
         if not 0 <= self.emotion_speakers <= self.speakers - self.unseen_speakers:
-            raise ValueError(f"emotion_speakers must be in 0..{self.speakers - self.unseen_speakers} (the seen speakers)")
+            raise ValueError(f"emotion_speakers must be in 0..{self.speakers - self.unseen_speakers} "
+                             "(the seen speakers)")
         bad = [e for e in self.emotions if e not in EMOTIONAL]
         if bad or len(set(self.emotions)) != len(self.emotions):
-            raise ValueError(f"emotions must be distinct, from {EMOTIONAL} (neutral is always generated), got {bad or self.emotions}")
+            raise ValueError(f"emotions must be distinct, from {EMOTIONAL} (neutral is always generated), "
+                             f"got {bad or self.emotions}")
         if any(n < 1 for n in self.long_clips):
             raise ValueError(f"long_clips must be sentence counts >= 1, got {self.long_clips}")
         if self.format not in ("faceformer", "compact"):
