@@ -8,7 +8,7 @@
   by their F0 peak, brows following the F0 contour, cheeks and a slight squint following the smile/lip
   stretch, blinks at phrase boundaries (pauses). Weak (about 1-2 mm), per-speaker styled.
 * **Idle motion**, uncorrelated with the audio (a model *cannot* predict it from speech): random blinks
-  (at 60 % of the speaker's rate; ~150 ms each, faster closing than opening) and slow brow drift, a sum of
+  (at the speaker's rate; ~150 ms each, faster closing than opening) and slow brow drift, a sum of
   three slow sinusoids. Both come from an explicit ``np.random.Generator``.
 * ``clip_controls``: coarticulated visemes x speaker gains x emotion gain + speaker rest face + emotion
   offset + idle motion; smiles get the speaker's left/right asymmetry; clipped to ``CONTROL_RANGES`` and
@@ -125,7 +125,7 @@ def clip_controls(phonemes, n_frames: int, speaker: Speaker | None = None, emoti
                                    rng_upper, fps)
     controls += upper
     boundary = boundary_blink_onsets(phonemes, speaker.boundary_blink, rng_upper)
-    controls += idle_controls(n_frames, rng, fps, 0.6 * speaker.blink_rate, brow_amplitude=0.06 * brow_gain,
+    controls += idle_controls(n_frames, rng, fps, speaker.blink_rate, brow_amplitude=0.06 * brow_gain,
                               extra_blinks=boundary)
     controls[:, _C["smile_left"]] *= 1.0 + speaker.asymmetry
     controls[:, _C["smile_right"]] *= 1.0 - speaker.asymmetry

@@ -18,7 +18,8 @@ three sources, all small (a few mm at most), smooth and styled per speaker (``Sp
 
 Blinks: at every pause of at least 80 ms inside or at the end of the utterance (phrase boundaries: commas,
 sentence ends), a blink starts with probability ``speaker.boundary_blink`` within 0-100 ms of the pause
-onset; the random blink process keeps running at 60 % of the speaker's rate. The brow drift stays random.
+onset, on top of the random blinks at the speaker's own rate (as in v1, so short single-phrase clips
+keep v1's blink statistics). The brow drift stays random.
 
 F0 (``pitch_track``): a plain autocorrelation tracker, 40 ms window centred on each mesh frame, lags for
 70-320 Hz at integer samples (F0 = sr / lag, no interpolation, so the value is exactly reproducible),
