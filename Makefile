@@ -39,9 +39,13 @@ unit: $(STAMP)
 nbval: $(STAMP)
 	$(PY) -m pytest notebooks --nbval-lax
 
-# Regenerate the shipped sample bit for bit (needs the [speech] extra, installed by default).
+# Regenerate the shipped sample bit for bit (needs the [speech] extra, installed by default). Built in a
+# temporary folder and swapped in when complete, so no stale clip survives and a failure leaves the old sample.
 sample: $(STAMP)
-	$(PY) -m dualtalker_lite.data.generate --preset sample --out data_samples
+	rm -rf runs/sample.tmp
+	$(PY) -m dualtalker_lite.data.generate --preset sample --out runs/sample.tmp
+	cp data_samples/README.md runs/sample.tmp/
+	rm -rf data_samples && mv runs/sample.tmp data_samples
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

@@ -5,7 +5,9 @@
 # project makes its own talking faces: **real synthesized speech** (espeak-ng) provides sample-accurate phoneme
 # timing; phonemes become **visemes** (mouth shapes), blended over time with the **Cohen-Massaro coarticulation**
 # model into the control tracks of a procedural **face rig**; speakers, emotions, blinks and brow motion add the
-# variety that makes the task one-to-many. Everything here is a few calls into `dualtalker_lite.face` and
+# variety that makes the task one-to-many. Above the mouth, the motion is weak but partly *follows the speech*
+# (brows rise at stressed syllables and with the pitch, blinks come at pauses), as in real talking faces: that is
+# what CorrTalk's weak-activity branch and the FDD metric look at. Everything here is a few calls into `dualtalker_lite.face` and
 # `dualtalker_lite.data.speech`, and the last check shows that one clip of the shipped corpus is regenerated
 # bit for bit.
 #
@@ -18,9 +20,11 @@
 # 5. Coarticulation: Cohen-Massaro dominance functions; anticipatory lip rounding.
 # 6. Lip distance against the phoneme track: bilabials close the lips, open vowels open them.
 # 7. Speakers: different heads and different motion for the same sentence.
-# 8. Emotions: prosody in the audio, offsets on the face.
-# 9. Blinks and brow motion: motion the audio cannot predict.
+# 8. Emotions: prosody in the audio, offsets on the face; a pseudo-pair side by side with sound.
+# 9. The upper face: brows that follow stress and F0, cheeks that follow the smile, blinks at pauses, and what
+#    stays random.
 # 10. An animation with sound, and a live rig with sliders.
+# 11. The corpus on disk: splits, emotions, pairs and long clips.
 #
 # | symbol | code name | shape |
 # |---|---|---|
@@ -33,6 +37,7 @@
 # | $D_{sk}(t)$ (dominance of segment $s$ on control $k$) | `dominance(t, viseme, start, end)` | (len(t), C) |
 # | $T_{sk}$ (target of viseme $s$ on control $k$) | `VISEME_PARAMS[viseme].target` | dict |
 # | $F_k(t)$ (coarticulated control track) | `coarticulate(segments, n_frames)` | (T, C) |
+# | $f_0(t)$ (pitch, semitones re the clip median) | `pitch_track(wave, n_frames)[0]` | (T,) |
 
 # %%
 %matplotlib inline
@@ -43,16 +48,18 @@ import ipywidgets as widgets
 import matplotlib.pyplot as plt
 import numpy as np
 import torch
-from IPython.display import display
+from IPython.display import HTML, display
 from matplotlib.patches import Patch
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
+from dualtalker_lite.data.probe import stress_onset_precision, upper_face_probe
 from dualtalker_lite.data.speech import emotional_prosody, speaker_voices, synthesize
 from dualtalker_lite.face import (CONTROL_INDEX, CONTROL_NAMES, CONTROL_RANGES, CONTROL_REGIONS, EMOTIONS, VISEMES,
                                   FaceRig, build_template, clip_controls, coarticulate, control_vector,
                                   emotion_controls, make_speakers, phoneme_to_viseme, phonemes_to_visemes)
 from dualtalker_lite.face.rig import JAW_MAX_ANGLE
+from dualtalker_lite.face.upper import accent_track, pitch_track
 from dualtalker_lite.face.visemes import (DOMINANCE_POWER, PHONEME_TO_VISEME, PLATEAU_MARGIN, REST_DOMINANCE,
                                           VISEME_PARAMS, dominance)
 from dualtalker_lite.metrics import lip_distance
@@ -193,6 +200,8 @@ print(f"'{text}' with {voice}: {utt.duration:.3f} s, {len(phonemes)} phoneme seg
 pcm16 = np.clip(np.round(wave * 32767), -32768, 32767) / 32768          # as the corpus stores it
 assert np.array_equal(pcm16.astype(np.float32), corpus.wave("SPK01_s00"))
 assert [[p, round(s, 6), round(e, 6)] for p, s, e in phonemes] == corpus.meta("SPK01_s00")["phonemes"]
+assert utt.stress == corpus.meta("SPK01_s00")["stress"]       # espeak's stress marks: 2 primary, 1 secondary
+print("primary stress on:", [p for (p, _, _), st in zip(phonemes, utt.stress) if st == 2])
 plot_waveform_and_phonemes(wave, SR, phonemes, title=f"espeak-ng: '{text}'")
 
 # %% [markdown]
@@ -292,8 +301,9 @@ plt.show()
 # ## 6. Lip distance against the phoneme track
 #
 # `clip_controls` is the whole recipe of one clip: coarticulated visemes x the speaker's gains + the speaker's
-# resting face + emotion offsets + blinks and brow motion (from a seeded generator). With SPK01's rig and the
-# clip's seed it regenerates the corpus clip `SPK01_s00` exactly. The lip distance (upper- to lower-lip
+# resting face + emotion offsets + the upper-face motion that follows the speech (from the stress marks and the
+# F0 of the stored 16-bit wave, section 9) + blinks and brow drift (from a seeded generator). With SPK01's rig
+# and the clip's seed it regenerates the corpus clip `SPK01_s00` exactly. The lip distance (upper- to lower-lip
 # midpoint, DualTalker Fig. 5) must drop below 1 mm at every /p b m/ and open wide on open vowels.
 
 # %%
@@ -301,7 +311,8 @@ speakers = make_speakers(10, seed=0)
 assert {s.name: s.to_dict() for s in speakers} == json.loads((sample_path() / "speakers.json").read_text())
 spk01 = speakers[0]
 rig01 = FaceRig(spk01)
-controls = clip_controls(phonemes, n_frames, spk01, seed=zlib.crc32(b"SPK01_s00"))  # the generator's clip seed
+controls = clip_controls(phonemes, n_frames, spk01, seed=zlib.crc32(b"SPK01_s00"),  # the generator's clip seed
+                         stress=utt.stress, wave=pcm16)
 check_shape(controls, (n_frames, len(CONTROL_NAMES)), "controls")
 verts = rig01.animate(controls)                                     # (T, V, 3)
 assert np.array_equal(verts.reshape(n_frames, -1), corpus.vertices("SPK01_s00"))   # bit for bit
@@ -341,7 +352,8 @@ for s in trio:
 
 # %%
 rigs = {s.name: FaceRig(s) for s in trio}
-clips = {s.name: rigs[s.name].animate(clip_controls(phonemes, n_frames, s, seed=0)) for s in trio}   # (T, V, 3)
+clips = {s.name: rigs[s.name].animate(clip_controls(phonemes, n_frames, s, seed=0, stress=utt.stress, wave=pcm16))
+         for s in trio}                                                                            # (T, V, 3)
 templates = np.stack([r.template for r in rigs.values()])                              # (3, V, 3)
 shape_mm = np.linalg.norm(templates - mesh.vertices, axis=-1) * 1000                    # vs the canonical head
 fig = plot_frames(templates, mesh.faces, titles=[f"{s.name}: {s.signature}" for s in trio], colors=shape_mm,
@@ -362,8 +374,9 @@ plot_lip_distance(t, curves, phonemes=phonemes, title="Same phonemes, three spea
 # EmoFace's five emotions at intensity levels 1 and 2 change **both** modalities. The voice: `emotional_prosody`
 # shifts espeak's pitch, pitch range, rate and volume (sad: lower, slower, quieter; angry: louder, faster). The
 # face: `emotion_controls` adds a static offset to the controls and scales articulation (sad speech moves less).
-# The corpus has SPK01 and SPK02 speaking three training sentences with every emotion — pseudo-pairs with the
-# same content. Prosody measured on the stored audio of SPK01, "Bob bought a big blue boat.", level 2:
+# The corpus has six speakers saying eight training sentences with every emotion and level (split `train_emo`)
+# — pseudo-pairs with the same content as their neutral twin in `train`. Prosody measured on the stored audio of
+# SPK01, "Bob bought a big blue boat.", level 2:
 
 # %%
 # NBVAL_CHECK_OUTPUT
@@ -390,13 +403,132 @@ fig = plot_frames(faces_e, rig.faces, titles=list(EMOTIONS), colors=emo_mm, cmap
 fig
 
 # %% [markdown]
-# ## 9. Blinks and brow motion: motion the audio cannot predict
+# `metadata.json` lists the pseudo-pairs under `pairs`: one group per speaker and sentence, `neutral` plus every
+# emotion and level. On the faces of one group: the brows (mean height of the brow vertices above the template),
+# the mouth corners (smile), the eyelids (opening) and the jaw (largest lip distance) all move with the emotion.
+
+# %%
+# NBVAL_CHECK_OUTPUT
+group = corpus.metadata["pairs"]["SPK01_s00"]
+print("pair group SPK01_s00:", ", ".join(group))
+brows, corners = corpus.regions["brows"], corpus.regions["mouth_corners"]
+h01 = corpus.template("SPK01").reshape(V, 3)
+print(f"{'clip':12} {'s':>5} {'brow (mm)':>9} {'corner y (mm)':>13} {'max lip gap (mm)':>16}")
+for key in ("neutral", "happy2", "sad2", "angry2", "surprised2"):
+    v = corpus.vertices(group[key]).reshape(-1, V, 3)
+    gap = lip_distance(v, *corpus.regions["lip_midpoints"])
+    print(f"{key:12} {len(v) / FPS:5.2f} {1000 * (v[:, brows, 1] - h01[brows, 1]).mean():9.2f} "
+          f"{1000 * (v[:, corners, 1] - h01[corners, 1]).mean():13.2f} {gap.max():16.1f}")
+
+# %% [markdown]
+# A pair side by side, with sound: the neutral clip speaks first (the surprised face waits), then the surprised
+# one (level 2: higher, wider pitch; raised brows, wide eyes, bigger accents).
+
+# %%
+# NBVAL_IGNORE_OUTPUT
+a, b = corpus.vertices(group["neutral"]).reshape(-1, V, 3), corpus.vertices(group["surprised2"]).reshape(-1, V, 3)
+pair = {"neutral": np.concatenate([a, np.repeat(a[-1:], len(b), 0)]),
+        "surprised 2": np.concatenate([np.repeat(b[:1], len(a), 0), b])}
+video = animate_clip(pair, corpus.faces, sample_rate=SR, size=160,
+                     wave=np.concatenate([corpus.wave(group["neutral"]), corpus.wave(group["surprised2"])]))
+HTML(video._repr_html_())                                   # the player only (its repr would show a local path)
+
+# %% [markdown]
+# ## 9. The upper face: what follows the speech, and what stays random
 #
-# Blinks (every 2-5 s, ~150 ms each) and a slow brow drift come from the clip's random generator, not from the
-# speech. Same phonemes — the sentence said six times in a row, 9.5 s — with two seeds: the mouth controls are
-# identical, the upper face is not. Over the training clips, the per-frame loudness of the speech correlates
-# with how far the lips move, but not with the eyes. This is the part of the motion that FDD and EVE look at,
-# and that an audio-driven model can only get right on average (notebook 00, section 2).
+# Real faces move above the mouth too, weakly, and partly in step with the voice. `face/upper.py` adds three
+# such sources, each a few mm at most and styled per speaker (`Speaker.accent`, `pitch_brow`, `cheek`, ...):
+#
+# - **pitch accents**: each primary-stressed vowel (espeak's `'` mark) starts a brief brow raise
+#   `accent_lead` s before it (120 ms up, 350 ms down), higher when the vowel's F0 peak is high:
+#   prominence $=\mathrm{clip}(0.6 + 0.15\,f_0^{\text{peak}}, 0.3, 1.6)$ with $f_0$ in semitones re the clip median;
+# - **F0 contour**: the brows also follow the smoothed pitch, `pitch_brow` control units per semitone;
+# - **cheeks** follow the smile and lip stretch (and the eyes narrow a little with a smile);
+# - **blinks** start at a pause (phrase boundary) with probability `boundary_blink`; others stay random.
+#
+# What remains random: the timing of the other blinks, a slow brow drift, and a +-15 % jitter of each accent.
+# The long clip SPK01_long01 (five sentences) shows all of it: pitch with the stressed vowels, the brows, the blinks.
+
+# %%
+clip = "SPK01_long01"
+meta, wave_l = corpus.meta(clip), corpus.wave(clip).astype(np.float64)
+T_l = meta["n_frames"]
+semitones, voiced = pitch_track(wave_l, T_l)                                   # (T,), (T,) bool
+v_l = corpus.vertices(clip).reshape(T_l, V, 3)
+brow_mm = 1000 * (v_l[:, brows, 1] - h01[brows, 1]).mean(1)                    # (T,) mean brow height, mm
+blink = corpus._all_controls()[clip][:, CONTROL_INDEX["blink"]]
+stressed = [s for (p, s, e), st in zip(meta["phonemes"], meta["stress"]) if st == 2]
+pauses = [(s, e) for p, s, e in meta["phonemes"][1:] if p == "_" and e - s >= 0.08]
+check_shape(semitones, (T_l,), "semitones")
+t_l = np.arange(T_l) / FPS
+fig, axes = plt.subplots(3, 1, figsize=(10, 5.5), sharex=True, layout="constrained")
+axes[0].plot(t_l[voiced], semitones[voiced], ".", ms=3, label="F0 (voiced frames)")
+axes[0].set_ylabel("F0 (semitones\nre median)")
+axes[1].plot(t_l, brow_mm, color="C1", label="brow height")
+axes[1].set_ylabel("brows (mm)")
+axes[2].plot(t_l, blink, color="C2", label="blink control")
+axes[2].set_ylabel("blink (0-1)")
+for ax in axes:
+    for s in stressed:
+        ax.axvline(s, color="0.6", lw=0.7, ls=":")
+    for s, e in pauses:
+        ax.axvspan(s, e, color="C3", alpha=0.12, lw=0)
+axes[0].set_title(f"{clip}: dotted = primary-stressed vowels, shaded = pauses")
+axes[-1].set_xlabel("time (s)")
+plt.show()
+
+# %% [markdown]
+# Averaged over all neutral training clips (event-locked average of the brow height, minus its value 0.2 s
+# before the vowel), the brows rise right at the onsets of **stressed** vowels — from the lowest point in the
+# 0.2 s before to the highest in the 0.2 s after — and not at unstressed ones. (The average is small, about half
+# a millimetre: speakers differ, some accents are weak, and the drift is not locked to the vowels.) Blink onsets
+# pile up in the 250 ms after a pause starts.
+
+# %%
+window = np.arange(-6, 16)                                                     # frames around an onset
+locked = {"stressed vowel": [], "unstressed vowel": []}
+blink_near, blink_all, near_time, total_time = 0, 0, 0, 0
+vowels = {"aa", "E", "I", "O", "U"}
+for name in corpus.split("train"):
+    m = corpus.meta(name)
+    x = corpus.vertices(name).reshape(-1, V, 3)
+    h = corpus.template(m["subject"]).reshape(V, 3)
+    y = 1000 * (x[:, brows, 1] - h[brows, 1]).mean(1)
+    for (p, s, e), st in zip(m["phonemes"], m["stress"]):
+        f = int(round(s * FPS))
+        if phoneme_to_viseme(p) in vowels and 6 <= f < len(y) - 16:
+            locked["stressed vowel" if st == 2 else "unstressed vowel"].append(y[f + window] - y[f - 6])
+    b = corpus._all_controls()[name][:, CONTROL_INDEX["blink"]]
+    ups = np.nonzero((b[1:] >= 0.5) & (b[:-1] < 0.5))[0] / FPS
+    starts = [s for p, s, e in m["phonemes"][1:] if p == "_" and e - s >= 0.08]
+    tt = np.arange(len(b)) / FPS
+    near = np.zeros(len(b), bool)
+    for s in starts:
+        near |= (tt >= s) & (tt < s + 0.25)
+    blink_near += sum(any(s <= u < s + 0.25 for s in starts) for u in ups)
+    blink_all, near_time, total_time = blink_all + len(ups), near_time + near.sum(), total_time + len(b)
+rise = {k: np.mean(v, 0) for k, v in locked.items()}                           # (22,) mm
+before, after = (window >= -6) & (window <= 0), (window >= 0) & (window <= 6)
+lift = {k: r[after].max() - r[before].min() for k, r in rise.items()}
+print(f"brow lift at the vowel onset: stressed {lift['stressed vowel']:.2f} mm ({len(locked['stressed vowel'])} "
+      f"vowels), unstressed {lift['unstressed vowel']:.2f} mm ({len(locked['unstressed vowel'])} vowels)")
+ratio = (blink_near / blink_all) / (near_time / total_time)
+print(f"blinks starting within 250 ms of a pause: {blink_near}/{blink_all}, "
+      f"{ratio:.1f}x the rate expected by chance")
+assert lift["stressed vowel"] > 0.25 and lift["stressed vowel"] > lift["unstressed vowel"] + 0.2
+assert ratio > 3
+fig, ax = plt.subplots(figsize=(6, 3), layout="constrained")
+for k, r in rise.items():
+    ax.plot(window / FPS, r, label=k)
+ax.axvline(0, color="0.5", lw=0.8)
+ax.set(xlabel="time from the vowel onset (s)", ylabel="brow height change (mm)",
+       title="Event-locked brow height, neutral training clips")
+ax.legend(fontsize=8)
+plt.show()
+
+# %% [markdown]
+# The random part: same phonemes, stress and audio — the sentence said six times in a row, 9.5 s — with two seeds.
+# The mouth controls are identical; blinks, brow drift and accent jitter are not.
 
 # %%
 mouth_controls = [CONTROL_INDEX[n] for n in ("jaw_open", "lip_press", "lip_pucker", "lip_stretch")]
@@ -405,38 +537,43 @@ repeats = 6
 long_phonemes = [(p, s + r * utt.duration, e + r * utt.duration) for r in range(repeats) for p, s, e in phonemes]
 n_long = repeats * n_frames
 t_long = np.arange(n_long) / FPS
-by_seed = {seed: clip_controls(long_phonemes, n_long, spk01, seed=seed) for seed in (0, 1)}
+wave_rep = np.tile(pcm16, repeats)
+by_seed = {seed: clip_controls(long_phonemes, n_long, spk01, seed=seed, stress=utt.stress * repeats, wave=wave_rep)
+           for seed in (0, 1)}
 assert np.array_equal(by_seed[0][:, mouth_controls], by_seed[1][:, mouth_controls])
 closed = {seed: (c[:, CONTROL_INDEX["blink"]] > 0.5).astype(int) for seed, c in by_seed.items()}   # eyes shut
 blinks = {seed: int((np.diff(shut) == 1).sum()) for seed, shut in closed.items()}                 # closings
 print(f"{n_long / FPS:.1f} s: blinks with seed 0: {blinks[0]}, seed 1: {blinks[1]}")
-assert min(blinks.values()) >= 1 and not np.array_equal(by_seed[0][:, idle], by_seed[1][:, idle])
+assert not np.array_equal(by_seed[0][:, idle], by_seed[1][:, idle])
+r_brow = np.corrcoef(by_seed[0][:, CONTROL_INDEX["brow_raise"]], by_seed[1][:, CONTROL_INDEX["brow_raise"]])[0, 1]
+print(f"brow_raise of the two seeds correlates at r = {r_brow:.2f}: the part that follows the speech")
 
 fig, axes = plt.subplots(3, 1, figsize=(9, 5), sharex=True, layout="constrained")
 for ax, name in zip(axes, ("jaw_open", "blink", "brow_raise")):
     for seed, track in by_seed.items():
         ax.plot(t_long, track[:, CONTROL_INDEX[name]], lw=1.5, ls="-" if seed == 0 else "--", label=f"seed {seed}")
     ax.set_ylabel(f"{name}\n(control units)", fontsize=8)
-axes[0].set_title("Same phonemes, two seeds: the mouth is identical, blinks and brows are not")
+axes[0].set_title("Same speech, two seeds: the mouth is identical, the brows share the accents, blinks differ")
 axes[0].legend(fontsize=8)
 axes[-1].set_xlabel("time (s)")
 plt.show()
 
+# %% [markdown]
+# How much of the upper face can a model predict from the audio? A linear probe answers it: ridge regression
+# from prosody features of the audio alone (F0, voicing and loudness, +-8 frames of context) to brow height,
+# fitted on every other neutral `train` clip and scored on `test_a` (unseen sentences). A constant scores $R^2 = 0$;
+# the same probe fed another clip's audio scores about 0 or below. `dualtalker_lite.data.probe` has the probe and
+# the stress-onset check (`tests/test_upper_face.py` checks both claims with its own code).
+
 # %%
-loud, eye_mm, lip_mm = [], [], []
-eyes, lips = corpus.regions["eyes"], corpus.regions["lips"]
-for clip in corpus.split("train")[:60]:
-    v = corpus.vertices(clip).reshape(-1, V, 3)
-    h = corpus.template(corpus.meta(clip)["subject"]).reshape(V, 3)
-    w = corpus.wave(clip).astype(np.float64)
-    edges = np.round(np.arange(len(v) + 1) * SR / FPS).astype(int)            # audio samples of each frame
-    loud.append([10 * np.log10(np.mean(w[a:b] ** 2) + 1e-10) if b > a else -100 for a, b in zip(edges, edges[1:])])
-    eye_mm.append(np.linalg.norm(v[:, eyes] - h[eyes], axis=-1).mean(1))
-    lip_mm.append(np.linalg.norm(v[:, lips] - h[lips], axis=-1).mean(1))
-loud, eye_mm, lip_mm = (np.concatenate(x) for x in (loud, eye_mm, lip_mm))
-r_lips, r_eyes = np.corrcoef(loud, lip_mm)[0, 1], np.corrcoef(loud, eye_mm)[0, 1]
-print(f"correlation with the frame loudness over {len(loud)} frames: lips {r_lips:.2f}, eyes {r_eyes:.2f}")
-assert r_lips > 0.15 and abs(r_eyes) < 0.1
+probe = upper_face_probe(corpus, corpus.split("train")[::2], corpus.split("test_a"))  # every other train clip
+print(f"brow height on test_a: std {probe['std_mm']:.2f} mm; probe R^2 with its own audio {probe['r2']:.2f}, "
+      f"with another clip's audio {probe['r2_other_audio']:.2f}")
+onsets = stress_onset_precision(corpus, corpus.split("train") + corpus.split("test_a"))
+print(f"brow-raise onsets within -150..+50 ms of a stressed vowel: {100 * onsets['precision']:.0f} % of "
+      f"{onsets['onsets']} (chance {100 * onsets['chance']:.0f} %); stressed vowels with an onset: "
+      f"{100 * onsets['recall']:.0f} %")
+assert probe["r2"] > 0.15 and probe["r2_other_audio"] < 0.05 and onsets["precision"] > 0.8
 
 # %% [markdown]
 # ## 10. An animation with sound, and a live rig
@@ -446,7 +583,7 @@ assert r_lips > 0.15 and abs(r_eyes) < 0.1
 
 # %%
 # NBVAL_IGNORE_OUTPUT
-animate_clip(clips, mesh.faces, wave=wave, sample_rate=SR, size=192)
+HTML(animate_clip(clips, mesh.faces, wave=wave, sample_rate=SR, size=192)._repr_html_())
 
 # %% [markdown]
 # With a running kernel, the sliders below drive the rig live in a pythreejs viewer (drag to orbit, scroll to
@@ -480,6 +617,26 @@ assert lip_distance(opened[None], upper_mid, lower_mid)[0] > 10.0
 assert np.array_equal(pose(**{name: s.value for name, s in sliders.items()}), rig.template)   # back to rest
 
 # %% [markdown]
+# ## 11. The corpus on disk: splits, emotions, pairs, long clips
+#
+# `train`, `val`, `test_a` (seen speakers, unseen sentences) and `test_b` (unseen speakers) are neutral, as in
+# VOCASET. The emotional clips live in their own splits: `train_emo` (pseudo-pairs of `train` sentences),
+# `test_emo_a` (seen speakers, an unseen sentence, every emotion and level) and `test_emo_b` (unseen speakers);
+# every emotional clip names its `neutral_twin`. `long` holds multi-sentence clips of 10-30 s (length
+# generalisation; FaceFormer's code stops at 600 frames). `data_samples/README.md` documents all of it.
+
+# %%
+# NBVAL_CHECK_OUTPUT
+for split, names in corpus.metadata["splits"].items():
+    emotions = sorted({corpus.meta(n)["emotion"] for n in names})
+    seconds = sum(corpus.meta(n)["n_samples"] for n in names) / SR
+    print(f"{split:10} {len(names):4d} clips {seconds / 60:5.1f} min  speakers "
+          f"{len({corpus.meta(n)['subject'] for n in names}):2d}  {', '.join(emotions)}")
+print("long clips (s):", [round(corpus.meta(n)["n_samples"] / SR, 1) for n in corpus.split("long")])
+emo = corpus.split("train_emo")
+assert all(corpus.meta(corpus.meta(n)["neutral_twin"])["split"] == "train" for n in emo)
+
+# %% [markdown]
 # ## Summary
 #
 # - The template is a procedural 1,558-vertex head with a mouth slit and named regions (`lips`, `upper_face`,
@@ -489,8 +646,13 @@ assert np.array_equal(pose(**{name: s.value for name, s in sliders.items()}), ri
 # - espeak-ng provides real speech and exact phoneme times; phonemes map to 15 visemes; Cohen-Massaro dominance
 #   functions (CM1, CM2) blend viseme targets into smooth tracks with anticipation (the /t/ of "two" is rounded).
 # - The result behaves like speech: lips close (< 1 mm) on /p b m/ and open wide on open vowels. Speakers
-#   differ in shape and style, emotions in prosody and face offsets, and blinks/brows are independent of the
-#   audio. `clip_controls` + `FaceRig` reproduce a corpus clip bit for bit.
+#   differ in shape and style, emotions in prosody and face offsets.
+# - The upper face is weak (about a millimetre) and partly follows the speech: brows rise at stressed vowels and
+#   with the pitch, cheeks follow the smile, blinks come at pauses; a linear probe from prosody predicts a good
+#   part of the brow motion on unseen sentences, the rest (drift, other blinks) is random and seeded.
+# - The corpus keeps `train` neutral and puts EmoFace's pseudo-pairs in `train_emo` / `test_emo_a` / `test_emo_b`,
+#   with `pairs` and `neutral_twin` in the metadata; `long` has 10-30 s clips. `clip_controls` + `FaceRig`
+#   reproduce a corpus clip bit for bit.
 #
 # ## Exercises
 #
@@ -502,3 +664,5 @@ assert np.array_equal(pose(**{name: s.value for name, s in sliders.items()}), ri
 #    change between levels 0, 1 and 2 linear? Compare with espeak's rate in the voice specs.
 # 4. Compute the lip distance at every /f/ and /v/ of "Four fat frogs fell off the fence." (`synthesize` it). Do
 #    labiodentals close the lips? Look at `VISEME_PARAMS["FF"]` to explain what you see.
+# 5. Regenerate SPK01_s00 with `Speaker.pitch_brow = 0` (`dataclasses.replace`) and rerun the probe of section 9
+#    on a few clips: how much of its $R^2$ came from the F0 contour, how much from the accents?
