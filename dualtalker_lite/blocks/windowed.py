@@ -117,8 +117,8 @@ class SlidingKVCache:
         t_new = k.shape[2]
         keep = self.n if self.window is None else min(self.n, self.window - 1)  # old frames still visible
         if self.k is None or self.n + t_new > self.k.shape[2]:
-            cap = 2 * self.window if self.window is not None else 2 * (self.n + t_new)
-            cap = max(cap, keep + t_new, 16)
+            cap = 2 * self.window if self.window is not None else max(16, 2 * (self.n + t_new))
+            cap = max(cap, keep + t_new)
             old = slice(self.n - keep, self.n)
             if self.k is None or cap > self.k.shape[2]:
                 nk = k.new_empty(*k.shape[:2], cap, k.shape[3])
