@@ -34,6 +34,12 @@ Design decisions (the paper leaves these open; see also ``blocks.fusion`` for th
   past frame (replaced by the template, zero motion) with probability p during training; ``tiny()`` uses 0.5.
 - Motion enters and leaves the network in mm (``motion_scale`` = 1000): in metres the encoder/decoder weights
   must reach ~1e3 / ~1e-3, far from Adam's step size, and the tiny model barely learned in a minute.
+- Long audio (issue 11): the audio extractor's self-attention is banded (+-``audio_radius`` frames, exact for
+  clips up to audio_radius + 1 frames), and ``generate`` decodes with bounded caches: the motion
+  self-attention sees the last ``decoder_window`` stream tokens (exact for clips up to decoder_window frames;
+  beyond, the ALiBi error bound of ``blocks.windowed``), the integration only the frames its alignment mask
+  admits (always exact). ``forward`` (training, clips of seconds) keeps whole-clip attention; it equals the
+  windowed model on any clip within both sizes. Hour-long clips: ``generate_chunks`` + ``streaming``.
 """
 from __future__ import annotations
 
