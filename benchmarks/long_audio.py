@@ -5,6 +5,7 @@ video >= 3x real time).
 
     python benchmarks/long_audio.py                      # 1 and 10 minutes, video on 60 s
     python benchmarks/long_audio.py --minutes 1 10 60    # the hour too (about 3-5 min of CPU)
+    python benchmarks/long_audio.py --window-check 60    # trained model: windowed vs unbounded decoding, 3 min
 
 Each length runs in a fresh process (``--one``), so its peak resident memory (``ru_maxrss``: every numpy and torch
 allocation, plus the interpreter and libraries) is its own. The speech is the shipped sample's clips concatenated
@@ -143,6 +144,45 @@ def report(rows: list[dict]) -> None:
                       f"+ ffmpeg CPU {v['ffmpeg_cpu_s']:.1f} s")
 
 
+def window_check(train_seconds: float, minutes: float, threads: int) -> None:
+    """How far the sliding decoder window moves a *trained* model's output on a clip longer than the window:
+    the tiny DualTalker trained for ``train_seconds`` on the sample, then the test-A clips' features
+    concatenated to ``minutes``, generated with the unbounded cache (window=None) and with the default window."""
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from common import load_sample, tiny_dualtalker
+    from dualtalker_lite.data.dataset import make_loader
+    from dualtalker_lite.train import TrainConfig, train
+
+    torch.set_num_threads(threads)
+    corpus, ds = load_sample(("train", "test_a"))
+    model = tiny_dualtalker(corpus, 0)
+    cfg = TrainConfig.tiny(epochs=10_000, time_budget_s=train_seconds, seed=0, validate_every=0, progress=False)
+    hist = train(model, make_loader(ds["train"], cfg.batch_size, shuffle=True, seed=0), cfg)
+    model.eval()
+    longest = max(len(ds["train"][i]["audio"]) for i in range(len(ds["train"])))
+    items = [ds["test_a"][i] for i in range(len(ds["test_a"]))]
+    n = int(minutes * 60 * 30)
+    audio = torch.cat([it["audio"] for it in items])
+    audio = audio.repeat(n // len(audio) + 1, 1)[:n][None]  # (1, T, 160)
+    template, speaker = items[0]["template"][None], torch.tensor([0])
+    window = model.cfg.decoder_window
+    t0 = time.process_time()
+    full = model.generate(audio, template, speaker, window=None)[0]  # (T, V*3) unbounded cache
+    t1 = time.process_time()
+    windowed = model.generate(audio, template, speaker)[0]
+    t2 = time.process_time()
+    diff = (full - windowed).view(n, -1, 3).norm(dim=-1) * 1000  # (T, V) mm
+    motion = (full - template).view(n, -1, 3).norm(dim=-1) * 1000
+    print(f"\nwindow check: tiny DualTalker trained {len(hist.terms)} epochs ({train_seconds:g} s budget; longest "
+          f"training clip {longest} frames), {minutes:g} min of test-A features, decoder_window = {window} frames")
+    print(f"  unbounded cache {t1 - t0:.1f} s CPU, windowed {t2 - t1:.1f} s CPU")
+    print(f"  frames <= window: max |difference| {diff[:window].max():.2e} mm (exact up to float rounding)")
+    print(f"  frames > window: max {diff[window:].max():.4f} mm, mean {diff[window:].mean():.5f} mm per vertex; "
+          f"mean motion {motion.mean():.3f} mm, max {motion.max():.2f} mm")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, nargs="+", default=[1, 10])
@@ -151,7 +191,13 @@ def main() -> None:
     ap.add_argument("--one", type=float, help=argparse.SUPPRESS)  # internal: one length in this process
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--json", help="also write the figures to this JSON file")
+    ap.add_argument("--window-check", type=float, metavar="SECONDS",
+                    help="instead: train the tiny model this long, compare windowed vs unbounded decoding")
+    ap.add_argument("--check-minutes", type=float, default=3.0, help="clip length for --window-check")
     args = ap.parse_args()
+    if args.window_check is not None:
+        window_check(args.window_check, args.check_minutes, args.threads)
+        return
     if args.one is not None:
         print(json.dumps(one(args.one, Path(args.out), args.video_seconds, args.threads)))
         return

@@ -69,13 +69,6 @@ class AudioFeatureExtractor(nn.Module):
 
     ``radius`` (frames): band of the self-attention (None: whole clip); ``block``: queries per block."""
 
-    def receptive_field(self) -> int | None:
-        """Frames on each side of t that can change the output at t (convolutions + radius per layer);
-        None when the attention spans the whole clip."""
-        if self.radius is None:
-            return None
-        return sum(c.kernel_size[0] // 2 for c in self.convs) + len(self.layers) * self.radius
-
     def __init__(self, audio_dim: int, hidden: int, n_heads: int = 4, conv_layers: int = 2, kernel_size: int = 5,
                  n_layers: int = 1, period: int = 30, dropout: float = 0.0, radius: int | None = 450,
                  block: int = 256):
@@ -111,3 +104,10 @@ class AudioFeatureExtractor(nn.Module):
         for layer in self.layers:
             h = layer(h, key_mask=mask, radius=self.radius, block=self.block)  # (B, T, C) banded self-attention
         return h  # (B, T, C)
+
+    def receptive_field(self) -> int | None:
+        """Frames on each side of t that can change the output at t (convolutions + radius per layer);
+        None when the attention spans the whole clip."""
+        if self.radius is None:
+            return None
+        return sum(c.kernel_size[0] // 2 for c in self.convs) + len(self.layers) * self.radius
