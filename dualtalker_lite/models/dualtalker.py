@@ -43,6 +43,7 @@ Design decisions (the paper leaves these open; see also ``blocks.fusion`` for th
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import torch
@@ -331,7 +332,8 @@ class DualTalker(nn.Module):
           j in [t - align_window + 1, t] only, so a cache of ``align_window`` frames is *exact*;
         - integration, FaceFormer's reading: keys X_j for j in the centred window around t only (exact).
 
-        The audio is encoded once with banded attention (linear memory, see the audio encoder).
+        The audio is encoded once with banded attention (linear memory, see the audio encoder). Decoding is the
+        eval-mode computation (no dropout), whatever the module's mode: call ``model.eval()`` first anyway.
         """
         self._check(audio, template, speaker)
         window = getattr(self.cfg, "decoder_window", None) if window is self._UNSET else window
@@ -344,12 +346,13 @@ class DualTalker(nn.Module):
         x = self.encode_audio(audio, mask)  # (B, T, d)
         states = [self._decoder_state(layer, x, window) for layer in self.layers]
         token = style[:, None, :]  # (B, 1, d) start token S_n
+        ppe = self.ppe.encoding(self.ppe.period).to(token.dtype)  # (p, d) one period of the PPE table
         for start in range(0, t_total, chunk):
             n = min(chunk, t_total - start)
             block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
             for r in range(n):
                 t = start + r
-                h = self.ppe(token, offset=t)  # (B, 1, d)
+                h = token + ppe[t % ppe.shape[0]]  # (B, 1, d) PPE of frame t (eval: no dropout)
                 for layer, state in zip(self.layers, states):
                     h = self._decode_step(layer, state, h, x, style, t, mask)
                 m_t = self.decode_motion(h)  # (B, 1, V*3) m̂_t
@@ -389,7 +392,8 @@ class DualTalker(nn.Module):
         q = split_heads(mha.q_proj(h), n_heads)  # (B, H, 1, d_h)
         k, v = state["self"].append(split_heads(mha.k_proj(h), n_heads), split_heads(mha.v_proj(h), n_heads))
         bias = self._lag_bias(state, n_heads, layer.period, k.shape[2], h.device)  # (1, H, 1, n)
-        sa = mha.out_proj(merge_heads(scaled_dot_product_attention(q, k, v, bias=bias)[0]))  # eqs. 3-4
+        scores = q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]) + bias  # (B, H, 1, n) eq. 3, never masked
+        sa = mha.out_proj(merge_heads(torch.softmax(scores, dim=-1) @ v))  # (B, 1, d) eqs. 3-4
         attended = fusion.norm1(h + sa)  # (B, 1, d) Y̌
         gated = attended if fusion.gate is None else fusion.gate(attended, style)  # (B, 1, d) Ȳ, eq. 5
         q_proj, k_proj, v_proj, out_proj = integ.projections("primal")
@@ -405,6 +409,10 @@ class DualTalker(nn.Module):
             k, v = state["k"][:, :, lo:hi], state["v"][:, :, lo:hi]  # (B, H, <= w, d_h)
             key_mask = None if mask is None else mask[:, None, None, lo:hi]
         q = split_heads(q_proj(query), n_heads)  # (B, H, 1, d_h)
-        att = out_proj(merge_heads(scaled_dot_product_attention(q, k, v, mask=key_mask)[0]))  # eq. 6
+        if key_mask is None:  # every key admissible: the plain softmax of eq. 3
+            out = torch.softmax(q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]), dim=-1) @ v  # (B, H, 1, d_h)
+        else:  # padded keys: a query with none left gets zeros (blocks.attention convention)
+            out = scaled_dot_product_attention(q, k, v, mask=key_mask)[0]
+        att = out_proj(merge_heads(out))  # (B, 1, d) eq. 6
         z = fusion.norm2(query + att)  # (B, 1, d)
         return fusion.norm3(z + fusion.ff(z))  # (B, 1, d) Y̆_t
