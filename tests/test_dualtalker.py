@@ -264,5 +264,6 @@ def test_long_audio_config_is_validated():
     for name, bad in (("decoder_window", 0), ("audio_radius", -1), ("decoder_window", 2.5)):
         with pytest.raises(ValueError, match=name):
             _cfg(**{name: bad})
-    with pytest.raises(ValueError, match="window must be a positive"):
-        next(_model().generate_chunks(*[_batch()[k] for k in ("audio", "template", "speaker")], window=0))
+    for bad in (0, 2.5, "auto"):
+        with pytest.raises(ValueError, match="window must be a positive number of frames, None or 'config'"):
+            next(_model().generate_chunks(*[_batch()[k] for k in ("audio", "template", "speaker")], window=bad))

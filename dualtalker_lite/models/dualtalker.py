@@ -277,17 +277,15 @@ class DualTalker(nn.Module):
         return out
 
     # ---- inference: the primal task, autoregressively ---------------------------------------------
-    _UNSET = object()
-
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
-                 mask: Tensor | None = None, window=_UNSET) -> Tensor:
+                 mask: Tensor | None = None, window: int | None | str = "config") -> Tensor:
         """Eq. 1 frame by frame: A (B, T, D_a), template (B, V*3), speaker (B,) -> vertices (B, T, V*3).
 
         ``use_cache=True`` decodes with bounded caches (:meth:`generate_chunks`): O(``window``) work and
-        memory per frame, exact for clips of at most ``window`` frames (``cfg.decoder_window`` by default;
+        memory per frame, exact for clips of at most ``window`` frames (``"config"``: ``cfg.decoder_window``;
         None: unbounded cache, O(t) per frame). ``False`` re-runs the fusion layers on the whole prefix at every
-        frame with unbounded attention (O(t^2), the reference). Call ``model.eval()`` first.
+        frame with unbounded attention (O(t^2), the reference; ``window`` is ignored). Call ``model.eval()`` first.
         The result is one (B, T, V*3) tensor; for hour-long clips stream :meth:`generate_chunks` to disk.
         """
         self._check(audio, template, speaker)
@@ -320,7 +318,7 @@ class DualTalker(nn.Module):
 
     @torch.no_grad()
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
-                        window=_UNSET, chunk: int = 900):
+                        window: int | None | str = "config", chunk: int = 900):
         """Yield the vertices of eq. 1 in consecutive (B, <= chunk, V*3) blocks, with bounded caches.
 
         Memory and work per frame are bounded (issue 11), which makes hour-long clips feasible:
@@ -336,9 +334,9 @@ class DualTalker(nn.Module):
         eval-mode computation (no dropout), whatever the module's mode: call ``model.eval()`` first anyway.
         """
         self._check(audio, template, speaker)
-        window = getattr(self.cfg, "decoder_window", None) if window is self._UNSET else window
-        if window is not None and window < 1:
-            raise ValueError(f"window must be a positive number of frames or None, got {window}")
+        window = getattr(self.cfg, "decoder_window", None) if window == "config" else window
+        if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
+            raise ValueError(f"window must be a positive number of frames, None or 'config', got {window!r}")
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
         b, t_total = audio.shape[:2]
