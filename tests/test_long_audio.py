@@ -15,7 +15,7 @@ from matplotlib import colormaps
 from dualtalker_lite import audio as A
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.streaming import animate_wave_to_npy, generate_to_npy, write_npy_stream
-from dualtalker_lite.viz.animate import ffmpeg_exe, render_video, stream_info
+from dualtalker_lite.viz.animate import animate_clip, ffmpeg_exe, render_video, stream_info
 from dualtalker_lite.viz.render import MeshRenderer, RasterRenderer
 
 WHITE = np.array([255, 255, 255])
@@ -144,6 +144,21 @@ def test_render_video_failure_leaves_no_temporary_folder(tmp_path, sphere, monke
     with pytest.raises(RuntimeError, match="renderer broke"):
         render_video(_clip(sphere, 10), sphere[1], tmp_path / "a.mp4", size=64, progress=False)
     assert list(tmp_path.iterdir()) == []  # neither the mp4 nor a dualtalker-video-* folder
+
+
+def test_non_finite_frames_are_refused_and_nothing_is_written(tmp_path, sphere):
+    if ffmpeg_exe() is None:
+        pytest.skip("no ffmpeg")
+    clip = _clip(sphere, 12)
+    clip[7, 4] = np.nan
+    with pytest.raises(ValueError, match="vertices: frame 7 has non-finite vertices"):
+        render_video(clip, sphere[1], tmp_path / "a.mp4", size=32, progress=False)
+    np.save(tmp_path / "v.npy", clip)
+    with pytest.raises(ValueError, match=r"v\.npy: frame 7 has non-finite vertices"):
+        render_video(tmp_path / "v.npy", sphere[1], tmp_path / "a.mp4", size=32, progress=False)
+    with pytest.raises(ValueError, match="frame 7 of the clip has non-finite vertices"):  # animate_clip too
+        animate_clip(clip.reshape(12, -1, 3), sphere[1], path=tmp_path / "a.mp4", size=32)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.npy"]
 
 
 def test_sigterm_during_rendering_removes_the_temporary_folder(tmp_path, sphere):

@@ -128,7 +128,9 @@ def animate_clip(clips: np.ndarray | Mapping[str, np.ndarray], faces: np.ndarray
     size = int(size) + int(size) % 2  # H.264 with yuv420p needs even sizes
     width, height = size * len(panels), size
     sample = [clip[:: max(1, len(clip) // 16)].reshape(-1, 3) for clip in panels.values()]  # ~16 frames each
-    extent = mesh_extent(np.concatenate(sample))  # one framing for every panel and frame
+    sample = np.concatenate(sample)
+    sample = sample[np.isfinite(sample).all(1)]  # a non-finite frame is reported when it is reached
+    extent = mesh_extent(sample if len(sample) else np.zeros((1, 3)))  # one framing for every panel and frame
     given = [v for v in values.values() if v is not None]
     lo = min(float(np.nanmin(v)) for v in given) if given and vmin is None else vmin
     hi = max(float(np.nanmax(v)) for v in given) if given and vmax is None else vmax
@@ -141,6 +143,9 @@ def animate_clip(clips: np.ndarray | Mapping[str, np.ndarray], faces: np.ndarray
         for label, clip in panels.items():
             i = min(t, len(clip) - 1)
             c = None if values[label] is None else values[label][i]
+            if not np.isfinite(clip[i]).all():  # checked per frame: clips may be memory-mapped and long
+                name = f"clip {label!r}" if label else "the clip"
+                raise ValueError(f"frame {i} of {name} has non-finite vertices (NaN or inf); nothing was rendered")
             images.append(renderer.render(clip[i], faces, view, azimuth, elevation, colors=c, cmap=cmap,
                                           vmin=lo, vmax=hi, extent=extent, label=label))
         return np.concatenate(images, axis=1)  # (H, W, 3)
@@ -187,8 +192,16 @@ def render_video(vertices, faces: np.ndarray, path: str | Path, wave: np.ndarray
     Fast defaults (Pillow renderer, x264 ``veryfast``) and a progress bar; ``kwargs`` go to :func:`animate_clip`
     (``view``, ``colors``, ``crf``...). The temporary folder is removed on failure and on interruption.
     """
+    name = f"{vertices}" if isinstance(vertices, (str, Path)) else "vertices"
     if isinstance(vertices, (str, Path)):
         vertices = np.load(vertices, mmap_mode="r", allow_pickle=False)
+    vertices = vertices.detach().cpu().numpy() if hasattr(vertices, "detach") else vertices
+    for start in range(0, len(vertices), 4096):  # before any work: an hour would otherwise fail near its end
+        block = np.asarray(vertices[start:start + 4096])
+        bad = ~np.isfinite(block.reshape(len(block), -1)).all(1)  # (n,) per frame
+        if bad.any():
+            raise ValueError(f"{name}: frame {start + int(np.flatnonzero(bad)[0])} has non-finite vertices "
+                             f"(NaN or inf); nothing was rendered")
     return animate_clip(vertices, faces, wave=wave, sample_rate=sample_rate, fps=fps, path=path, size=size,
                         renderer=renderer, preset=preset, progress=progress, use_ffmpeg=True, **kwargs)
 
