@@ -75,7 +75,7 @@ def _as_panels(clips, colors) -> tuple[dict[str, np.ndarray], dict[str, np.ndarr
     def frames(v) -> np.ndarray:  # no float64 copy of a whole (possibly memory-mapped) clip: per frame later
         v = v.detach().cpu().numpy() if hasattr(v, "detach") else v
         v = v if isinstance(v, np.ndarray) and v.dtype.kind == "f" else np.asarray(v, dtype=np.float64)
-        return v.reshape(len(v), -1, 3) if v.ndim == 2 and v.shape[1] % 3 == 0 else v
+        return v.reshape(len(v), -1, 3) if v.ndim == 2 and v.shape[1] > 3 and v.shape[1] % 3 == 0 else v
 
     if isinstance(clips, Mapping):
         panels = {str(k): frames(v) for k, v in clips.items()}
@@ -115,7 +115,8 @@ def animate_clip(clips: np.ndarray | Mapping[str, np.ndarray], faces: np.ndarray
                  azimuth: float | None = None, elevation: float | None = None,
                  crf: int = 28, use_ffmpeg: bool | None = None, renderer: str = "matplotlib",
                  preset: str = "medium", progress: bool = False) -> ClipAnimation:
-    """Render a (T, V, 3) clip, or a dict label -> clip shown side by side, to an mp4 with the speech ``wave``.
+    """Render a (T, V, 3) (or (T, V*3)) clip, or a dict label -> clip shown side by side, to an mp4 with the
+    speech ``wave``.
 
     All panels share one camera framing; shorter clips hold their last frame. ``colors``: per-vertex values
     (V,) or (T, V), or a dict of them per label, shared colour scale. ``size`` is the pixel size of one square
