@@ -35,6 +35,7 @@ WIN_LENGTH = 400     # 25 ms analysis window
 HOP_LENGTH = 160     # 10 ms hop -> 100 feature frames per second
 N_MELS = 80
 LOG_EPS = 1e-6       # log(mel + LOG_EPS)
+STFT_BLOCK = 6000    # STFT frames per block (60 s): bounded memory for hour-long waves
 
 
 # ----------------------------------------------------------------------------------------- I/O
@@ -152,14 +153,24 @@ def log_mel_spectrogram(wave: np.ndarray | torch.Tensor, sample_rate: int = SAMP
     x = torch.as_tensor(wave, dtype=torch.float32)
     if win_length not in _WIN_CACHE:
         _WIN_CACHE[win_length] = torch.hann_window(win_length)
-    spec = torch.stft(x, n_fft, hop_length=hop_length, win_length=win_length, window=_WIN_CACHE[win_length],
-                      center=True, pad_mode="constant", return_complex=True)   # (K, L)
-    power = spec.real ** 2 + spec.imag ** 2                                     # |X|^2
     key = (n_fft, n_mels, sample_rate, f_min, f_max, slaney_norm)
     if key not in _FB_CACHE:
         _FB_CACHE[key] = mel_filterbank(n_fft, n_mels, sample_rate, f_min, f_max, slaney_norm)
-    mel = _FB_CACHE[key] @ power                                                # (M, L)
-    return torch.log(mel + LOG_EPS).T.contiguous()                              # (L, M)
+    n_frames = 1 + x.shape[0] // hop_length
+    out = torch.empty(n_frames, n_mels)                                         # (L, M)
+    # Long waves (issue 11): the complex STFT of an hour is ~0.7 GB, so frames are computed in blocks of
+    # STFT_BLOCK, each from its own zero-padded slice of the wave (center=True, pad_mode="constant" exactly).
+    pad = n_fft // 2
+    for a in range(0, n_frames, STFT_BLOCK):
+        b = min(n_frames, a + STFT_BLOCK)
+        lo, hi = a * hop_length - pad, (b - 1) * hop_length + pad               # samples [lo, hi) of frames a..b-1
+        piece = x[max(lo, 0):min(hi, x.shape[0])]
+        piece = F.pad(piece, (max(0, -lo), max(0, hi - x.shape[0])))          # zeros outside the wave
+        spec = torch.stft(piece, n_fft, hop_length=hop_length, win_length=win_length,
+                          window=_WIN_CACHE[win_length], center=False, return_complex=True)  # (K, b - a)
+        power = spec.real ** 2 + spec.imag ** 2                                 # |X|^2
+        out[a:b] = torch.log(_FB_CACHE[key] @ power + LOG_EPS).T               # (b - a, M)
+    return out                                                                  # (L, M)
 
 
 def interpolate_frames(x: torch.Tensor, n_out: int) -> torch.Tensor:

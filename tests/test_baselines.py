@@ -152,3 +152,18 @@ def test_pca_decoder_init_spans_the_training_motion():
     D, centred = model.decoder.weight.detach(), (motion - motion.mean(0)).T  # (V*3, latent), (V*3, N)
     l = torch.linalg.pinv(D, rtol=1e-4) @ centred                       # (latent, N); rtol drops the ~0 directions
     torch.testing.assert_close(D @ l, centred, atol=1e-4, rtol=1e-4)
+
+
+def test_generate_in_blocks_equals_forward():
+    """Long audio (issue 11): generation runs in blocks of frames; every frame is independent, so exact."""
+    batch, model = _batch(T=31), _model()
+    torch.nn.init.normal_(model.decoder.weight, std=0.1)  # not the template everywhere
+    ref = model(batch)["vertices"]
+    torch.testing.assert_close(model.generate(batch["audio"], batch["template"], batch["speaker"]), ref,
+                               atol=1e-6, rtol=0)
+    chunks = list(model.generate_chunks(batch["audio"], batch["template"], batch["speaker"], chunk=4))
+    assert [c.shape[1] for c in chunks] == [4] * 7 + [3]
+    torch.testing.assert_close(torch.cat(chunks, 1), ref, atol=1e-6, rtol=0)
+    static = list(StaticTemplate(V).generate_chunks(batch["audio"], batch["template"], chunk=10))
+    assert [c.shape[1] for c in static] == [10, 10, 10, 1]
+    assert torch.equal(torch.cat(static, 1), batch["template"][:, None].expand(B, 31, -1))

@@ -205,3 +205,65 @@ def test_loss_falls_when_overfitting_one_batch():
         opt.step()
         losses.append(loss.item())
     assert losses[-1] < 0.5 * losses[0], losses[::10]
+
+
+# ---- long audio (issue 11): bounded caches -----------------------------------------------------------
+def _windowed_alibi(window):
+    """FaceFormer's causal ALiBi bias with keys older than ``window`` frames masked, written out here."""
+    def bias(n_heads, t_q, t_k, period=30, offset=0, device=None):
+        i = torch.arange(offset, offset + t_q)[:, None]
+        lag = i - torch.arange(t_k)[None, :]
+        slopes = torch.tensor([2.0 ** (-8.0 * h / n_heads) for h in range(1, n_heads + 1)])[:, None, None]
+        b = -slopes * torch.div(lag.clamp(min=0), period, rounding_mode="floor")
+        return b.masked_fill((lag < 0) | (lag >= window), float("-inf"))[None]
+    return bias
+
+
+CONFIGS = [{}, {"query_from": "decoder", "align_window": 3}, {"n_layers": 2, "period": 4},
+           {"add_style_to_motion": True, "speaker_gate": False, "align_window": 1}]
+
+
+@pytest.mark.parametrize("kw", CONFIGS)
+def test_windowed_generation_is_exact_on_clips_within_the_window(kw):
+    batch = _batch(t=30)
+    model = _model(**kw)
+    ref = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=False)  # unbounded
+    for window in (30, 31, None):
+        got = model.generate(batch["audio"], batch["template"], batch["speaker"], window=window)
+        torch.testing.assert_close(got, ref, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("kw", CONFIGS)
+def test_windowed_generation_on_long_clips_equals_a_dense_masked_reference(kw, monkeypatch):
+    from dualtalker_lite.blocks import fusion
+
+    batch, window = _batch(t=45, seed=3), 8
+    model = _model(**{"period": 3, **kw})
+    unbounded = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=False)
+    got = model.generate(batch["audio"], batch["template"], batch["speaker"], window=window)
+    monkeypatch.setattr(fusion, "alibi_causal_bias", _windowed_alibi(window))
+    ref = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=False)
+    torch.testing.assert_close(got, ref, atol=1e-5, rtol=0)
+    torch.testing.assert_close(got[:, :window], unbounded[:, :window], atol=1e-5, rtol=0)  # exact up to W frames
+    assert (got - unbounded).abs().amax() > 1e-4  # ...and the window does matter after that
+
+
+def test_generate_chunks_concatenate_to_generate_and_default_window_comes_from_the_config():
+    batch = _batch(t=23)
+    model = _model(decoder_window=5)
+    full = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    chunks = list(model.generate_chunks(batch["audio"], batch["template"], batch["speaker"], chunk=7))
+    assert [c.shape[1] for c in chunks] == [7, 7, 7, 2]
+    torch.testing.assert_close(torch.cat(chunks, 1), full, atol=0, rtol=0)
+    torch.testing.assert_close(full, model.generate(batch["audio"], batch["template"], batch["speaker"], window=5))
+    assert not torch.allclose(full, model.generate(batch["audio"], batch["template"], batch["speaker"],
+                                                   window=None), atol=1e-5)
+
+
+def test_long_audio_config_is_validated():
+    for name, bad in (("decoder_window", 0), ("audio_radius", -1), ("decoder_window", 2.5)):
+        with pytest.raises(ValueError, match=name):
+            _cfg(**{name: bad})
+    for bad in (0, 2.5, "auto"):
+        with pytest.raises(ValueError, match="window must be a positive number of frames, None or 'config'"):
+            next(_model().generate_chunks(*[_batch()[k] for k in ("audio", "template", "speaker")], window=bad))

@@ -17,6 +17,15 @@ layers see the whole clip and would leak the frame to be predicted.
 
 Padded frames (``mask`` False) are zeroed before every convolution and excluded as attention keys, so a
 clip's features do not depend on how much padding its batch has.
+
+Long audio (issue 11): the self-attention is *banded* (:mod:`dualtalker_lite.blocks.windowed`): frame i
+attends to frames j with |i - j| <= ``radius`` (default 450 frames = 15 s each side, a 30 s window), computed
+in blocks, so memory is linear in the clip length (an hour of audio needs tens of MB here, not 46 GB).
+Training clips are a few seconds long: for any clip of at most ``radius + 1`` frames the band contains every
+pair and the encoding is *exactly* whole-clip attention. Receptive field of the output at frame t, in
+frames: +-(conv_layers * (kernel_size // 2)) from the convolutions, plus +-radius per transformer layer:
++-(conv_layers * (kernel_size // 2) + n_layers * radius) (+-454 frames, about 15 s, for ``tiny()``).
+``radius=None`` restores whole-clip attention (quadratic memory).
 """
 from __future__ import annotations
 
@@ -26,6 +35,7 @@ from torch import Tensor
 
 from ..blocks.attention import FeedForward, MultiHeadAttention
 from ..blocks.positional import PeriodicPositionalEncoding
+from ..blocks.windowed import banded_multi_head_attention
 
 __all__ = ["TransformerEncoderLayer", "AudioFeatureExtractor"]
 
@@ -40,18 +50,32 @@ class TransformerEncoderLayer(nn.Module):
         self.norm1, self.norm2 = nn.LayerNorm(d_model), nn.LayerNorm(d_model)
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, key_mask: Tensor | None = None) -> Tensor:
-        """x (B, T, d); key_mask (B, T) True on valid frames -> (B, T, d)."""
-        h = self.norm1(x + self.drop(self.attn(x, key_mask=key_mask)[0]))  # (B, T, d)
+    def forward(self, x: Tensor, key_mask: Tensor | None = None, radius: int | None = None,
+                block: int = 256) -> Tensor:
+        """x (B, T, d); key_mask (B, T) True on valid frames -> (B, T, d).
+
+        ``radius``: attend only to frames within +-radius (banded, block by block: linear memory); None or a
+        clip of at most radius + 1 frames: whole-clip attention (identical results)."""
+        if radius is None or x.shape[1] <= radius + 1:
+            sa = self.attn(x, key_mask=key_mask)[0]  # (B, T, d)
+        else:
+            sa = banded_multi_head_attention(self.attn, x, radius, key_mask, block)  # (B, T, d)
+        h = self.norm1(x + self.drop(sa))  # (B, T, d)
         return self.norm2(h + self.drop(self.ff(h)))  # (B, T, d)
 
 
 class AudioFeatureExtractor(nn.Module):
-    """wav2vec 2.0 stand-in (section III-B): feature projection, TCN, PPE + transformer encoder -> (B, T, C)."""
+    """wav2vec 2.0 stand-in (section III-B): feature projection, TCN, PPE + transformer encoder -> (B, T, C).
+
+    ``radius`` (frames): band of the self-attention (None: whole clip); ``block``: queries per block."""
 
     def __init__(self, audio_dim: int, hidden: int, n_heads: int = 4, conv_layers: int = 2, kernel_size: int = 5,
-                 n_layers: int = 1, period: int = 30, dropout: float = 0.0):
+                 n_layers: int = 1, period: int = 30, dropout: float = 0.0, radius: int | None = 450,
+                 block: int = 256):
         super().__init__()
+        if radius is not None and radius < 0:
+            raise ValueError(f"radius must be >= 0 frames or None, got {radius}")
+        self.radius, self.block = radius, block
         if kernel_size % 2 == 0:
             raise ValueError(f"kernel_size must be odd ('same' padding), got {kernel_size}")
         # Log-mel values are un-normalised (about -14..+2); a per-frame LayerNorm puts them on a unit scale
@@ -78,5 +102,12 @@ class AudioFeatureExtractor(nn.Module):
             h = h + F.gelu(conv(h.transpose(1, 2)).transpose(1, 2))  # (B, T, C) TCN, residual
         h = self.ppe(self.norm(h))  # (B, T, C)
         for layer in self.layers:
-            h = layer(h, key_mask=mask)  # (B, T, C) bidirectional self-attention
+            h = layer(h, key_mask=mask, radius=self.radius, block=self.block)  # (B, T, C) banded self-attention
         return h  # (B, T, C)
+
+    def receptive_field(self) -> int | None:
+        """Frames on each side of t that can change the output at t (convolutions + radius per layer);
+        None when the attention spans the whole clip."""
+        if self.radius is None:
+            return None
+        return sum(c.kernel_size[0] // 2 for c in self.convs) + len(self.layers) * self.radius

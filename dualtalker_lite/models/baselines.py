@@ -66,6 +66,15 @@ class StaticTemplate(nn.Module):
         """Same signature as ``DualTalker.generate``; ``use_cache`` and ``mask`` do not apply."""
         return self({"audio": audio, "template": template})["vertices"]  # (B, T, V*3)
 
+    @torch.no_grad()
+    def generate_chunks(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor | None = None,
+                        mask: torch.Tensor | None = None, chunk: int = 900):
+        """Like ``DualTalker.generate_chunks``: the template in consecutive (B, <= chunk, V*3) blocks."""
+        _check_vertices(template, self.n_vertices, "template")
+        B, T = audio.shape[:2]
+        for start in range(0, T, chunk):
+            yield template[:, None, :].expand(B, min(chunk, T - start), -1).clone()  # (B, n, V*3)
+
 
 @dataclass
 class VocaConfig:
@@ -141,21 +150,43 @@ class VocaStyle(nn.Module):
         if "vertices" in batch:
             _check_vertices(batch["vertices"], self.cfg.n_vertices, "vertices")
         w = self.windows(audio, batch.get("mask"))                      # (B, T, D_a, 2W+1)
+        code = self.speaker_code(batch["speaker"], B)                   # (B, n_speakers)
+        return _outputs(template, self._motion(w, code))
+
+    def _motion(self, w: torch.Tensor, code: torch.Tensor) -> torch.Tensor:
+        """Audio windows (B, T, D_a, 2W+1) and speaker codes (B, n_speakers) -> motion M (B, T, V*3)."""
+        B, T = w.shape[:2]
         z = self.encoder(w.reshape(B * T, *w.shape[2:]))                # (B*T, c*L)
-        s = self.speaker_code(batch["speaker"], B).to(z)                # (B, n_speakers)
-        s = s[:, None, :].expand(B, T, -1).reshape(B * T, -1)           # (B*T, n_speakers)
+        s = code.to(z)[:, None, :].expand(B, T, -1).reshape(B * T, -1)  # (B*T, n_speakers)
         latent = self.mlp(torch.cat([z, s], dim=-1))                    # (B*T, latent)
-        motion = self.decoder(latent).reshape(B, T, -1)                 # (B, T, V*3): M_{1:T}
-        return _outputs(template, motion)
+        return self.decoder(latent).reshape(B, T, -1)                   # (B, T, V*3): M_{1:T}
 
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor,
                  use_cache: bool = True, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Inference: (B, T, D_a), (B, V*3), (B,) -> vertices (B, T, V*3). Non-autoregressive: no cache."""
-        batch = {"audio": audio, "template": template, "speaker": speaker}
-        if mask is not None:
-            batch["mask"] = mask
-        return self(batch)["vertices"]
+        """Inference: (B, T, D_a), (B, V*3), (B,) -> vertices (B, T, V*3). Non-autoregressive: no cache.
+
+        Computed in blocks of frames (:meth:`generate_chunks`): the (B*T, D_a, 2W+1) windows of a whole hour
+        would take over a gigabyte; every frame is independent, so the blocks give exactly ``forward``."""
+        out = template.new_empty(audio.shape[0], audio.shape[1], template.shape[-1])  # (B, T, V*3)
+        start = 0
+        for block in self.generate_chunks(audio, template, speaker, mask):
+            out[:, start:start + block.shape[1]] = block
+            start += block.shape[1]
+        return out
+
+    @torch.no_grad()
+    def generate_chunks(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor,
+                        mask: torch.Tensor | None = None, chunk: int = 900):
+        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks; memory O(chunk) beyond the inputs."""
+        B, T, _ = audio.shape
+        check_shape(audio, (B, T, self.cfg.audio_dim), "audio")
+        _check_vertices(template, self.cfg.n_vertices, "template")
+        check_shape(template, (B, self.cfg.n_vertices * 3), "template")
+        w = self.windows(audio, mask)                                   # (B, T, D_a, 2W+1), a strided view
+        code = self.speaker_code(speaker, B)                            # (B, n_speakers)
+        for start in range(0, T, chunk):
+            yield template[:, None, :] + self._motion(w[:, start:start + chunk], code)  # (B, n, V*3)
 
     @torch.no_grad()
     def init_decoder_pca(self, motion: torch.Tensor) -> torch.Tensor:

@@ -34,9 +34,16 @@ Design decisions (the paper leaves these open; see also ``blocks.fusion`` for th
   past frame (replaced by the template, zero motion) with probability p during training; ``tiny()`` uses 0.5.
 - Motion enters and leaves the network in mm (``motion_scale`` = 1000): in metres the encoder/decoder weights
   must reach ~1e3 / ~1e-3, far from Adam's step size, and the tiny model barely learned in a minute.
+- Long audio (issue 11): the audio extractor's self-attention is banded (+-``audio_radius`` frames, exact for
+  clips up to audio_radius + 1 frames), and ``generate`` decodes with bounded caches: the motion
+  self-attention sees the last ``decoder_window`` stream tokens (exact for clips up to decoder_window frames;
+  beyond, the ALiBi error bound of ``blocks.windowed``), the integration only the frames its alignment mask
+  admits (always exact). ``forward`` (training, clips of seconds) keeps whole-clip attention; it equals the
+  windowed model on any clip within both sizes. Hour-long clips: ``generate_chunks`` + ``streaming``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import torch
@@ -44,8 +51,10 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..blocks.attention import merge_heads, scaled_dot_product_attention, split_heads
 from ..blocks.fusion import DualFusionLayer
 from ..blocks.positional import PeriodicPositionalEncoding
+from ..blocks.windowed import SlidingKVCache, alibi_lag_bias
 from .audio_encoder import AudioFeatureExtractor
 
 __all__ = ["DualTalkerConfig", "faceformer_config", "TransposedLinear", "DualTalker"]
@@ -79,6 +88,9 @@ class DualTalkerConfig:
     scheduled_sampling: float = 0.0  # probability of feeding back a prediction in training
     motion_scale: float = 1000.0  # motion enters/leaves the network in mm (metres x 1000): well-scaled for Adam
     motion_dropout: float = 0.0  # probability of hiding a fed-back past frame in training (exposure-bias remedy)
+    # Long audio (issue 11): bounded memory/time per frame; both are exact for clips up to the sizes below.
+    audio_radius: int | None = 450  # audio self-attention sees +-450 frames (15 s); None = whole clip
+    decoder_window: int | None = 1800  # generate(): motion self-attention sees the last 1800 tokens (60 s)
 
     def __post_init__(self):
         if self.query_from not in ("encoder", "decoder"):
@@ -86,6 +98,10 @@ class DualTalkerConfig:
         for name in ("scheduled_sampling", "motion_dropout"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} is a probability, got {getattr(self, name)}")
+        for name in ("audio_radius", "decoder_window"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or value < (0 if name == "audio_radius" else 1)):
+                raise ValueError(f"{name} must be a positive number of frames or None, got {value!r}")
         for name in ("d_model", "audio_hidden"):
             if getattr(self, name) % (self.n_heads if name == "d_model" else self.audio_heads):
                 raise ValueError(f"{name}={getattr(self, name)} must be divisible by its number of heads")
@@ -132,7 +148,8 @@ class DualTalker(nn.Module):
         self.cfg = cfg
         d, c, v3 = cfg.d_model, cfg.audio_hidden, 3 * cfg.n_vertices
         self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
-                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout)
+                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
+                                               radius=cfg.audio_radius)
         self.audio_encoder = nn.Linear(c, d)  # linear "MLP" audio encoder: C -> d (supplementary A)
         self.motion_encoder = nn.Linear(v3, d)  # Me: V*3 -> d
         self.style = nn.Embedding(cfg.n_speakers, d)  # S_1..S_n
@@ -262,34 +279,138 @@ class DualTalker(nn.Module):
     # ---- inference: the primal task, autoregressively ---------------------------------------------
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
-                 mask: Tensor | None = None) -> Tensor:
+                 mask: Tensor | None = None, window: int | None | str = "config") -> Tensor:
         """Eq. 1 frame by frame: A (B, T, D_a), template (B, V*3), speaker (B,) -> vertices (B, T, V*3).
 
-        ``use_cache=True`` keeps the keys/values of every attention, so frame t costs O(t); ``False``
-        re-runs the fusion layers on the whole prefix at every frame (O(t^2)). Call ``model.eval()`` first.
+        ``use_cache=True`` decodes with bounded caches (:meth:`generate_chunks`): O(``window``) work and
+        memory per frame, exact for clips of at most ``window`` frames (``"config"``: ``cfg.decoder_window``;
+        None: unbounded cache, O(t) per frame). ``False`` re-runs the fusion layers on the whole prefix at every
+        frame with unbounded attention (O(t^2), the reference; ``window`` is ignored). Call ``model.eval()`` first.
+        The result is one (B, T, V*3) tensor; for hour-long clips stream :meth:`generate_chunks` to disk.
         """
         self._check(audio, template, speaker)
+        if use_cache:
+            out = template.new_empty(audio.shape[0], audio.shape[1], template.shape[1])  # (B, T, V*3)
+            start = 0
+            for chunk in self.generate_chunks(audio, template, speaker, mask=mask, window=window):
+                out[:, start:start + chunk.shape[1]] = chunk
+                start += chunk.shape[1]
+            return out
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
         style = self.speaker_style(speaker)  # (B, d)
         x = self.encode_audio(audio, mask)  # (B, T, d)
-        caches = [layer.new_cache() for layer in self.layers] if use_cache else None
         token = style[:, None, :]  # (B, 1, d) start token S_n
         tokens, motions = [token], []
-        for t in range(audio.shape[1]):
-            if use_cache:
-                h = self.ppe(token, offset=t)  # (B, 1, d)
-                for layer, cache in zip(self.layers, caches):
-                    h, _ = layer(h, x, style, "primal", offset=t, key_mask=mask, cache=cache)
-            else:
-                h = self.ppe(torch.cat(tokens, dim=1))  # (B, t+1, d) the whole prefix, again
-                for layer in self.layers:
-                    h, _ = layer(h, x, style, "primal", key_mask=mask)
-                h = h[:, -1:]  # (B, 1, d)
-            m_t = self.decode_motion(h)  # (B, 1, V*3) m̂_t
+        for _ in range(audio.shape[1]):
+            h = self.ppe(torch.cat(tokens, dim=1))  # (B, t+1, d) the whole prefix, again
+            for layer in self.layers:
+                h, _ = layer(h, x, style, "primal", key_mask=mask)
+            m_t = self.decode_motion(h[:, -1:])  # (B, 1, V*3) m̂_t
             motions.append(m_t)
-            token = self.encode_motion(m_t)  # (B, 1, d) fed back
-            if self.cfg.add_style_to_motion:
-                token = token + style[:, None, :]
-            tokens.append(token)
+            tokens.append(self._feedback(m_t, style))
         return template[:, None, :] + torch.cat(motions, dim=1)  # (B, T, V*3)
+
+    def _feedback(self, m_t: Tensor, style: Tensor) -> Tensor:
+        """The next stream token from the frame just predicted: Me(m̂_t) (+ S_n for FaceFormer) -> (B, 1, d)."""
+        token = self.encode_motion(m_t)  # (B, 1, d)
+        return token + style[:, None, :] if self.cfg.add_style_to_motion else token
+
+    @torch.no_grad()
+    def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
+                        window: int | None | str = "config", chunk: int = 900):
+        """Yield the vertices of eq. 1 in consecutive (B, <= chunk, V*3) blocks, with bounded caches.
+
+        Memory and work per frame are bounded (issue 11), which makes hour-long clips feasible:
+
+        - motion self-attention (ALiBi, unbounded causal bias): the last ``window`` stream tokens
+          (:class:`~dualtalker_lite.blocks.windowed.SlidingKVCache`); exact when T <= window, otherwise the
+          error bound of :mod:`dualtalker_lite.blocks.windowed` applies;
+        - integration, paper reading (eq. 6): the alignment mask lets the query at t see Ȳ_j for
+          j in [t - align_window + 1, t] only, so a cache of ``align_window`` frames is *exact*;
+        - integration, FaceFormer's reading: keys X_j for j in the centred window around t only (exact).
+
+        The audio is encoded once with banded attention (linear memory, see the audio encoder). Decoding is the
+        eval-mode computation (no dropout), whatever the module's mode: call ``model.eval()`` first anyway.
+        """
+        self._check(audio, template, speaker)
+        window = getattr(self.cfg, "decoder_window", None) if window == "config" else window
+        if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
+            raise ValueError(f"window must be a positive number of frames, None or 'config', got {window!r}")
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        b, t_total = audio.shape[:2]
+        style = self.speaker_style(speaker)  # (B, d)
+        x = self.encode_audio(audio, mask)  # (B, T, d)
+        states = [self._decoder_state(layer, x, window) for layer in self.layers]
+        token = style[:, None, :]  # (B, 1, d) start token S_n
+        ppe = self.ppe.encoding(self.ppe.period).to(token.dtype)  # (p, d) one period of the PPE table
+        for start in range(0, t_total, chunk):
+            n = min(chunk, t_total - start)
+            block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
+            for r in range(n):
+                t = start + r
+                h = token + ppe[t % ppe.shape[0]]  # (B, 1, d) PPE of frame t (eval: no dropout)
+                for layer, state in zip(self.layers, states):
+                    h = self._decode_step(layer, state, h, x, style, t, mask)
+                m_t = self.decode_motion(h)  # (B, 1, V*3) m̂_t
+                block[:, r] = template + m_t[:, 0]
+                token = self._feedback(m_t, style)  # (B, 1, d)
+            yield block
+
+    def _decoder_state(self, layer, x: Tensor, window: int | None) -> dict:
+        """Bounded caches of one fusion layer for :meth:`_decode_step`."""
+        integ, h = layer.integration, layer.n_heads
+        state = {"self": SlidingKVCache(window), "bias": None}
+        if integ.query_is_given:
+            state["integration"] = SlidingKVCache(integ.window)  # Ȳ_{t-w+1..t}: all the alignment admits
+        else:
+            _, k_proj, v_proj, _ = integ.projections("primal")
+            state["k"], state["v"] = split_heads(k_proj(x), h), split_heads(v_proj(x), h)  # (B, H, T, d_h)
+        return state
+
+    def _lag_bias(self, state: dict, n_heads: int, period: int, n: int, device) -> Tensor:
+        """ALiBi bias of one query over its n most recent keys (lags n-1..0) -> (1, H, 1, n), cached."""
+        bias = state["bias"]
+        if bias is None or bias.shape[-1] < n:
+            size = max(n, state["self"].window or 2 * n)
+            lags = torch.arange(size - 1, -1, -1, device=device)  # oldest key first
+            bias = state["bias"] = alibi_lag_bias(n_heads, lags, period)[None, :, None, :]  # (1, H, 1, size)
+        return bias[..., bias.shape[-1] - n:]
+
+    def _decode_step(self, layer, state: dict, h: Tensor, x: Tensor, style: Tensor, t: int,
+                     mask: Tensor | None) -> Tensor:
+        """One frame of a :class:`DualFusionLayer` (Fig. 2, primal) with bounded caches: h (B, 1, d) -> (B, 1, d).
+
+        The same computation as ``layer(h, x, style, "primal", offset=t, cache=...)`` (eval mode), with the
+        self-attention keys limited to the sliding window and the integration keys to the alignment window.
+        """
+        fusion, integ, n_heads = layer.primal, layer.integration, layer.n_heads
+        mha = fusion.self_attn
+        q = split_heads(mha.q_proj(h), n_heads)  # (B, H, 1, d_h)
+        k, v = state["self"].append(split_heads(mha.k_proj(h), n_heads), split_heads(mha.v_proj(h), n_heads))
+        bias = self._lag_bias(state, n_heads, layer.period, k.shape[2], h.device)  # (1, H, 1, n)
+        scores = q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]) + bias  # (B, H, 1, n) eq. 3, never masked
+        sa = mha.out_proj(merge_heads(torch.softmax(scores, dim=-1) @ v))  # (B, 1, d) eqs. 3-4
+        attended = fusion.norm1(h + sa)  # (B, 1, d) Y̌
+        gated = attended if fusion.gate is None else fusion.gate(attended, style)  # (B, 1, d) Ȳ, eq. 5
+        q_proj, k_proj, v_proj, out_proj = integ.projections("primal")
+        key_mask = None
+        if integ.query_is_given:  # eq. 6: query X_t, keys Ȳ_{t-w+1..t}
+            query = x[:, t:t + 1]  # (B, 1, d)
+            k, v = state["integration"].append(split_heads(k_proj(gated), n_heads),
+                                               split_heads(v_proj(gated), n_heads))
+        else:  # FaceFormer: query Ȳ_t, keys X_j in the centred window
+            query = gated
+            lo = max(0, t - (integ.window - 1) // 2)
+            hi = min(x.shape[1], t + integ.window // 2 + 1)
+            k, v = state["k"][:, :, lo:hi], state["v"][:, :, lo:hi]  # (B, H, <= w, d_h)
+            key_mask = None if mask is None else mask[:, None, None, lo:hi]
+        q = split_heads(q_proj(query), n_heads)  # (B, H, 1, d_h)
+        if key_mask is None:  # every key admissible: the plain softmax of eq. 3
+            out = torch.softmax(q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]), dim=-1) @ v  # (B, H, 1, d_h)
+        else:  # padded keys: a query with none left gets zeros (blocks.attention convention)
+            out = scaled_dot_product_attention(q, k, v, mask=key_mask)[0]
+        att = out_proj(merge_heads(out))  # (B, 1, d) eq. 6
+        z = fusion.norm2(query + att)  # (B, 1, d)
+        return fusion.norm3(z + fusion.ff(z))  # (B, 1, d) Y̆_t

@@ -1,19 +1,21 @@
 """Visualisation on plain arrays: vertices (V, 3) or (T, V, 3) in metres (y up, face towards +z), faces (F, 3).
 
 - ``render``   matplotlib mesh renderer: orthographic views, back-face culling, painter's algorithm, Lambert shading,
-               per-vertex colour maps; ``render_frame_rgb`` -> uint8 (H, W, 3)
+               per-vertex colour maps; ``render_frame_rgb`` -> uint8 (H, W, 3); ``RasterRenderer`` (Pillow, ~4x faster)
 - ``plots``    figures: mesh frame grids, per-vertex (error) maps, lip distance and waveform with phonemes
-- ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback
+- ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback;
+               ``render_video``: long clips (memory-mapped .npy, fast renderer, progress bar, clean-up)
 - ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
 """
-from .animate import ClipAnimation, animate_clip
+from .animate import ClipAnimation, animate_clip, render_video
 from .plots import plot_frames, plot_lip_distance, plot_vertex_map, plot_waveform_and_phonemes
-from .render import VIEWS, MeshRenderer, draw_mesh, render_frame_rgb
+from .render import VIEWS, MeshRenderer, RasterRenderer, draw_mesh, render_frame_rgb
 from .viewer import MeshViewer, static_html
 
 __all__ = [
     "VIEWS",
     "MeshRenderer",
+    "RasterRenderer",
     "draw_mesh",
     "render_frame_rgb",
     "plot_frames",
@@ -22,6 +24,7 @@ __all__ = [
     "plot_waveform_and_phonemes",
     "ClipAnimation",
     "animate_clip",
+    "render_video",
     "MeshViewer",
     "static_html",
 ]

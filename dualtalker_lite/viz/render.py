@@ -13,8 +13,12 @@ The pipeline, one step per function below:
 6. colour: a uniform clay colour, or a per-vertex scalar (mean over the face's three vertices) through ``cmap``.
 
 Everything ends up in one ``matplotlib.collections.PolyCollection`` of 2D triangles. ``MeshRenderer`` keeps one
-Agg figure and one collection alive and only swaps their contents, which renders ~40-50 frames/s for a
-3,000-face mesh at 256x256 on one CPU core.
+Agg figure and one collection alive and only swaps their contents, which renders ~35-50 frames/s for a
+3,000-face mesh at 256x256 on one CPU core (Agg's anti-aliased polygon filling is most of the time).
+
+``RasterRenderer`` fills the same polygons with the same colours (steps 1-6) using Pillow's C polygon filler
+(Pillow ships with matplotlib), far to near, at twice the size, then averages 2x2 blocks (anti-aliasing): about
+6 ms a frame instead of ~25 ms, for long videos (issue 11); it looks the same up to edge anti-aliasing.
 """
 from __future__ import annotations
 
@@ -40,6 +44,7 @@ __all__ = [
     "mesh_polygons",
     "draw_mesh",
     "MeshRenderer",
+    "RasterRenderer",
     "render_frame_rgb",
 ]
 
@@ -258,3 +263,64 @@ def render_frame_rgb(vertices: np.ndarray, faces: np.ndarray, size: int | tuple[
         _RENDERERS[key] = MeshRenderer((width, height), background, antialiased)
     return _RENDERERS[key].render(vertices, faces, view, azimuth, elevation, colors, cmap, vmin, vmax,
                                   extent, shading, CLAY, True, label)
+
+
+class RasterRenderer:
+    """:class:`MeshRenderer`'s interface and look, filled by Pillow instead of Agg: uint8 (H, W, 3) frames, about
+    4x faster. ``supersample`` = 2 draws at twice the size and averages 2x2 blocks (anti-aliasing).
+    ``label`` captions are drawn once per distinct text with matplotlib and composited."""
+
+    def __init__(self, size: int | tuple[int, int] = (256, 256), background="white", supersample: int = 2):
+        self.width, self.height = (size, size) if np.isscalar(size) else (int(size[0]), int(size[1]))
+        self.background = tuple(int(round(255 * c)) for c in to_rgb(background))
+        self.supersample = max(1, int(supersample))
+        self.n_drawn = 0
+        self._labels: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def render(self, vertices: np.ndarray, faces: np.ndarray, view: str | None = "front",
+               azimuth: float | None = None, elevation: float | None = None,
+               colors: np.ndarray | None = None, cmap: str = "viridis",
+               vmin: float | None = None, vmax: float | None = None,
+               extent: Extent | None = None, shading: float | None = None, base_color=CLAY,
+               cull: bool = True, label: str | None = None) -> np.ndarray:
+        """Same arguments as :meth:`MeshRenderer.render`; -> uint8 (H, W, 3)."""
+        from PIL import Image, ImageDraw
+
+        polys = mesh_polygons(vertices, faces, view, azimuth, elevation, colors, cmap, vmin, vmax,
+                              base_color, shading, cull)
+        rotation = camera_rotation(view, azimuth, elevation)
+        centre, half = mesh_extent(vertices) if extent is None else extent
+        cx, cy, _ = project(np.asarray(centre, dtype=np.float64), rotation)
+        w, h, ss = self.width, self.height, self.supersample
+        hx, hy = (half * w / h, half) if w >= h else (half, half * h / w)  # as _frame_limits
+        px = np.empty_like(polys.xy)  # (N, 3, 2) metres -> pixels, rows downwards
+        px[..., 0] = (polys.xy[..., 0] - (cx - hx)) / (2 * hx) * (w * ss)
+        px[..., 1] = ((cy + hy) - polys.xy[..., 1]) / (2 * hy) * (h * ss)
+        rgb = np.clip(np.rint(polys.facecolors[:, :3] * 255.0), 0, 255).astype(int).tolist()
+        image = Image.new("RGB", (w * ss, h * ss), self.background)
+        draw = ImageDraw.Draw(image)
+        for tri, colour in zip(px.reshape(len(px), 6).tolist(), rgb):  # far to near: painter's algorithm
+            draw.polygon(tri, fill=tuple(colour))
+        if ss > 1:
+            image = image.resize((w, h), Image.BOX)  # the mean of each ss x ss block
+        out = np.array(image)  # (H, W, 3) uint8
+        self.n_drawn = len(polys.face_index)
+        if label:
+            box, ink, alpha = self._label(label)  # composite only the caption's bounding box
+            out[box] = np.rint(out[box] * (1.0 - alpha) + ink * alpha).astype(np.uint8)
+        return out
+
+    def _label(self, text: str) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
+        """The caption of :class:`MeshRenderer` as (bounding box, colour, alpha), drawn once per text."""
+        if text not in self._labels:
+            fig = Figure(figsize=(self.width / 100, self.height / 100), dpi=100, facecolor="white")
+            canvas = FigureCanvasAgg(fig)
+            fig.text(0.03, 0.97, text, va="top", ha="left", fontsize=max(7, self.height // 24), color="0.15")
+            canvas.draw()
+            ink = _fit(np.asarray(canvas.buffer_rgba())[..., :3], self.height, self.width).astype(np.float64)
+            alpha = np.clip((255.0 - ink.min(axis=2, keepdims=True)) / (255.0 * 0.85), 0.0, 1.0)  # 1 = full ink
+            rows, cols = np.flatnonzero(alpha.any(axis=(1, 2))), np.flatnonzero(alpha.any(axis=(0, 2)))
+            box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)) if len(rows) else \
+                (slice(0, 0), slice(0, 0))
+            self._labels[text] = (box, np.full_like(alpha[box], 0.15 * 255.0), alpha[box])
+        return self._labels[text]

@@ -1,0 +1,224 @@
+"""Hour-long audio in bounded memory (issue 11): peak memory and real-time factor of features + encode + generate
+for 1, 10 and 60 minutes of speech on the tiny DualTalker, and the speed of video rendering. Prints a table;
+nothing here is a pass/fail test (targets: peak memory < 2 GB at 60 min, generation >= 20x real time,
+video >= 3x real time).
+
+    python benchmarks/long_audio.py                      # 1 and 10 minutes, video on 60 s
+    python benchmarks/long_audio.py --minutes 1 10 60    # the hour too (about 3-5 min of CPU)
+    python benchmarks/long_audio.py --window-check 60    # trained model: windowed vs unbounded decoding, 3 min
+
+Each length runs in a fresh process (``--one``), so its peak resident memory (``ru_maxrss``: every numpy and torch
+allocation, plus the interpreter and libraries) is its own. The speech is the shipped sample's clips concatenated
+until the length is reached. Untrained weights (speed and memory do not depend on them). Vertices are streamed to a
+.npy (``dualtalker_lite.streaming``): held in memory, an hour of 1,558-vertex frames would be 2.0 GB by itself.
+CPU time (``time.process_time``, one torch thread) is reported beside wall time, which other jobs inflate.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kilobytes
+
+
+def speech(seconds: float, sample_rate: int = 16000):
+    """The sample's clips, concatenated (and repeated) to ``seconds`` of speech: float32 (N,)."""
+    import numpy as np
+    import soundfile as sf
+
+    from dualtalker_lite.data import sample_path
+
+    folder = Path(sample_path()) / "audio"
+    files = sorted([*folder.rglob("*.flac"), *folder.rglob("*.wav")])
+    n, out, i = int(seconds * sample_rate), [], 0
+    total = 0
+    while total < n:
+        wave, sr = sf.read(str(files[i % len(files)]), dtype="float32")
+        assert sr == sample_rate, (files[i % len(files)], sr)
+        out.append(wave)
+        total += len(wave)
+        i += 1
+    return np.concatenate(out)[:n]
+
+
+def one(minutes: float, out_dir: Path, video_seconds: float, threads: int) -> dict:
+    import numpy as np
+    import torch
+
+    from dualtalker_lite.audio import LogMelExtractor
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+    from dualtalker_lite.streaming import generate_to_npy
+
+    torch.set_num_threads(threads)
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                                n_speakers=len(corpus.train_speakers))
+    model = DualTalker(cfg).eval()
+    torch.nn.init.normal_(model.motion_decoder.weight, std=0.01)  # untrained, but not a constant template
+    template = corpus.template(corpus.train_speakers[0]).reshape(-1)
+    faces = corpus.faces
+    rss_ready = peak_rss_mb()
+    wave = speech(60 * minutes)
+    n_frames = int(round(len(wave) * 30 / 16000))
+    row = {"minutes": minutes, "frames": n_frames, "rss_after_imports_mb": rss_ready}
+
+    cpu, wall = time.process_time(), time.perf_counter()
+    with torch.no_grad():
+        audio = LogMelExtractor()(wave, n_frames)  # (T, 160)
+    row["features_cpu_s"], row["features_wall_s"] = time.process_time() - cpu, time.perf_counter() - wall
+
+    timing = {}
+    encode = model.encode_audio
+
+    def timed_encode(*args, **kwargs):
+        t0 = time.process_time()
+        result = encode(*args, **kwargs)
+        timing["encode_cpu_s"] = time.process_time() - t0
+        return result
+
+    model.encode_audio = timed_encode
+    path = out_dir / f"vertices_{minutes:g}min.npy"
+    cpu, wall = time.process_time(), time.perf_counter()
+    generate_to_npy(model, audio, torch.from_numpy(template), 0, path)
+    row["generate_cpu_s"], row["generate_wall_s"] = time.process_time() - cpu, time.perf_counter() - wall
+    row["encode_cpu_s"] = timing["encode_cpu_s"]
+    row["decode_cpu_s"] = row["generate_cpu_s"] - row["encode_cpu_s"]
+    row["result_gb_if_in_memory"] = n_frames * template.size * 4 / 1e9
+    row["peak_rss_mb"] = peak_rss_mb()
+    verts = np.load(path, mmap_mode="r")
+    assert verts.shape == (n_frames, template.size) and np.isfinite(verts[-100:]).all()
+
+    if video_seconds > 0:
+        from dualtalker_lite.viz.animate import render_video
+
+        n = min(n_frames, int(video_seconds * 30))
+        for renderer, frames in (("raster", n), ("matplotlib", min(n, 300))):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu, wall = time.process_time(), time.perf_counter()
+            render_video(verts[:frames], faces, out_dir / f"video_{renderer}.mp4", wave=wave[: frames * 16000 // 30],
+                         renderer=renderer, progress=False)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            row[f"video_{renderer}"] = {
+                "frames": frames, "wall_s": time.perf_counter() - wall, "cpu_s": time.process_time() - cpu,
+                "ffmpeg_cpu_s": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)}
+    path.unlink()
+    return row
+
+
+def report(rows: list[dict]) -> None:
+    print("\nlong audio, tiny DualTalker (V = 1558), 1 torch thread; CPU seconds (wall in brackets)")
+    print(f"{'audio':>7} | {'frames':>7} | {'features':>13} | {'encode':>7} | {'decode':>8} | "
+          f"{'total':>14} | {'x real time':>11} | {'RTF':>6} | {'peak RSS':>9} | {'result in RAM':>13}")
+    for r in rows:
+        total = r["features_cpu_s"] + r["generate_cpu_s"]
+        wall = r["features_wall_s"] + r["generate_wall_s"]
+        secs = 60 * r["minutes"]
+        print(f"{r['minutes']:>5g} m | {r['frames']:>7} | {r['features_cpu_s']:6.1f} ({r['features_wall_s']:4.1f}) | "
+              f"{r['encode_cpu_s']:7.1f} | {r['decode_cpu_s']:8.1f} | {total:6.1f} ({wall:5.1f}) | "
+              f"{secs / total:10.1f}x | {total / secs:6.4f} | {r['peak_rss_mb']:6.0f} MB | "
+              f"{r['result_gb_if_in_memory']:9.2f} GB")
+    print(f"(peak RSS includes about {rows[0]['rss_after_imports_mb']:.0f} MB of interpreter, torch and the corpus "
+          f"before any audio; 'result in RAM' is what generate() would hold, streamed to .npy instead)")
+    for r in rows:
+        for renderer in ("raster", "matplotlib"):
+            v = r.get(f"video_{renderer}")
+            if v:
+                fps = v["frames"] / v["wall_s"]
+                print(f"video ({renderer}, 256x256, {v['frames']} frames, from the {r['minutes']:g} min run): "
+                      f"{fps:.0f} frames/s wall = {fps / 30:.1f}x real time; render CPU {v['cpu_s']:.1f} s "
+                      f"+ ffmpeg CPU {v['ffmpeg_cpu_s']:.1f} s")
+
+
+def window_check(train_seconds: float, minutes: float, threads: int) -> None:
+    """How far the sliding decoder window moves a *trained* model's output on a clip longer than the window:
+    the tiny DualTalker trained for ``train_seconds`` on the sample, then the test-A clips' features
+    concatenated to ``minutes``, generated with the unbounded cache (window=None) and with the default window."""
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from common import load_sample, tiny_dualtalker
+    from dualtalker_lite.data.dataset import make_loader
+    from dualtalker_lite.train import TrainConfig, train
+
+    torch.set_num_threads(threads)
+    corpus, ds = load_sample(("train", "test_a"))
+    model = tiny_dualtalker(corpus, 0)
+    cfg = TrainConfig.tiny(epochs=10_000, time_budget_s=train_seconds, seed=0, validate_every=0, progress=False)
+    hist = train(model, make_loader(ds["train"], cfg.batch_size, shuffle=True, seed=0), cfg)
+    model.eval()
+    longest = max(len(ds["train"][i]["audio"]) for i in range(len(ds["train"])))
+    items = [ds["test_a"][i] for i in range(len(ds["test_a"]))]
+    n = int(minutes * 60 * 30)
+    audio = torch.cat([it["audio"] for it in items])
+    audio = audio.repeat(n // len(audio) + 1, 1)[:n][None]  # (1, T, 160)
+    template, speaker = items[0]["template"][None], torch.tensor([0])
+    window = model.cfg.decoder_window
+    t0 = time.process_time()
+    full = model.generate(audio, template, speaker, window=None)[0]  # (T, V*3) unbounded cache
+    t1 = time.process_time()
+    windowed = model.generate(audio, template, speaker)[0]
+    t2 = time.process_time()
+    diff = (full - windowed).view(n, -1, 3).norm(dim=-1) * 1000  # (T, V) mm
+    motion = (full - template).view(n, -1, 3).norm(dim=-1) * 1000
+    print(f"\nwindow check: tiny DualTalker trained {len(hist.terms)} epochs ({train_seconds:g} s budget; longest "
+          f"training clip {longest} frames), {minutes:g} min of test-A features, decoder_window = {window} frames")
+    print(f"  unbounded cache {t1 - t0:.1f} s CPU, windowed {t2 - t1:.1f} s CPU")
+    print(f"  frames <= window: max |difference| {diff[:window].max():.2e} mm (exact up to float rounding)")
+    print(f"  frames > window: max {diff[window:].max():.4f} mm, mean {diff[window:].mean():.5f} mm per vertex; "
+          f"mean motion {motion.mean():.3f} mm, max {motion.max():.2f} mm")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, nargs="+", default=[1, 10])
+    ap.add_argument("--video-seconds", type=float, default=60, help="render this much of the first length (0: none)")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--one", type=float, help=argparse.SUPPRESS)  # internal: one length in this process
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    ap.add_argument("--json", help="also write the figures to this JSON file")
+    ap.add_argument("--window-check", type=float, metavar="SECONDS",
+                    help="instead: train the tiny model this long, compare windowed vs unbounded decoding")
+    ap.add_argument("--check-minutes", type=float, default=3.0, help="clip length for --window-check")
+    args = ap.parse_args()
+    if args.window_check is not None:
+        window_check(args.window_check, args.check_minutes, args.threads)
+        return
+    if args.one is not None:
+        print(json.dumps(one(args.one, Path(args.out), args.video_seconds, args.threads)))
+        return
+    rows = []
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    with tempfile.TemporaryDirectory(prefix="long-audio-") as tmp:
+        for i, minutes in enumerate(args.minutes):
+            video = args.video_seconds if i == 0 else 0
+            cmd = [sys.executable, __file__, "--one", str(minutes), "--out", tmp, "--video-seconds", str(video),
+                   "--threads", str(args.threads)]
+            result = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            if result.returncode != 0:
+                sys.exit(f"{minutes} min run failed:\n{result.stderr[-3000:]}")
+            rows.append(json.loads(result.stdout.strip().splitlines()[-1]))
+            print(f"{minutes:g} min done: {rows[-1]['generate_cpu_s'] + rows[-1]['features_cpu_s']:.1f} s CPU, "
+                  f"peak {rows[-1]['peak_rss_mb']:.0f} MB", flush=True)
+    report(rows)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""Hour-long audio in bounded memory (issue 11): stream generated frames straight to a ``.npy`` file.
+
+An hour at 30 fps is 108,000 frames. The models decode it with bounded caches (``generate_chunks``, see
+:mod:`dualtalker_lite.blocks.windowed`), but the *result* alone is T x V*3 float32: 2.0 GB for the sample's
+1,558-vertex face, the whole memory budget. So long clips are written block by block to a ``.npy`` file (a
+valid numpy file: ``np.load(path, mmap_mode="r")`` reads it back lazily, and ``viz.animate.render_video``
+renders it frame by frame).
+
+    from dualtalker_lite.streaming import animate_wave_to_npy
+    animate_wave_to_npy(model, wave, template, speaker=0, path="runs/long/vertices.npy")
+
+Files are written to a temporary name beside the target and renamed when complete; the temporary file is
+removed on failure, Ctrl-C and SIGTERM, and a non-finite frame stops the run with a message naming the frames.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "animate_wave_to_npy"]
+
+
+@contextlib.contextmanager
+def sigterm_as_exit():
+    """Inside the block, SIGTERM raises ``SystemExit(143)`` so ``finally``/``with`` clean-ups run (temporary files
+    and folders). Only in the main thread, and only when nobody else installed a SIGTERM handler."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def write_npy_stream(path: str | os.PathLike, chunks, n_frames: int, n_values: int) -> Path:
+    """Write (n, n_values) blocks (arrays or tensors, batch dim 1 allowed) as one float32 (n_frames, n_values) .npy.
+
+    Memory: one block at a time. Atomic: ``<name>.partial`` beside the target, renamed at the end; removed on any
+    failure or interruption. Non-finite values and a frame count other than ``n_frames`` are errors.
+    """
+    path = Path(path)
+    tmp = path.with_name(path.name + ".partial")
+    header = {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float32)), "fortran_order": False,
+              "shape": (int(n_frames), int(n_values))}
+    written = 0
+    try:
+        with sigterm_as_exit(), open(tmp, "wb") as f:
+            np.lib.format.write_array_header_2_0(f, header)
+            for block in chunks:
+                block = block.detach().cpu().numpy() if isinstance(block, torch.Tensor) else np.asarray(block)
+                block = np.ascontiguousarray(block.reshape(-1, n_values), dtype=np.float32)  # (n, V*3)
+                if not np.isfinite(block).all():
+                    bad = written + np.flatnonzero(~np.isfinite(block).all(1))
+                    raise ValueError(f"{path}: non-finite values in frames {bad[:5].tolist()}"
+                                     f"{' ...' if len(bad) > 5 else ''}; nothing was written")
+                if written + len(block) > n_frames:
+                    raise ValueError(f"{path}: more than the announced {n_frames} frames")
+                f.write(block.tobytes())
+                written += len(block)
+            if written != n_frames:
+                raise ValueError(f"{path}: got {written} frames, expected {n_frames}; nothing was written")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def generate_to_npy(model: torch.nn.Module, audio: torch.Tensor, template: torch.Tensor, speaker: int,
+                    path: str | os.PathLike, chunk: int = 900) -> Path:
+    """``model.generate_chunks`` for one clip, audio (T, D_a) or (1, T, D_a), template (V*3,) -> (T, V*3) .npy."""
+    audio = audio if audio.dim() == 3 else audio[None]  # (1, T, D_a)
+    template = torch.as_tensor(template, dtype=torch.float32).reshape(1, -1)  # (1, V*3)
+    model.eval()
+    chunks = model.generate_chunks(audio, template, torch.tensor([int(speaker)]), chunk=chunk)
+    return write_npy_stream(path, chunks, audio.shape[1], template.shape[1])
+
+
+def animate_wave_to_npy(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int,
+                        path: str | os.PathLike, sample_rate: int = 16000, extractor=None, fps: int = 30,
+                        chunk: int = 900) -> Path:
+    """16 kHz mono speech (N,) of any length -> predicted vertices (T, V*3) float32 in ``path``, T = N fps / sr.
+
+    The streaming counterpart of ``inference.animate_wave``: features (block-wise STFT), banded audio encoding
+    and bounded-cache decoding keep the memory far below the size of the result.
+    """
+    from .audio import LogMelExtractor, validate_wave
+
+    validate_wave(wave, sample_rate)
+    extractor = extractor or LogMelExtractor()
+    template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
+    n_vertices = getattr(getattr(model, "cfg", None), "n_vertices", None)
+    if n_vertices is not None and template.size != 3 * n_vertices:
+        raise ValueError(f"template has {template.size // 3} vertices but the model was trained on {n_vertices}")
+    n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
+    with torch.no_grad():
+        audio = extractor(wave, n_frames)  # (T, D_a)
+        return generate_to_npy(model, audio, torch.from_numpy(template), speaker, path, chunk)
