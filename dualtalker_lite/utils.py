@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 __all__ = ["set_seed", "check_shape", "runs_dir", "atomic_torch_save", "repo_root", "load_npy", "check_finite",
-           "NonFiniteError", "default_file_mode", "AtomicOutputDir", "watch_parent"]
+           "NonFiniteError", "default_file_mode", "AtomicOutputDir", "atomic_write_text", "watch_parent"]
 
 
 def set_seed(seed: int, threads: int | None = None) -> torch.Generator:
@@ -137,6 +137,22 @@ class _remove_on_signal:
         if self.old is not None:
             signal.signal(signal.SIGTERM, self.old)
         return False
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write a text file via a temporary file in the same folder and a rename (0644 under umask 022)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.chmod(tmp, default_file_mode())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
 
 
 class AtomicOutputDir:

@@ -278,9 +278,10 @@ class Corpus:
         return wave
 
     def check_alignment(self, name: str, n_frames: int, n_samples: int) -> None:
-        """Raise ValueError unless ``n_frames`` ≈ audio duration * fps (within ``MAX_FRAME_MISMATCH``)."""
+        """Raise ValueError unless ``n_frames`` ≈ audio duration * fps (within ``MAX_FRAME_MISMATCH``, or the
+        metadata's ``max_frame_mismatch``: real datasets such as VOCASET differ by a few frames)."""
         expected = n_samples / self.sample_rate * self.fps
-        if abs(n_frames - expected) > MAX_FRAME_MISMATCH:
+        if abs(n_frames - expected) > self.metadata.get("max_frame_mismatch", MAX_FRAME_MISMATCH):
             raise ValueError(f"clip {name!r}: {n_frames} mesh frames but its audio lasts "
                              f"{n_samples / self.sample_rate:.3f} s = {expected:.1f} frames at {self.fps} fps")
 
