@@ -34,7 +34,7 @@ def _message(e: BaseException) -> str:
 
 def run_main(func: Callable, argv: Sequence[str] | None = None):
     """Call ``func(argv)`` as a command: user errors -> ``error: ...`` on stderr + exit 2; Ctrl-C -> exit 130."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]  # Path objects welcome
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     old_term = None
