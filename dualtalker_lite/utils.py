@@ -91,6 +91,10 @@ def load_npy(path: str | os.PathLike, what: str = "array") -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what} file not found: {path}")
+    with open(path, "rb") as f:
+        magic = f.read(6)
+    if magic != b"\x93NUMPY":
+        raise ValueError(f"{path}: not a valid .npy file (no NumPy header: corrupt, or another format)")
     try:
         arr = np.load(path, allow_pickle=False)
     except ValueError as e:
@@ -100,9 +104,6 @@ def load_npy(path: str | os.PathLike, what: str = "array") -> np.ndarray:
         raise ValueError(f"{path}: not a valid .npy file (corrupt or not written by np.save)") from e
     except (OSError, EOFError) as e:
         raise ValueError(f"{path}: not a valid .npy file (truncated or corrupt)") from e
-    if isinstance(arr, np.lib.npyio.NpzFile):
-        arr.close()
-        raise ValueError(f"{path}: is an .npz archive, expected a single .npy array")
     if arr.dtype.kind not in "fiub":
         raise ValueError(f"{path}: has dtype {arr.dtype}, expected numbers")
     return arr
