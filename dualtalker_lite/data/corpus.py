@@ -81,8 +81,8 @@ class Corpus:
         self._clip_set = set(self.clips)
         subjects = self.metadata.get("speakers") or {self.meta(c)["subject"] for c in self.clips}
         self.speakers: list[str] = sorted(subjects)
-        self.train_speakers: list[str] = sorted({self.meta(c)["subject"] for c in self.split("train")}) \
-            if "train" in self.metadata.get("splits", {}) else []
+        self.train_speakers: list[str] = sorted({self.meta(c)["subject"]
+                                                 for c in self.metadata.get("splits", {}).get("train", [])})
         self._train_index = {s: i for i, s in enumerate(self.train_speakers)}
         self.cache = cache
         self._vertices: dict[str, np.ndarray] = {}
