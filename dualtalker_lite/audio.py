@@ -27,7 +27,8 @@ import torch.nn.functional as F
 
 __all__ = [
     "SAMPLE_RATE", "N_FFT", "WIN_LENGTH", "HOP_LENGTH", "N_MELS", "LOG_EPS",
-    "MAX_AMPLITUDE", "load_audio", "resample", "validate_wave", "check_wav_header", "hz_to_mel", "mel_to_hz", "mel_filterbank",
+    "MAX_AMPLITUDE", "load_audio", "resample", "validate_wave", "check_wav_header", "hz_to_mel", "mel_to_hz",
+    "mel_filterbank",
     "log_mel_spectrogram", "interpolate_frames", "FeatureExtractor", "LogMelExtractor", "Wav2Vec2Extractor",
 ]
 

@@ -5,7 +5,7 @@
     dualtalker-lite evaluate  --checkpoint runs/my_model.pt --split test_a                   # metrics on a split
     dualtalker-lite generate  --out runs/corpus --speakers 6 --sentences 20                  # synthesize a corpus
     dualtalker-lite convert-templates vocaset/templates.pkl                                  # safe pickle -> npz
-    dualtalker-lite prepare-dataset vocaset --preset vocaset                                 # FaceFormer folder -> corpus
+    dualtalker-lite prepare-dataset vocaset --preset vocaset                                 # -> a loadable corpus
 
 Every command prints user errors (bad files, wrong arguments, existing outputs) as one line naming the file
 and the problem and exits with status 2; ``--debug`` (anywhere on the line) shows the traceback instead.

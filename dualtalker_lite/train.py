@@ -106,8 +106,8 @@ def _guard_finite(value: torch.Tensor, what: str, epoch: int, step: int, batch: 
         from .utils import NonFiniteError
 
         names = list(batch.get("name", []))
-        raise NonFiniteError(f"training stopped: non-finite {what} ({float(value.detach())}) at epoch {epoch + 1}, step "
-                             f"{step + 1}; batch clips: {names}. Check these clips for NaN/huge values; "
+        raise NonFiniteError(f"training stopped: non-finite {what} ({float(value.detach())}) at epoch {epoch + 1}, "
+                             f"step {step + 1}; batch clips: {names}. Check these clips for NaN/huge values; "
                              f"no checkpoint was written")
 
 

@@ -16,7 +16,9 @@ import soundfile as sf
 import torch
 
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.utils import AtomicOutputDir, NonFiniteError, load_npy
+from dualtalker_lite.utils import AtomicOutputDir, NonFiniteError, load_npy, repo_root
+
+ENV = {**os.environ, "PYTHONPATH": str(repo_root())}  # subprocesses import this checkout's package
 
 V, T, SR = 20, 30, 16000
 
@@ -216,7 +218,7 @@ def test_atomic_output_dir_cleans_up_on_signal(tmp_path, sig):
             time.sleep(60)
     """)
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env={**os.environ, "PYTHONPATH": os.getcwd()})
+                            env=ENV)
     assert proc.stdout.readline().strip() == b"ready"
     assert len(list(tmp_path.iterdir())) == 1  # the hidden temporary folder
     proc.send_signal(sig)
@@ -240,7 +242,7 @@ def test_worker_exits_when_its_parent_is_killed(tmp_path):
               f"open({str(pidfile)!r}, 'w').write(str(os.getpid())); time.sleep(120)")
     parent = (f"import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', {worker!r}]); "
               f"time.sleep(120)")
-    proc = subprocess.Popen([sys.executable, "-c", parent], env={**os.environ, "PYTHONPATH": os.getcwd()})
+    proc = subprocess.Popen([sys.executable, "-c", parent], env=ENV)
     for _ in range(300):
         if pidfile.exists() and pidfile.read_text():
             break
@@ -254,3 +256,25 @@ def test_worker_exits_when_its_parent_is_killed(tmp_path):
             break
         time.sleep(0.1)
     assert not _alive(pid), "the orphaned worker is still running"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_interrupted_checkpoint_save_leaves_no_tmp_file(tmp_path, sig):
+    code = textwrap.dedent(f"""
+        import time, torch
+        from dualtalker_lite.utils import atomic_torch_save
+        real_save = torch.save
+        def slow_save(obj, f):  # the file is half-way: written but not yet renamed
+            real_save(obj, f)
+            print("ready", flush=True)
+            time.sleep(60)
+        torch.save = slow_save
+        atomic_torch_save({{"w": torch.zeros(10)}}, {str(tmp_path / "model.pt")!r})
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=ENV)
+    assert proc.stdout.readline().strip() == b"ready"
+    assert [p.suffix for p in tmp_path.iterdir()] == [".tmp"]
+    proc.send_signal(sig)
+    proc.wait(timeout=30)
+    assert proc.returncode != 0 and list(tmp_path.iterdir()) == []
