@@ -155,7 +155,12 @@ def _evaluate(argv: list[str]) -> dict:
     extractor = extractor_from_settings(features, args.checkpoint) if features.get("name") == "logmel" else None
     dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor), features["name"],
                            len(corpus.phoneme_inventory))
-    metrics = split_metrics(predict_split(model, dataset), corpus.regions)
+    out = predict_split(model, dataset)
+    from .utils import check_finite
+
+    for clip, pred in zip(out["names"], out["preds"]):
+        check_finite(pred, f"{args.checkpoint}: prediction for clip {clip!r}")
+    metrics = split_metrics(out, corpus.regions)
     print(describe(ckpt))
     for key, header, digits in METRICS:
         if key in metrics:
