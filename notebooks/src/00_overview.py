@@ -201,7 +201,10 @@ plot_lip_distance(times, {name: d}, phonemes=meta["phonemes"], title="Lip distan
 
 # %%
 # NBVAL_IGNORE_OUTPUT
-animate_clip(vertices.reshape(T, V, 3), corpus.faces, wave=wave, sample_rate=corpus.sample_rate, size=256)
+from IPython.display import HTML
+
+video = animate_clip(vertices.reshape(T, V, 3), corpus.faces, wave=wave, sample_rate=corpus.sample_rate, size=256)
+HTML(video._repr_html_())  # the player only (the object's repr would show a local file path)
 
 # %% [markdown]
 # ## 6. Your own recording
