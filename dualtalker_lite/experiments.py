@@ -354,14 +354,14 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         torch.set_num_threads(threads)
 
 
-def _worker_init() -> None:
+def _worker_init(parent_pid: int | None = None) -> None:
     import signal
 
     from .utils import watch_parent
 
     torch.set_num_threads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is handled once, by the parent (run_specs)
-    watch_parent()  # exit when the parent dies instead of training on and hanging on the result pipe
+    watch_parent(parent=parent_pid)  # exit when the parent dies instead of training on and hanging on the pipe
 
 
 def _job(args: tuple) -> tuple[int, dict]:
@@ -389,7 +389,8 @@ def run_specs(jobs: list[tuple[RunSpec, int]], epochs: int, processes: int = 1, 
             bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
             bar.update()
     else:
-        pool = ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=_worker_init)
+        pool = ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=_worker_init,
+                                   initargs=(os.getpid(),))
         try:
             futures = [pool.submit(_job, a) for a in args]
             for fut in as_completed(futures):

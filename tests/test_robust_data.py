@@ -278,3 +278,34 @@ def test_interrupted_checkpoint_save_leaves_no_tmp_file(tmp_path, sig):
     proc.send_signal(sig)
     proc.wait(timeout=30)
     assert proc.returncode != 0 and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_runner_pool_workers_exit_when_the_runner_is_killed(tmp_path):
+    """The experiment runner's real pool set-up (spawn + _worker_init), its parent killed with SIGKILL."""
+    code = textwrap.dedent("""
+        import os, time
+        from concurrent.futures import ProcessPoolExecutor
+        from multiprocessing import get_context
+        from dualtalker_lite.experiments import _worker_init
+        if __name__ == "__main__":
+            pool = ProcessPoolExecutor(2, mp_context=get_context("spawn"), initializer=_worker_init,
+                                       initargs=(os.getpid(),))
+            futures = [pool.submit(time.sleep, 120) for _ in range(2)]
+            time.sleep(0.5)
+            while len(pool._processes) < 2:
+                time.sleep(0.1)
+            print(" ".join(str(p) for p in pool._processes), flush=True)
+            time.sleep(120)
+    """)
+    (tmp_path / "runner.py").write_text(code)
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "runner.py")], stdout=subprocess.PIPE, env=ENV)
+    workers = [int(p) for p in proc.stdout.readline().split()]
+    assert len(workers) == 2 and all(_alive(w) for w in workers)
+    proc.kill()  # possibly while the workers are still importing: they must notice once started
+    proc.wait()
+    for _ in range(600):
+        if not any(_alive(w) for w in workers):
+            break
+        time.sleep(0.1)
+    assert not any(_alive(w) for w in workers), "pool workers outlived the killed runner"
