@@ -31,3 +31,14 @@ def test_train_evaluate_animate(tmp_path, capsys):
           "--out", str(tmp_path / "anim"), "--no-video"])
     verts = np.load(tmp_path / "anim" / "vertices.npy")
     assert verts.shape == (15, corpus.metadata["n_vertices"] * 3) and np.isfinite(verts).all()
+
+
+def test_console_script_is_declared():
+    import importlib
+    import tomllib
+
+    from dualtalker_lite.utils import repo_root
+
+    scripts = tomllib.loads((repo_root() / "pyproject.toml").read_text())["project"]["scripts"]
+    module, func = scripts["dualtalker-lite"].split(":")
+    assert getattr(importlib.import_module(module), func) is main
