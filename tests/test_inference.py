@@ -2,7 +2,11 @@
 input a one-line error that names the file and the problem, with nothing written."""
 import json
 import os
+import signal
 import struct
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -375,3 +379,28 @@ def test_debug_shows_the_traceback(ckpt, tmp_path):
     with pytest.raises(FileNotFoundError, match="audio file not found"):
         main(["--checkpoint", str(ckpt), "--wav", str(tmp_path / "none.wav"), "--out", str(tmp_path / "o"),
               "--debug"])
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
+    """SIGTERM/Ctrl-C during the video: no --out, no hidden temporary folder, no dualtalker-video-* folder."""
+    from dualtalker_lite.utils import repo_root
+
+    sf.write(tmp_path / "long.wav", _tone(20.0, 16000), 16000)
+    tmpdir = tmp_path / "tmpdir"
+    tmpdir.mkdir()
+    out = tmp_path / "o"
+    env = {**os.environ, "PYTHONPATH": str(repo_root()), "TMPDIR": str(tmpdir)}
+    proc = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.inference", "--checkpoint", str(ckpt), "--wav",
+                             str(tmp_path / "long.wav"), "--out", str(out)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not list(tmpdir.glob("dualtalker-video-*")) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.stderr.read().decode()[-500:]
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".o.")], "work happens in a hidden folder"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and b"interrupted; temporary files removed" in err
+    assert not out.exists() and list(tmpdir.iterdir()) == []
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
