@@ -62,9 +62,10 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> Path:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
     os.close(fd)
     try:
-        with _remove_on_signal(tmp):
+        with _remove_on_signal(tmp) as signals:
             torch.save(obj, tmp)
             os.chmod(tmp, default_file_mode())  # mkstemp makes 0600; a checkpoint is an ordinary file (0644)
+            signals.check()
             os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -118,25 +119,34 @@ def default_file_mode(executable: bool = False) -> int:
 
 
 class _remove_on_signal:
-    """While active (main thread only), SIGTERM raises KeyboardInterrupt, so ``finally`` blocks clean up."""
+    """While active (main thread only), SIGINT and SIGTERM raise KeyboardInterrupt, so ``finally`` blocks clean
+    up, and are remembered in ``interrupted``: an exception raised where Python swallows it (e.g. in the at-fork
+    hooks run while a subprocess starts) must still stop the result from being moved into place."""
 
     def __init__(self, *paths):
         self.paths = paths
+        self.interrupted: int | None = None
 
     def __enter__(self):
-        self.old = None
+        self.old = {}
         if threading.current_thread() is threading.main_thread():
-            self.old = signal.getsignal(signal.SIGTERM)
-
             def handler(signum, frame):
+                self.interrupted = signum
                 raise KeyboardInterrupt(f"terminated by signal {signum}")
 
-            signal.signal(signal.SIGTERM, handler)
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.old[sig] = signal.getsignal(sig)
+                signal.signal(sig, handler)
         return self
 
+    def check(self) -> None:
+        """Raise KeyboardInterrupt if a signal arrived, even one whose exception was swallowed."""
+        if self.interrupted is not None:
+            raise KeyboardInterrupt(f"terminated by signal {self.interrupted}")
+
     def __exit__(self, *exc):
-        if self.old is not None:
-            signal.signal(signal.SIGTERM, self.old)
+        for sig, old in self.old.items():
+            signal.signal(sig, old)
         return False
 
 
@@ -193,6 +203,7 @@ class AtomicOutputDir:
     def __exit__(self, exc_type, exc, tb) -> bool:
         try:
             if exc_type is None:
+                self._signals.check()  # a swallowed Ctrl-C/SIGTERM still means: do not publish
                 os.chmod(self.tmp, default_file_mode(executable=True))
                 old = None
                 if self.target.exists():
