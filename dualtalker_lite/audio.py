@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import math
 import os
+import struct
+import warnings
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -25,7 +27,8 @@ import torch.nn.functional as F
 
 __all__ = [
     "SAMPLE_RATE", "N_FFT", "WIN_LENGTH", "HOP_LENGTH", "N_MELS", "LOG_EPS",
-    "load_audio", "resample", "validate_wave", "hz_to_mel", "mel_to_hz", "mel_filterbank",
+    "MAX_AMPLITUDE", "load_audio", "resample", "validate_wave", "check_wav_header", "hz_to_mel", "mel_to_hz",
+    "mel_filterbank",
     "log_mel_spectrogram", "interpolate_frames", "FeatureExtractor", "LogMelExtractor", "Wav2Vec2Extractor",
 ]
 
@@ -36,6 +39,10 @@ HOP_LENGTH = 160     # 10 ms hop -> 100 feature frames per second
 N_MELS = 80
 LOG_EPS = 1e-6       # log(mel + LOG_EPS)
 STFT_BLOCK = 6000    # STFT frames per block (60 s): bounded memory for hour-long waves
+# Audio lives in [-1, 1]. Float files may overshoot a little (clipping-free mastering): up to MAX_AMPLITUDE
+# they are peak-normalised with a warning; beyond it (e.g. 1e19, a float WAV of raw integers or garbage) the
+# power spectrum would overflow float32, so they are refused.
+MAX_AMPLITUDE = 1e3
 
 
 # ----------------------------------------------------------------------------------------- I/O
@@ -63,6 +70,7 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"audio file not found: {path}")
+    check_wav_header(path)
     try:
         data, file_sr = sf.read(str(path), dtype="float32", always_2d=True)  # (N, C)
     except (sf.SoundFileError, RuntimeError) as e:  # LibsndfileError: corrupt / unsupported format
@@ -77,6 +85,14 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
         raise ValueError(f"{path} contains no audio samples")
     if not np.isfinite(wave).all():
         raise ValueError(f"{path} contains NaN or infinite samples")
+    peak = float(np.abs(wave).max())
+    if peak > MAX_AMPLITUDE:
+        raise ValueError(f"{path}: sample amplitudes reach {peak:.3g}, far outside [-1, 1] (a float WAV holding "
+                         f"unscaled or corrupt data?); rescale it to [-1, 1]")
+    if peak > 1.0:
+        warnings.warn(f"{path}: peak amplitude {peak:.3g} exceeds 1; the audio was peak-normalised to [-1, 1]",
+                      stacklevel=2)
+        wave = wave / peak
     if file_sr != sample_rate:
         if not resample:
             raise ValueError(f"{path} is sampled at {file_sr} Hz, expected {sample_rate} Hz "
@@ -86,6 +102,38 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
 
 
 _resample = resample  # `load_audio` has a parameter called `resample`
+
+
+def check_wav_header(path: str | os.PathLike) -> None:
+    """Raise ValueError if a RIFF/WAVE file's ``data`` chunk promises more bytes than the file holds.
+
+    libsndfile silently reads what is there, so a truncated copy or download would otherwise give a
+    shorter clip than the header says without a word. Non-WAV files (FLAC, ...) are left to soundfile.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(12)
+        if len(head) < 12 or head[:4] != b"RIFF" or head[8:12] != b"WAVE":
+            return
+        block_align, pos = None, 12
+        while pos + 8 <= size:
+            f.seek(pos)
+            chunk_id, chunk_size = struct.unpack("<4sI", f.read(8))
+            if chunk_id == b"fmt ":
+                fmt = f.read(min(chunk_size, 16))
+                if len(fmt) >= 14:
+                    block_align = struct.unpack("<H", fmt[12:14])[0]
+            elif chunk_id == b"data":
+                if chunk_size in (0, 0xFFFFFFFF):  # streaming writers leave the size unset
+                    return
+                present = size - (pos + 8)
+                if chunk_size > present:
+                    ba = block_align or 1
+                    raise ValueError(f"{path}: WAV header promises {chunk_size // ba} sample frames but the file "
+                                     f"holds only {present // ba} (truncated copy or download?)")
+                return
+            pos += 8 + chunk_size + (chunk_size & 1)
 
 
 def validate_wave(wave: np.ndarray | torch.Tensor, sample_rate: int, expected: int = SAMPLE_RATE) -> None:
@@ -100,6 +148,10 @@ def validate_wave(wave: np.ndarray | torch.Tensor, sample_rate: int, expected: i
     finite = torch.isfinite(wave).all() if isinstance(wave, torch.Tensor) else np.isfinite(wave).all()
     if not finite:
         raise ValueError("wave contains NaN or infinite samples")
+    peak = float(wave.abs().max()) if isinstance(wave, torch.Tensor) else float(np.abs(wave).max())
+    if peak > MAX_AMPLITUDE:
+        raise ValueError(f"wave amplitudes reach {peak:.3g}, far outside [-1, 1]; rescale it first "
+                         f"(e.g. wave / abs(wave).max())")
 
 
 # ---------------------------------------------------------------------------------- log-mel
@@ -224,6 +276,8 @@ class LogMelExtractor:
             feats = feats - self.mean
         if self.std is not None:
             feats = feats / self.std
+        if not bool(torch.isfinite(feats).all()):
+            raise ValueError("log-mel features are not finite (audio amplitudes too large?)")
         return feats.reshape(n_frames, self.dim)                       # (T, k * n_mels)
 
     def band_statistics(self, waves) -> tuple[torch.Tensor, torch.Tensor]:

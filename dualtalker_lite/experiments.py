@@ -430,7 +430,11 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
             history = train(model, make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=seed), train_cfg)
         train_seconds = time.perf_counter() - t0
         if checkpoint is not None and model_cfg is not None:
-            save_checkpoint(checkpoint, model, model_cfg, train_cfg, history)
+            from .checkpoints import extractor_settings
+
+            save_checkpoint(checkpoint, model, model_cfg, train_cfg, history, speakers=data["corpus"].train_speakers,
+                            faces=data["corpus"].faces, features=extractor_settings(
+                                data["train"].extractor if spec.features == "logmel" else None, name=spec.features))
         t1 = time.perf_counter()
         out = predict_split(model, test_set)
         corpus = data["corpus"]
@@ -454,8 +458,14 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         torch.set_num_threads(threads)
 
 
-def _worker_init() -> None:
+def _worker_init(parent_pid: int | None = None) -> None:
+    import signal
+
+    from .utils import watch_parent
+
     torch.set_num_threads(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is handled once, by the parent (run_specs)
+    watch_parent(parent=parent_pid)  # exit when the parent dies instead of training on and hanging on the pipe
 
 
 def _job(args: tuple) -> tuple[int, dict]:
@@ -483,14 +493,21 @@ def run_specs(jobs: list[tuple[RunSpec, int]], epochs: int, processes: int = 1, 
             bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
             bar.update()
     else:
-        with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"),
-                                 initializer=_worker_init) as pool:
+        pool = ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=_worker_init,
+                                   initargs=(os.getpid(),))
+        try:
             futures = [pool.submit(_job, a) for a in args]
             for fut in as_completed(futures):
                 i, res = fut.result()
                 results[i] = res
                 bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
                 bar.update()
+        except BaseException:  # Ctrl-C, SIGTERM or a failed run: stop every worker now, not after its run
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
     bar.close()
     return results
 
@@ -727,4 +744,6 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from .cli import run_main
+
+    run_main(main)  # user errors as one line, Ctrl-C stops the workers and exits 130

@@ -1,94 +1,322 @@
 """Animate a face mesh from your own speech recording with a trained model.
 
-    python -m dualtalker_lite.inference --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav \\
-        --speaker SPK01 --out runs/my_animation
+    dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav \\
+        --speaker SPK01 --out runs/my_animation          # (or: python -m dualtalker_lite.inference ...)
 
-writes ``vertices.npy`` (T, V*3) in metres at 30 fps, ``animation.mp4`` (with your audio) and ``frame0.obj``.
-The template comes from the shipped corpus (the speaker's neutral face) or from ``--template mesh.obj``,
-which must have the model's vertex count and topology. Audio of any sample rate is resampled to 16 kHz;
-stereo, empty, NaN or corrupt audio is refused with a message that names the problem.
+writes into ``--out`` (formats chosen with ``--format``, default ``npy,mp4``):
+
+==================  ==============================================================================
+``npy``             ``vertices.npy`` (T, V*3) float32 in metres at 30 fps, and ``frame0.obj``
+``obj``             ``obj/frame_00000.obj`` ... one OBJ per frame
+``glb``             ``animation.glb``: one animated glTF 2.0 file (a node per frame, shown in turn)
+``mp4``             ``animation.mp4`` with your audio (skip with ``--no-video``)
+==================  ==============================================================================
+
+Safety rules, in order: the output folder is checked first (an existing, non-empty ``--out`` needs
+``--overwrite``; its parent must be writable) so nothing long runs before a trivial failure; the checkpoint
+names the speakers it knows (``--list-speakers``) and the vertex count and topology it was trained on, and a
+mismatching corpus or ``--template`` is refused; the audio is validated (sample rate resampled; stereo,
+empty, NaN, overflowing or truncated files refused); the prediction must be finite; every file is written
+into a temporary folder beside ``--out`` and moved into place only when all are complete, so a failure or
+Ctrl-C/SIGTERM leaves ``--out`` exactly as it was. User errors print one line (``--debug`` shows the
+traceback) and exit with status 2.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import struct
+import sys
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from .audio import LogMelExtractor, load_audio, validate_wave
+from .checkpoints import describe, extractor_from_settings, load_checkpoint, topology_fingerprint
 from .data.corpus import Corpus
+from .utils import AtomicOutputDir, NonFiniteError, check_finite
 
-__all__ = ["animate_wave", "animate_wav", "main"]
+__all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
+           "write_obj", "write_glb", "write_outputs", "run", "main"]
 
 FPS = 30
+FORMATS = ("npy", "obj", "glb", "mp4")
+
+
+def resolve_device(device: str | None) -> torch.device:
+    """``"cpu"``, ``"cuda"``, ``"cuda:1"`` -> torch.device, refusing CUDA where there is none."""
+    dev = torch.device(device or "cpu")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {device}: CUDA is not available here (torch.cuda.is_available() is False); "
+                         f"use --device cpu")
+    return dev
 
 
 @torch.no_grad()
 def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
-                 sample_rate: int = 16000, extractor=None) -> np.ndarray:
-    """16 kHz mono speech (N,) + template (V*3,) or (V, 3) -> predicted vertices float32 (T, V*3), 30 fps."""
+                 sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
+                 amp: bool = False) -> np.ndarray:
+    """16 kHz mono speech (N,) + template (V*3,) or (V, 3) -> predicted vertices float32 (T, V*3), 30 fps.
+
+    ``device="cuda"`` runs on the GPU; ``amp=True`` adds mixed precision there (float16 autocast). Raises
+    :class:`~dualtalker_lite.utils.NonFiniteError` if the template or the model's output is not finite.
+    """
     validate_wave(wave, sample_rate)
     extractor = extractor or LogMelExtractor()
     template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
+    check_finite(template, "template")
     n_vertices = getattr(getattr(model, "cfg", None), "n_vertices", None)
     if n_vertices is not None and template.size != 3 * n_vertices:
         raise ValueError(f"template has {template.size // 3} vertices but the model was trained on {n_vertices}")
+    n_speakers = getattr(getattr(model, "cfg", None), "n_speakers", None)
+    if n_speakers is not None and not 0 <= speaker < n_speakers:
+        raise ValueError(f"speaker index {speaker} is outside the model's {n_speakers} style embeddings")
     n_frames = max(1, int(round(len(wave) * FPS / sample_rate)))
     audio = extractor(wave, n_frames)[None]  # (1, T, D_a)
-    model.eval()
-    pred = model.generate(audio, torch.from_numpy(template)[None], torch.tensor([speaker]))  # (1, T, V*3)
-    return pred[0].numpy()
+    dev = resolve_device(str(device) if device is not None else None) if device is not None else \
+        next(model.parameters(), torch.empty(0)).device
+    model.eval().to(dev)
+    autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
+    with autocast:
+        pred = model.generate(audio.to(dev), torch.from_numpy(template)[None].to(dev),
+                              torch.tensor([speaker], device=dev))  # (1, T, V*3)
+    verts = pred[0].float().cpu().numpy()
+    try:
+        check_finite(verts, "model output")
+    except NonFiniteError as e:
+        raise NonFiniteError(f"{e}: the checkpoint's weights or the input produce NaN; nothing was written") from None
+    return verts
 
 
-def animate_wav(model: torch.nn.Module, wav_path: str | Path, template: np.ndarray, speaker: int = 0) -> np.ndarray:
+def animate_wav(model: torch.nn.Module, wav_path: str | Path, template: np.ndarray, speaker: int = 0,
+                **kw) -> np.ndarray:
     """Like :func:`animate_wave` but reads (and resamples) an audio file first."""
-    return animate_wave(model, load_audio(wav_path), template, speaker)
+    return animate_wave(model, load_audio(wav_path), template, speaker, **kw)
 
 
-def _template_and_speaker(args, corpus: Corpus | None, n_speakers: int) -> tuple[np.ndarray, int, np.ndarray]:
+# ------------------------------------------------------------------------------ inputs
+def read_template(path: str | Path, n_vertices: int | None, topology: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """Neutral mesh file (OBJ/PLY) -> (vertices (V*3,) float32, faces (F, 3)), checked against the model."""
     import trimesh
 
-    if corpus is None:
-        raise ValueError("a corpus is needed for the speaker names and faces (pass --corpus)")
-    if args.speaker not in corpus.train_speakers:
-        raise ValueError(f"unknown speaker {args.speaker!r}; the model knows {corpus.train_speakers}")
-    speaker = corpus.train_speakers.index(args.speaker)
-    if speaker >= n_speakers:
-        raise ValueError(f"speaker index {speaker} is outside the model's {n_speakers} style embeddings")
-    if args.template:
-        mesh = trimesh.load(args.template, process=False, force="mesh")
-        return np.asarray(mesh.vertices, np.float32).reshape(-1), speaker, np.asarray(mesh.faces)
-    return corpus.template(args.speaker), speaker, corpus.faces
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"template mesh not found: {path}")
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except Exception as e:  # trimesh raises many types for unreadable files
+        raise ValueError(f"{path}: not a readable mesh (OBJ/PLY): {str(e).splitlines()[0] if str(e) else e!r}") from e
+    verts = np.asarray(mesh.vertices, np.float32)
+    faces = np.asarray(mesh.faces, np.int64)
+    if len(verts) == 0:
+        raise ValueError(f"{path}: the mesh has no vertices")
+    check_finite(verts, f"template mesh {path}")
+    if n_vertices is not None and len(verts) != n_vertices:
+        raise ValueError(f"{path}: the mesh has {len(verts)} vertices but the model was trained on {n_vertices}")
+    if topology is not None and topology_fingerprint(faces) != topology:
+        raise ValueError(f"{path}: the mesh's triangles differ from the topology the model was trained on "
+                         f"(fingerprint {topology_fingerprint(faces)} vs {topology}); vertex order must match")
+    return verts.reshape(-1), faces
 
 
-def main(argv: list[str] | None = None) -> None:
-    import trimesh
+def resolve_speaker(ckpt: dict, name: str, corpus: Corpus | None) -> tuple[int, list[str]]:
+    """Speaker name -> style index, from the checkpoint's own list (format 2) or, for old ones, the corpus."""
+    speakers = ckpt.get("speakers")
+    if not speakers:
+        if corpus is None:
+            raise ValueError("this checkpoint predates self-describing checkpoints and records no speaker names; "
+                             "pass --corpus (the corpus it was trained on)")
+        speakers = corpus.train_speakers
+        print(f"note: old checkpoint without speaker names; taking them from {corpus.root}: {speakers}",
+              file=sys.stderr)
+    if name not in speakers:
+        raise ValueError(f"unknown speaker {name!r}; this model knows: {', '.join(speakers)}")
+    index = speakers.index(name)
+    n = ckpt.get("model_config", {}).get("n_speakers") if isinstance(ckpt.get("model_config"), dict) else None
+    if n is not None and index >= n:
+        raise ValueError(f"speaker {name!r} has index {index}, outside the model's {n} style embeddings "
+                         f"(wrong --corpus for this old checkpoint?)")
+    return index, list(speakers)
 
-    from .data import sample_path
-    from .train import load_checkpoint
-    from .viz.animate import animate_clip
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def _check_corpus(corpus: Corpus, ckpt: dict) -> None:
+    n = ckpt.get("n_vertices")
+    if n is not None and corpus.metadata.get("n_vertices") not in (None, n):
+        raise ValueError(f"corpus {corpus.root} has {corpus.metadata['n_vertices']} vertices per frame, the model "
+                         f"was trained on {n}: another corpus/topology")
+    topo = ckpt.get("topology")
+    if topo is not None and topology_fingerprint(corpus.faces) != topo:
+        raise ValueError(f"corpus {corpus.root} has another mesh topology than the model was trained on "
+                         f"(fingerprint {topology_fingerprint(corpus.faces)} vs {topo})")
+
+
+# ----------------------------------------------------------------------------- writers
+def write_obj(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """One mesh (V, 3) as a Wavefront OBJ (1-based triangle indices)."""
+    lines = "".join(f"v {x:.7g} {y:.7g} {z:.7g}\n" for x, y, z in np.asarray(vertices).reshape(-1, 3))
+    tris = "".join(f"f {a} {b} {c}\n" for a, b, c in np.asarray(faces, np.int64) + 1)
+    Path(path).write_text(lines + tris)
+
+
+def write_glb(path: str | Path, clip: np.ndarray, faces: np.ndarray, fps: float = FPS) -> None:
+    """Animated glTF 2.0 binary: one mesh node per frame; node k is scaled 1 during frame k, 0 otherwise (STEP).
+
+    Plain node-scale animation (not morph targets) keeps the file linear in T and opens in every glTF
+    viewer (Blender, three.js, Windows 3D Viewer). ``clip``: (T, V, 3) float32.
+    """
+    clip = np.asarray(clip, np.float32)
+    T, V = clip.shape[:2]
+    idx = np.ascontiguousarray(faces, dtype=np.uint32).reshape(-1)
+    blobs, views, accessors = [], [], []
+
+    def add(data: np.ndarray, comp: int, typ: str, target: int | None = None, minmax: bool = False) -> int:
+        offset = sum(len(b) for b in blobs)
+        raw = data.tobytes()
+        blobs.append(raw + b"\0" * (-len(raw) % 4))
+        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(raw)}
+        if target is not None:
+            view["target"] = target
+        views.append(view)
+        acc = {"bufferView": len(views) - 1, "componentType": comp, "type": typ,
+               "count": int(data.shape[0])}
+        if minmax:
+            acc["min"] = [float(v) for v in data.min(0).reshape(-1)]
+            acc["max"] = [float(v) for v in data.max(0).reshape(-1)]
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    FLOAT, UINT = 5126, 5125
+    i_idx = add(idx, UINT, "SCALAR", target=34963)
+    meshes, nodes, channels, samplers = [], [], [], []
+    for k in range(T):
+        i_pos = add(clip[k], FLOAT, "VEC3", target=34962, minmax=True)
+        meshes.append({"primitives": [{"attributes": {"POSITION": i_pos}, "indices": i_idx}]})
+        times = [k / fps, (k + 1) / fps] if k == 0 else [0.0, k / fps, (k + 1) / fps]
+        scales = [[1, 1, 1], [0, 0, 0]] if k == 0 else [[0, 0, 0], [1, 1, 1], [0, 0, 0]]
+        if k == T - 1:  # the last frame stays visible
+            times, scales = times[:-1], scales[:-1]
+        i_t = add(np.asarray(times, np.float32), FLOAT, "SCALAR", minmax=True)
+        i_s = add(np.asarray(scales, np.float32), FLOAT, "VEC3")
+        samplers.append({"input": i_t, "output": i_s, "interpolation": "STEP"})
+        channels.append({"sampler": k, "target": {"node": k, "path": "scale"}})
+        nodes.append({"mesh": k, "name": f"frame_{k:05d}", "scale": [1, 1, 1] if k == 0 else [0, 0, 0]})
+    accessors[i_idx]["count"] = int(idx.size)
+    binary = b"".join(blobs)
+    gltf = {"asset": {"version": "2.0", "generator": "dualtalker-lite"}, "scene": 0,
+            "scenes": [{"nodes": list(range(T))}], "nodes": nodes, "meshes": meshes,
+            "animations": [{"name": "speech", "samplers": samplers, "channels": channels}],
+            "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(binary)}]}
+    js = json.dumps(gltf, separators=(",", ":")).encode()
+    js += b" " * (-len(js) % 4)
+    total = 12 + 8 + len(js) + 8 + len(binary)
+    with open(path, "wb") as f:
+        f.write(struct.pack("<4sII", b"glTF", 2, total))
+        f.write(struct.pack("<I4s", len(js), b"JSON") + js)
+        f.write(struct.pack("<I4s", len(binary), b"BIN\0") + binary)
+
+
+def write_outputs(folder: Path, verts: np.ndarray, faces: np.ndarray, wave: np.ndarray | None,
+                  formats: tuple[str, ...], sample_rate: int = 16000) -> list[Path]:
+    """Write the chosen formats of a (T, V*3) prediction into ``folder`` -> written paths."""
+    clip = verts.reshape(len(verts), -1, 3)  # (T, V, 3)
+    written = []
+    if "npy" in formats:
+        np.save(folder / "vertices.npy", verts)
+        write_obj(folder / "frame0.obj", clip[0], faces)
+        written += [folder / "vertices.npy", folder / "frame0.obj"]
+    if "obj" in formats:
+        (folder / "obj").mkdir()
+        for k, frame in enumerate(clip):
+            write_obj(folder / "obj" / f"frame_{k:05d}.obj", frame, faces)
+        written.append(folder / "obj")
+    if "glb" in formats:
+        write_glb(folder / "animation.glb", clip, faces)
+        written.append(folder / "animation.glb")
+    if "mp4" in formats:
+        from .viz.animate import animate_clip
+
+        anim = animate_clip(clip, faces, wave=wave, sample_rate=sample_rate, path=folder / "animation.mp4")
+        written.append(Path(anim.path))
+    return written
+
+
+# -------------------------------------------------------------------------------- CLI
+EXAMPLE = """example:
+  dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav --speaker SPK01 \\
+      --out runs/my_animation --format npy,glb,mp4
+  dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --list-speakers"""
+
+
+def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0], epilog=EXAMPLE,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", required=True)
-    ap.add_argument("--wav", required=True, help="speech recording (WAV/FLAC, mono, any sample rate)")
-    ap.add_argument("--speaker", default="SPK01", help="training speaker whose style to use")
+    ap.add_argument("--wav", help="speech recording (WAV/FLAC, mono, any sample rate)")
+    ap.add_argument("--speaker", default="SPK01", help="training speaker whose style to use (see --list-speakers)")
+    ap.add_argument("--list-speakers", action="store_true", help="print the speakers the model knows and exit")
     ap.add_argument("--template", help="neutral mesh (OBJ/PLY) with the model's topology; default: the speaker's")
-    ap.add_argument("--corpus", default=None, help="corpus the model was trained on (default: data_samples/)")
-    ap.add_argument("--out", default="runs/animation")
-    args = ap.parse_args(argv)
-    model, _ = load_checkpoint(args.checkpoint)
-    corpus = Corpus(args.corpus or sample_path())
-    template, speaker, faces = _template_and_speaker(args, corpus, model.cfg.n_speakers)
-    wave = load_audio(args.wav)
-    verts = animate_wave(model, wave, template, speaker)  # (T, V*3)
+    ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
+    ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing, non-empty --out")
+    ap.add_argument("--format", default="npy,mp4", help=f"comma-separated subset of {','.join(FORMATS)}")
+    ap.add_argument("--no-video", action="store_true", help="skip the mp4 (fast for long recordings)")
+    ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
+    ap.add_argument("--debug", action="store_true", help="show full tracebacks")
+    return ap
+
+
+def run(args: argparse.Namespace) -> list[Path]:
+    """The ``animate`` command on parsed arguments; raises on any problem (see :func:`main`)."""
+    from .data import sample_path
+
+    formats = tuple(f.strip().lower() for f in args.format.split(",") if f.strip())
+    unknown = sorted(set(formats) - set(FORMATS))
+    if unknown or not formats:
+        raise ValueError(f"--format {args.format!r}: unknown format(s) {unknown}; choose from {', '.join(FORMATS)}")
+    if args.no_video:
+        formats = tuple(f for f in formats if f != "mp4")
+    if not formats:
+        raise ValueError("nothing to write: --no-video removed the only format; add e.g. --format npy")
+    model, ckpt = load_checkpoint(args.checkpoint)
+    if args.list_speakers:
+        print(describe(ckpt))
+        return []
+    if not args.wav:
+        raise ValueError("--wav is required (the speech recording to animate)")
+    target = AtomicOutputDir(args.out, overwrite=args.overwrite)  # existence + writability, before any work
+    device = resolve_device(args.device)
+    corpus = None
+    if args.corpus or not args.template or not ckpt.get("speakers"):
+        corpus = Corpus(args.corpus or sample_path())
+        _check_corpus(corpus, ckpt)
+    speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
+    if args.template:
+        template, faces = read_template(args.template, ckpt.get("n_vertices"), ckpt.get("topology"))
+    else:
+        if args.speaker not in corpus.speakers:
+            raise ValueError(f"corpus {corpus.root} has no face for speaker {args.speaker!r}; pass --template "
+                             f"mesh.obj (the speaker's neutral face with the model's topology)")
+        template, faces = corpus.template(args.speaker), corpus.faces
+    extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint))
+    wave = load_audio(args.wav, sample_rate=extractor.sample_rate)
+    verts = animate_wave(model, wave, template, speaker, sample_rate=extractor.sample_rate, extractor=extractor,
+                         device=device, amp=args.amp)  # (T, V*3)
+    with target as tmp:
+        written = write_outputs(tmp, verts, faces, wave, formats, extractor.sample_rate)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    np.save(out / "vertices.npy", verts)
-    trimesh.Trimesh(verts[0].reshape(-1, 3), faces, process=False).export(out / "frame0.obj")
-    anim = animate_clip(verts.reshape(len(verts), -1, 3), faces, wave=wave, sample_rate=16000,
-                        path=out / "animation.mp4")
-    print(f"{len(verts)} frames -> {out / 'vertices.npy'}, {anim.path}, {out / 'frame0.obj'}")
+    names = [out / p.relative_to(tmp) for p in written]
+    print(f"{len(verts)} frames ({len(verts) / FPS:.1f} s) -> " + ", ".join(map(str, names)))
+    return names
+
+
+def main(argv: list[str] | None = None) -> list[Path]:
+    """Command line: one-line errors with exit status 2 (``--debug``: tracebacks), Ctrl-C exits 130."""
+    from .cli import run_main
+
+    return run_main(lambda a: run(parser().parse_args(a)), argv)
 
 
 if __name__ == "__main__":

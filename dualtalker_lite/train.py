@@ -100,6 +100,17 @@ def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
     return float(lve_euclidean(preds, gts, lip_idx))
 
 
+def _guard_finite(value: torch.Tensor, what: str, epoch: int, step: int, batch: dict) -> None:
+    """Stop training with one clear line (step, epoch, the batch's clips) on a NaN/inf loss or gradient."""
+    if not bool(torch.isfinite(value).all()):
+        from .utils import NonFiniteError
+
+        names = list(batch.get("name", []))
+        raise NonFiniteError(f"training stopped: non-finite {what} ({float(value.detach())}) at epoch {epoch + 1}, "
+                             f"step {step + 1}; batch clips: {names}. Check these clips for NaN/huge values; "
+                             f"no checkpoint was written")
+
+
 def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=None, lip_idx=None) -> History:
     """Train ``model`` with the joint loss; returns the per-epoch :class:`History`.
 
@@ -120,10 +131,11 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
             batch = _to_device(_crop(batch, cfg.max_frames, gen), torch.device(cfg.device))
             out = model(batch)
             total, terms = joint_loss(out, batch, cfg.weights)
+            _guard_finite(total, "loss", epoch, n_steps, batch)
             opt.zero_grad(set_to_none=True)
             total.backward()
-            if cfg.grad_clip:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip or math.inf)
+            _guard_finite(grad_norm, "gradient norm", epoch, n_steps, batch)
             opt.step()
             for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + float(v)
@@ -142,47 +154,6 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
     return hist
 
 
-def _plain(obj: Any) -> Any:
-    """Dataclasses -> dicts, recursively, so a checkpoint holds only plain values."""
-    return asdict(obj) if dataclasses.is_dataclass(obj) else obj
-
-
-def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
-                    train_config: TrainConfig | None = None, history: History | None = None) -> Path:
-    """Atomically write weights + configs + history; loadable with ``torch.load(weights_only=True)``."""
-    ckpt = {
-        "model_class": type(model).__name__,
-        "model_config": _plain(model_config),
-        "train_config": _plain(train_config),
-        "history": _plain(history),
-        "state_dict": model.state_dict(),
-    }
-    return atomic_torch_save(ckpt, path)
-
-
-def _model_registry() -> dict[str, tuple[type, type]]:
-    from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
-    from .models.dualtalker import DualTalker, DualTalkerConfig
-
-    return {"DualTalker": (DualTalker, DualTalkerConfig), "VocaStyle": (VocaStyle, VocaConfig),
-            "StaticTemplate": (StaticTemplate, None)}
-
-
-def load_checkpoint(path: str | Path) -> tuple[torch.nn.Module, dict]:
-    """Rebuild the model from a checkpoint written by :func:`save_checkpoint` -> (model, checkpoint dict)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no checkpoint at {path}")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # corrupt or not a checkpoint
-        raise ValueError(f"{path} is not a readable dualtalker-lite checkpoint: {e}") from e
-    registry = _model_registry()
-    name = ckpt.get("model_class")
-    if name not in registry:
-        raise ValueError(f"{path}: unknown model class {name!r}; known: {sorted(registry)}")
-    cls, cfg_cls = registry[name]
-    model = cls(cfg_cls(**ckpt["model_config"])) if cfg_cls is not None else cls()
-    model.load_state_dict(ckpt["state_dict"])
-    model.eval()
-    return model, ckpt
+# Checkpoints live in :mod:`dualtalker_lite.checkpoints` (self-describing: speakers, topology, features);
+# re-exported here so ``from dualtalker_lite.train import save_checkpoint, load_checkpoint`` keeps working.
+from .checkpoints import load_checkpoint, save_checkpoint  # noqa: E402

@@ -1,14 +1,24 @@
-"""Animating a mesh from a user's own recording: shapes, resampling, and clear errors for bad input."""
+"""Animating a mesh from a user's own recording: shapes, formats, self-describing checkpoints, and for every bad
+input a one-line error that names the file and the problem, with nothing written."""
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+
 import numpy as np
 import pytest
 import soundfile as sf
 import torch
 
+from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint, topology_fingerprint
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.inference import animate_wav, animate_wave, main
+from dualtalker_lite.inference import animate_wav, animate_wave, main, write_obj
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.train import save_checkpoint
+from dualtalker_lite.utils import NonFiniteError
 
 
 @pytest.fixture(scope="module")
@@ -19,12 +29,47 @@ def setup():
     return corpus, DualTalker(cfg).eval(), cfg
 
 
-def _tone(seconds, sr, channels=1):
+@pytest.fixture(scope="module")
+def ckpt(setup, tmp_path_factory):
+    """A self-describing checkpoint of an untrained model whose decoder is nudged so the output moves."""
+    corpus, model, cfg = setup
+    path = tmp_path_factory.mktemp("ckpt") / "model.pt"
+    save_checkpoint(path, model, cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+    return path
+
+
+def _tone(seconds, sr, channels=1, amp=0.3):
     t = np.arange(int(seconds * sr)) / sr
-    wave = (0.3 * np.sin(2 * np.pi * 220 * t) * (1 + np.sin(2 * np.pi * 3 * t))).astype(np.float32)
+    wave = (amp * np.sin(2 * np.pi * 220 * t) * (1 + np.sin(2 * np.pi * 3 * t)) / 2).astype(np.float32)
     return wave if channels == 1 else np.stack([wave] * channels, axis=1)
 
 
+@pytest.fixture
+def wav(tmp_path):
+    path = tmp_path / "me.wav"
+    sf.write(path, _tone(1.0, 22050), 22050)
+    return path
+
+
+def _fails(capsys, argv, *patterns):
+    """Run the CLI, expect exit status 2 and one 'error:' line matching every pattern; return it."""
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    line = err.strip().splitlines()[0]
+    assert line.startswith("error: ") and "Traceback" not in err
+    for p in patterns:
+        assert p in line, (p, line)
+    return line
+
+
+def _nothing_written(tmp_path, out):
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "temporary files left behind"
+
+
+# ------------------------------------------------------------------------------------------ API
 def test_untrained_model_animates_the_template(setup):
     corpus, model, _ = setup
     template = corpus.template("SPK01")
@@ -57,18 +102,305 @@ def test_bad_input_is_named(setup, tmp_path):
         animate_wave(model, np.zeros(0, np.float32), template)
     with pytest.raises(ValueError, match="vertices"):
         animate_wave(model, _tone(1.0, 16000), template[:-30])
+    bad_template = template.copy()
+    bad_template[7] = np.inf
+    with pytest.raises(NonFiniteError, match="template contains 1 NaN/infinite"):
+        animate_wave(model, _tone(1.0, 16000), bad_template)
+    with pytest.raises(ValueError, match="amplitudes reach 1e\\+19"):
+        animate_wave(model, np.full(16000, 1e19, np.float32), template)
 
 
-def test_command_line_end_to_end(setup, tmp_path):
+def test_non_finite_model_output_is_refused(setup):
     corpus, model, cfg = setup
-    ckpt = save_checkpoint(tmp_path / "model.pt", model, cfg)
-    sf.write(tmp_path / "me.wav", _tone(1.0, 22050), 22050)
-    main(["--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK03",
-          "--out", str(tmp_path / "anim")])
-    verts = np.load(tmp_path / "anim" / "vertices.npy")
+    broken = DualTalker(cfg).eval()
+    broken.load_state_dict(model.state_dict())
+    with torch.no_grad():
+        next(p for n, p in broken.named_parameters() if "decode" in n and n.endswith("bias")).fill_(float("nan"))
+    with pytest.raises(NonFiniteError, match="model output contains .* nothing was written"):
+        animate_wave(broken, _tone(0.5, 16000), corpus.template("SPK01"))
+
+
+# ------------------------------------------------------------------------------- CLI: success
+def test_command_line_end_to_end(setup, ckpt, wav, tmp_path, capsys):
+    corpus, _, _ = setup
+    out = tmp_path / "anim"
+    main(["--checkpoint", str(ckpt), "--wav", str(wav), "--speaker", "SPK03", "--out", str(out)])
+    verts = np.load(out / "vertices.npy", allow_pickle=False)
     assert verts.shape == (30, corpus.template("SPK03").size)
-    assert (tmp_path / "anim" / "animation.mp4").stat().st_size > 1000
-    assert (tmp_path / "anim" / "frame0.obj").is_file()
-    with pytest.raises(ValueError, match="unknown speaker"):
-        main(["--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "NOBODY",
-              "--out", str(tmp_path / "anim2")])
+    np.testing.assert_allclose(verts[0], corpus.template("SPK03"))  # untrained model: the speaker's own face
+    assert (out / "animation.mp4").stat().st_size > 1000
+    assert (out / "frame0.obj").is_file()
+    assert "30 frames" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+def test_obj_sequence_and_animated_glb(setup, ckpt, wav, tmp_path):
+    import trimesh
+
+    corpus, _, _ = setup
+    out = tmp_path / "anim"
+    main(["--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--out", out, "--format", "obj,glb,mp4",
+          "--no-video"])
+    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "obj"]
+    objs = sorted((out / "obj").iterdir())
+    assert len(objs) == 30 and objs[0].name == "frame_00000.obj"
+    mesh = trimesh.load(objs[4], process=False, force="mesh")
+    np.testing.assert_allclose(mesh.vertices.reshape(-1), corpus.template("SPK01"), atol=1e-6)
+    np.testing.assert_array_equal(mesh.faces, corpus.faces)
+    raw = (out / "animation.glb").read_bytes()
+    magic, version, total = struct.unpack("<4sII", raw[:12])
+    assert (magic, version, total) == (b"glTF", 2, len(raw))
+    js_len = struct.unpack("<I", raw[12:16])[0]
+    gltf = json.loads(raw[20:20 + js_len])
+    assert len(gltf["nodes"]) == 30 and len(gltf["animations"][0]["channels"]) == 30
+    scene = trimesh.load(out / "animation.glb")
+    assert len(scene.geometry) == 30
+
+
+def test_overwrite_replaces_the_whole_folder(ckpt, wav, tmp_path, capsys):
+    out = tmp_path / "anim"
+    out.mkdir()
+    (out / "animation.mp4").write_bytes(b"old video")
+    main(["--checkpoint", ckpt, "--wav", wav, "--out", out, "--format", "npy", "--overwrite"])
+    assert sorted(p.name for p in out.iterdir()) == ["frame0.obj", "vertices.npy"]  # no stale video
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_list_speakers_comes_from_the_checkpoint(setup, ckpt, capsys):
+    corpus, _, _ = setup
+    main(["--checkpoint", ckpt, "--list-speakers"])
+    out = capsys.readouterr().out
+    assert "speakers: " + ", ".join(corpus.train_speakers) in out and "1558 vertices" in out
+
+
+def test_speaker_names_come_from_the_checkpoint_not_the_corpus(setup, wav, tmp_path):
+    """A model trained with speakers [SPK03, SPK01]: SPK01 is style index 1 whatever corpus is passed."""
+    corpus, model, cfg = setup
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, model, cfg, speakers=["SPK03", "SPK01"], faces=corpus.faces)
+    from dualtalker_lite.inference import resolve_speaker
+
+    _, info = load_checkpoint(path)
+    assert resolve_speaker(info, "SPK01", corpus)[0] == 1
+    with pytest.raises(ValueError, match="unknown speaker 'SPK02'; this model knows: SPK03, SPK01"):
+        resolve_speaker(info, "SPK02", corpus)
+
+
+def test_old_format_checkpoint_still_animates(setup, wav, tmp_path, capsys):
+    corpus, model, cfg = setup
+    from dataclasses import asdict
+
+    old = tmp_path / "old.pt"
+    torch.save({"model_class": "DualTalker", "model_config": asdict(cfg), "train_config": None, "history": None,
+                "state_dict": model.state_dict()}, old)
+    main(["--checkpoint", old, "--wav", wav, "--speaker", "SPK02", "--out", tmp_path / "a", "--format", "npy"])
+    assert "old checkpoint without speaker names" in capsys.readouterr().err
+    assert np.load(tmp_path / "a" / "vertices.npy").shape == (30, corpus.template("SPK02").size)
+
+
+def test_checkpoint_is_0644_under_default_umask(setup, tmp_path):
+    corpus, model, cfg = setup
+    old = os.umask(0o022)
+    try:
+        path = save_checkpoint(tmp_path / "m.pt", model, cfg)
+    finally:
+        os.umask(old)
+    assert (path.stat().st_mode & 0o777) == 0o644
+    assert [p.name for p in tmp_path.iterdir()] == ["m.pt"]
+    _, info = load_checkpoint(path)
+    assert info["format_version"] == 2 and info["n_vertices"] == cfg.n_vertices
+    assert info["features"]["name"] == "logmel" and info["features"]["settings"]["n_mels"] == 80
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_matches_cpu(setup):  # pragma: no cover - no GPU in CI
+    corpus, model, _ = setup
+    wave, tpl = _tone(1.0, 16000), corpus.template("SPK01")
+    cpu = animate_wave(model, wave, tpl, device="cpu")
+    gpu = animate_wave(model, wave, tpl, device="cuda")
+    amp = animate_wave(model, wave, tpl, device="cuda", amp=True)
+    model.cpu()
+    np.testing.assert_allclose(gpu, cpu, atol=1e-5)
+    np.testing.assert_allclose(amp, cpu, atol=1e-3)
+
+
+# ------------------------------------------------------------------- CLI: bad inputs, nothing written
+def test_nan_wav(ckpt, tmp_path, capsys):
+    w = _tone(1.0, 16000)
+    w[500] = np.nan
+    sf.write(tmp_path / "nan.wav", w, 16000, subtype="FLOAT")
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", tmp_path / "nan.wav", "--out", tmp_path / "o"], "nan.wav", "NaN")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_overflowing_float_wav(ckpt, tmp_path, capsys):
+    sf.write(tmp_path / "loud.wav", _tone(1.0, 16000, amp=1e19), 16000, subtype="FLOAT")
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", tmp_path / "loud.wav", "--out", tmp_path / "o"],
+           "loud.wav", "amplitudes reach", "[-1, 1]")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_slightly_hot_float_wav_is_normalised_with_a_warning(tmp_path):
+    from dualtalker_lite.audio import load_audio
+
+    sf.write(tmp_path / "hot.wav", _tone(0.5, 16000, amp=3.0), 16000, subtype="FLOAT")
+    with pytest.warns(UserWarning, match="hot.wav: peak amplitude 3 exceeds 1"):
+        wave = load_audio(tmp_path / "hot.wav")
+    assert abs(np.abs(wave).max() - 1.0) < 1e-6
+
+
+def test_truncated_wav_header(ckpt, tmp_path, capsys):
+    sf.write(tmp_path / "full.wav", _tone(1.0, 16000), 16000, subtype="PCM_16")
+    raw = (tmp_path / "full.wav").read_bytes()
+    (tmp_path / "cut.wav").write_bytes(raw[:len(raw) // 2])  # header still says 16000 samples
+    (tmp_path / "full.wav").unlink()
+    present = (len(raw) // 2 - 44) // 2  # 44-byte PCM header, 2 bytes per sample
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", tmp_path / "cut.wav", "--out", tmp_path / "o"],
+           "cut.wav", "header promises 16000 sample frames", f"holds only {present} ")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_corrupt_wav(ckpt, tmp_path, capsys):
+    (tmp_path / "junk.wav").write_bytes(os.urandom(2000))
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", tmp_path / "junk.wav", "--out", tmp_path / "o"],
+           "junk.wav", "could not decode")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_unknown_speaker_lists_the_known_ones(setup, ckpt, wav, tmp_path, capsys):
+    corpus, _, _ = setup
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--speaker", "NOBODY", "--out", tmp_path / "o"],
+           "unknown speaker 'NOBODY'", "this model knows: " + ", ".join(corpus.train_speakers))
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_existing_output_needs_overwrite(ckpt, wav, tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "vertices.npy").write_bytes(b"keep me")
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--out", out], str(out), "already exists", "--overwrite")
+    assert [p.name for p in out.iterdir()] == ["vertices.npy"] and (out / "vertices.npy").read_bytes() == b"keep me"
+
+
+def test_unwritable_output_is_refused_before_any_work(ckpt, tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    # no --wav file exists: the output check must come first and be the error reported
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", tmp_path / "missing.wav", "--out", tmp_path / "afile" / "o"],
+           "cannot create the output's parent folder", "afile")
+    assert (tmp_path / "afile").read_text() == "x"
+
+
+def test_corrupt_checkpoint(wav, tmp_path, capsys):
+    (tmp_path / "bad.pt").write_bytes(os.urandom(500))
+    _fails(capsys, ["--checkpoint", tmp_path / "bad.pt", "--wav", wav, "--out", tmp_path / "o"],
+           "bad.pt", "not a readable dualtalker-lite checkpoint")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+@pytest.mark.parametrize("content, message", [
+    ([1, 2, 3], "expected a checkpoint dict, found a list"),
+    ({"weight": torch.zeros(3)}, "is a bare state_dict"),
+    ({"model_class": "DualTalker", "state_dict": {}}, "missing key(s) ['model_config']"),
+    ({"model_class": "Transformer9000", "model_config": {}, "state_dict": {}}, "unknown model class 'Transformer9000'"),
+    ({"model_class": "DualTalker", "model_config": {"n_vertices": 3, "wings": 2}, "state_dict": {}},
+     "model_config has field(s) ['wings']"),
+    ({"model_class": "DualTalker", "model_config": "tiny", "state_dict": {}}, "model_config must be a dict"),
+])
+def test_malformed_checkpoints(content, message, wav, tmp_path, capsys):
+    torch.save(content, tmp_path / "m.pt")
+    _fails(capsys, ["--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out", tmp_path / "o"], "m.pt", message)
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_checkpoint_with_wrong_vertex_count(setup, wav, tmp_path, capsys):
+    from dataclasses import asdict, replace
+
+    _, model, cfg = setup
+    torch.save({"model_class": "DualTalker", "model_config": asdict(replace(cfg, n_vertices=1000)),
+                "state_dict": model.state_dict()}, tmp_path / "m.pt")
+    _fails(capsys, ["--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out", tmp_path / "o"],
+           "m.pt", "weights do not fit a DualTalker")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_nan_weights_are_refused_on_save_and_load(setup, wav, tmp_path, capsys):
+    _, model, cfg = setup
+    state = {k: v.clone() for k, v in model.state_dict().items()}
+    name = next(k for k, v in state.items() if v.is_floating_point())
+    state[name].view(-1)[0] = float("nan")
+    broken = DualTalker(cfg)
+    broken.load_state_dict(state)
+    with pytest.raises(NonFiniteError, match=f"refusing to save .*weight '{name}' has 1 NaN"):
+        save_checkpoint(tmp_path / "never.pt", broken, cfg)
+    assert list(tmp_path.iterdir()) == [wav]
+    from dataclasses import asdict
+
+    torch.save({"model_class": "DualTalker", "model_config": asdict(cfg), "state_dict": state}, tmp_path / "m.pt")
+    _fails(capsys, ["--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out", tmp_path / "o"],
+           "m.pt", f"weight '{name}' has 1 NaN")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_template_with_wrong_vertex_count_or_nan(setup, ckpt, wav, tmp_path, capsys):
+    corpus, _, _ = setup
+    verts = corpus.template("SPK01").reshape(-1, 3)
+    write_obj(tmp_path / "small.obj", verts[:100], np.array([[i, i + 1, i + 2] for i in range(98)]))
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--template", tmp_path / "small.obj", "--out",
+                    tmp_path / "o"], "small.obj", "has 100 vertices but the model was trained on 1558")
+    nan = verts.copy()
+    nan[5, 1] = np.nan
+    write_obj(tmp_path / "nan.obj", nan, corpus.faces)
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--template", tmp_path / "nan.obj", "--out",
+                    tmp_path / "o"], "nan.obj", "NaN")
+    write_obj(tmp_path / "shuffled.obj", verts, corpus.faces[:, [0, 2, 1]])
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--template", tmp_path / "shuffled.obj", "--out",
+                    tmp_path / "o"], "shuffled.obj", "differ from the topology")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_corpus_with_another_topology_is_refused(setup, wav, tmp_path, capsys):
+    corpus, model, cfg = setup
+    save_checkpoint(tmp_path / "m.pt", model, cfg, speakers=corpus.train_speakers, faces=corpus.faces[::-1])
+    _fails(capsys, ["--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out", tmp_path / "o"],
+           "another mesh topology", topology_fingerprint(corpus.faces[::-1]))
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_unknown_format_and_missing_cuda(ckpt, wav, tmp_path, capsys):
+    _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--out", tmp_path / "o", "--format", "npy,fbx"],
+           "unknown format(s) ['fbx']")
+    if not torch.cuda.is_available():
+        _fails(capsys, ["--checkpoint", ckpt, "--wav", wav, "--out", tmp_path / "o", "--device", "cuda"],
+               "CUDA is not available")
+    _nothing_written(tmp_path, tmp_path / "o")
+
+
+def test_debug_shows_the_traceback(ckpt, tmp_path):
+    with pytest.raises(FileNotFoundError, match="audio file not found"):
+        main(["--checkpoint", str(ckpt), "--wav", str(tmp_path / "none.wav"), "--out", str(tmp_path / "o"),
+              "--debug"])
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
+    """SIGTERM/Ctrl-C during the video: no --out, no hidden temporary folder, no dualtalker-video-* folder."""
+    from dualtalker_lite.utils import repo_root
+
+    sf.write(tmp_path / "long.wav", _tone(10.0, 16000), 16000)
+    tmpdir = tmp_path / "tmpdir"
+    tmpdir.mkdir()
+    out = tmp_path / "o"
+    env = {**os.environ, "PYTHONPATH": str(repo_root()), "TMPDIR": str(tmpdir)}
+    proc = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.inference", "--checkpoint", str(ckpt), "--wav",
+                             str(tmp_path / "long.wav"), "--out", str(out)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not list(tmpdir.glob("dualtalker-video-*")) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.stderr.read().decode()[-500:]
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".o.")], "work happens in a hidden folder"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and b"interrupted; temporary files removed" in err, err.decode()[-3000:]
+    assert not out.exists() and list(tmpdir.iterdir()) == []
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -7,6 +7,14 @@
 Both share ``faces.npy``, ``regions.json`` and ``metadata.json``. Loaded arrays are cached; every
 error names the clip or file at fault.
 
+Validation at load (one ``ValueError`` line each, naming the file or clip): broken JSON, a missing or
+malformed ``clips`` table, empty splits, clips shared between ``train`` and ``val``/``test*`` splits,
+``.npy`` files that are not plain numeric arrays (never unpickled), NaN/inf in templates and vertices,
+vertices in millimetres instead of metres, a transposed ``(T, 3, V)`` layout, and triangle indices
+outside the vertex range. Optional metadata keys for real datasets (see :mod:`.faceformer`):
+``mesh_stride`` (keep every n-th mesh frame, e.g. 2 for VOCASET's 60 fps) and ``units`` (``"m"``: the
+template's size is checked to be plausible in metres; anything else skips that check).
+
 >>> corpus = Corpus("data_samples")                          # doctest: +SKIP
 >>> corpus.vertices(corpus.split("train")[0]).shape           # doctest: +SKIP
 (75, 3*V)
@@ -18,6 +26,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+
+from ..utils import check_finite, load_npy
 
 __all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH"]
 
@@ -31,12 +41,34 @@ def _need(path: Path) -> Path:
     return path
 
 
+HEAD_SIZE_M = (0.02, 3.0)  # plausible extent of a face/head template in metres
+MAX_DISPLACEMENT = 0.5     # a vertex farther than this fraction of the face's extent from the template is wrong
+
+
+def read_json(path: Path) -> object:
+    """JSON file -> object, with a one-line error naming the file and the position of a syntax error."""
+    try:
+        return json.loads(_need(path).read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}") from e
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not a UTF-8 text file") from e
+
+
+def _extent(points: np.ndarray) -> float:
+    """Largest side of the bounding box of ``(..., 3)`` points."""
+    pts = points.reshape(-1, 3)
+    return float((pts.max(0) - pts.min(0)).max())
+
+
 class Corpus:
     """A corpus directory: clip names, splits, speakers, templates, vertices and waves."""
 
     def __init__(self, path: str | os.PathLike, cache: bool = True):
         self.root = Path(path)
-        self.metadata: dict = json.loads(_need(self.root / "metadata.json").read_text())
+        meta_path = self.root / "metadata.json"
+        self.metadata: dict = read_json(meta_path)
+        self._validate_metadata(meta_path)
         self.format: str = self.metadata.get("format", "faceformer")
         if self.format not in FORMATS:
             raise ValueError(f"{self.root / 'metadata.json'}: unknown format {self.format!r}, expected one of {FORMATS}")
@@ -49,8 +81,8 @@ class Corpus:
         self._clip_set = set(self.clips)
         subjects = self.metadata.get("speakers") or {self.meta(c)["subject"] for c in self.clips}
         self.speakers: list[str] = sorted(subjects)
-        self.train_speakers: list[str] = sorted({self.meta(c)["subject"] for c in self.split("train")}) \
-            if "train" in self.metadata.get("splits", {}) else []
+        self.train_speakers: list[str] = sorted({self.meta(c)["subject"]
+                                                 for c in self.metadata.get("splits", {}).get("train", [])})
         self._train_index = {s: i for i, s in enumerate(self.train_speakers)}
         self.cache = cache
         self._vertices: dict[str, np.ndarray] = {}
@@ -61,6 +93,28 @@ class Corpus:
         self._controls: dict[str, np.ndarray] | None = None
         self._faces: np.ndarray | None = None
         self._regions: dict[str, np.ndarray] | None = None
+
+    def _validate_metadata(self, path: Path) -> None:
+        m = self.metadata
+        if not isinstance(m, dict):
+            raise ValueError(f"{path}: expected a JSON object at the top level, found {type(m).__name__}")
+        if "clips" not in m:
+            raise ValueError(f"{path}: has no 'clips' table (keys: {sorted(m)})")
+        if not isinstance(m["clips"], dict) or not m["clips"]:
+            raise ValueError(f"{path}: 'clips' must be a non-empty object {{clip name: {{subject: ...}}}}")
+        for name, entry in m["clips"].items():
+            if not isinstance(entry, dict) or "subject" not in entry:
+                raise ValueError(f"{path}: clip {name!r} has no 'subject' (each clip needs at least its speaker)")
+        splits = m.get("splits", {})
+        if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
+            raise ValueError(f"{path}: 'splits' must map split names to lists of clip names")
+        train = set(splits.get("train", []))
+        for split, clips in splits.items():
+            if split == "val" or split.startswith("test"):
+                shared = sorted(train.intersection(clips))
+                if shared:
+                    raise ValueError(f"{path}: {len(shared)} clip(s) are in both 'train' and {split!r} "
+                                     f"(e.g. {shared[:3]}); a clip must not be trained and tested on")
 
     def __repr__(self) -> str:
         return (f"Corpus({str(self.root)!r}, format={self.format!r}, clips={len(self.clips)}, "
@@ -84,6 +138,8 @@ class Corpus:
         missing = [c for c in splits[name] if c not in self._clip_set]
         if missing:
             raise ValueError(f"split {name!r} lists clips missing from metadata['clips']: {missing[:5]}")
+        if not splits[name]:
+            raise ValueError(f"{self.root / 'metadata.json'}: split {name!r} is empty")
         return list(splits[name])
 
     def speaker_index(self, name: str) -> int:
@@ -96,14 +152,22 @@ class Corpus:
     def faces(self) -> np.ndarray:
         """Triangle indices ``(F, 3)`` int64 of the shared topology."""
         if self._faces is None:
-            self._faces = np.load(_need(self.root / "faces.npy"), allow_pickle=False).astype(np.int64)
+            path = self.root / "faces.npy"
+            faces = load_npy(path, "triangle list")
+            n = self.metadata.get("n_vertices")
+            if faces.ndim != 2 or faces.shape[1] != 3 or faces.dtype.kind not in "iu":
+                raise ValueError(f"{path}: expected integer triangles (F, 3), got {faces.dtype} {faces.shape}")
+            if faces.size and (faces.min() < 0 or (n is not None and faces.max() >= n)):
+                raise ValueError(f"{path}: triangle indices span [{faces.min()}, {faces.max()}], "
+                                 f"outside the {n} vertices")
+            self._faces = faces.astype(np.int64)
         return self._faces
 
     @property
     def regions(self) -> dict[str, np.ndarray]:
         """``{region_name: vertex indices (int64)}`` (lips, eyes, forehead, ...)."""
         if self._regions is None:
-            raw = json.loads(_need(self.root / "regions.json").read_text())
+            raw = read_json(self.root / "regions.json")
             self._regions = {k: np.asarray(v, dtype=np.int64) for k, v in raw.items()}
         return self._regions
 
@@ -114,14 +178,29 @@ class Corpus:
             if subject not in self.speakers:
                 raise KeyError(f"unknown speaker {subject!r}; known speakers: {self.speakers}")
             if self.format == "faceformer":
-                path = _need(self.root / "templates.npz")
-                with np.load(path, allow_pickle=False) as npz:
+                path = self.root / "templates.npz"
+                if not path.exists() and (self.root / "templates.pkl").exists():
+                    raise FileNotFoundError(
+                        f"{path} not found, but {path.with_suffix('.pkl')} (FaceFormer's pickle) is there; convert "
+                        f"it once, safely: dualtalker-lite convert-templates {path.with_suffix('.pkl')}")
+                _need(path)
+                try:
+                    npz = np.load(path, allow_pickle=False)
+                except (ValueError, OSError, EOFError) as e:
+                    raise ValueError(f"{path}: not a readable .npz archive of arrays (corrupt?)") from e
+                with npz:
                     if subject not in npz.files:
                         raise KeyError(f"{path} has no template for speaker {subject!r} (has {sorted(npz.files)})")
                     tpl = npz[subject]
             else:
                 tpl = self._rig(subject).template
             tpl = np.asarray(tpl, dtype=np.float32).reshape(-1)
+            check_finite(tpl, f"template of speaker {subject!r} ({self.root})")
+            size = _extent(tpl)
+            if self.metadata.get("units", "m") == "m" and not HEAD_SIZE_M[0] <= size <= HEAD_SIZE_M[1]:
+                hint = " (millimetres instead of metres? divide by 1000)" if size > HEAD_SIZE_M[1] else ""
+                raise ValueError(f"template of speaker {subject!r} ({self.root}) is {size:.4g} units across, not a "
+                                 f"plausible face size in metres {HEAD_SIZE_M}{hint}")
             n_vertices = self.metadata.get("n_vertices")
             if n_vertices is not None and tpl.size != 3 * n_vertices:
                 raise ValueError(f"template of {subject!r} has {tpl.size // 3} vertices, "
@@ -135,8 +214,16 @@ class Corpus:
             return self._vertices[name]
         meta = self.meta(name)
         if self.format == "faceformer":
-            path = _need(self.root / "vertices_npy" / f"{name}.npy")
-            verts = np.load(path, allow_pickle=False)
+            path = self.root / "vertices_npy" / f"{name}.npy"
+            verts = load_npy(path, f"vertices of clip {name!r}")
+            n = self.metadata.get("n_vertices")
+            if verts.ndim == 3 and verts.shape[1] == 3 and verts.shape[2] != 3:
+                raise ValueError(f"{path}: shape {verts.shape} looks like a transposed (T, 3, V) layout; "
+                                 f"expected (T, V*3) or (T, V, 3): use arr.transpose(0, 2, 1)")
+            if verts.ndim not in (2, 3) or (verts.ndim == 3 and verts.shape[2] != 3) or len(verts) == 0:
+                raise ValueError(f"{path}: expected vertices (T, V*3) or (T, V, 3) with T >= 1, got shape {verts.shape}"
+                                 + (f" (V = {n})" if n else ""))
+            verts = verts[::int(self.metadata.get("mesh_stride", 1))]
         else:
             controls = self._all_controls()
             if name not in controls:
@@ -148,6 +235,7 @@ class Corpus:
         if verts.shape[1] != tpl.size:
             raise ValueError(f"clip {name!r} has {verts.shape[1] // 3} vertices per frame but the template of "
                              f"{meta['subject']!r} has {tpl.size // 3}")
+        self._check_plausible(name, verts, tpl)
         if "n_frames" in meta and verts.shape[0] != meta["n_frames"]:
             raise ValueError(f"clip {name!r} has {verts.shape[0]} mesh frames, metadata says {meta['n_frames']}")
         if "n_samples" in meta:
@@ -155,6 +243,24 @@ class Corpus:
         if self.cache:
             self._vertices[name] = verts
         return verts
+
+    def _check_plausible(self, name: str, verts: np.ndarray, tpl: np.ndarray) -> None:
+        """NaN/inf, millimetres-instead-of-metres and scrambled layouts, judged against the speaker's template."""
+        bad = ~np.isfinite(verts)
+        if bad.any():
+            frames = np.unique(np.nonzero(bad)[0])
+            raise ValueError(f"clip {name!r} ({self.root}): {int(bad.sum())} NaN/infinite vertex value(s) in "
+                             f"{len(frames)} frame(s), first at frame {int(frames[0])}")
+        size = _extent(tpl)
+        far = float(np.abs(verts - tpl).max())
+        if far > MAX_DISPLACEMENT * size:
+            ratio = _extent(verts) / max(size, 1e-12)
+            if 300 < ratio < 3000:
+                why = f"they span {ratio:.0f}x the template: millimetres instead of metres? divide by 1000"
+            else:
+                why = "transposed (T, 3, V) data saved flat, another speaker's mesh, or absolute/offset mix-up?"
+            raise ValueError(f"clip {name!r} ({self.root}): vertices lie up to {far:.4g} from the template of "
+                             f"{self.meta(name)['subject']!r}, whose whole extent is {size:.4g}; {why}")
 
     def wave(self, name: str) -> np.ndarray:
         """Speech of clip ``name``: float32 ``(N,)`` mono at ``sample_rate``."""
@@ -172,17 +278,25 @@ class Corpus:
         return wave
 
     def check_alignment(self, name: str, n_frames: int, n_samples: int) -> None:
-        """Raise ValueError unless ``n_frames`` ≈ audio duration * fps (within ``MAX_FRAME_MISMATCH``)."""
+        """Raise ValueError unless ``n_frames`` ≈ audio duration * fps (within ``MAX_FRAME_MISMATCH``, or the
+        metadata's ``max_frame_mismatch``: real datasets such as VOCASET differ by a few frames)."""
         expected = n_samples / self.sample_rate * self.fps
-        if abs(n_frames - expected) > MAX_FRAME_MISMATCH:
+        if abs(n_frames - expected) > self.metadata.get("max_frame_mismatch", MAX_FRAME_MISMATCH):
             raise ValueError(f"clip {name!r}: {n_frames} mesh frames but its audio lasts "
                              f"{n_samples / self.sample_rate:.3f} s = {expected:.1f} frames at {self.fps} fps")
 
     # ------------------------------------------------------------------- compact format
     def _all_controls(self) -> dict[str, np.ndarray]:
         if self._controls is None:
-            with np.load(_need(self.root / "controls.npz"), allow_pickle=False) as npz:
+            path = _need(self.root / "controls.npz")
+            try:
+                npz = np.load(path, allow_pickle=False)
+            except (ValueError, OSError, EOFError) as e:
+                raise ValueError(f"{path}: not a readable .npz archive of arrays (corrupt?)") from e
+            with npz:
                 self._controls = {k: npz[k].astype(np.float32, copy=False) for k in npz.files}
+            for k, v in self._controls.items():
+                check_finite(v, f"{path}: control track of clip {k!r}")
         return self._controls
 
     def _rig(self, subject: str):
@@ -191,7 +305,7 @@ class Corpus:
 
             path = _need(self.root / "speakers.json")
             if self._rig_params is None:
-                self._rig_params = json.loads(path.read_text())
+                self._rig_params = read_json(path)
             if subject not in self._rig_params:
                 raise KeyError(f"{path} has no rig parameters for speaker {subject!r}")
             self._rigs[subject] = FaceRig(Speaker.from_dict(self._rig_params[subject]))

@@ -1,0 +1,202 @@
+"""Self-describing checkpoints: weights plus everything inference needs to use them correctly.
+
+A checkpoint (format 2) is a plain dict, loadable with ``torch.load(weights_only=True)``:
+
+====================  ==========================================================================================
+``format_version``    2 (checkpoints of format 1, written before this module, have no such key)
+``package_version``   ``dualtalker_lite.__version__`` that wrote it
+``model_class``       ``"DualTalker"``, ``"VocaStyle"``, ... (see :func:`model_registry`)
+``model_config``      the config dataclass as a dict
+``train_config``      ``TrainConfig`` as a dict (or None); ``history``: per-epoch losses (or None)
+``speakers``          training speaker names in style-embedding order: ``speakers[i]`` is one-hot ``i``
+``n_vertices``        vertices per frame V
+``topology``          sha256 of the triangle list (int64, C order) the model was trained on, or None
+``features``          the audio front-end: ``{"name": "logmel", "settings": {...}}`` (LogMelExtractor's
+                      arguments) or ``{"name": "phonemes", ...}``
+``state_dict``        the weights
+====================  ==========================================================================================
+
+Inference (:mod:`dualtalker_lite.inference`) maps ``--speaker NAME`` to the style index stored here, never
+to whatever corpus happens to be passed, and refuses a template or corpus whose vertex count or topology
+differs. Format-1 checkpoints still load: :func:`load_checkpoint` fills ``speakers``/``topology`` with None
+and inference then takes speaker names from the corpus, saying so.
+
+Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
+refused both when saving and when loading.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from .utils import NonFiniteError, atomic_torch_save
+
+__all__ = ["FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
+           "extractor_settings", "extractor_from_settings", "describe"]
+
+FORMAT_VERSION = 2
+REQUIRED_KEYS = ("model_class", "model_config", "state_dict")
+
+
+def topology_fingerprint(faces: np.ndarray | None) -> str | None:
+    """sha256 (hex, first 16 chars) of a triangle list ``(F, 3)`` as int64: same mesh connectivity, same value."""
+    if faces is None:
+        return None
+    return hashlib.sha256(np.ascontiguousarray(np.asarray(faces, dtype=np.int64)).tobytes()).hexdigest()[:16]
+
+
+def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
+    """The audio front-end as plain values; ``None`` -> the default :class:`~dualtalker_lite.audio.LogMelExtractor`."""
+    if name != "logmel":
+        return {"name": name, "settings": {}}
+    from .audio import LogMelExtractor
+
+    ex = extractor or LogMelExtractor()
+    keys = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length",
+            "f_min", "f_max")
+    settings = {k: getattr(ex, k) for k in keys}
+    for k in ("mean", "std"):
+        v = getattr(ex, k, None)
+        settings[k] = None if v is None else [float(x) for x in v]
+    return {"name": "logmel", "settings": settings}
+
+
+def extractor_from_settings(features: dict | None, source: str = "checkpoint"):
+    """Rebuild the feature extractor a checkpoint was trained with (``None`` -> default log-mel)."""
+    from .audio import LogMelExtractor
+
+    if not features:
+        return LogMelExtractor()
+    if features.get("name") != "logmel":
+        raise ValueError(f"{source}: the model was trained on {features.get('name')!r} features, which cannot be "
+                         f"computed from a recording; only 'logmel' models animate audio")
+    return LogMelExtractor(**features.get("settings", {}))
+
+
+def _plain(obj: Any) -> Any:
+    """Dataclasses -> dicts, recursively, so a checkpoint holds only plain values."""
+    return asdict(obj) if dataclasses.is_dataclass(obj) else obj
+
+
+def _check_weights(state_dict: dict, source: str) -> None:
+    for name, value in state_dict.items():
+        if torch.is_tensor(value) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            n = int((~torch.isfinite(value)).sum())
+            raise NonFiniteError(f"{source}: weight {name!r} has {n} NaN/infinite value(s)")
+
+
+def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any, train_config: Any = None,
+                    history: Any = None, *, speakers: Sequence[str] | None = None, faces: np.ndarray | None = None,
+                    features: dict | None = None) -> Path:
+    """Atomically write a self-describing checkpoint (0644 under umask 022); refuses non-finite weights.
+
+    ``speakers``: training speaker names in style-index order (``corpus.train_speakers``); ``faces``: the
+    topology; ``features``: :func:`extractor_settings` (default: the default log-mel front-end).
+    """
+    from . import __version__
+
+    state = model.state_dict()
+    _check_weights(state, f"refusing to save {path}")
+    n_vertices = getattr(model_config, "n_vertices", None) if model_config is not None else None
+    ckpt = {
+        "format_version": FORMAT_VERSION,
+        "package_version": __version__,
+        "model_class": type(model).__name__,
+        "model_config": _plain(model_config),
+        "train_config": _plain(train_config),
+        "history": _plain(history),
+        "speakers": list(speakers) if speakers is not None else None,
+        "n_vertices": n_vertices,
+        "topology": topology_fingerprint(faces),
+        "features": features if features is not None else extractor_settings(),
+        "state_dict": state,
+    }
+    return atomic_torch_save(ckpt, path)
+
+
+def model_registry() -> dict[str, tuple[type, type | None]]:
+    """``model_class`` name -> (class, config class or None)."""
+    from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
+    from .models.dualtalker import DualTalker, DualTalkerConfig
+
+    return {"DualTalker": (DualTalker, DualTalkerConfig), "VocaStyle": (VocaStyle, VocaConfig),
+            "StaticTemplate": (StaticTemplate, None)}
+
+
+def _first_line(e: BaseException) -> str:
+    return (str(e).strip().splitlines() or [type(e).__name__])[0]
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[torch.nn.Module, dict]:
+    """Rebuild the model from a checkpoint -> ``(model in eval mode, checkpoint dict)``.
+
+    The dict always has the format-2 keys (None where a format-1 checkpoint lacks them). Errors: one line
+    naming ``path`` and the problem (not a checkpoint, a list, a bare state_dict, missing keys, unknown
+    model class, wrong config fields, weights of another shape, NaN weights).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path}")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:  # corrupt, truncated, or pickled with classes weights_only refuses
+        raise ValueError(f"{path}: not a readable dualtalker-lite checkpoint (corrupt, truncated, or it pickles "
+                         f"Python objects, which are refused for safety): {_first_line(e)[:200]}") from e
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"{path}: expected a checkpoint dict, found a {type(ckpt).__name__}")
+    if "state_dict" not in ckpt and ckpt and all(torch.is_tensor(v) for v in ckpt.values()):
+        raise ValueError(f"{path}: is a bare state_dict (weights only); it needs model_class and model_config: "
+                         f"save with dualtalker_lite.checkpoints.save_checkpoint")
+    missing = [k for k in REQUIRED_KEYS if k not in ckpt]
+    if missing:
+        raise ValueError(f"{path}: checkpoint is missing key(s) {missing} (has {sorted(map(str, ckpt))[:8]})")
+    registry = model_registry()
+    name = ckpt["model_class"]
+    if name not in registry:
+        raise ValueError(f"{path}: unknown model class {name!r}; known: {sorted(registry)}")
+    cls, cfg_cls = registry[name]
+    if cfg_cls is not None:
+        cfg = ckpt["model_config"]
+        if not isinstance(cfg, dict):
+            raise ValueError(f"{path}: model_config must be a dict, found a {type(cfg).__name__}")
+        known = {f.name for f in dataclasses.fields(cfg_cls)}
+        unknown = sorted(set(cfg) - known)
+        if unknown:
+            raise ValueError(f"{path}: model_config has field(s) {unknown} that {cfg_cls.__name__} does not know "
+                             f"(written by another version of the package?)")
+        try:
+            model = cls(cfg_cls(**cfg))
+        except (TypeError, ValueError, AssertionError, RuntimeError) as e:
+            raise ValueError(f"{path}: invalid model_config for {name}: {_first_line(e)}") from e
+    else:
+        model = cls()
+    state = ckpt["state_dict"]
+    if not isinstance(state, dict):
+        raise ValueError(f"{path}: state_dict must be a dict of tensors, found a {type(state).__name__}")
+    _check_weights(state, str(path))
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:
+        msg = " ".join(str(e).split())
+        raise ValueError(f"{path}: weights do not fit a {name} built from its model_config "
+                         f"(edited or mixed-up checkpoint?): {msg[:300]}") from e
+    model.eval()
+    info = {"format_version": 1, "package_version": None, "speakers": None, "topology": None, "features": None,
+            "n_vertices": getattr(getattr(model, "cfg", None), "n_vertices", None), "train_config": None,
+            "history": None}
+    info.update(ckpt)
+    return model, info
+
+
+def describe(ckpt: dict) -> str:
+    """One line: model class, format, vertex count, speakers."""
+    speakers = ckpt.get("speakers")
+    who = ", ".join(speakers) if speakers else "unknown (format-1 checkpoint)"
+    return (f"{ckpt.get('model_class')} (checkpoint format {ckpt.get('format_version', 1)}, package "
+            f"{ckpt.get('package_version') or '?'}), {ckpt.get('n_vertices')} vertices, speakers: {who}")

@@ -1,0 +1,357 @@
+"""Real datasets in FaceFormer's folder layout (VOCASET, BIWI): a safe ``templates.pkl`` reader and presets.
+
+FaceFormer (Fan et al., CVPR 2022) and its successors (CodeTalker, SelfTalk, DualTalker) ship each dataset as
+
+    <root>/wav/<subject>_<sentence>.wav          speech (any rate; resampled to 16 kHz on load)
+    <root>/vertices_npy/<subject>_<sentence>.npy  (T, V*3) float vertex positions
+    <root>/templates.pkl                          {subject: (V, 3) neutral face}, a Python pickle
+    <root>/templates/<mesh>.ply                   the topology used for rendering
+
+and FaceFormer's ``data_loader.py`` derives the subject from the file name (everything before the last ``_``)
+and the sentence number from its last two characters. The splits are subject lists and sentence ranges:
+
+=========  =====================================================  =======================================
+preset     rates and sizes                                        splits (subjects x sentences)
+=========  =====================================================  =======================================
+vocaset    meshes at 60 fps, kept every 2nd -> 30 fps             train: 8 subjects x 1-40; val: 2 others
+           (FaceFormer's ``[::2]``); FLAME, 5023 vertices;        x 21-40; test: 2 others x 21-40
+           regions: ``FLAME_masks.pkl`` (lips, eye_region,        (FaceFormer's defaults, ``main.py``)
+           forehead) or ``regions/lips.txt``/``regions/eyes.txt``
+biwi       25 fps, 23370 vertices; regions ``regions/lve.txt``    train: F2 F3 F4 M3 M4 M5 x 1-32; val:
+           (lips, for LVE) and ``regions/fdd.txt`` (upper face,   same x 33-36; test_a: same x 37-40;
+           for FDD), CodeTalker's comma-separated index lists     test_b: F1 F5 F6 F7 F8 M1 M2 M6 x 37-40
+=========  =====================================================  =======================================
+
+``templates.pkl`` is read with :func:`safe_load_pickle`, a restricted unpickler that admits only numpy
+arrays, dicts, lists, tuples, strings and numbers: any other global (``os.system``, ``builtins.eval``, ...)
+raises :class:`UnsafePickleError` before anything runs. :func:`prepare_dataset` (``dualtalker-lite
+prepare-dataset ROOT --preset vocaset``) converts it to ``templates.npz`` and writes ``metadata.json``,
+``regions.json`` and ``faces.npy`` beside the data, so :class:`~dualtalker_lite.data.corpus.Corpus` and
+the whole package read the folder like the shipped sample. Nothing is downloaded: the real datasets need
+their own licences. Assumptions where FaceFormer's code is the only specification are stated above; the
+region file names follow CodeTalker (BIWI) and the FLAME masks file (VOCASET).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import io
+import json
+import os
+import pickle
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["UnsafePickleError", "safe_load_pickle", "convert_templates", "DatasetPreset", "PRESETS",
+           "parse_clip_name", "faceformer_splits", "read_index_file", "prepare_dataset", "convert_templates_main",
+           "prepare_main"]
+
+
+# ------------------------------------------------------------------------------- restricted unpickler
+class UnsafePickleError(pickle.UnpicklingError):
+    """A pickle asked for something other than plain data (numpy arrays, dicts, lists, strings, numbers)."""
+
+
+def _latin1_encode(text: str, encoding: str = "utf-8", errors: str = "strict") -> bytes:
+    # Python 3 pickles bytes at protocol <= 2 as _codecs.encode(str, "latin1"); only plain text codecs are allowed.
+    if encoding.lower().replace("_", "-") not in ("latin1", "latin-1", "iso-8859-1", "utf-8", "utf8", "ascii"):
+        raise UnsafePickleError(f"refused codec {encoding!r} in _codecs.encode")
+    return text.encode(encoding, errors)
+
+
+_ALLOWED = {
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),  # pickle protocol 5
+    ("collections", "OrderedDict"),
+}
+
+
+class _RestrictedUnpickler(pickle.Unpickler):
+    def __init__(self, file, source: str):
+        super().__init__(file, encoding="latin1")  # Python 2 pickles (VOCASET's) need latin1 for numpy buffers
+        self.source = source
+
+    def find_class(self, module: str, name: str):
+        if (module, name) == ("_codecs", "encode"):
+            return _latin1_encode
+        if (module, name) not in _ALLOWED:
+            raise UnsafePickleError(f"{self.source}: refused to load {module}.{name}; only numpy arrays, dicts, "
+                                    f"lists, strings and numbers are allowed (the pickle may be malicious)")
+        if module.startswith("numpy.core") or module.startswith("numpy._core"):
+            try:
+                return getattr(importlib.import_module(module.replace("numpy.core", "numpy._core")), name)
+            except ImportError:  # numpy 1.x
+                return getattr(importlib.import_module(module.replace("numpy._core", "numpy.core")), name)
+        return getattr(importlib.import_module(module), name)
+
+    def persistent_load(self, pid):
+        raise UnsafePickleError(f"{self.source}: refused a persistent id in the pickle")
+
+
+def _check_plain(obj, source: str, depth: int = 0) -> None:
+    if depth > 20:
+        raise UnsafePickleError(f"{source}: nested more than 20 levels deep")
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.hasobject:
+            raise UnsafePickleError(f"{source}: holds a numpy array of Python objects; only numeric arrays allowed")
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            _check_plain(k, source, depth + 1)
+            _check_plain(v, source, depth + 1)
+    elif isinstance(obj, (list, tuple)):
+        for v in obj:
+            _check_plain(v, source, depth + 1)
+    elif not isinstance(obj, (str, bytes, int, float, complex, bool, type(None), np.generic, np.dtype)):
+        raise UnsafePickleError(f"{source}: holds a {type(obj).__name__}; only plain data is allowed")
+
+
+def safe_load_pickle(path: str | os.PathLike):
+    """Load a pickle of plain data (numpy arrays, dicts, lists, strings, numbers) without running any code.
+
+    Raises :class:`UnsafePickleError` naming the file and the refused global for anything else, and
+    ``ValueError`` for a file that is not a pickle at all.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"pickle file not found: {path}")
+    data = path.read_bytes()
+    try:
+        obj = _RestrictedUnpickler(io.BytesIO(data), str(path)).load()
+    except UnsafePickleError:
+        raise
+    except Exception as e:  # truncated, not a pickle, ...
+        raise ValueError(f"{path}: not a readable pickle ({type(e).__name__}: {str(e)[:120]})") from e
+    _check_plain(obj, str(path))
+    return obj
+
+
+def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
+    """FaceFormer's ``templates.pkl`` ({subject: (V, 3)}) -> ``templates.npz`` (float32 (V*3,) per subject)."""
+    from ..utils import check_finite, default_file_mode
+
+    pkl = Path(pkl)
+    out = Path(out) if out is not None else pkl.with_suffix(".npz")
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    obj = safe_load_pickle(pkl)
+    if not isinstance(obj, dict) or not obj:
+        raise ValueError(f"{pkl}: expected a non-empty dict {{subject: (V, 3) array}}, found {type(obj).__name__}")
+    arrays = {}
+    for subject, tpl in obj.items():
+        arr = np.asarray(tpl)
+        if not isinstance(subject, str) or arr.dtype.kind not in "fiu" or arr.size % 3 or arr.size == 0:
+            raise ValueError(f"{pkl}: entry {subject!r} is not a (V, 3) numeric template "
+                             f"(got {arr.dtype} {arr.shape})")
+        check_finite(arr, f"{pkl}: template of {subject!r}")
+        arrays[subject] = arr.astype(np.float32).reshape(-1)
+    sizes = {a.size for a in arrays.values()}
+    if len(sizes) > 1:
+        raise ValueError(f"{pkl}: templates have different vertex counts {sorted(s // 3 for s in sizes)}")
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp.npz")
+    try:
+        np.savez(tmp, **arrays)
+        os.chmod(tmp, default_file_mode())
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return out
+
+
+# ------------------------------------------------------------------------------------------ presets
+@dataclass(frozen=True)
+class DatasetPreset:
+    """Conventions of one dataset in FaceFormer's layout (see the module docstring)."""
+
+    name: str
+    source_fps: int                    # frame rate of the vertex files
+    mesh_stride: int                   # keep every n-th frame -> fps = source_fps / mesh_stride
+    n_vertices: int
+    splits: dict = field(default_factory=dict)  # split -> (subjects, (first sentence, last sentence))
+    region_files: dict = field(default_factory=dict)  # region name -> relative path of an index list
+    masks_pickle: str | None = None    # FLAME_masks.pkl-style {name: indices}
+    mask_regions: dict = field(default_factory=dict)  # our region name -> list of mask names
+    render_mesh: str = ""              # relative path of the topology mesh (PLY/OBJ)
+    units: str = "m"                   # "m": templates checked to be face-sized in metres
+
+    @property
+    def fps(self) -> int:
+        return self.source_fps // self.mesh_stride
+
+
+VOCASET_TRAIN = ("FaceTalk_170728_03272_TA FaceTalk_170904_00128_TA FaceTalk_170725_00137_TA "
+                 "FaceTalk_170915_00223_TA FaceTalk_170811_03274_TA FaceTalk_170913_03279_TA "
+                 "FaceTalk_170904_03276_TA FaceTalk_170912_03278_TA").split()
+VOCASET_VAL = "FaceTalk_170811_03275_TA FaceTalk_170908_03277_TA".split()
+VOCASET_TEST = "FaceTalk_170809_00138_TA FaceTalk_170731_00024_TA".split()
+BIWI_SEEN = "F2 F3 F4 M3 M4 M5".split()
+BIWI_UNSEEN = "F1 F5 F6 F7 F8 M1 M2 M6".split()
+
+PRESETS = {
+    "vocaset": DatasetPreset(
+        "vocaset", source_fps=60, mesh_stride=2, n_vertices=5023,
+        splits={"train": (VOCASET_TRAIN, (1, 40)), "val": (VOCASET_VAL, (21, 40)), "test": (VOCASET_TEST, (21, 40))},
+        region_files={"lips": "regions/lips.txt", "eyes_forehead": "regions/eyes.txt"},
+        masks_pickle="FLAME_masks.pkl",
+        mask_regions={"lips": ["lips"], "eyes_forehead": ["eye_region", "forehead"], "upper_face": ["eye_region",
+                                                                                                     "forehead"]},
+        render_mesh="templates/FLAME_sample.ply", units="m"),
+    "biwi": DatasetPreset(
+        "biwi", source_fps=25, mesh_stride=1, n_vertices=23370,
+        splits={"train": (BIWI_SEEN, (1, 32)), "val": (BIWI_SEEN, (33, 36)), "test_a": (BIWI_SEEN, (37, 40)),
+                "test_b": (BIWI_UNSEEN, (37, 40))},
+        region_files={"lips": "regions/lve.txt", "upper_face": "regions/fdd.txt"},
+        render_mesh="templates/BIWI.ply", units="as-shipped"),
+}
+
+
+def parse_clip_name(name: str) -> tuple[str, int]:
+    """FaceFormer's rule: ``"<subject>_<xxNN>"`` -> (subject, NN), e.g. ``F2_e07`` -> ("F2", 7)."""
+    stem = Path(name).stem
+    if "_" not in stem or not stem[-2:].isdigit():
+        raise ValueError(f"clip name {name!r} does not follow FaceFormer's <subject>_<...NN> pattern")
+    return "_".join(stem.split("_")[:-1]), int(stem[-2:])
+
+
+def faceformer_splits(names: list[str], preset: DatasetPreset) -> dict[str, list[str]]:
+    """Clip names -> FaceFormer's splits for ``preset`` (clips outside every split are left out)."""
+    out: dict[str, list[str]] = {s: [] for s in preset.splits}
+    for name in sorted(names):
+        subject, sentence = parse_clip_name(name)
+        for split, (subjects, (lo, hi)) in preset.splits.items():
+            if subject in subjects and lo <= sentence <= hi:
+                out[split].append(name)
+    return out
+
+
+def read_index_file(path: str | os.PathLike, n_vertices: int) -> np.ndarray:
+    """A vertex index list (comma/space/newline separated, CodeTalker's ``lve.txt`` style) -> int64 indices."""
+    path = Path(path)
+    text = path.read_text()
+    tokens = [t for t in re.split(r"[\s,;\[\]]+", text) if t]
+    try:
+        idx = np.asarray([int(t) for t in tokens], dtype=np.int64)
+    except ValueError as e:
+        raise ValueError(f"{path}: expected integer vertex indices, found {str(e).split(':')[-1].strip()}") from e
+    if idx.size == 0:
+        raise ValueError(f"{path}: lists no vertex indices")
+    if idx.min() < 0 or idx.max() >= n_vertices:
+        raise ValueError(f"{path}: indices span [{idx.min()}, {idx.max()}], outside the {n_vertices} vertices")
+    return idx
+
+
+def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = False) -> dict:
+    """Write ``metadata.json``, ``templates.npz``, ``regions.json`` and ``faces.npy`` into a FaceFormer folder.
+
+    Afterwards ``Corpus(root)`` reads it (vertices subsampled by ``mesh_stride``). Returns the metadata.
+    """
+    from ..utils import atomic_write_text, load_npy
+
+    root = Path(root)
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; known: {sorted(PRESETS)}")
+    p = PRESETS[preset]
+    for sub in ("wav", "vertices_npy"):
+        if not (root / sub).is_dir():
+            raise FileNotFoundError(f"{root / sub} not found: {root} is not in FaceFormer's layout "
+                                    f"(wav/, vertices_npy/, templates.pkl)")
+    meta_path = root / "metadata.json"
+    if meta_path.exists() and not overwrite:
+        raise FileExistsError(f"{meta_path} already exists; pass --overwrite to rebuild it")
+    wavs = {w.stem for w in (root / "wav").glob("*.wav")}
+    verts = {v.stem for v in (root / "vertices_npy").glob("*.npy")}
+    names = sorted(wavs & verts)
+    if not names:
+        raise ValueError(f"{root}: no clip has both wav/<name>.wav and vertices_npy/<name>.npy")
+    splits = faceformer_splits(names, p)
+    used = sorted({c for clips in splits.values() for c in clips})
+    empty = [s for s, clips in splits.items() if not clips]
+    if empty:
+        raise ValueError(f"{root}: FaceFormer's {preset} split(s) {empty} match no clip (subject names or "
+                         f"sentence numbers differ from the preset?)")
+    npz = root / "templates.npz"
+    if not npz.exists() or overwrite:
+        convert_templates(root / "templates.pkl", npz, overwrite=True)
+    with np.load(npz, allow_pickle=False) as t:
+        subjects = {parse_clip_name(c)[0] for c in used}
+        missing = sorted(subjects - set(t.files))
+        if missing:
+            raise ValueError(f"{npz} has no template for subject(s) {missing}")
+        sizes = {t[s].size // 3 for s in subjects}
+    if sizes != {p.n_vertices}:
+        raise ValueError(f"{root}: templates have {sorted(sizes)} vertices, the {preset} preset expects "
+                         f"{p.n_vertices}")
+    regions = {}
+    for region, rel in p.region_files.items():
+        if (root / rel).is_file():
+            regions[region] = read_index_file(root / rel, p.n_vertices).tolist()
+    if p.masks_pickle and (root / p.masks_pickle).is_file():
+        masks = safe_load_pickle(root / p.masks_pickle)
+        for region, parts in p.mask_regions.items():
+            if region not in regions and all(k in masks for k in parts):
+                regions[region] = sorted({int(i) for k in parts for i in np.asarray(masks[k]).reshape(-1)})
+    if regions:
+        atomic_write_text(root / "regions.json", json.dumps(regions))
+    mesh = root / p.render_mesh
+    if mesh.is_file():
+        import trimesh
+
+        faces = np.asarray(trimesh.load(mesh, process=False, force="mesh").faces, np.int64)
+        tmp = root / ".faces.npy.tmp.npy"
+        np.save(tmp, faces)
+        os.replace(tmp, root / "faces.npy")
+    clips = {}
+    for name in used:
+        subject, sentence = parse_clip_name(name)
+        split = next(s for s, c in splits.items() if name in c)
+        shape = load_npy(root / "vertices_npy" / f"{name}.npy", f"vertices of clip {name!r}").shape
+        clips[name] = {"subject": subject, "sentence_id": sentence, "split": split,
+                       "n_source_frames": int(shape[0])}
+    train_subjects = sorted({clips[c]["subject"] for c in splits.get("train", [])})
+    meta = {"format": "faceformer", "dataset": preset, "fps": p.fps, "source_fps": p.source_fps,
+            "mesh_stride": p.mesh_stride, "sample_rate": 16000, "n_vertices": p.n_vertices, "units": p.units,
+            "max_frame_mismatch": 5, "speakers": sorted({c["subject"] for c in clips.values()}),
+            "train_speakers": train_subjects, "emotions": ["neutral"], "splits": splits, "clips": clips,
+            "skipped": sorted((wavs | verts) - set(used))}
+    atomic_write_text(meta_path, json.dumps(meta, indent=1))
+    return meta
+
+
+# -------------------------------------------------------------------------------------- commands
+def convert_templates_main(argv: list[str] | None = None) -> Path:
+    ap = argparse.ArgumentParser(
+        prog="dualtalker-lite convert-templates", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Convert FaceFormer's templates.pkl to templates.npz with a restricted unpickler "
+                    "(numpy arrays, dicts, lists, strings and numbers only: a malicious pickle runs nothing).",
+        epilog="example:\n  dualtalker-lite convert-templates vocaset/templates.pkl    # -> vocaset/templates.npz")
+    ap.add_argument("pickle", help="templates.pkl")
+    ap.add_argument("--out", default=None, help="output .npz (default: beside the pickle)")
+    ap.add_argument("--overwrite", action="store_true")
+    args = ap.parse_args(argv)
+    out = convert_templates(args.pickle, args.out, args.overwrite)
+    with np.load(out, allow_pickle=False) as npz:
+        print(f"{len(npz.files)} templates ({npz[npz.files[0]].size // 3} vertices) -> {out}")
+    return out
+
+
+def prepare_main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(
+        prog="dualtalker-lite prepare-dataset", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Make a VOCASET/BIWI folder in FaceFormer's layout readable by dualtalker-lite "
+                    "(metadata.json with FaceFormer's splits, templates.npz, regions.json, faces.npy).",
+        epilog="example:\n  dualtalker-lite prepare-dataset ~/data/vocaset --preset vocaset\n"
+               "  dualtalker-lite train --corpus ~/data/vocaset --model faceformer --device cuda --out vocaset.pt")
+    ap.add_argument("root")
+    ap.add_argument("--preset", choices=sorted(PRESETS), required=True)
+    ap.add_argument("--overwrite", action="store_true", help="rebuild an existing metadata.json/templates.npz")
+    args = ap.parse_args(argv)
+    meta = prepare_dataset(args.root, args.preset, args.overwrite)
+    sizes = {k: len(v) for k, v in meta["splits"].items()}
+    print(f"{args.root}: {len(meta['clips'])} clips at {meta['fps']} fps, {meta['n_vertices']} vertices; "
+          f"splits {sizes}; {len(meta['skipped'])} file(s) outside every split")
+    return meta

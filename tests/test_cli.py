@@ -1,0 +1,44 @@
+"""The `dualtalker-lite` console script end to end: train -> evaluate -> animate with the checkpoint it wrote."""
+import json
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from dualtalker_lite.checkpoints import load_checkpoint
+from dualtalker_lite.cli import main
+from dualtalker_lite.data import sample_path
+from dualtalker_lite.data.corpus import Corpus
+
+
+def test_train_evaluate_animate(tmp_path, capsys):
+    ckpt = tmp_path / "m.pt"
+    main(["train", "--model", "voca", "--epochs", "1", "--out", str(ckpt)])
+    assert "trained voca for 1 epochs on 224 clips" in capsys.readouterr().out
+    model, info = load_checkpoint(ckpt)
+    corpus = Corpus(sample_path())
+    assert info["speakers"] == corpus.train_speakers and info["n_vertices"] == corpus.metadata["n_vertices"]
+    assert info["history"]["terms"] and info["train_config"]["epochs"] == 1
+    with pytest.raises(SystemExit) as e:  # an existing checkpoint is never overwritten silently
+        main(["train", "--model", "voca", "--epochs", "1", "--out", str(ckpt)])
+    assert e.value.code == 2 and "already exists" in capsys.readouterr().err
+    main(["evaluate", "--checkpoint", str(ckpt), "--split", "test_a", "--json", str(tmp_path / "m.json")])
+    metrics = json.loads((tmp_path / "m.json").read_text())["metrics"]
+    assert np.isfinite(metrics["lve_euclidean"]) and metrics["lve_euclidean"] > 0
+    assert f"{metrics['lve_euclidean']:.3f}" in capsys.readouterr().out
+    sf.write(tmp_path / "me.wav", 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK02",
+          "--out", str(tmp_path / "anim"), "--no-video"])
+    verts = np.load(tmp_path / "anim" / "vertices.npy")
+    assert verts.shape == (15, corpus.metadata["n_vertices"] * 3) and np.isfinite(verts).all()
+
+
+def test_console_script_is_declared():
+    import importlib
+    import tomllib
+
+    from dualtalker_lite.utils import repo_root
+
+    scripts = tomllib.loads((repo_root() / "pyproject.toml").read_text())["project"]["scripts"]
+    module, func = scripts["dualtalker-lite"].split(":")
+    assert getattr(importlib.import_module(module), func) is main
