@@ -25,6 +25,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..losses import LossWeights, joint_loss
 from ..utils import check_shape
 
 __all__ = ["StaticTemplate", "VocaConfig", "VocaStyle", "DUAL_ONLY_KEYS"]
@@ -59,6 +60,11 @@ class StaticTemplate(nn.Module):
         B, T = audio.shape[:2]
         motion = template.new_zeros(B, T, template.shape[-1])          # M_{1:T} = 0
         return _outputs(template, motion)
+
+    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[torch.Tensor, dict]:
+        """Training objective (``train.model_loss``): the shared joint loss, of which only the reconstruction
+        term λ1 L_primal applies here (the DualTalker-only outputs are None, so their terms are 0)."""
+        return joint_loss(out, batch, weights)
 
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor | None = None,
@@ -147,6 +153,11 @@ class VocaStyle(nn.Module):
         latent = self.mlp(torch.cat([z, s], dim=-1))                    # (B*T, latent)
         motion = self.decoder(latent).reshape(B, T, -1)                 # (B, T, V*3): M_{1:T}
         return _outputs(template, motion)
+
+    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[torch.Tensor, dict]:
+        """Training objective (``train.model_loss``): the shared joint loss, of which only the reconstruction
+        term λ1 L_primal applies here (the DualTalker-only outputs are None, so their terms are 0)."""
+        return joint_loss(out, batch, weights)
 
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor,

@@ -46,6 +46,7 @@ from torch import Tensor
 
 from ..blocks.fusion import DualFusionLayer
 from ..blocks.positional import PeriodicPositionalEncoding
+from ..losses import LossWeights, joint_loss
 from .audio_encoder import AudioFeatureExtractor
 
 __all__ = ["DualTalkerConfig", "faceformer_config", "TransposedLinear", "DualTalker"]
@@ -258,6 +259,11 @@ class DualTalker(nn.Module):
         if need_weights:
             out["attention"] = {"primal": w_primal, "dual": w_dual}
         return out
+
+    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
+        """The joint loss of section III-F, λ1 L_primal + λ2 L_dual + λ3 L_DR + λ4 L_CCRL (``losses.joint_loss``)
+        on :meth:`forward`'s output -> (total, detached terms). The training loop calls this, not the loss module."""
+        return joint_loss(out, batch, weights)
 
     # ---- inference: the primal task, autoregressively ---------------------------------------------
     @torch.no_grad()
