@@ -13,7 +13,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 from tqdm.auto import tqdm
@@ -21,7 +21,7 @@ from tqdm.auto import tqdm
 from .losses import LossWeights
 from .utils import atomic_torch_save, set_seed
 
-__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "model_loss", "train", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
+__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "model_loss", "train", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -39,6 +39,7 @@ class TrainConfig:
     cpu_budget_s: float | None = None  # stop once this process has used this many CPU seconds in train()
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
+    mean_init: bool = False            # model.init_output_bias(mean training motion) before the first step
     validate_every: int | None = None  # epochs between validation LVEs; None = after the last epoch only; 0 = never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
@@ -151,18 +152,21 @@ def model_loss(model: torch.nn.Module, out: dict, batch: dict, weights: Any) -> 
     return loss(out, batch, weights)
 
 
-def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=None, lip_idx=None) -> History:
+def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=None, lip_idx=None, *,
+          on_epoch: Callable[[torch.nn.Module, History], None] | None = None) -> History:
     """Train ``model`` with its own loss (:func:`model_loss`); returns the per-epoch :class:`History`.
 
     Stops after ``cfg.epochs`` epochs or when a budget (``max_steps``, ``cpu_budget_s``, ``time_budget_s``)
     is used up, whichever comes first; the learning-rate schedule (:func:`lr_factor`) runs over that same
     budget. Same seed, same machine, same thread count, step budget -> identical history (tested).
+    ``on_epoch(model, history)`` runs after each epoch (e.g. a benchmark's evaluation); its time is not
+    counted in the budgets or in ``history.seconds``/``cpu_seconds``, and it must leave the weights alone.
     """
     threads_before = torch.get_num_threads()
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     try:
-        return _train(model, train_loader, cfg, val_loader, lip_idx)
+        return _train(model, train_loader, cfg, val_loader, lip_idx, on_epoch)
     finally:
         torch.set_num_threads(threads_before)
 
@@ -177,10 +181,26 @@ def _budget_used(cfg: TrainConfig, step: int, total_steps: int, wall: float, cpu
     return used
 
 
-def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx) -> History:
+def mean_motion(dataset) -> torch.Tensor:
+    """Mean displacement from the template over every frame of every clip of ``dataset`` -> (V*3,) float32, metres."""
+    total, frames = None, 0
+    for i in range(len(dataset)):
+        item = dataset[i]
+        motion = (item["vertices"] - item["template"][None, :]).double()  # (T, V*3)
+        total = motion.sum(0) if total is None else total + motion.sum(0)
+        frames += motion.shape[0]
+    if not frames:
+        raise ValueError("mean_motion: the training set has no frames")
+    return (total / frames).float()
+
+
+def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx, on_epoch) -> History:
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
+    init = getattr(model, "init_output_bias", None)
+    if cfg.mean_init and callable(init):  # models without it train from their own initialisation
+        init(mean_motion(train_loader.dataset))
     model.to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     total_steps = cfg.epochs * len(train_loader)
@@ -225,6 +245,11 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
         if hist.val_lve:
             postfix["val_lve_mm"] = f"{hist.val_lve[-1]:.2f}"
         bar.set_postfix(postfix)
+        if on_epoch is not None:  # paused clocks: the callback's time is not training time
+            w, c = time.perf_counter(), time.process_time()
+            on_epoch(model, hist)
+            model.train()
+            t0, c0 = t0 + time.perf_counter() - w, c0 + time.process_time() - c
         if done:
             break
     model.eval()

@@ -169,6 +169,13 @@ class VocaStyle(nn.Module):
         return self(batch)["vertices"]
 
     @torch.no_grad()
+    def init_output_bias(self, mean_motion: torch.Tensor) -> None:
+        """Data-dependent init (``train`` calls it): decoder bias = the training set's mean motion (V*3,), metres,
+        as VOCA's own PCA initialisation does (:meth:`init_decoder_pca`); the weights are left as they are."""
+        check_shape(mean_motion, (self.cfg.n_vertices * 3,), "mean_motion")
+        self.decoder.bias.copy_(mean_motion.to(self.decoder.bias))
+
+    @torch.no_grad()
     def init_decoder_pca(self, motion: torch.Tensor) -> torch.Tensor:
         """VOCA's decoder init: rows of D = the top ``latent`` principal directions of training motion (N, V*3),
         scaled by their standard deviation, bias = the mean motion. Returns the explained-variance ratios."""

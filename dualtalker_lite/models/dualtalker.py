@@ -260,6 +260,16 @@ class DualTalker(nn.Module):
             out["attention"] = {"primal": w_primal, "dual": w_dual}
         return out
 
+    @torch.no_grad()
+    def init_output_bias(self, mean_motion: Tensor) -> None:
+        """Data-dependent init (``train`` calls it): motion decoder bias = the training set's mean motion (V*3,),
+        metres, so the untrained model outputs template + mean motion and the network learns only the
+        time-varying, audio-driven part (see "Mean-face collapse" in the module docstring)."""
+        v3 = 3 * self.cfg.n_vertices
+        if tuple(mean_motion.shape) != (v3,):
+            raise ValueError(f"mean_motion: expected shape ({v3},), got {tuple(mean_motion.shape)}")
+        self.motion_decoder.bias.copy_(mean_motion.to(self.motion_decoder.bias) * self.cfg.motion_scale)
+
     def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
         """The joint loss of section III-F, λ1 L_primal + λ2 L_dual + λ3 L_DR + λ4 L_CCRL (``losses.joint_loss``)
         on :meth:`forward`'s output -> (total, detached terms). The training loop calls this, not the loss module."""
