@@ -50,7 +50,8 @@ MODELS = {"Static template": ("Static template", None),
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m dualtalker_lite.demo", description=__doc__.split("\n")[0])
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
-    p.add_argument("--epochs", type=int, default=12, help="epochs per model (the same for both)")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="epochs per model, the same for both (default: the recipe's, TrainConfig.tiny())")
     p.add_argument("--time-budget", type=float, default=120.0,
                    help="seconds of training per model after which it stops at the end of the epoch (0 = none)")
     p.add_argument("--seed", type=int, default=0)
@@ -88,6 +89,10 @@ def main(argv: Sequence[str] | None = None) -> dict:
     command = "python -m dualtalker_lite.demo " + shlex.join(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.epochs is None:
+        from .train import TrainConfig
+
+        args.epochs = TrainConfig.tiny().epochs
     epochs = 1 if args.quick else args.epochs
     processes = 1 if args.quick else args.processes
     budget = args.time_budget if args.time_budget and not args.quick else None
