@@ -54,7 +54,8 @@ for seconds in (4, 20, 60):
 
 # --- CCRL: vectorised (package) vs a per-anchor loop ---
 def ccrl_per_anchor(x, y, motion):
-    """The same loss (default options: InfoNCE-style, swap second term), one anchor k at a time."""
+    """The same loss (default options: kernel-weighted positives of eq. 9, swap second term), one anchor k at a time:
+    l_k = log s'_k - sum_j w_kj s^inter_kj / sum_j w_kj, s'_k over the scaled negatives t != k (eq. 10)."""
     mask = torch.ones(x.shape[:2], dtype=torch.bool)
     w = rbf_kernel_weights(motion, None, mask)[0]  # (T, T)
     total = 0.0
@@ -64,8 +65,8 @@ def ccrl_per_anchor(x, y, motion):
             inter = F.cosine_similarity(p[k:k + 1], q, dim=-1)  # (T,)
             intra = F.cosine_similarity(p[k:k + 1], p, dim=-1)  # (T,)
             neg = torch.arange(p.shape[0]) != k
-            logits = torch.cat([inter[k:k + 1], (inter * (1 - w[k]))[neg], (intra * (1 - w[k]))[neg]])
-            losses.append(torch.logsumexp(logits, 0) - inter[k])
+            logits = torch.cat([(inter * (1 - w[k]))[neg], (intra * (1 - w[k]))[neg]])
+            losses.append(torch.logsumexp(logits, 0) - (w[k] * inter).sum() / w[k].sum())
         total = total + torch.stack(losses).mean()
     return total
 

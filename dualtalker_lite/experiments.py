@@ -17,9 +17,18 @@ Every run follows one protocol ("same features, same data, same training budget"
    ``eve_published``         mm^2    the LVE computation on the ``eyes_forehead`` region
    ``smoothing_lips``        ratio   over-smoothing ratio on the lips (:func:`over_smoothing_ratio`)
    ``smoothing_upper``       ratio   the same on the upper face
+   ``bilabial_closure_2mm``  ratio   lip sync (``metrics.lip_sync_metrics``, from the phoneme timing):
+   ``bilabial_closure_1mm``          fraction of /p b m/ segments whose min lip distance is < 2 / < 1 mm,
+   ``bilabial_min_mm``       mm      the mean of those minima, the mean max lip distance at open vowels
+   ``open_vowel_max_mm``     mm      (``*_gt``: the same on the ground truth), the mean per-clip correlation
+   ``lip_distance_corr``     r       of predicted and true lip-distance curves
    ========================  ======  =================================================================
 
-   plus training seconds and the number of trainable parameters.
+   plus training seconds and the number of trainable parameters;
+4. check for collapse: generate test-A again with every clip's audio replaced by that of a clip of another
+   sentence (same template and speaker) -> ``audio_sensitivity``; a trained run is flagged ``collapsed`` when
+   its lip motion ratio < 0.1 or its audio sensitivity < 0.1 (:func:`collapse_reasons`). The tables show the flag
+   and leave flagged runs out of mean ± std, naming them in the note (:func:`summarize`).
 
 Runs are independent jobs ``(row, seed)``; ``--processes N`` spreads them over N worker processes, each with one
 torch thread, and the metrics do not depend on N (each run reseeds everything and builds its own loader).
@@ -27,7 +36,7 @@ Identical configurations that appear in several requested tables (e.g. the full 
 
 Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker), ``ablation`` (w/o CCRL,
 w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared encoder/decoder
-weights) and ``sweep`` (λ4 and the CCRL kernel bandwidth σ).
+weights) and ``sweep`` (λ4, the CCRL kernel bandwidth σ, and the kernel-weighted vs InfoNCE reading of eq. 9).
 
     python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
     python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
@@ -48,7 +57,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Sequence
@@ -59,8 +68,10 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 
 __all__ = ["TABLES", "METRICS", "RunSpec", "table_specs", "phoneme_onehot", "PhonemeOneHot", "over_smoothing_ratio",
-           "typical_bandwidth", "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs",
-           "summarize", "write_table", "main"]
+           "typical_bandwidth", "swap_partners", "AudioSwapped", "audio_sensitivity", "collapse_reasons",
+           "is_collapsed",
+           "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
+           "write_table", "load_table", "table_markdown", "main"]
 
 TABLES = ("main", "ablation", "sweep")
 TEST_SPLIT = "test_a"
@@ -74,7 +85,15 @@ METRICS = (
     ("eve_published", "EVE_pub (mm²) ↓", 3),
     ("smoothing_lips", "lip motion ratio (→1)", 3),
     ("smoothing_upper", "upper-face motion ratio (→1)", 3),
+    ("bilabial_closure_2mm", "closed <2 mm at /p b m/ ↑", 3),
+    ("bilabial_closure_1mm", "closed <1 mm at /p b m/ ↑", 3),
+    ("bilabial_min_mm", "min lip dist. at /p b m/ (mm) ↓", 2),
+    ("open_vowel_max_mm", "max lip dist. at open vowels (mm, →GT)", 2),
+    ("lip_distance_corr", "lip-distance corr. ↑", 3),
 )
+LIP_SYNC_KEYS = ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "open_vowel_max_mm",
+                 "lip_distance_corr", "lip_motion_ratio", "bilabial_closure_2mm_gt", "bilabial_closure_1mm_gt",
+                 "bilabial_min_mm_gt", "open_vowel_max_mm_gt")
 TITLES = {
     "main": "Table I analogue: comparison with the baselines on test-A",
     "ablation": "Table IV analogue: ablations of DualTalker on test-A",
@@ -136,6 +155,8 @@ def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
             RunSpec("λ4=0", **full, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
             RunSpec("λ4=0.01, σ=median", **full, note="the default", reference=True),
             RunSpec("λ4=0.1, σ=median", **full, loss={"lambda4": 0.1}),
+            RunSpec("λ4=0.1, σ=median, InfoNCE reading", **full, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
+                    note="CCRL with one positive in the denominator (the reading before issue 8)"),
         ]
         for factor in (0.5, 2.0):
             sigma = factor * bandwidth
@@ -178,24 +199,11 @@ class PhonemeOneHot(Dataset):
 
 # ------------------------------------------------------------------------------------------- metrics
 def over_smoothing_ratio(preds: Sequence, gts: Sequence, idx) -> float:
-    r"""How much the prediction moves compared with the ground truth on the vertices ``idx``.
+    """The motion ratio of ``metrics.motion_ratio`` (kept under its old name): per clip, the summed temporal std
+    of the predicted vertices ``idx`` over the ground truth's, averaged over clips; 1 = as lively, 0 = static."""
+    from .metrics import motion_ratio
 
-    ratio_i = \sum_{v} σ_t(p_{tv}) / \sum_{v} σ_t(g_{tv}),   σ_t(x_{tv}) = \sqrt{\sum_{xyz} Var_t(x_{tv})}  (ddof 0)
-
-    σ_t is the temporal standard deviation of vertex v's 3-D position, i.e. of its displacement from the
-    template (the template cancels). Returns the mean of ratio_i over sequences i (each a (T, V, 3) or (T, V*3)
-    array, metres). 1 = as much motion as the ground truth; < 1 = over-smoothed (0 for the static template);
-    > 1 = more motion than the ground truth.
-    """
-    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
-    ratios = []
-    for p, g in zip(preds, gts):
-        p = np.asarray(p, dtype=np.float64).reshape(len(p), -1, 3)[:, idx]  # (T, |idx|, 3)
-        g = np.asarray(g, dtype=np.float64).reshape(len(g), -1, 3)[:, idx]
-        sg = np.sqrt(g.var(axis=0).sum(-1)).sum()
-        if sg > 0:
-            ratios.append(np.sqrt(p.var(axis=0).sum(-1)).sum() / sg)
-    return float(np.mean(ratios)) if ratios else math.nan
+    return motion_ratio(list(preds), list(gts), idx)
 
 
 def typical_bandwidth(dataset: Dataset) -> float:
@@ -213,6 +221,85 @@ def typical_bandwidth(dataset: Dataset) -> float:
         if off.any():
             sigmas.append(float(d2[off].sqrt().median()))  # torch's median is the lower median
     return float(np.median(sigmas))
+
+
+# ------------------------------------------------------------------------------------------- collapse detection
+COLLAPSE_MOTION_RATIO = 0.1       # lip motion ratio below this: the output barely moves ("near 0")
+COLLAPSE_AUDIO_SENSITIVITY = 0.1  # audio sensitivity below this: the output ignores the audio
+
+
+def swap_partners(sentence_ids: Sequence) -> list[int]:
+    """For each clip i, the next clip (cyclically) that speaks a different sentence (else simply the next one)."""
+    n = len(sentence_ids)
+    out = []
+    for i in range(n):
+        js = [(i + k) % n for k in range(1, n)]
+        out.append(next((j for j in js if sentence_ids[j] != sentence_ids[i]), (i + 1) % max(n, 1)))
+    return out
+
+
+class AudioSwapped(Dataset):
+    """Every clip keeps its template, speaker and ground truth but gets the audio features of clip
+    ``partners[i]`` (tiled or cropped to its own length): the input of the audio-independence check."""
+
+    def __init__(self, base: Dataset, partners: Sequence[int]):
+        if len(partners) != len(base):
+            raise ValueError(f"AudioSwapped: {len(partners)} partners for {len(base)} clips")
+        self.base, self.partners = base, list(partners)
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, index: int) -> dict:
+        item = dict(self.base[index])
+        other = self.base[self.partners[index]]["audio"]              # (T_j, D_a)
+        T = item["audio"].shape[0]
+        item["audio"] = other.repeat(-(-T // other.shape[0]), 1)[:T]  # (T, D_a)
+        return item
+
+
+def audio_sensitivity(preds: Sequence, preds_swapped: Sequence, gts: Sequence, idx) -> float:
+    r"""How much the output changes when the audio is replaced, relative to how much the face moves:
+
+        sqrt( \sum_{i, t, v \in idx} ||P_i(a_i) - P_i(a_j)||^2  /  \sum_{i, t, v \in idx} ||G_tv - mean_t G_v||^2 )
+
+    P_i(a) = the prediction for clip i's template and speaker from audio a; a_j the audio of another sentence
+    (:class:`AudioSwapped`). A model that follows the audio scores about sqrt(2) x its motion ratio (two
+    independent motions differ by sqrt(2) of their spread); a model whose output ignores the audio scores 0,
+    whatever it outputs. Unitless; sequences (T_i, V*3) or (T_i, V, 3), metres."""
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    num = den = 0.0
+    for p, q, g in zip(preds, preds_swapped, gts):
+        p, q, g = (np.asarray(a, dtype=np.float64).reshape(len(a), -1, 3)[:, idx] for a in (p, q, g))
+        if p.shape != q.shape or p.shape != g.shape:
+            raise ValueError(f"audio_sensitivity: shapes {p.shape}, {q.shape}, {g.shape} differ")
+        num += float(((p - q) ** 2).sum())
+        den += float(((g - g.mean(0)) ** 2).sum())
+    return math.sqrt(num / den) if den > 0 else math.nan
+
+
+def collapse_reasons(metrics: dict) -> list[str]:
+    """Why a trained run counts as collapsed (empty list: it does not). Rules, on test-A:
+    lip motion ratio < COLLAPSE_MOTION_RATIO (the output barely moves: e.g. the training-set mean face), or
+    audio sensitivity < COLLAPSE_AUDIO_SENSITIVITY (the output does not depend on the audio). A missing metric
+    (older results without ``audio_sensitivity``) is not checked."""
+    reasons = []
+    ratio = metrics.get("smoothing_lips", math.nan)
+    if ratio < COLLAPSE_MOTION_RATIO:
+        reasons.append(f"lip motion ratio {ratio:.3f} < {COLLAPSE_MOTION_RATIO:g}")
+    sens = metrics.get("audio_sensitivity", math.nan)
+    if sens < COLLAPSE_AUDIO_SENSITIVITY:
+        reasons.append(f"audio sensitivity {sens:.3f} < {COLLAPSE_AUDIO_SENSITIVITY:g}")
+    return reasons
+
+
+def is_collapsed(run: dict) -> bool:
+    """A trained run flagged by :func:`collapse_reasons` (the static template is never "collapsed": it is the floor)."""
+    if run.get("model") == "template" or '"model": "template"' in run.get("key", ""):
+        return False
+    if "collapsed" in run:
+        return bool(run["collapsed"])
+    return bool(collapse_reasons(run["metrics"]))
 
 
 # ------------------------------------------------------------------------------------------- data and models
@@ -294,9 +381,12 @@ def predict_split(model: torch.nn.Module, dataset: Dataset) -> dict:
     return {"preds": preds, "gts": gts, "templates": templates, "names": names}
 
 
-def split_metrics(out: dict, regions: dict) -> dict:
-    """The table's metrics from :func:`predict_split` output (plain floats, units in the module docstring)."""
-    from .metrics import evaluate
+def split_metrics(out: dict, regions: dict, segments: list | None = None) -> dict:
+    """The table's metrics from :func:`predict_split` output (plain floats, units in the module docstring).
+
+    ``segments``: per clip of ``out["names"]``, its phoneme segments (``corpus.meta(name)["phonemes"]``); with
+    them the lip-sync metrics of ``metrics.lip_sync_metrics`` are added (without them those keys are nan)."""
+    from .metrics import evaluate, lip_sync_metrics
 
     m = evaluate(out["preds"], out["gts"], out["templates"], regions, unit="mm", lip="lips", upper="upper_face",
                  eye_forehead="eyes_forehead")
@@ -304,6 +394,11 @@ def split_metrics(out: dict, regions: dict) -> dict:
     res["eve_euclidean"] = float(m["eve_euclidean"])
     res["smoothing_lips"] = over_smoothing_ratio(out["preds"], out["gts"], regions["lips"])
     res["smoothing_upper"] = over_smoothing_ratio(out["preds"], out["gts"], regions["upper_face"])
+    if segments is not None:
+        ls = lip_sync_metrics(out["preds"], out["gts"], segments, regions)
+        res.update({k: float(ls[k]) for k in LIP_SYNC_KEYS})
+    else:
+        res.update({k: math.nan for k in LIP_SYNC_KEYS})
     return res
 
 
@@ -338,9 +433,18 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
             save_checkpoint(checkpoint, model, model_cfg, train_cfg, history)
         t1 = time.perf_counter()
         out = predict_split(model, test_set)
-        metrics = split_metrics(out, data["corpus"].regions)
+        corpus = data["corpus"]
+        metrics = split_metrics(out, corpus.regions, [corpus.meta(n)["phonemes"] for n in out["names"]])
+        reasons, metrics["audio_sensitivity"] = [], 0.0  # the static template ignores the audio by design
+        if spec.model != "template":  # collapse check: the same faces driven by another sentence's audio
+            partners = swap_partners([corpus.meta(n).get("sentence_id", n) for n in out["names"]])
+            swapped = predict_split(model, AudioSwapped(test_set, partners))
+            metrics["audio_sensitivity"] = audio_sensitivity(out["preds"], swapped["preds"], out["gts"],
+                                                             corpus.regions["lips"])
+            reasons = collapse_reasons(metrics)
         return {"row": spec.row, "key": spec.key(), "seed": seed, "epochs": len(history.terms) if history else 0,
-                "metrics": metrics, "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
+                "metrics": metrics, "collapsed": bool(reasons), "collapse_reasons": reasons,
+                "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
                 "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
                 "model_config": asdict(model_cfg) if model_cfg is not None else None,
                 "train_config": {k: v for k, v in asdict(train_cfg).items()},
@@ -393,11 +497,19 @@ def run_specs(jobs: list[tuple[RunSpec, int]], epochs: int, processes: int = 1, 
 
 # ------------------------------------------------------------------------------------------- tables
 def summarize(runs: list[dict]) -> dict:
-    """Per metric: mean, sample std (ddof=1; 0 for one seed) and n over the given runs."""
-    keys = [k for k, _, _ in METRICS] + ["lve_euclidean", "eve_euclidean"]
-    out = {}
+    """Per metric: mean, sample std (ddof=1; 0 for one seed) and n over the given runs, collapsed runs
+    (:func:`is_collapsed`) excluded; ``out["collapsed"]`` lists their seeds. If every run collapsed, the numbers
+    are over all of them and ``out["all_collapsed"]`` is True (the table says so)."""
+    keys = [k for k, _, _ in METRICS] + ["lve_euclidean", "eve_euclidean", "audio_sensitivity",
+                                         "bilabial_closure_2mm_gt", "bilabial_min_mm_gt", "open_vowel_max_mm_gt"]
+    bad = [r for r in runs if is_collapsed(r)]
+    kept = [r for r in runs if not is_collapsed(r)] or runs
+    out = {"collapsed": [r["seed"] for r in bad], "n_runs": len(runs),
+           "all_collapsed": bool(runs) and len(bad) == len(runs)}
+    runs = kept
     for k in dict.fromkeys(keys + ["train_seconds"]):
-        vals = np.array([r["train_seconds"] if k == "train_seconds" else r["metrics"][k] for r in runs], float)
+        vals = np.array([r["train_seconds"] if k == "train_seconds" else r["metrics"].get(k, math.nan)
+                         for r in runs], float)
         out[k] = {"mean": float(vals.mean()), "std": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
                   "n": int(len(vals))}
     return out
@@ -418,7 +530,24 @@ def _compare(row: dict, ref: dict, name: str, expect: str = "") -> str:
     return text
 
 
+def _collapse_note(spec: RunSpec, runs: list[dict], sm: dict) -> str:
+    """'**1 of 3 runs collapsed** (seed 0: lip motion ratio 0.001 < 0.1), excluded from mean ± std' or ''."""
+    if not sm["collapsed"]:
+        return ""
+    why = []
+    for r in runs:
+        if r["row"] == spec.row and r["seed"] in sm["collapsed"]:
+            reasons = r.get("collapse_reasons") or collapse_reasons(r["metrics"])
+            why.append(f"seed {r['seed']}: {', '.join(reasons)}")
+    n, total = len(sm["collapsed"]), sm["n_runs"]
+    tail = ("ALL runs collapsed: the numbers are theirs" if sm["all_collapsed"]
+            else "excluded from mean ± std")
+    return f"**{n} of {total} runs collapsed** ({'; '.join(why)}), {tail}"
+
+
 def _fmt(s: dict, digits: int) -> str:
+    if not math.isfinite(s["mean"]):
+        return "—"  # not measured in these runs (e.g. results written before the metric existed)
     if s["n"] < 2:
         return f"{s['mean']:.{digits}f}"
     return f"{s['mean']:.{digits}f} ± {s['std']:.{digits}f}"
@@ -428,16 +557,35 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
     """Write ``<out>/<table>.json`` (all runs) and ``<out>/<table>.md`` (mean ± std over seeds) -> both paths."""
     out.mkdir(parents=True, exist_ok=True)
     summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
-    ref = next((s for s in specs if s.reference), None)
     rows_json = [{**asdict(s), "summary": summary[s.row]} for s in specs]
     payload = {"table": table, "title": TITLES[table], **meta, "rows": rows_json, "runs": runs,
                "metric_units": {"lve_published": "mm^2", "lve_euclidean": "mm", "fdd_published": "mm^2",
                                 "fdd_paper": "mm", "eve_published": "mm^2", "eve_euclidean": "mm",
-                                "smoothing_lips": "ratio", "smoothing_upper": "ratio", "train_seconds": "s"},
+                                "smoothing_lips": "ratio", "smoothing_upper": "ratio", "train_seconds": "s",
+                                "bilabial_closure_2mm": "fraction", "bilabial_closure_1mm": "fraction",
+                                "bilabial_min_mm": "mm", "open_vowel_max_mm": "mm", "lip_distance_corr": "r",
+                                "lip_motion_ratio": "ratio", "audio_sensitivity": "ratio"},
                "definitions": DEFINITIONS}
     json_path = out / f"{table}.json"
     json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+    md_path = out / f"{table}.md"
+    md_path.write_text(table_markdown(table, specs, runs, meta))
+    return json_path, md_path
 
+
+def load_table(path: str | Path) -> tuple[list[RunSpec], list[dict], dict]:
+    """Read a ``<table>.json`` written by :func:`write_table` -> (row specs, runs, the whole payload)."""
+    payload = json.loads(Path(path).read_text())
+    names = [f.name for f in fields(RunSpec)]
+    specs = [RunSpec(**{k: row[k] for k in names if k in row}) for row in payload["rows"]]
+    return specs, payload["runs"], payload
+
+
+def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dict) -> str:
+    """The Markdown table of :func:`write_table`, from the runs (summaries recomputed with the current collapse
+    rule, so older results get the flags too); metrics a run does not have are shown as "—"."""
+    summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
+    ref = next((s for s in specs if s.reference), None)
     params = {s.row: next(r["n_parameters"] for r in runs if r["row"] == s.row) for s in specs}
     seeds = meta["seeds"]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
@@ -446,23 +594,26 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
              f"{TEST_SPLIT} clips: {meta['n_test_clips']}{quick}; "
-             f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
+             f"autoregressive generation; mean ± sample std over seeds. Corpus `{_display_path(meta['corpus'])}`; "
              f"commit {meta['git']}; {meta['created']}.", "",
-             "| model | " + " | ".join(h for _, h, _ in METRICS) + " | train (s) | params | note |",
-             "|---" * (len(METRICS) + 4) + "|"]
+             "| model | " + " | ".join(h for _, h, _ in METRICS) + " | collapsed | train (s) | params | note |",
+             "|---" * (len(METRICS) + 5) + "|"]
     for s in specs:
         sm = summary[s.row]
         note = s.note
         if ref is not None and s.row != ref.row and s.model != "template":
             cmp = _compare(sm, summary[ref.row], ref.row, s.expect)
             note = f"{note}; {cmp}" if note else cmp
+        collapsed = _collapse_note(s, runs, sm)
+        if collapsed:
+            note = f"{collapsed}; {note}" if note else collapsed
         cells = [_fmt(sm[k], d) for k, _, d in METRICS]
-        cells += [f"{sm['train_seconds']['mean']:.0f}", f"{params[s.row]:,}", note]
+        flag = "n/a" if s.model == "template" else f"{len(sm['collapsed'])}/{sm['n_runs']}"
+        cells += [f"**{flag}**" if sm["collapsed"] else flag, f"{sm['train_seconds']['mean']:.0f}",
+                  f"{params[s.row]:,}", note]
         lines.append(f"| {s.row} | " + " | ".join(cells) + " |")
     lines += ["", *(f"- {d}" for d in DEFINITIONS), ""]
-    md_path = out / f"{table}.md"
-    md_path.write_text("\n".join(lines))
-    return json_path, md_path
+    return "\n".join(lines)
 
 
 DEFINITIONS = (
@@ -473,9 +624,23 @@ DEFINITIONS = (
     "positive = the prediction's upper face moves less than the ground truth; the static template's FDD is the "
     "ground truth's own dynamics. Closer to 0 is better.",
     "EVE_pub: the LVE_pub computation on the `eyes_forehead` region (eyes, brows, forehead), mm².",
+    "Lip sync, from the phoneme timing of each clip (frames whose time lies in a phoneme's segment; the nearest "
+    "frame for a segment shorter than a frame) and the lip distance between the upper- and lower-lip midpoints: "
+    "closed <2 / <1 mm = fraction of /p b m/ segments whose minimum predicted lip distance is under 2 / 1 mm "
+    "(the ground truth closes all of them under 2 mm; the rig's rest gap is about 2 mm, so a static face passes "
+    "the 2 mm test for some speakers: read it with the 1 mm rate and the vowel opening); min lip dist. = mean of "
+    "those minima; max lip dist. at open vowels = mean over /a A: 0 V aI aU .../ segments of the maximum; "
+    "lip-distance corr. = mean over clips of the Pearson correlation of predicted and true curves (0 for a flat "
+    "prediction). `metrics.lip_sync_metrics`.",
     "Motion ratio (over-smoothing): per clip, sum over the region's vertices of the temporal std of the "
     "predicted 3-D displacement divided by the same sum for the ground truth, averaged over clips; "
     "1 = as lively as the ground truth, < 1 = over-smoothed (0 = static), > 1 = more motion than the ground truth.",
+    f"Collapsed: a trained run whose test-A lip motion ratio is under {COLLAPSE_MOTION_RATIO:g} (the output barely "
+    f"moves, e.g. the training-set mean face) or whose audio sensitivity is under {COLLAPSE_AUDIO_SENSITIVITY:g} (the "
+    "output does not depend on the audio: every test clip is generated again with the audio of a clip of another "
+    "sentence, same template and speaker, and the RMS change on the lips is divided by the RMS ground-truth lip "
+    "motion; a model that follows the audio scores about √2 × its motion ratio). Collapsed runs are shown in the "
+    "`collapsed` column (collapsed/total seeds) and excluded from mean ± std; the note names them.",
     "train (s): wall-clock training seconds, one torch thread, on a 2-core machine shared with other jobs: "
     "only roughly comparable between rows. params: trainable parameters (tied weights counted once).",
     "Note column: the fixed description of the row, then its LVE (mm) difference from the reference row with "
@@ -496,6 +661,20 @@ def _git() -> str:
         return f"{head}{'+dirty' if run('status', '--porcelain', '--untracked-files=no') else ''}" or "unknown"
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+
+
+def _display_path(path: str | Path) -> str:
+    """The corpus folder as written into results: relative to the repository (or the working directory) when
+    inside it, else its name only, so committed tables carry no machine-specific paths."""
+    from .utils import repo_root
+
+    path = Path(path).resolve()
+    for base in (repo_root(), Path.cwd()):
+        try:
+            return path.relative_to(Path(base).resolve()).as_posix() or "."
+        except ValueError:
+            continue
+    return path.name
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -540,7 +719,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     by_key = {(r["key"], r["seed"]): r for r in results}
     meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
             "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
-            "corpus": data["path"], "test_split": TEST_SPLIT, "n_train_clips": len(data["train"]),
+            "corpus": _display_path(data["path"]), "test_split": TEST_SPLIT, "n_train_clips": len(data["train"]),
             "n_test_clips": len(data["test"]), "typical_bandwidth_m": bandwidth, "git": _git(),
             "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
             "torch_threads_per_process": 1}

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights",
+__all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights", "READINGS",
            "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss"]
 
 
@@ -102,29 +102,50 @@ def rbf_kernel_weights(motion: Tensor, bandwidth: float | None, mask: Tensor, di
     return torch.where(pair, w, torch.zeros_like(w)).to(motion.dtype)
 
 
+Reading = Literal["kernel", "infonce", "decoupled"]
+READINGS = ("kernel", "infonce", "decoupled")
+
+
 def ccrl_anchor_losses(p: Tensor, q: Tensor, kernel_weights: Tensor, mask: Tensor, temperature: float = 1.0,
-                       include_positive: bool = True) -> tuple[Tensor, Tensor]:
+                       reading: Reading = "kernel") -> tuple[Tensor, Tensor]:
     r"""Per-anchor loss of eqs. 9-10 with anchors from P and cross-modal partner Q, all anchors at once.
 
-    s^inter_{k,t} = cos(P_k, Q_t), s^intra_{k,t} = cos(P_k, P_t); with τ = ``temperature``:
-        l_k = -\log \frac{e^{s^inter_{k,k}/τ}}{[e^{s^inter_{k,k}/τ}] + \sum_{t≠k} e^{s^inter_{k,t}(1-w_{k,t})/τ}
-                                                        + e^{s^intra_{k,t}(1-w_{k,t})/τ}}
-    The bracketed positive term is present iff ``include_positive``. t runs over valid frames of the same
-    sequence. Returns (losses (B, T), is_anchor (B, T) bool): a valid frame is an anchor iff its sequence
-    has another valid frame (else l_k = 0).
+    s^inter_{a,t} = cos(P_a, Q_t), s^intra_{a,t} = cos(P_a, P_t), w_{a,t} = K(M_a - M_t), τ = ``temperature``;
+    the printed denominator (eq. 10) over the anchor's negatives t ≠ a:
+        s'_a = \sum_{t≠a} e^{s^inter_{a,t}(1-w_{a,t})/τ} + e^{s^intra_{a,t}(1-w_{a,t})/τ}
+
+    ``reading`` (see :func:`ccrl_loss` for why):
+        "kernel"    (eq. 9 as printed, in the sense of ref. [59]): every frame k is a positive of anchor a with
+                    weight w_{a,k} (w_{a,a} = 1: the true pair), normalised by \sum_k w_{a,k}:
+                    l_a = -\frac{1}{\sum_k w_{a,k}} \sum_k w_{a,k} \log\frac{e^{s^inter_{a,k}/τ}}{s'_a}
+                        = \log s'_a - \sum_k w_{a,k} s^inter_{a,k} / (τ \sum_k w_{a,k})
+        "infonce"   one positive (Q_a) and it also sits in the denominator:
+                    l_a = -\log \frac{e^{s^inter_{a,a}/τ}}{e^{s^inter_{a,a}/τ} + s'_a}
+        "decoupled" one positive, printed denominator: l_a = \log s'_a - s^inter_{a,a}/τ
+
+    t and k run over valid frames of the same sequence. Returns (losses (B, T), is_anchor (B, T) bool): a valid
+    frame is an anchor iff its sequence has another valid frame (else there are no negatives and l_a = 0).
     """
+    if reading not in READINGS:
+        raise ValueError(f"reading must be one of {READINGS}, got {reading!r}")
     B, T, _ = p.shape
     pn, qn = F.normalize(_masked(p, mask), dim=-1), F.normalize(_masked(q, mask), dim=-1)  # (B, T, d)
-    s_inter = pn @ qn.transpose(1, 2)  # (B, T, T) cos(P_k, Q_t)
-    s_intra = pn @ pn.transpose(1, 2)  # (B, T, T) cos(P_k, P_t)
+    s_inter = pn @ qn.transpose(1, 2)  # (B, T, T) cos(P_a, Q_t)
+    s_intra = pn @ pn.transpose(1, 2)  # (B, T, T) cos(P_a, P_t)
     eye = torch.eye(T, dtype=torch.bool, device=p.device)
-    neg = mask[:, :, None] & mask[:, None, :] & ~eye  # (B, T, T) valid negatives t ≠ k
-    scale = (1.0 - kernel_weights.detach()) / temperature  # (1 - w_t) / τ: the per-negative "temperature"
+    pair = mask[:, :, None] & mask[:, None, :]  # (B, T, T) both frames valid
+    neg = pair & ~eye  # valid negatives t ≠ a
+    w = kernel_weights.detach().to(p.dtype)
+    scale = (1.0 - w) / temperature  # (1 - w_t) / τ: the per-negative "temperature"
     very_neg = torch.finfo(p.dtype).min  # exp(.) == 0 exactly, and no -inf (keeps gradients finite)
     logits = [torch.where(neg, s * scale, torch.full_like(s, very_neg)) for s in (s_inter, s_intra)]
-    pos = torch.diagonal(s_inter, dim1=1, dim2=2) / temperature  # (B, T) s^inter_k / τ
-    if include_positive:
-        logits.append(pos[..., None])
+    if reading == "kernel":
+        wk = torch.where(pair, w, torch.zeros_like(w))  # (B, T, T) positive weights w_{a,k}, k valid
+        pos = (wk * s_inter).sum(-1) / (temperature * wk.sum(-1).clamp(min=torch.finfo(p.dtype).tiny))  # (B, T)
+    else:
+        pos = torch.diagonal(s_inter, dim1=1, dim2=2) / temperature  # (B, T) s^inter_{a,a} / τ
+        if reading == "infonce":
+            logits.append(pos[..., None])
     log_denominator = torch.logsumexp(torch.cat(logits, dim=-1), dim=-1)  # (B, T) log s'
     is_anchor = mask & (mask.sum(1, keepdim=True) > 1)
     return torch.where(is_anchor, log_denominator - pos, torch.zeros_like(pos)), is_anchor
@@ -132,40 +153,57 @@ def ccrl_anchor_losses(p: Tensor, q: Tensor, kernel_weights: Tensor, mask: Tenso
 
 def ccrl_loss(x: Tensor, y: Tensor, motion: Tensor | None, mask: Tensor, bandwidth: float | None = None, *,
               kernel_weights: Tensor | None = None, x_fused: Tensor | None = None, y_fused: Tensor | None = None,
-              second_term: Literal["swap", "fused", "none"] = "swap",
+              second_term: Literal["swap", "fused", "none"] = "swap", reading: Reading = "kernel",
               anchor_weighting: Literal["uniform", "kernel_mean"] = "uniform",
-              include_positive: bool = True, temperature: float = 1.0, distance: Distance = "mean") -> Tensor:
+              temperature: float = 1.0, distance: Distance = "mean") -> Tensor:
     r"""Cross-modality consistency regularisation L_CCRL (eqs. 9-11); x, y (B, T, d), motion (B, T, V*3).
 
-    L_CCRL(X, Y) = -\frac{1}{\sum_k a_k} \sum_k a_k \log\frac{\exp(s^inter_k)}{s'}    (eq. 9, s' of eq. 10)
-    w_{k,t} = RBF kernel on ground-truth motion (:func:`rbf_kernel_weights`, or ``kernel_weights``).
-    Per-anchor terms: :func:`ccrl_anchor_losses`. Negatives come from the anchor's own sequence only;
-    anchors are pooled over the batch (like the MSE terms). Readings of the garbled extraction:
+    As printed (section III-E):
+        L_CCRL(X, Y) = -\frac{1}{\sum_t w_t} \sum_k w_k \log\frac{\exp(s^inter_k)}{s'}                 (eq. 9)
+        s' = \sum_{t≠k} \exp(s^inter_t (1 - w_t)) + \exp(s^intra_t (1 - w_t))                        (eq. 10)
+        L_CCRL = L_CCRL(X, Y) + L_CCRL(X, Y)                                                    (eq. 11)
+    with w_t = K(M_k - M_t) a Gaussian (RBF) kernel on the ground-truth motion (:func:`rbf_kernel_weights`,
+    or ``kernel_weights``), s^inter_t = cos(X_k, Y_t), s^intra_t = cos(X_k, X_t) for the anchor X_k.
+    Per-anchor terms: :func:`ccrl_anchor_losses`; the loss is their mean over anchors (``anchor_weighting``),
+    pooled over the batch like the MSE terms; negatives come from the anchor's own sequence only.
 
-    (a) Anchor weight a_k and normaliser. As printed, w_k = K(M_k - M_k) = 1 for every anchor, and
-        1/\sum_t w_t normalises the weighted sum: a plain mean over anchors ("uniform", default).
-        "kernel_mean": a_k = mean_t w_{k,t} (anchors in dense, often-revisited poses weigh more),
-        normalised by \sum_k a_k.
-    (b) Positive in the denominator. Printed s' omits e^{s^inter_k} (the "decoupled", DCL form). It is
-        bounded below only because Sim is a cosine (l_k ≥ log 2(n-1) - 2/τ; with a dot product it would be
-        unbounded), it goes negative, its floor depends on the clip length n, and it is log 0 for n = 1.
-        Default ``include_positive=True`` (InfoNCE): l_k ≥ 0 with 0 = perfectly separated, and the pull on
-        the positive saturates instead of pushing forever against the regression losses. False = as printed.
-        Either way a clip with a single valid frame has no negatives and contributes no anchor.
-    (c) Eq. 11 prints L(X, Y) twice. "swap" (default): L(X, Y) + L(Y, X), anchors from both modalities,
-        the symmetric CLIP-style reading that needs nothing beyond X, Y. "fused": L(X, Y) + L(X̆, Y̆), since
-        the text also aligns the features after fusion. "none": L(X, Y) alone.
-    (d) "(1 - w_t) acts as a temperature": every negative logit is multiplied by (1 - w_{k,t}); an extra
-        global ``temperature`` τ divides all logits (default 1, i.e. none, as printed).
+    Readings (the text is ambiguous; each alternative is an argument):
 
-    Constraints above eq. 9: w_k [s^intra_t (1 - w_t) - s^intra_k] ≤ 0 and w_k [s^inter_t (1 - w_t) -
-    s^inter_k] ≤ 0 for all t ≠ k: no scaled negative may beat the positive. The loss is their smooth
-    surrogate: l_k increases with LSE_t(scaled negatives) - s^inter_k ≥ max_t(scaled negative) - s^inter_k
-    (it equals it without the positive, softplus of it with), so minimising it drives every margin below
-    zero (with w_k = 1 the factor w_k changes nothing). (The intra constraint is trivial, s^intra_k = cos(X_k,
-    X_k) = 1; in eq. 10 the intra negatives are compared with the inter positive.) A negative with w_t → 1
-    has logit → 0 and zero gradient: no repulsion between frames whose motions are alike.
+    (a) What w_k is (``reading``). Eq. 9 is the "exponential" kernel-weighted contrastive loss of the paper's
+        reference [59] (Barbano et al., ISBI 2023, building on y-aware InfoNCE, Dufumier et al. 2021): for an
+        anchor i, -\frac{1}{\sum_t w_t}\sum_k w_k \log\frac{e^{s_k}}{\sum_{t≠i} e^{s_t(1-w_t)}} with
+        w_k = K(y_i - y_k) between the anchor and EVERY sample k, normaliser \sum of those weights. Eq. 9 reuses
+        the letter k for both the anchor and the summation index; reading the sum over k as [59]'s sum over
+        weighted positives gives ``reading="kernel"`` (default): every frame k is a positive of anchor a,
+        weighted by w_{a,k}; the true pair (X_a, Y_a) has w_{a,a} = K(0) = 1 (it is [59]'s "other view" of the
+        anchor), the normaliser is \sum_k w_{a,k} per anchor, and the denominator is eq. 10 as printed (t ≠ a,
+        no extra positive). So a frame with w ≈ 1 is *attracted* (a positive) and, through (1 - w) ≈ 0, not
+        repelled; a frame with w ≈ 0 is only repelled. The intra-modal positive (X_a, X_a) has constant
+        similarity 1 and drops out. Alternatives (the committed tables before issue 8 used "infonce"):
+        "infonce"   w_k = K(M_k - M_k) = 1 for every anchor, one positive (X_a, Y_a), and e^{s^inter_a} added to
+                    s' (not printed): l_a ≥ 0. Frames with w ≈ 1 are neither attracted nor repelled.
+        "decoupled" the same single positive with s' exactly as printed (the DCL form: l_a goes negative, its
+                    floor depends on T; bounded below only because Sim is a cosine).
+    (b) Anchor weights (``anchor_weighting``): "uniform" (default) = plain mean over anchors, as [59] does
+        (each anchor's own normaliser is inside l_a); "kernel_mean": anchor a weighs mean_t w_{a,t}
+        (anchors in dense, often-revisited poses weigh more), normalised by the sum of those weights.
+    (c) Eq. 11 prints L(X, Y) twice (``second_term``). "swap" (default): L(X, Y) + L(Y, X), anchors from both
+        modalities, the symmetric CLIP-style reading that needs nothing beyond X, Y. "fused": L(X, Y) +
+        L(X̆, Y̆) with the fused features of eqs. 6-7, since the text "brings (X, Y) and (X̂, Ŷ) closer".
+        "none": L(X, Y) alone.
+    (d) The (X̂, Ŷ) pair. The text (around eq. 3) calls Ŷ the temporally encoded past-motion sequence fed to
+        the motion-attentive module; X̂ would be its lip-reading counterpart (the encoded past audio). Those
+        inputs are shifted by one frame and carry the style embedding, so pairing them frame by frame with
+        each other is ill-defined; this implementation uses the fused states X̆, Y̆ (eq. 8's pair) for the
+        "fused" option and says so.
+    (e) "(1 - w_t) acts as a temperature": every negative logit is multiplied by (1 - w_{a,t}); an extra
+        global ``temperature`` τ divides all logits, positives included (default 1, i.e. none, as printed).
+
+    Constraints above eq. 9: w_k [s_t (1 - w_t) - s_k] ≤ 0 for all t ≠ k (no scaled negative may beat the
+    positive); the loss is their smooth surrogate (log-sum-exp of the scaled negatives minus the positive).
     """
+    if reading not in READINGS:
+        raise ValueError(f"reading must be one of {READINGS}, got {reading!r}")
     if kernel_weights is None:
         if motion is None:
             raise ValueError("ccrl_loss needs motion or kernel_weights")
@@ -180,14 +218,14 @@ def ccrl_loss(x: Tensor, y: Tensor, motion: Tensor | None, mask: Tensor, bandwid
     elif second_term != "none":
         raise ValueError(f"second_term must be 'swap', 'fused' or 'none', got {second_term!r}")
     if anchor_weighting == "uniform":
-        a = mask.to(x.dtype)  # (B, T) w_k = K(0) = 1
+        a = mask.to(x.dtype)  # (B, T) every anchor weighs 1
     elif anchor_weighting == "kernel_mean":
-        a = kernel_weights.to(x.dtype).sum(-1) / mask.sum(1, keepdim=True).clamp(min=1)  # (B, T) mean_t w_{k,t}
+        a = kernel_weights.to(x.dtype).sum(-1) / mask.sum(1, keepdim=True).clamp(min=1)  # (B, T) mean_t w_{a,t}
     else:
         raise ValueError(f"anchor_weighting must be 'uniform' or 'kernel_mean', got {anchor_weighting!r}")
     total = x.new_zeros(())
     for p, q in pairs:
-        losses, is_anchor = ccrl_anchor_losses(p, q, kernel_weights, mask, temperature, include_positive)
+        losses, is_anchor = ccrl_anchor_losses(p, q, kernel_weights, mask, temperature, reading)
         a_k = torch.where(is_anchor, a, torch.zeros_like(a))
         total = total + (a_k * losses).sum() / a_k.sum().clamp(min=torch.finfo(a.dtype).tiny)
     return total
@@ -215,7 +253,7 @@ class LossWeights:
     bandwidth: float | None = None
     kernel_distance: str = "mean"
     temperature: float = 1.0
-    include_positive: bool = True
+    ccrl_reading: str = "kernel"  # "kernel" (eq. 9 as printed, ref. [59]) | "infonce" | "decoupled": see ccrl_loss
     second_term: str = "swap"
     anchor_weighting: str = "uniform"
 
@@ -245,7 +283,7 @@ def joint_loss(out: dict, batch: dict, weights: LossWeights | None = None) -> tu
         motion = batch["vertices"] - batch["template"][:, None, :]  # (B, T, V*3) M_{1:T}
         terms["ccrl"] = ccrl_loss(out["x"], out["y"], motion, mask, w.bandwidth, x_fused=out.get("x_fused"),
                                   y_fused=out.get("y_fused"), second_term=w.second_term,
-                                  anchor_weighting=w.anchor_weighting, include_positive=w.include_positive,
+                                  anchor_weighting=w.anchor_weighting, reading=w.ccrl_reading,
                                   temperature=w.temperature, distance=w.kernel_distance)
     lambdas = {"primal": w.lambda1, "dual": w.lambda2, "dr": w.lambda3, "ccrl": w.lambda4}
     total = sum((lambdas[k] * terms[k] for k in lambdas if lambdas[k]), zero)

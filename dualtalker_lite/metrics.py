@@ -1,4 +1,5 @@
-"""Evaluation metrics: lip vertex error (LVE), upper-face dynamics deviation (FDD), emotional vertex error (EVE).
+"""Evaluation metrics: lip vertex error (LVE), upper-face dynamics deviation (FDD), emotional vertex error (EVE),
+lip-sync metrics (bilabial closures, vowel opening, lip-distance correlation, lip motion ratio).
 
 DualTalker sec. IV-C (LVE; FDD, eq. 12; lip distance, Fig. 5), CorrTalk Fig. 5 (per-vertex mean error map),
 EmoFace sec. 4.2 (EVE = the lip error on eye and forehead vertices).
@@ -31,6 +32,23 @@ Use ``unit="m"`` with the ``*_published`` functions to compare with the papers' 
 Pooling: LVE/EVE average over all frames of the test set (long clips weigh more); FDD averages per sequence.
 FDD is signed: positive = ground truth moves more than the prediction (over-smoothing).
 
+Lip sync (the papers' Fig. 5 lip-distance plots made quantitative; :func:`lip_sync_metrics` returns them all)
+----------------------------------------------------------------------------------------------------------------
+From the phoneme segments of the corpus metadata (``corpus.meta(clip)["phonemes"]`` = [[phoneme, start_s, end_s]],
+espeak-ng mnemonics) and the lip distance (upper to lower lip midpoint, the ``lip_midpoints`` region), in mm:
+
+| key                        | meaning                                                                      |
+|----------------------------|------------------------------------------------------------------------------|
+| `bilabial_closure_2mm/1mm` | fraction of /p b m/ segments whose minimum predicted lip distance is < 2 / 1 mm |
+| `bilabial_min_mm`          | mean over /p b m/ segments of that minimum (ground truth of the sample: 0.3) |
+| `open_vowel_max_mm`        | mean over open-vowel segments of the maximum lip distance                    |
+| `lip_distance_corr`        | mean over clips of the Pearson correlation of the predicted and true curves  |
+| `lip_motion_ratio`         | temporal std of the lip vertices, prediction / ground truth (1 = as lively)   |
+
+Read the closure rates with the other columns: the rig's rest gap is about 2 mm, so a face that never moves
+(the static template) already "closes" under 2 mm for speakers whose rest gap is just below it (0.5 on the
+sample's test-A); it never opens (``open_vowel_max_mm`` ~2 against ~13.6) and never passes 1 mm.
+
 Accepted inputs (numpy or torch, any float dtype; computed in float64 numpy, returned as Python floats):
 a list of (T_i, V, 3) or (T_i, V*3) sequences, or a padded (B, T, V*3) / (B, T, V, 3) array with a (B, T) bool ``mask``.
 Predictions and ground truth must have the same length: the published code silently truncates to the shorter one;
@@ -44,7 +62,8 @@ import numpy as np
 import torch
 
 __all__ = ["as_sequences", "lve_published", "lve_euclidean", "fdd_published", "fdd_paper", "eve",
-           "lip_distance", "mean_vertex_error", "evaluate"]
+           "lip_distance", "mean_vertex_error", "evaluate", "BILABIALS", "OPEN_VOWELS", "segment_frames",
+           "segment_extrema", "closure_rate", "curve_correlation", "motion_ratio", "lip_sync_metrics"]
 
 Array = Union[np.ndarray, torch.Tensor]
 Seqs = Union[Sequence[Array], Array]
@@ -276,4 +295,179 @@ def evaluate(preds: Seqs, gts: Seqs, templates, regions: Mapping[str, Sequence[i
         out["lip_distance_gt"] = [lip_distance(g, *lip_mid, unit=unit) for g in G]
         units.update(lip_distance_pred=unit, lip_distance_gt=unit)
     out["units"] = units
+    return out
+
+
+# ---------------------------------------------------------------- lip sync: closures at /p b m/, opening on vowels
+# espeak-ng en-us mnemonics as stored in the corpus metadata (stress marks stripped), i.e. the phonemes the rig maps
+# to its "PP" viseme (lips pressed) and to its "aa" viseme (jaw_open 0.62, the widest); tests check they agree with
+# ``face.visemes.PHONEME_TO_VISEME``. Seen in the shipped sample: p b m (bilabials); a a# aa A: 0 V A@ aI aU (open).
+BILABIALS = ("p", "b", "m", "m-")
+OPEN_VOWELS = ("a", "a#", "aa", "A:", "A", "0", "V", "A@", "aI", "aU", "aI3", "aU3", "aI@", "aU@")
+CLOSURE_THRESHOLDS_MM = (2.0, 1.0)
+_STRESS_MARKS = "'\",%=!"
+
+
+def _symbol(s) -> str:
+    return "".join(ch for ch in str(s) if ch not in _STRESS_MARKS).strip()
+
+
+def segment_frames(start_s: float, end_s: float, n_frames: int, fps: float = 30.0, *,
+                   tolerance_frames: int = 0) -> np.ndarray:
+    """Frame indices of a phoneme segment [start_s, end_s): the frames f whose time f/fps lies in it.
+
+    Frame f is at time f/fps (FaceFormer's convention, as the corpus). A segment that contains no frame time
+    (shorter than a frame, or between two frames) gets the single frame nearest its midpoint.
+    ``tolerance_frames`` widens the segment by that many frames on each side (0 = exact timing, the default).
+    A segment that starts more than a frame after the last frame is an error (segments of another clip?)."""
+    start_s, end_s = float(start_s), float(end_s)
+    if not (np.isfinite(start_s) and np.isfinite(end_s)) or end_s < start_s:
+        raise ValueError(f"phoneme segment [{start_s}, {end_s}) s is not a finite interval with start <= end")
+    if n_frames < 1:
+        raise ValueError("segment_frames: the track has no frames")
+    if start_s * fps > n_frames:                                      # more than a frame after frame n_frames-1
+        raise ValueError(f"phoneme segment [{start_s:.3f}, {end_s:.3f}) s starts after the end of a "
+                         f"{n_frames}-frame track ({n_frames / fps:.3f} s at {fps:g} fps): segments of another clip?")
+    first = int(np.ceil(start_s * fps - 1e-9))                        # first f with f/fps >= start
+    last = int(np.ceil(end_s * fps - 1e-9)) - 1                       # last f with f/fps < end
+    if last < first:                                                  # no frame time inside: nearest to the middle
+        first = last = int(np.floor(0.5 * (start_s + end_s) * fps + 0.5))
+    first, last = first - tolerance_frames, last + tolerance_frames
+    return np.arange(max(first, 0), min(last, n_frames - 1) + 1)
+
+
+def _segments_of(segments, symbols) -> list[tuple[float, float]]:
+    want = {_symbol(s) for s in symbols}
+    out = []
+    for k, seg in enumerate(segments):
+        if len(seg) != 3:
+            raise ValueError(f"phoneme segment {k}: expected [phoneme, start_s, end_s], got {seg!r}")
+        if _symbol(seg[0]) in want:
+            out.append((float(seg[1]), float(seg[2])))
+    return out
+
+
+def segment_extrema(curve, segments, symbols, *, reduce: str = "min", fps: float = 30.0,
+                    tolerance_frames: int = 0) -> np.ndarray:
+    """Per matching segment, the min (or max) of a per-frame ``curve`` (T,) over its frames -> (n_segments,).
+
+    ``segments``: one clip's [[phoneme, start_s, end_s], ...] (corpus ``meta(clip)["phonemes"]``); ``symbols``:
+    the phonemes to keep (stress marks ignored), e.g. :data:`BILABIALS`. Frames as in :func:`segment_frames`."""
+    if reduce not in ("min", "max"):
+        raise ValueError(f"reduce must be 'min' or 'max', got {reduce!r}")
+    c = _np(curve).reshape(-1)
+    fn = np.min if reduce == "min" else np.max
+    return np.array([fn(c[segment_frames(a, b, len(c), fps, tolerance_frames=tolerance_frames)])
+                     for a, b in _segments_of(segments, symbols)], dtype=np.float64)
+
+
+def closure_rate(minima_mm, threshold_mm: float) -> float:
+    """Fraction of bilabial segments whose minimum lip distance is strictly under ``threshold_mm`` (nan if none)."""
+    m = np.asarray(minima_mm, dtype=np.float64).reshape(-1)
+    return float((m < threshold_mm).mean()) if m.size else float("nan")
+
+
+def curve_correlation(pred_curves, gt_curves) -> float:
+    """Mean over clips of the Pearson correlation of predicted and true lip-distance curves.
+
+    Per clip (not pooled), so speakers' different rest gaps do not inflate it. A clip whose predicted curve is
+    constant (std < 1e-9) counts as correlation 0: it carries no timing (a collapsed model). Clips whose true
+    curve is constant are skipped (nan if all are)."""
+    rs = []
+    for i, (p, g) in enumerate(zip(pred_curves, gt_curves)):
+        p, g = _np(p).reshape(-1), _np(g).reshape(-1)
+        if p.shape != g.shape:
+            raise ValueError(f"curve {i}: predicted length {p.size} vs true length {g.size}")
+        if p.size < 2 or g.std() < 1e-9:
+            continue
+        rs.append(0.0 if p.std() < 1e-9 else float(np.corrcoef(p, g)[0, 1]))
+    return float(np.mean(rs)) if rs else float("nan")
+
+
+def motion_ratio(preds: Seqs, gts: Seqs, idx, *, mask=None) -> float:
+    r"""How much the prediction moves compared with the ground truth on the vertices ``idx``.
+
+    ratio_i = \sum_{v} σ_t(p_{tv}) / \sum_{v} σ_t(g_{tv}),   σ_t(x_{tv}) = \sqrt{\sum_{xyz} Var_t(x_{tv})}  (ddof 0)
+
+    σ_t is the temporal standard deviation of vertex v's 3-D position (the template cancels). Returns the mean
+    of ratio_i over sequences whose ground truth moves. 1 = as much motion as the ground truth; < 1 =
+    over-smoothed (0 for the static template); > 1 = more motion than the ground truth. Unitless."""
+    P, G = _pair(preds, gts, mask)
+    idx = _index(idx, P[0].shape[1], "motion_ratio idx")
+    ratios = []
+    for p, g in zip(P, G):
+        sg = np.sqrt(g[:, idx].var(axis=0).sum(-1)).sum()
+        if sg > 0:
+            ratios.append(np.sqrt(p[:, idx].var(axis=0).sum(-1)).sum() / sg)
+    return float(np.mean(ratios)) if ratios else float("nan")
+
+
+def _per_sequence_segments(segments, n_seq: int) -> list:
+    if isinstance(segments, (list, tuple)) and segments and isinstance(segments[0], (list, tuple)) \
+            and segments[0] and isinstance(segments[0][0], str):
+        if n_seq != 1:
+            raise ValueError(f"segments: got one clip's phoneme list for {n_seq} sequences; pass one list of "
+                             "[phoneme, start_s, end_s] per sequence")
+        return [segments]                                             # one clip's segments, one sequence
+    if not isinstance(segments, (list, tuple)) or len(segments) != n_seq:
+        raise ValueError(f"segments: expected one list of [phoneme, start_s, end_s] per sequence ({n_seq}), "
+                         f"got {len(segments) if isinstance(segments, (list, tuple)) else type(segments).__name__}")
+    return list(segments)
+
+
+def lip_sync_metrics(preds: Seqs, gts: Seqs, segments, regions: Mapping | None = None, *, mask=None,
+                     lip_mid=None, lips=None, fps: float = 30.0, bilabials=BILABIALS, open_vowels=OPEN_VOWELS,
+                     thresholds_mm=CLOSURE_THRESHOLDS_MM, tolerance_frames: int = 0) -> dict:
+    """Lip-sync metrics of a test set from the phoneme timing (DualTalker Fig. 5 made quantitative).
+
+    preds, gts: vertices in metres, as the other metrics (list of (T_i, V*3)/(T_i, V, 3), or padded + ``mask``).
+    segments:   per sequence, the clip's phoneme segments [[phoneme, start_s, end_s], ...]
+                (``corpus.meta(name)["phonemes"]``); a single clip's list is accepted for a single sequence.
+    regions:    the corpus regions; ``regions["lip_midpoints"]`` = (upper, lower) lip-midpoint vertices and
+                ``regions["lips"]`` the lip vertices. ``lip_mid=(upper, lower)`` / ``lips=idx`` override them.
+
+    Lip distance = Euclidean distance between the upper- and lower-lip midpoints per frame, mm
+    (:func:`lip_distance`). A segment's frames: :func:`segment_frames` (frames at f/fps inside [start, end);
+    the nearest frame for a segment shorter than a frame). Returned dict (plain floats; mm unless noted):
+
+    ========================  ===============================================================================
+    ``bilabial_closure_2mm``  fraction of /p b m/ segments whose minimum predicted lip distance is < 2 mm
+    ``bilabial_closure_1mm``  the same under 1 mm (one key per entry of ``thresholds_mm``, ``{t:g}`` in the name)
+    ``bilabial_min_mm``       mean over /p b m/ segments of the minimum predicted lip distance
+    ``open_vowel_max_mm``     mean over open-vowel segments of the maximum predicted lip distance
+    ``lip_distance_corr``     mean over clips of the Pearson correlation of the predicted and true curves
+    ``lip_motion_ratio``      :func:`motion_ratio` on the lip vertices (1 = as lively as the ground truth)
+    ``*_gt``                  the first four computed on the ground truth (what a perfect model scores)
+    ``n_bilabials``, ``n_open_vowels``  segment counts (ints)
+    ========================  ===============================================================================
+
+    Empty segment sets give nan for their entries. ``tolerance_frames`` widens every segment (default 0)."""
+    P, G = _pair(preds, gts, mask)
+    regions = regions or {}
+    if lip_mid is None:
+        if "lip_midpoints" not in regions:
+            raise KeyError("lip_sync_metrics: pass regions with 'lip_midpoints' or lip_mid=(upper, lower)")
+        lip_mid = regions["lip_midpoints"]
+    lip_mid = tuple(np.asarray(lip_mid).reshape(-1)) if not isinstance(lip_mid, tuple) else lip_mid
+    if len(lip_mid) != 2:
+        raise ValueError(f"lip_mid: expected (upper_mid, lower_mid), got {len(lip_mid)} entries")
+    if lips is None:
+        if "lips" not in regions:
+            raise KeyError("lip_sync_metrics: pass regions with 'lips' or lips=vertex indices")
+        lips = regions["lips"]
+    segs = _per_sequence_segments(segments, len(P))
+    out: dict = {}
+    curves = {"": [lip_distance(p, *lip_mid) for p in P], "_gt": [lip_distance(g, *lip_mid) for g in G]}
+    for suffix, cs in curves.items():
+        mins = np.concatenate([segment_extrema(c, s, bilabials, reduce="min", fps=fps,
+                                               tolerance_frames=tolerance_frames) for c, s in zip(cs, segs)])
+        maxs = np.concatenate([segment_extrema(c, s, open_vowels, reduce="max", fps=fps,
+                                               tolerance_frames=tolerance_frames) for c, s in zip(cs, segs)])
+        for t in thresholds_mm:
+            out[f"bilabial_closure_{t:g}mm{suffix}"] = closure_rate(mins, t)
+        out[f"bilabial_min_mm{suffix}"] = float(mins.mean()) if mins.size else float("nan")
+        out[f"open_vowel_max_mm{suffix}"] = float(maxs.mean()) if maxs.size else float("nan")
+    out["lip_distance_corr"] = curve_correlation(curves[""], curves["_gt"])
+    out["lip_motion_ratio"] = motion_ratio(P, G, lips)
+    out["n_bilabials"], out["n_open_vowels"] = int(mins.size), int(maxs.size)
     return out

@@ -1,6 +1,7 @@
 """Experiment runner and demo: smoke runs (--quick), independent metric checks, determinism, feature option."""
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,14 +56,24 @@ def test_over_smoothing_ratio_hand_checked():
     assert ex.over_smoothing_ratio([np.repeat(g[:1], 20, 0)], [g], idx) == pytest.approx(0.0, abs=1e-12)  # static
 
 
-def test_typical_bandwidth_is_the_median_heuristic_of_one_clip():
-    g = torch.Generator().manual_seed(0)
-    template = torch.randn(9, generator=g)
-    verts = template + torch.cumsum(torch.randn(15, 9, generator=g), 0) * 1e-3
-    sigma = ex.typical_bandwidth([{"vertices": verts, "template": template}])
-    motion, mask = (verts - template)[None], torch.ones(1, 15, dtype=torch.bool)
-    torch.testing.assert_close(rbf_kernel_weights(motion.double(), None, mask),
-                               rbf_kernel_weights(motion.double(), sigma, mask))
+def test_typical_bandwidth_hand_computed():
+    """Three clips, one vertex (3 coordinates), motions in mm; per pair the RMS coordinate difference
+    sqrt(|Δ|² / 3), per clip the lower median over ordered pairs t ≠ k, then the median over clips.
+
+    clip A: (0,0,0), (3,0,0), (3,4,0): |Δ| = 3, 5, 4 -> sqrt(9/3), sqrt(25/3), sqrt(16/3) = 1.732, 2.887, 2.309,
+            each twice; the lower median of the 6 sorted values is the 3rd: 4/sqrt(3) = 2.309 mm
+    clip B: (0,0,0), (0,0,6): sqrt(36/3) = 3.464 mm;   clip C: (1,1,1), (2.5,1,1): sqrt(2.25/3) = 0.866 mm
+    median over clips: 2.309 mm = 4/sqrt(3) mm. A template offset changes nothing (only differences count).
+    """
+    mm = 1e-3
+    template = torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
+    clips = [[(0, 0, 0), (3, 0, 0), (3, 4, 0)], [(0, 0, 0), (0, 0, 6)], [(1, 1, 1), (2.5, 1, 1)]]
+    data = [{"vertices": template + torch.tensor(c, dtype=torch.float64) * mm, "template": template} for c in clips]
+    assert ex.typical_bandwidth(data) == pytest.approx(4 / math.sqrt(3) * mm, rel=1e-9)
+    # the per-clip value is what rbf_kernel_weights(bandwidth=None) uses: there w = exp(-1/2) at that distance
+    motion = (data[0]["vertices"] - template)[None]
+    w = rbf_kernel_weights(motion, None, torch.ones(1, 3, dtype=torch.bool))
+    assert w[0, 0, 2].item() == pytest.approx(math.exp(-0.5 * (25 / 3) / (16 / 3)), rel=1e-9)  # |Δ| = 5 pair
 
 
 def test_compare_note():
@@ -87,7 +98,10 @@ def test_tables_written_with_every_row(quick_tables):
             assert f"| {row} |" in md
         for run in data["runs"]:
             assert all(math.isfinite(v) for v in run["metrics"].values()), run["row"]
+            assert isinstance(run["collapsed"], bool) and run["collapsed"] == bool(run["collapse_reasons"])
             assert math.isfinite(run["train_seconds"]) and run["n_parameters"] >= 0
+        assert "| collapsed |" in md
+    assert "| n/a |" in (quick_tables / "main.md").read_text()  # the static template is not checked
 
 
 def test_template_lve_matches_an_independent_computation(quick_tables):
@@ -109,6 +123,10 @@ def test_template_lve_matches_an_independent_computation(quick_tables):
     assert run["metrics"]["lve_published"] == pytest.approx(worst.mean(), rel=1e-9)
     assert run["metrics"]["lve_euclidean"] == pytest.approx(np.sqrt(worst).mean(), rel=1e-9)
     assert run["metrics"]["smoothing_lips"] == pytest.approx(0.0, abs=1e-12)
+    # lip sync: the ground truth closes at every bilabial; the static face has a flat lip-distance curve
+    m = run["metrics"]
+    assert m["bilabial_closure_2mm_gt"] == 1.0 and m["lip_distance_corr"] == 0.0
+    assert m["bilabial_closure_1mm"] == 0.0 and m["open_vowel_max_mm"] < 0.25 * m["open_vowel_max_mm_gt"]
 
 
 def test_same_seed_same_metrics(quick_tables, tmp_path):
@@ -142,3 +160,128 @@ def test_demo_quick_writes_every_file(tmp_path):
     model, _ = load_checkpoint(tmp_path / "dualtalker.pt")
     assert type(model).__name__ == "DualTalker" and model.cfg.dual
     assert res["metrics"]["DualTalker"] == payload["models"]["DualTalker"]["metrics"]
+
+
+# ------------------------------------------------------------------------------ collapse detection
+def test_swap_partners_pick_another_sentence():
+    assert ex.swap_partners([1, 1, 2, 3, 2]) == [2, 2, 3, 4, 0]  # clip 0 skips clip 1 (same sentence 1)
+    assert ex.swap_partners(["a", "a", "a"]) == [1, 2, 0]  # no other sentence: simply the next clip
+
+
+def test_audio_swapped_tiles_the_partner_audio():
+    base = [{"name": "a", "audio": torch.arange(5.0)[:, None], "vertices": torch.zeros(5, 3)},
+            {"name": "b", "audio": torch.tensor([[7.0], [8.0]]), "vertices": torch.ones(2, 3)}]
+    ds = ex.AudioSwapped(base, [1, 0])
+    assert ds[0]["audio"].flatten().tolist() == [7, 8, 7, 8, 7] and ds[0]["name"] == "a"
+    assert ds[1]["audio"].flatten().tolist() == [0, 1] and torch.equal(ds[1]["vertices"], base[1]["vertices"])
+    with pytest.raises(ValueError, match="1 partners for 2 clips"):
+        ex.AudioSwapped(base, [1])
+
+
+def test_audio_sensitivity_hand_checked():
+    mm = 1e-3
+    g = np.zeros((2, 2, 3))
+    g[:, 0, 0] = [0.0, 2 * mm]  # lip vertex 0 moves 0 -> 2 mm: squared deviations from its mean 1 + 1 = 2 mm²
+    p = np.zeros((2, 2, 3))
+    q = p.copy()
+    q[:, 0, 0] = mm  # the swapped-audio output differs by 1 mm on both frames: 1 + 1 = 2 mm²
+    q[:, 1, 0] = 5 * mm  # vertex 1 is not a lip vertex: ignored
+    assert ex.audio_sensitivity([p], [q], [g], [0]) == pytest.approx(1.0)  # sqrt(2 / 2)
+    assert ex.audio_sensitivity([p], [p], [g], [0]) == 0.0
+    q[:, 0, 0] = [mm, -mm]  # still 1 + 1 mm²
+    assert ex.audio_sensitivity([p], [q], [g], [0]) == pytest.approx(1.0)
+
+
+def test_collapse_rules():
+    assert ex.collapse_reasons({"smoothing_lips": 0.8, "audio_sensitivity": 1.1}) == []
+    assert ex.collapse_reasons({"smoothing_lips": 0.001, "audio_sensitivity": 0.002}) == [
+        "lip motion ratio 0.001 < 0.1", "audio sensitivity 0.002 < 0.1"]
+    assert ex.collapse_reasons({"smoothing_lips": 0.7, "audio_sensitivity": 0.05}) == ["audio sensitivity 0.050 < 0.1"]
+    assert ex.collapse_reasons({"smoothing_lips": 0.05}) == ["lip motion ratio 0.050 < 0.1"]  # older results
+    template = {"key": ex.table_specs("main")[0].key(), "metrics": {"smoothing_lips": 0.0}}
+    assert not ex.is_collapsed(template)  # the floor, not a failed run
+
+
+class _FakeModel(torch.nn.Module):
+    """generate() = template + a lip motion that follows the audio (follow=True) or a fixed sine (False)."""
+
+    def __init__(self, follow: bool, lips):
+        super().__init__()
+        self.follow, self.lips = follow, torch.as_tensor(lips)
+
+    def generate(self, audio, template, speaker=None, use_cache=True, mask=None):
+        B, T = audio.shape[:2]
+        drive = audio.mean(-1) if self.follow else torch.sin(torch.arange(T) / 3.0).expand(B, T)  # (B, T)
+        out = template[:, None].repeat(1, T, 1).view(B, T, -1, 3).clone()  # (B, T, V, 3)
+        out[:, :, self.lips, 1] += 1e-3 * drive[..., None]
+        return out.view(B, T, -1)
+
+
+def test_audio_independent_output_is_flagged_and_audio_driven_is_not():
+    data = ex.load_data(quick=True)
+    corpus, test = data["corpus"], data["test"]
+    lips = corpus.regions["lips"]
+    partners = ex.swap_partners([corpus.meta(test[i]["name"])["sentence_id"] for i in range(len(test))])
+    sens = {}
+    for follow in (True, False):
+        model = _FakeModel(follow, lips)
+        out = ex.predict_split(model, test)
+        swapped = ex.predict_split(model, ex.AudioSwapped(test, partners))
+        sens[follow] = ex.audio_sensitivity(out["preds"], swapped["preds"], out["gts"], lips)
+        ratio = ex.over_smoothing_ratio(out["preds"], out["gts"], lips)
+        assert ratio > 0.1  # both move: the motion ratio alone cannot tell them apart
+        reasons = ex.collapse_reasons({"smoothing_lips": ratio, "audio_sensitivity": sens[follow]})
+        assert bool(reasons) == (not follow), reasons
+    assert sens[False] == 0.0 and sens[True] > 0.1
+
+
+def _fake_run(row, seed, lve, collapsed=False):
+    metrics = {k: 1.0 for k, _, _ in ex.METRICS}
+    metrics.update(lve_euclidean=lve, eve_euclidean=1.0, smoothing_lips=0.001 if collapsed else 0.8,
+                   audio_sensitivity=0.0 if collapsed else 1.0)
+    return {"row": row, "key": json.dumps({"model": "faceformer", "seed_row": row}), "seed": seed,
+            "metrics": metrics, "collapsed": collapsed,
+            "collapse_reasons": ex.collapse_reasons(metrics), "train_seconds": 10.0, "n_parameters": 5}
+
+
+def test_tables_exclude_and_name_collapsed_runs(tmp_path):
+    specs = [ex.RunSpec("A", "faceformer", note="a"), ex.RunSpec("B", "dualtalker", reference=True)]
+    runs = [_fake_run("A", 0, 9.0, collapsed=True), _fake_run("A", 1, 4.0), _fake_run("A", 2, 5.0),
+            _fake_run("B", 0, 4.0), _fake_run("B", 1, 4.2), _fake_run("B", 2, 4.4)]
+    meta = {"command": "python -m dualtalker_lite.experiments (test)", "seeds": [0, 1, 2], "epochs": 1, "quick": False,
+            "n_train_clips": 1, "n_test_clips": 1, "corpus": "data_samples", "git": "x", "created": "now"}
+    json_path, md_path = ex.write_table("main", specs, runs, meta, tmp_path)
+    summary = {r["row"]: r["summary"] for r in json.loads(json_path.read_text())["rows"]}
+    # row A: seed 0 (9.0 mm, collapsed) left out: mean (4 + 5) / 2 = 4.5, sample std sqrt(0.5) = 0.707
+    assert summary["A"]["lve_euclidean"]["mean"] == pytest.approx(4.5)
+    assert summary["A"]["lve_euclidean"]["std"] == pytest.approx(math.sqrt(0.5))
+    assert summary["A"]["collapsed"] == [0] and summary["B"]["collapsed"] == []
+    md = md_path.read_text()
+    row_a = next(line for line in md.splitlines() if line.startswith("| A |"))
+    assert "4.500 ± 0.707" in row_a and "**1/3**" in row_a
+    assert "**1 of 3 runs collapsed** (seed 0: lip motion ratio 0.001 < 0.1, audio sensitivity 0.000 < 0.1)" in row_a
+    assert "excluded from mean ± std" in row_a
+    assert "| 0/3 |" in next(line for line in md.splitlines() if line.startswith("| B |"))
+    specs_back, runs_back, payload = ex.load_table(json_path)  # the notebook's path: JSON -> the same Markdown
+    assert specs_back == specs and ex.table_markdown("main", specs_back, runs_back, payload) == md
+    runs_old = [{**r, "metrics": {k: v for k, v in r["metrics"].items() if not k.startswith("bilabial")}}
+                for r in runs]  # results written before the lip-sync metrics: "—", not nan
+    for r in runs_old:
+        r.pop("collapsed")  # ... and before the flag: the rule is applied to their metrics
+    old_md = ex.table_markdown("main", specs, runs_old, meta)
+    row_a = next(line for line in old_md.splitlines() if line.startswith("| A |"))
+    assert "| — |" in row_a and "nan" not in old_md and "**1/3**" in row_a
+    # every run collapsed: the numbers are theirs, and the note says so
+    runs_all = [_fake_run("A", s, 9.0 + s, collapsed=True) for s in range(3)] + runs[3:]
+    _, md_path = ex.write_table("main", specs, runs_all, meta, tmp_path)
+    row_a = next(line for line in md_path.read_text().splitlines() if line.startswith("| A |"))
+    assert "10.000 ± 1.000" in row_a and "ALL runs collapsed" in row_a
+
+
+def test_results_carry_no_machine_paths(quick_tables, tmp_path):
+    from dualtalker_lite.utils import repo_root
+
+    data = json.loads((quick_tables / "main.json").read_text())
+    assert data["corpus"] == "data_samples"
+    assert ex._display_path(tmp_path / "my_corpus") == "my_corpus"  # outside the repository: the name only
+    assert ex._display_path(Path(repo_root()) / "data_samples") == "data_samples"

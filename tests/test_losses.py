@@ -133,7 +133,7 @@ def _cos(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 
 def _ref_ccrl(x, y, motion, lengths, bandwidth, *, xf=None, yf=None, second_term="swap", anchor_weighting="uniform",
-              include_positive=True, temperature=1.0, distance="mean") -> torch.Tensor:
+              reading="kernel", temperature=1.0, distance="mean") -> torch.Tensor:
     """Per-anchor Python loop over unpadded sequences; anchors pooled over the batch."""
     pairs = [(x, y)] + ([(y, x)] if second_term == "swap" else []) + ([(xf, yf)] if second_term == "fused" else [])
     total = torch.zeros((), dtype=x.dtype)
@@ -144,14 +144,19 @@ def _ref_ccrl(x, y, motion, lengths, bandwidth, *, xf=None, yf=None, second_term
                 continue
             w = _ref_kernel(motion[b, :n], bandwidth, distance)
             for k in range(n):
-                pos = _cos(P[b, k], Q[b, k]) / temperature
-                s = torch.exp(pos) if include_positive else 0.0
+                s = torch.zeros((), dtype=x.dtype)
                 for t in range(n):
                     if t != k:
                         s = s + torch.exp(_cos(P[b, k], Q[b, t]) * (1 - w[k][t]) / temperature)
                         s = s + torch.exp(_cos(P[b, k], P[b, t]) * (1 - w[k][t]) / temperature)
+                if reading == "kernel":  # -1/sum_j w_kj * sum_j w_kj log(exp(s_kj) / s')
+                    l_k = -sum(w[k][j] * (_cos(P[b, k], Q[b, j]) / temperature - torch.log(s))
+                               for j in range(n)) / sum(w[k])
+                else:
+                    pos = _cos(P[b, k], Q[b, k]) / temperature
+                    l_k = -(pos - torch.log(s + (torch.exp(pos) if reading == "infonce" else 0.0)))
                 a = 1.0 if anchor_weighting == "uniform" else sum(w[k]) / n
-                num = num + a * -(pos - torch.log(s))
+                num = num + a * l_k
                 den += a
         total = total + num / den
     return total
@@ -166,18 +171,90 @@ def _ccrl_data(seed=4, lengths=(6, 4, 1), T=7, d=5):
     return x, y, xf, yf, m, mask, list(lengths)
 
 
-OPTIONS = list(itertools.product(["swap", "fused", "none"], ["uniform", "kernel_mean"], [True, False], [1.0, 0.5]))
+READINGS = ["kernel", "infonce", "decoupled"]
+OPTIONS = list(itertools.product(["swap", "fused", "none"], ["uniform", "kernel_mean"], READINGS, [1.0, 0.5]))
 
 
-@pytest.mark.parametrize("second_term,anchor_weighting,include_positive,temperature", OPTIONS)
-def test_ccrl_matches_per_anchor_loop(second_term, anchor_weighting, include_positive, temperature):
+@pytest.mark.parametrize("second_term,anchor_weighting,reading,temperature", OPTIONS)
+def test_ccrl_matches_per_anchor_loop(second_term, anchor_weighting, reading, temperature):
     x, y, xf, yf, m, mask, lengths = _ccrl_data()
     for bandwidth, distance in [(1e-3, "mean"), (None, "sum")]:
-        kw = dict(second_term=second_term, anchor_weighting=anchor_weighting, include_positive=include_positive,
+        kw = dict(second_term=second_term, anchor_weighting=anchor_weighting, reading=reading,
                   temperature=temperature, distance=distance)
         got = ccrl_loss(x, y, m, mask, bandwidth, x_fused=xf, y_fused=yf, **kw)
         ref = _ref_ccrl(x, y, m, lengths, bandwidth, xf=xf, yf=yf, **kw)
         torch.testing.assert_close(got, ref, rtol=1e-10, atol=1e-10)
+
+
+# The hand case: T = 2 frames, d = 2, kernel weight w_01 = w_10 = 1/2 (w_00 = w_11 = 1).
+#   X_0 = (1, 0), X_1 = (0, 1), Y_0 = (1, 0), Y_1 = (3, 4) (unit: (0.6, 0.8))
+#   cos(X_0, Y_0) = 1, cos(X_0, Y_1) = 0.6, cos(X_1, Y_0) = 0, cos(X_1, Y_1) = 0.8, cos(X_0, X_1) = 0, cos(Y_0, Y_1) = 0.6
+HAND_X = [[1.0, 0.0], [0.0, 1.0]]
+HAND_Y = [[1.0, 0.0], [3.0, 4.0]]
+HAND_W = [[1.0, 0.5], [0.5, 1.0]]
+LN2, LN1E3 = math.log(2.0), math.log(1.0 + math.exp(0.3))  # 0.693147, 0.854355
+
+
+def _hand(reading, second_term):
+    x, y = torch.tensor([HAND_X], dtype=DT), torch.tensor([HAND_Y], dtype=DT)
+    return ccrl_loss(x, y, None, torch.ones(1, 2, dtype=torch.bool), kernel_weights=torch.tensor([HAND_W], dtype=DT),
+                     reading=reading, second_term=second_term).item()
+
+
+def test_ccrl_kernel_reading_hand_computed():
+    """Eq. 9-10 with kernel-weighted positives, by hand from the printed formula (not from the code).
+
+    l_a = -1/(sum_k w_ak) sum_k w_ak log(e^{s_ak} / s'_a),  s'_a = sum_{t != a} e^{s^inter_at (1-w_at)} + e^{s^intra_at (1-w_at)}
+    L(X, Y), anchor X_0: positives Y_0 (w 1, s 1), Y_1 (w .5, s .6): weighted mean s = 1.3 / 1.5 = 13/15
+                         s' = e^{0.6 * .5} + e^{0 * .5} = 1 + e^{0.3}          -> l = ln(1 + e^0.3) - 13/15 = -0.012312
+             anchor X_1: positives Y_1 (w 1, s .8), Y_0 (w .5, s 0): 0.8 / 1.5 = 8/15
+                         s' = e^{0 * .5} + e^{0 * .5} = 2                      -> l = ln 2 - 8/15 = 0.159814
+             mean over the 2 anchors: 0.073751
+    L(Y, X), anchor Y_0: positives X_0 (w 1, s 1), X_1 (w .5, s 0): 1 / 1.5 = 10/15
+                         s' = e^{cos(Y0,X1) .5} + e^{cos(Y0,Y1) .5} = 1 + e^{0.3} -> l = 0.854355 - 0.666667 = 0.187688
+             anchor Y_1: positives X_1 (w 1, s .8), X_0 (w .5, s .6): 1.1 / 1.5 = 11/15
+                         s' = e^{0.6 * .5} + e^{0.6 * .5} = 2 e^{0.3}          -> l = ln 2 + 0.3 - 11/15 = 0.259814
+             mean: 0.223751;  eq. 11 with the swapped second term: 0.073751 + 0.223751 = 0.297502
+    """
+    assert _hand("kernel", "none") == pytest.approx((LN1E3 - 13 / 15 + LN2 - 8 / 15) / 2, abs=1e-12)
+    assert _hand("kernel", "none") == pytest.approx(0.073751, abs=1e-6)
+    assert _hand("kernel", "swap") == pytest.approx(LN1E3 + LN2 + 0.15 - 21 / 15, abs=1e-12)
+    assert _hand("kernel", "swap") == pytest.approx(0.297502, abs=1e-6)
+
+
+def test_ccrl_single_positive_readings_hand_computed():
+    """The same case under the two single-positive readings (w_k = 1, positive = the true pair only).
+
+    decoupled (printed s'): anchor X_0: ln(1 + e^0.3) - 1 = -0.145645; X_1: ln 2 - 0.8 = -0.106853 -> -0.126249
+    infonce (positive added to s'): X_0: ln(e^1 + e^0.3 + 1) - 1 = ln(5.068141) - 1 = 0.622974;
+                                    X_1: ln(e^0.8 + 2) - 0.8 = ln(4.225541) - 0.8 = 0.641147  -> 0.632061
+    """
+    assert _hand("decoupled", "none") == pytest.approx((LN1E3 - 1 + LN2 - 0.8) / 2, abs=1e-12)
+    assert _hand("decoupled", "none") == pytest.approx(-0.126249, abs=1e-6)
+    infonce = (math.log(math.e + math.exp(0.3) + 1) - 1 + math.log(math.exp(0.8) + 2) - 0.8) / 2
+    assert _hand("infonce", "none") == pytest.approx(infonce, abs=1e-12)
+    assert _hand("infonce", "none") == pytest.approx(0.632061, abs=1e-6)
+
+
+def test_kernel_reading_attracts_a_negative_with_w_near_one():
+    """Frame 1 moves like frame 0 (w_01 = 0.999): under the kernel reading anchor 0 pulls Y_1 towards X_0; under
+    the single-positive readings Y_1 is (almost) neither pulled nor pushed. Frame 2 (w = 0) is pushed away."""
+    mask = torch.ones(1, 3, dtype=torch.bool)
+    w = torch.tensor([[[1.0, 0.999, 0.0], [0.999, 1.0, 0.0], [0.0, 0.0, 1.0]]], dtype=DT)
+    x = torch.tensor([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]], dtype=DT)
+    y = torch.tensor([[[1.0, 0.2, 0.0], [0.0, 1.0, 0.3], [0.3, 0.0, 1.0]]], dtype=DT, requires_grad=True)
+    towards_x0 = torch.zeros_like(y)
+    towards_x0[0, :, 0] = 1.0  # move every Y_t along X_0's direction
+    force = {}
+    for reading in READINGS:
+        l0 = ccrl_anchor_losses(x, y, w, mask, reading=reading)[0][0, 0]  # anchor X_0
+        g = torch.autograd.grad(l0, y)[0]
+        force[reading] = (g * towards_x0)[0].sum(-1)  # d l_0 / d (step of Y_t towards X_0), per t
+    assert force["kernel"][1] < -0.1  # attracted: the loss falls as Y_1 moves towards the anchor
+    for reading in ("infonce", "decoupled"):
+        assert 0 <= force[reading][1] < 1e-3  # repulsion strength ~ (1 - w) = 0.001: almost none
+    for reading in READINGS:
+        assert force[reading][2] > 0.1  # w = 0: repelled under every reading
 
 
 def test_ccrl_gradient_matches_loop_and_nan_padding_is_harmless():
@@ -203,43 +280,49 @@ def test_negative_with_kernel_weight_one_exerts_no_repulsion():
     motion = torch.tensor([[[0.0, 0.0], [5.0, 1.0], [0.0, 0.0], [-4.0, 3.0]]], dtype=DT)  # frame 2 == frame 0
     w = rbf_kernel_weights(motion, 0.5, mask)
     assert w[0, 0, 2] == 1 and w[0, 0, 3] < 1e-5
-    for include_positive in (True, False):
-        losses_k, _ = ccrl_anchor_losses(p, q, w, mask, include_positive=include_positive)
+    for reading in ("infonce", "decoupled"):  # single-positive readings: t = 2 feels no force at all
+        losses_k, _ = ccrl_anchor_losses(p, q, w, mask, reading=reading)
         gp, gq = torch.autograd.grad(losses_k[0, 0], (p, q))  # anchor k = 0
         assert gq[0, 2].abs().max() < 1e-12 and gp[0, 2].abs().max() < 1e-12  # t = 2: w ≈ 1 -> no force
         assert gq[0, 3].abs().max() > 1e-3 and gp[0, 3].abs().max() > 1e-3  # t = 3: w ≈ 0 -> repelled
     w_near = w.clone()
     w_near[0, 0, 2] = 1 - 1e-6  # "≈ 1" rather than exactly 1: repulsion scales with (1 - w)
-    gq = torch.autograd.grad(ccrl_anchor_losses(p, q, w_near, mask)[0][0, 0], q)[0]
+    gq = torch.autograd.grad(ccrl_anchor_losses(p, q, w_near, mask, reading="infonce")[0][0, 0], q)[0]
     assert 0 < gq[0, 2].abs().max() < 1e-6
+    # kernel reading: the intra-modal P_2 is still not repelled (it is no positive), but Q_2 is a positive
+    gp, gq = torch.autograd.grad(ccrl_anchor_losses(p, q, w, mask, reading="kernel")[0][0, 0], (p, q))
+    assert gp[0, 2].abs().max() < 1e-12 and gq[0, 2].abs().max() > 1e-3
 
 
-@pytest.mark.parametrize("second_term,anchor_weighting,include_positive,temperature", OPTIONS)
-def test_aligned_features_beat_time_shuffled(second_term, anchor_weighting, include_positive, temperature):
+@pytest.mark.parametrize("second_term,anchor_weighting,reading,temperature", OPTIONS)
+def test_aligned_features_beat_time_shuffled(second_term, anchor_weighting, reading, temperature):
     g = torch.Generator().manual_seed(7)
     x = torch.randn(2, 12, 8, generator=g, dtype=DT)
     motion = torch.randn(2, 12, 9, generator=g, dtype=DT).cumsum(1)  # smooth-ish trajectories
     mask = torch.ones(2, 12, dtype=torch.bool)
     perm = torch.roll(torch.arange(12), 3)  # every frame moved
-    kw = dict(second_term=second_term, anchor_weighting=anchor_weighting, include_positive=include_positive,
+    kw = dict(second_term=second_term, anchor_weighting=anchor_weighting, reading=reading,
               temperature=temperature)
     aligned = ccrl_loss(x, x, motion, mask, None, x_fused=x, y_fused=x, **kw)
     shuffled = ccrl_loss(x, x[:, perm], motion, mask, None, x_fused=x, y_fused=x[:, perm], **kw)
-    assert aligned < shuffled - 0.1
+    # the kernel reading's positive is a kernel-weighted mean over many frames (w ~ 0.5 at the median bandwidth),
+    # of which the true pair is one: the gap is smaller (0.07-0.33 here) than with a single positive (0.85-3.7)
+    assert aligned < shuffled - (0.05 if reading == "kernel" else 0.5)
 
 
 def test_ccrl_single_frame_clip_contributes_nothing():
     x, y, _, _, m, mask, _ = _ccrl_data(lengths=(1,), T=3)
     assert ccrl_loss(x, y, m, mask, 1e-3).item() == 0.0
-    assert ccrl_loss(x, y, m, mask, 1e-3, include_positive=False).item() == 0.0
+    for reading in READINGS:
+        assert ccrl_loss(x, y, m, mask, 1e-3, reading=reading).item() == 0.0
 
 
-@pytest.mark.parametrize("second_term,include_positive", [("swap", True), ("fused", False)])
-def test_gradcheck_ccrl(second_term, include_positive):
+@pytest.mark.parametrize("second_term,reading", [("swap", "kernel"), ("fused", "decoupled"), ("none", "infonce")])
+def test_gradcheck_ccrl(second_term, reading):
     x, y, xf, yf, m, mask, _ = _ccrl_data(seed=8, lengths=(4, 3), T=4, d=3)
     inputs = tuple(t.masked_fill(~mask[..., None], 0.3).requires_grad_(True) for t in (x, y, xf, yf))
     fn = lambda a, b, c, e: ccrl_loss(a, b, m, mask, 1e-3, x_fused=c, y_fused=e, second_term=second_term,  # noqa: E731
-                                      include_positive=include_positive, anchor_weighting="kernel_mean",
+                                      reading=reading, anchor_weighting="kernel_mean",
                                       temperature=0.7)
     assert torch.autograd.gradcheck(fn, inputs)
 
@@ -268,23 +351,42 @@ def _fake_out_batch(seed=10, B=2, T=6, V3=9, Da=4, d=5):
 
 
 def test_joint_loss_terms_and_weighted_total():
-    out, batch = _fake_out_batch()
-    w = LossWeights(lambda1=1.0, lambda2=0.3, lambda3=0.2, lambda4=0.05)
+    """A tiny batch whose every term is computed by hand (B = 1, T = 2, one vertex, D_a = 1, d = 2).
+
+    primal: errors in mm (1, 0, 0) and (0, 2, 0) -> (1 + 4) / 6 elements = 5/6 mm²
+    dual:   audio (1, 2) vs (2, 0) -> (1 + 4) / 2 = 2.5
+    DR:     X̆ - X = (.5, 0 | 0, 2) -> SmoothL1 (.125 + 0 + 0 + 1.5) / 4 = 0.40625;
+            Y̆ - Y = (0, -1 | 0, 0) -> (0 + .5 + 0 + 0) / 4 = 0.125; L_DR = 0.53125
+    CCRL:   X, Y = the hand case above; the motion differs by 1 mm in one of 3 coordinates, so D = (1e-3)^2 / 3 and
+            σ = 1e-3 / sqrt(6 ln 2) gives w_01 = exp(-D / (2σ²)) = exp(-ln 2) = 1/2: L_CCRL = 0.297502 (kernel, swap)
+    total = 5/6 + 0.5 * 2.5 + 0.25 * 0.53125 + 0.1 * 0.297502 = 0.833333 + 1.25 + 0.132813 + 0.029750 = 2.245896
+    """
+    mm = 1e-3
+    template = torch.zeros(1, 3, dtype=DT)
+    batch = {"vertices": torch.tensor([[[0, 0, 0], [mm, 0, 0]]], dtype=DT), "template": template,
+             "audio": torch.tensor([[[1.0], [2.0]]], dtype=DT), "mask": torch.ones(1, 2, dtype=torch.bool)}
+    x, y = torch.tensor([HAND_X], dtype=DT), torch.tensor([HAND_Y], dtype=DT)
+    out = {"vertices": torch.tensor([[[mm, 0, 0], [mm, 2 * mm, 0]]], dtype=DT, requires_grad=True),
+           "audio": torch.tensor([[[2.0], [0.0]]], dtype=DT, requires_grad=True),
+           "x": x.clone().requires_grad_(True), "y": y.clone().requires_grad_(True),
+           "x_fused": (x + torch.tensor([[[0.5, 0.0], [0.0, 2.0]]], dtype=DT)).requires_grad_(True),
+           "y_fused": (y + torch.tensor([[[0.0, -1.0], [0.0, 0.0]]], dtype=DT)).requires_grad_(True)}
+    w = LossWeights(lambda1=1.0, lambda2=0.5, lambda3=0.25, lambda4=0.1, bandwidth=mm / math.sqrt(6 * math.log(2)))
     total, terms = joint_loss(out, batch, w)
     assert set(terms) == {"primal", "dual", "dr", "ccrl", "total"}
-    assert all(terms[k] > 0 for k in ("primal", "dual", "dr", "ccrl"))
-    mask, s = batch["mask"], w.vertex_scale
-    torch.testing.assert_close(terms["primal"], s**2 * primal_loss(out["vertices"], batch["vertices"], mask))
-    torch.testing.assert_close(terms["dual"], dual_loss(out["audio"], batch["audio"], mask))
-    torch.testing.assert_close(terms["dr"], duality_loss(out["x"], out["x_fused"], out["y"], out["y_fused"], mask))
-    motion = batch["vertices"] - batch["template"][:, None]
-    torch.testing.assert_close(terms["ccrl"], ccrl_loss(out["x"], out["y"], motion, mask, None))
-    expected = terms["primal"] + 0.3 * terms["dual"] + 0.2 * terms["dr"] + 0.05 * terms["ccrl"]
-    torch.testing.assert_close(total, expected)
+    assert terms["primal"].item() == pytest.approx(5 / 6, abs=1e-9)
+    assert terms["dual"].item() == pytest.approx(2.5, abs=1e-12)
+    assert terms["dr"].item() == pytest.approx(0.53125, abs=1e-12)
+    assert terms["ccrl"].item() == pytest.approx(0.297502, abs=1e-6)
+    assert total.item() == pytest.approx(5 / 6 + 1.25 + 0.25 * 0.53125 + 0.1 * (LN1E3 + LN2 + 0.15 - 21 / 15), abs=1e-9)
+    assert total.item() == pytest.approx(2.245896, abs=1e-6)
     torch.testing.assert_close(terms["total"], total.detach())
     assert total.requires_grad and not any(v.requires_grad for v in terms.values())
     total.backward()
     assert all(out[k].grad is not None for k in ("vertices", "audio", "x", "y", "x_fused", "y_fused"))
+    # the old reading as an option: only the CCRL term changes
+    _, old = joint_loss(out, batch, LossWeights(lambda4=0.1, bandwidth=w.bandwidth, ccrl_reading="infonce"))
+    assert old["primal"] == terms["primal"] and old["ccrl"].item() != pytest.approx(terms["ccrl"].item(), abs=1e-3)
 
 
 def test_joint_loss_zero_lambda_terms_are_not_computed(monkeypatch):

@@ -233,3 +233,154 @@ def test_parity_with_a_loop_reference_of_the_published_evaluation():
         fdd.append(dyn(g) - dyn(p))
     assert M.lve_published(preds, gts, lips, unit="m") == pytest.approx(np.mean(worst), rel=1e-12)
     assert M.fdd_published(preds, gts, hs, upper, unit="m") == pytest.approx(np.mean(fdd), rel=1e-12)
+
+
+# ---------------------------------------------------------------- lip sync (closures at /p b m/, opening on vowels)
+FPS = 30.0
+MID = (0, 1)  # upper-lip midpoint = vertex 0, lower = vertex 1; vertices 0-3 are the "lips"
+
+
+def _track(dist_mm, move_mm=None):
+    """A (T, 4, 3) track in metres whose lip distance is exactly ``dist_mm`` per frame: the upper midpoint at
+    y = d, the lower one at the origin; vertices 2-3 move by ``move_mm`` along x (for the motion ratio)."""
+    d = np.asarray(dist_mm, dtype=float)
+    v = np.zeros((len(d), 4, 3))
+    v[:, 0, 1] = d / 1000
+    if move_mm is not None:
+        v[:, 2:, 0] = np.asarray(move_mm, dtype=float)[:, None] / 1000
+    return v
+
+
+# frame f is at f/30 s: 0, .033, .067, .1, .133, .167, .2, .233, .267, .3
+PRED = [5.0, 3.0, 1.5, 0.5, 4.0, 10.0, 12.0, 9.0, 2.5, 2.5]
+SEGMENTS = [["b", 0.0, 0.07],     # frames 0, 1, 2              -> min(5, 3, 1.5) = 1.5
+            ["'p", 0.1, 0.2],     # frames 3, 4, 5 (0.2 is out) -> min(.5, 4, 10) = 0.5 (stress mark ignored)
+            ["V", 0.16, 0.17],    # frame 5 (0.1667)            -> max 10
+            ["a", 0.2, 0.27],     # frames 6, 7, 8              -> max(12, 9, 2.5) = 12
+            ["t", 0.27, 0.28],    # not counted
+            ["m", 0.28, 0.295]]   # no frame time inside: nearest to the middle 0.2875 s = frame 8.6 -> 9: 2.5
+
+
+def test_segment_frames_hand_checked():
+    assert M.segment_frames(0.1, 0.2, 10, FPS).tolist() == [3, 4, 5]          # [0.1, 0.2): 0.2 excluded
+    assert M.segment_frames(0.052, 0.086313, 10, FPS).tolist() == [2]         # 0.0667 only (a real /p/)
+    assert M.segment_frames(0.07, 0.09, 10, FPS).tolist() == [2]              # none inside; mid 0.08 s = 2.4 -> 2
+    assert M.segment_frames(0.1, 0.2, 10, FPS, tolerance_frames=1).tolist() == [2, 3, 4, 5, 6]
+    assert M.segment_frames(0.0, 0.04, 10, FPS, tolerance_frames=2).tolist() == [0, 1, 2, 3]  # clipped at 0
+    assert M.segment_frames(0.29, 0.5, 10, FPS).tolist() == [9]              # clipped at the last frame
+
+
+def test_segment_frames_bad_input():
+    with pytest.raises(ValueError, match="starts after the end of a 10-frame track"):
+        M.segment_frames(0.5, 0.6, 10, FPS)                                   # 15 frames > 10
+    with pytest.raises(ValueError, match="start <= end"):
+        M.segment_frames(0.2, 0.1, 10, FPS)
+    with pytest.raises(ValueError, match="start <= end"):
+        M.segment_frames(float("nan"), 0.1, 10, FPS)
+
+
+def test_segment_extrema_and_closure_rate_hand_checked():
+    mins = M.segment_extrema(PRED, SEGMENTS, M.BILABIALS, reduce="min")
+    assert mins.tolist() == [1.5, 0.5, 2.5]
+    assert M.segment_extrema(PRED, SEGMENTS, M.OPEN_VOWELS, reduce="max").tolist() == [10.0, 12.0]
+    assert M.closure_rate(mins, 2.0) == pytest.approx(2 / 3)                  # 1.5 and 0.5 are under 2 mm
+    assert M.closure_rate(mins, 1.0) == pytest.approx(1 / 3)                  # only 0.5
+    assert M.closure_rate(mins, 0.5) == 0.0                                   # strictly under
+    assert np.isnan(M.closure_rate([], 2.0))
+
+
+def test_curve_correlation_hand_checked():
+    g1, g2 = np.array([1.0, 4.0, 2.0, 8.0]), np.array([0.0, 1.0, 2.0])
+    # clip 1: an affine copy -> r = 1; clip 2: pred (0, 2, 1) vs (0, 1, 2): centred (-1, 1, 0)·(-1, 0, 1) = 1,
+    # both centred norms^2 = 2 -> r = 1 / 2 = 0.5; mean over clips (1 + 0.5) / 2 = 0.75
+    assert M.curve_correlation([2 * g1 + 1, [0.0, 2.0, 1.0]], [g1, g2]) == pytest.approx(0.75)
+    assert M.curve_correlation([np.full(4, 3.0)], [g1]) == 0.0                # flat (collapsed) prediction: 0
+    assert np.isnan(M.curve_correlation([g1], [np.ones(4)]))                   # flat truth: skipped
+
+
+def test_motion_ratio_hand_checked():
+    g = _track(np.ones(4), move_mm=[0.0, 2.0, 0.0, 2.0])  # vertices 2, 3 move: std 1 mm each; 0, 1 still
+    p = _track(np.ones(4), move_mm=[5.0, 6.0, 5.0, 6.0])  # std 0.5 mm each (an offset does not count)
+    assert M.motion_ratio([p], [g], [0, 1, 2, 3]) == pytest.approx(0.5)       # (0.5 + 0.5) / (1 + 1)
+    assert M.motion_ratio([g], [g], [2, 3]) == pytest.approx(1.0)
+
+
+def test_lip_sync_metrics_hand_checked():
+    gt = [0.0, 0.0, 0.0, 0.0, 6.0, 8.0, 14.0, 14.0, 6.0, 0.5]
+    # second clip: 3 frames, one /m/ at frame 1 (pred 0.8, gt 0.2) and no open vowel
+    pred2, gt2 = [3.0, 0.8, 3.0], [2.0, 0.2, 2.0]
+    segs2 = [["_", 0.0, 0.02], ["m", 0.02, 0.05], ["i:", 0.05, 0.1]]        # m: frame 1 (0.033); i: not open
+    out = M.lip_sync_metrics([_track(PRED), _track(pred2)], [_track(gt), _track(gt2)], [SEGMENTS, segs2],
+                             {"lip_midpoints": list(MID), "lips": [0, 1, 2, 3]})
+    # predicted bilabial minima: clip 1 (1.5, 0.5, 2.5), clip 2 (0.8)
+    assert out["n_bilabials"] == 4 and out["n_open_vowels"] == 2
+    assert out["bilabial_closure_2mm"] == pytest.approx(3 / 4)                # 1.5, 0.5, 0.8
+    assert out["bilabial_closure_1mm"] == pytest.approx(2 / 4)                # 0.5, 0.8
+    assert out["bilabial_min_mm"] == pytest.approx((1.5 + 0.5 + 2.5 + 0.8) / 4)  # 1.325
+    assert out["open_vowel_max_mm"] == pytest.approx((10 + 12) / 2)          # 11
+    # ground truth: bilabial minima (0, 0, 0.5, 0.2); open-vowel maxima (8, 14)
+    assert out["bilabial_closure_2mm_gt"] == 1.0 and out["bilabial_closure_1mm_gt"] == 1.0
+    assert out["bilabial_min_mm_gt"] == pytest.approx(0.7 / 4)
+    assert out["open_vowel_max_mm_gt"] == pytest.approx(11.0)
+    # correlation: clip 2 pred (3, .8, 3) is an affine function of gt (2, .2, 2) with a positive slope -> r = 1;
+    # clip 1 by the textbook formula written out here (independent of metrics.curve_correlation)
+    a, b = np.array(PRED) - np.mean(PRED), np.array(gt) - np.mean(gt)
+    r1 = (a @ b) / np.sqrt((a @ a) * (b @ b))
+    assert out["lip_distance_corr"] == pytest.approx((r1 + 1.0) / 2)
+    assert 0.5 < r1 < 1.0
+    # lip motion ratio on vertices 0-3: only vertex 0 moves, by the lip distance itself: std(pred) / std(gt)
+    assert out["lip_motion_ratio"] == pytest.approx((np.std(PRED) / np.std(gt) + np.std(pred2) / np.std(gt2)) / 2)
+
+
+def test_lip_sync_metrics_perfect_and_flat_predictions():
+    gts = [_track([0.0, 5.0, 12.0, 5.0, 0.0, 0.0])]
+    segs = [["p", 0.0, 0.03], ["A:", 0.03, 0.1], ["b", 0.12, 0.2]]
+    perfect = M.lip_sync_metrics(gts, gts, segs, lip_mid=MID, lips=[0, 1])
+    assert perfect["bilabial_closure_2mm"] == perfect["bilabial_closure_2mm_gt"] == 1.0
+    assert perfect["lip_distance_corr"] == pytest.approx(1.0) and perfect["lip_motion_ratio"] == pytest.approx(1.0)
+    flat = M.lip_sync_metrics([_track(np.full(6, 3.7))], gts, segs, lip_mid=MID, lips=[0, 1])  # mumbling
+    assert flat["bilabial_closure_2mm"] == 0.0 and flat["bilabial_min_mm"] == pytest.approx(3.7)
+    assert flat["open_vowel_max_mm"] == pytest.approx(3.7) and flat["open_vowel_max_mm_gt"] == pytest.approx(12.0)
+    assert flat["lip_distance_corr"] == 0.0 and flat["lip_motion_ratio"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_lip_sync_metrics_bad_input():
+    gts = [_track([0.0, 5.0, 1.0]), _track([0.0, 5.0, 1.0])]
+    segs = [["p", 0.0, 0.03]]
+    with pytest.raises(ValueError, match="one clip's phoneme list for 2 sequences"):
+        M.lip_sync_metrics(gts, gts, segs, lip_mid=MID, lips=[0])
+    with pytest.raises(ValueError, match=r"one list of \[phoneme, start_s, end_s\] per sequence \(2\), got 3"):
+        M.lip_sync_metrics(gts, gts, [segs] * 3, lip_mid=MID, lips=[0])
+    with pytest.raises(ValueError, match="phoneme segment 0: expected"):
+        M.lip_sync_metrics(gts, gts, [[["p", 0.0]], segs], lip_mid=MID, lips=[0])
+    with pytest.raises(KeyError, match="lip_midpoints"):
+        M.lip_sync_metrics(gts, gts, [segs, segs], {"lips": [0]})
+    with pytest.raises(ValueError, match="starts after the end"):
+        M.lip_sync_metrics(gts, gts, [segs, [["m", 1.0, 1.1]]], lip_mid=MID, lips=[0])
+    with pytest.raises(ValueError, match="lengths must match"):
+        M.lip_sync_metrics([gts[0][:2]], [gts[0]], [segs], lip_mid=MID, lips=[0])
+
+
+def test_phoneme_sets_match_the_rig():
+    from dualtalker_lite.face.visemes import PHONEME_TO_VISEME
+
+    assert set(M.BILABIALS) == {p for p, v in PHONEME_TO_VISEME.items() if v == "PP"}
+    assert set(M.OPEN_VOWELS) == {p for p, v in PHONEME_TO_VISEME.items() if v == "aa"}
+
+
+def test_lip_sync_on_the_shipped_sample():
+    """The ground truth closes the lips at every bilabial of test-A; its per-clip mean face never does."""
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+
+    corpus = Corpus(sample_path())
+    names = corpus.metadata["splits"]["test_a"][:4]
+    gts = [np.asarray(corpus.vertices(n), dtype=np.float64) for n in names]
+    segs = [corpus.meta(n)["phonemes"] for n in names]
+    out = M.lip_sync_metrics(gts, gts, segs, corpus.regions)
+    assert out["n_bilabials"] > 0 and out["n_open_vowels"] > 0
+    assert out["bilabial_closure_2mm"] == 1.0 and out["bilabial_min_mm"] < 1.0
+    assert out["open_vowel_max_mm"] > 8.0
+    mean = [np.repeat(g.mean(0, keepdims=True), len(g), 0) for g in gts]
+    flat = M.lip_sync_metrics(mean, gts, segs, corpus.regions)
+    assert flat["bilabial_closure_2mm"] == 0.0 and flat["lip_distance_corr"] == 0.0

@@ -18,6 +18,8 @@ import nbformat
 from nbclient import NotebookClient
 
 ROOT = Path(__file__).resolve().parents[1]
+# What JupyterLab stores for the default ipykernel: with anything else, opening a notebook marks it modified.
+KERNELSPEC = {"display_name": "Python 3 (ipykernel)", "language": "python", "name": "python3"}
 SRC, OUT = ROOT / "notebooks" / "src", ROOT / "notebooks"
 
 
@@ -40,10 +42,7 @@ def parse_percent(text: str) -> nbformat.NotebookNode:
             nb.cells.append(nbformat.v4.new_markdown_cell(body))
         else:
             nb.cells.append(nbformat.v4.new_code_cell("\n".join(lines)))
-    nb.metadata = {
-        "kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"},
-        "language_info": {"name": "python"},
-    }
+    nb.metadata = {"kernelspec": dict(KERNELSPEC), "language_info": {"name": "python"}}
     return nb
 
 
@@ -74,6 +73,7 @@ def strip(nb: nbformat.NotebookNode) -> None:
                     o["execution_count"] = n
                 o.get("metadata", {}).pop("execution", None)
     nb.metadata.pop("widgets", None)
+    nb.metadata["kernelspec"] = dict(KERNELSPEC)  # whatever the executing kernel reported
 
 
 def build(src: Path) -> float:
