@@ -7,7 +7,9 @@ import soundfile as sf
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.data.generate import CorpusSpec, generate_corpus, n_frames_for, plan_corpus
+from dualtalker_lite.data.generate import (MAX_SENTENCE_CHARS, SPLITS, CorpusSpec, generate_corpus, main,
+                                          n_frames_for, plan_corpus, read_sentences)
+from dualtalker_lite.data.sentences import SENTENCES
 from dualtalker_lite.metrics import lip_distance
 
 SAMPLE = sample_path()
@@ -20,26 +22,51 @@ def sample():
 
 def test_plan_splits_mirror_the_papers():
     spec = CorpusSpec(speakers=5, unseen_speakers=1, sentences=12, val_sentences=2, test_sentences=3,
-                      emotion_speakers=1, emotion_sentences=2)
+                      emotion_speakers=2, emotion_sentences=2, emotion_test_sentences=1, long_clips=(3, 4))
     subjects = [f"S{i}" for i in range(5)]
     plans = plan_corpus(spec, subjects)
-    by_split = {s: [p for p in plans if p.split == s] for s in ("train", "val", "test_a", "test_b")}
+    by_split = {s: [p for p in plans if p.split == s] for s in SPLITS}
     sentences = {s: {p.sentence for p in ps} for s, ps in by_split.items()}
     assert not sentences["train"] & sentences["test_a"] and not sentences["train"] & sentences["val"]
     assert {p.subject for p in by_split["test_b"]} == {"S4"}                       # unseen speaker only
-    assert "S4" not in {p.subject for p in by_split["train"]}
+    assert "S4" not in {p.subject for p in by_split["train"] + by_split["train_emo"]}
     assert sentences["test_b"] == sentences["test_a"]                             # same unseen sentences
-    assert len(by_split["train"]) == 4 * 7 + 1 * 2 * 4 * 2                        # neutral + emotional pairs
+    assert len(by_split["train"]) == 4 * 7                                         # neutral only, as VOCASET
+    assert {p.emotion for p in by_split["train"] + by_split["val"] + by_split["test_a"] + by_split["test_b"]} \
+        == {"neutral"}
+    assert len(by_split["train_emo"]) == 2 * 2 * 4 * 2                            # speakers x sentences x emo x lvl
+    assert len(by_split["test_emo_a"]) == 2 * 1 * 4 * 2 and len(by_split["test_emo_b"]) == 1 * 1 * 4 * 2
+    assert sentences["train_emo"] <= sentences["train"]                            # seen sentences
+    assert sentences["test_emo_a"] <= sentences["test_a"] and sentences["test_emo_b"] <= sentences["test_a"]
+    assert {p.subject for p in by_split["test_emo_b"]} == {"S4"}
     assert len({p.name for p in plans}) == len(plans)
-    emo = [p for p in plans if p.emotion != "neutral"]
-    assert all(f"{p.subject}_s{p.sentence:02d}" in {q.name for q in plans} for p in emo)  # pseudo-pairs exist
+    names = {p.name for p in plans}
+    for p in plans:                                                                # every pseudo-pair has its twin
+        if p.emotion != "neutral":
+            twin = f"{p.subject}_s{p.sentence:02d}"
+            assert twin in names and p.level in (1, 2)
+    assert [len(p.sentences) for p in by_split["long"]] == [3, 4]
+    assert not {s for p in by_split["long"] for s in p.sentences} & sentences["train"]   # unseen text
+
+
+def test_emotional_sentences_are_the_shortest_training_ones():
+    spec = CorpusSpec(sentences=12, val_sentences=2, test_sentences=3, emotion_sentences=3)
+    plans = plan_corpus(spec, [f"S{i}" for i in range(10)], texts=SENTENCES)
+    train = sorted({p.sentence for p in plans if p.split == "train"})
+    emo = sorted({p.sentence for p in plans if p.split == "train_emo"})
+    by_length = sorted(train, key=lambda i: (len(SENTENCES[i]), i))
+    assert emo == sorted(by_length[:3])
 
 
 def test_bad_spec_is_rejected():
-    with pytest.raises(ValueError, match="sentences"):
-        CorpusSpec(sentences=1000)
+    with pytest.raises(ValueError, match="only 48 sentences are available"):
+        plan_corpus(CorpusSpec(sentences=1000), ["A", "B"])
     with pytest.raises(ValueError, match="format"):
         CorpusSpec(format="pickle")
+    with pytest.raises(ValueError, match="emotions must be distinct, from"):
+        CorpusSpec(emotions=("happy", "bored"))
+    with pytest.raises(ValueError, match="emotion_speakers must be in 0..8"):
+        CorpusSpec(speakers=10, unseen_speakers=2, emotion_speakers=9)
 
 
 def test_shipped_sample_shape_and_size(sample):
@@ -48,8 +75,25 @@ def test_shipped_sample_shape_and_size(sample):
     assert 1000 <= meta["n_vertices"] <= 3000
     assert len(meta["speakers"]) == 10
     sizes = {k: len(v) for k, v in meta["splits"].items()}
-    assert sizes["train"] > 100 and sizes["test_a"] > 20 and sizes["test_b"] > 5
-    assert {c["emotion"] for c in meta["clips"].values()} == {"neutral", "happy", "sad", "angry", "surprised"}
+    assert sizes == {"train": 176, "val": 16, "test_a": 48, "test_b": 12, "train_emo": 384, "test_emo_a": 48,
+                     "test_emo_b": 16, "long": 3}
+    for split in ("train", "val", "test_a", "test_b", "long"):
+        assert {sample.meta(n)["emotion"] for n in meta["splits"][split]} == {"neutral"}
+    # >= 6 training speakers x 8 sentences x (neutral + 4 emotions x 2 levels), all twins present
+    emo = meta["splits"]["train_emo"]
+    assert len({sample.meta(n)["subject"] for n in emo}) >= 6
+    assert len({sample.meta(n)["sentence_id"] for n in emo}) >= 8
+    assert {(sample.meta(n)["emotion"], sample.meta(n)["level"]) for n in emo} == \
+        {(e, lv) for e in ("happy", "sad", "angry", "surprised") for lv in (1, 2)}
+    train = set(meta["splits"]["train"])
+    assert all(sample.meta(n)["neutral_twin"] in train for n in emo)
+    assert all(sample.meta(n)["neutral_twin"] in set(meta["splits"]["test_a"]) for n in meta["splits"]["test_emo_a"])
+    assert all(sample.meta(n)["neutral_twin"] in set(meta["splits"]["test_b"]) for n in meta["splits"]["test_emo_b"])
+    for group in meta["pairs"].values():                                           # pairs: same speaker + sentence
+        assert len({(sample.meta(n)["subject"], sample.meta(n)["text"]) for n in group.values()}) == 1
+        assert "neutral" in group and len(group) == 9
+    durations = [sample.meta(n)["n_samples"] / 16000 for n in meta["splits"]["long"]]
+    assert all(10.0 <= d <= 30.0 for d in durations), durations
     total = sum(p.stat().st_size for p in SAMPLE.rglob("*") if p.is_file())
     assert total < 25e6, f"data_samples/ is {total / 1e6:.1f} MB"
 
@@ -57,7 +101,7 @@ def test_shipped_sample_shape_and_size(sample):
 def test_sample_regenerates_bit_for_bit(tmp_path, sample):
     """A few clips regenerated from scratch equal the shipped ones exactly (audio samples and controls)."""
     names = [sample.split("train")[0], sample.split("test_b")[0],
-             next(n for n in sample.clips if sample.meta(n)["emotion"] == "angry")]
+             next(n for n in sample.clips if sample.meta(n)["emotion"] == "angry"), sample.split("test_emo_b")[-1]]
     generate_corpus(CorpusSpec.sample(), tmp_path, processes=2, progress=False, only=names)
     fresh = np.load(tmp_path / "controls.npz")
     shipped = np.load(SAMPLE / "controls.npz")
@@ -106,3 +150,89 @@ def test_lips_close_on_bilabials_and_open_on_open_vowels(sample):
     assert np.median(closures) < 0.5 and np.percentile(closures, 90) < 1.0       # mm
     assert np.median(openings) > 8.0                                             # mm
     assert np.median(openings) > 10 * max(np.median(closures), 0.1)
+
+
+# ------------------------------------------------------------------ --sentences-file, --speakers, --emotions
+def _write(tmp_path, text, name="s.txt"):
+    path = tmp_path / name
+    path.write_bytes(text.encode("utf-8"))
+    return path
+
+
+@pytest.mark.parametrize("text, line, message", [
+    ("Hello there.\n\nGood night.\n", 2, "empty line"),
+    ("Hello there.\n   \n", 2, "empty line"),
+    ("Hello there.\nCaf\u00e9 au lait.\n", 2, "unsupported character(s) '\u00e9'"),
+    ("I have 3 cats.\n", 1, "unsupported character(s) '3'"),
+    ("Hello there.\nGood night.\n" + "Blah " * 30 + "\n", 3, "sentence too long for one clip (149 characters, at most 100"),
+    ("Hello there.\nHello there.\n", 2, "sentence repeats line 1"),
+    ("Hello.\n...\n", 2, "no words"),
+])
+def test_sentences_file_errors_name_file_and_line(tmp_path, text, line, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(ValueError) as err:
+        read_sentences(path)
+    assert str(err.value).startswith(f"{path}:{line}: ") and message in str(err.value)
+
+
+def test_sentences_file_whole_file_errors(tmp_path):
+    with pytest.raises(ValueError, match="no sentences"):
+        read_sentences(_write(tmp_path, ""))
+    with pytest.raises(ValueError, match="sentences file not found"):
+        read_sentences(tmp_path / "missing.txt")
+    bad = tmp_path / "latin1.txt"
+    bad.write_bytes("Caf\xe9\n".encode("latin-1"))
+    with pytest.raises(ValueError, match="not UTF-8"):
+        read_sentences(bad)
+    assert MAX_SENTENCE_CHARS == 100
+
+
+def test_sentences_file_reads_one_per_line(tmp_path):
+    path = _write(tmp_path, "  Bob ate a plum.\nIs it raining, Sam?\r\nYes!\n")
+    assert read_sentences(path) == ("Bob ate a plum.", "Is it raining, Sam?", "Yes!")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--sentences-file", "BAD"], "empty line"),
+    (["--emotions", "happy,bored"], "unknown emotion(s) ['bored']"),
+    (["--emotions", "neutral"], "unknown emotion(s) ['neutral']"),
+    (["--speakers", "3", "--unseen-speakers", "1", "--emotion-speakers", "3"], "emotion_speakers must be in 0..2"),
+    (["--speakers", "2", "--unseen-speakers", "2"], "unseen_speakers must be smaller than speakers"),
+    (["--sentences", "60"], "only 48 sentences are available"),
+    (["--sentences-file", "GOOD", "--val-sentences", "1", "--test-sentences", "1"],
+     "val_sentences + test_sentences must leave some training sentences"),
+])
+def test_cli_errors_are_one_line_and_write_nothing(tmp_path, capsys, argv, message):
+    good = _write(tmp_path, "Bob ate a plum.\nIs it raining?\n", "good.txt")
+    bad = _write(tmp_path, "Bob ate a plum.\n\n", "bad.txt")
+    argv = [{"BAD": str(bad), "GOOD": str(good)}.get(a, a) for a in argv]
+    out = tmp_path / "corpus"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--out", str(out), *argv])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_cli_generates_a_corpus_from_my_sentences(tmp_path, capsys):
+    """Own text, 3 speakers, one emotion: every split present, texts from the file, twins and pairs consistent."""
+    path = _write(tmp_path, "Bob ate a plum.\nIs it raining?\nMove the map.\nWe won!\n")
+    out = tmp_path / "mine"
+    main(["--out", str(out), "--sentences-file", str(path), "--speakers", "3", "--unseen-speakers", "1",
+          "--val-sentences", "1", "--test-sentences", "1", "--emotion-speakers", "1", "--emotion-sentences", "1",
+          "--emotion-test-sentences", "1", "--emotions", "happy", "--long-clips", "3", "--format", "compact",
+          "--vertices", "1000"])
+    corpus = Corpus(out)
+    sizes = {k: len(v) for k, v in corpus.metadata["splits"].items()}
+    assert sizes == {"train": 2 * 2, "val": 2, "test_a": 2, "test_b": 1, "train_emo": 2, "test_emo_a": 2,
+                     "test_emo_b": 2, "long": 1}
+    texts = {corpus.meta(n)["text"] for n in corpus.clips if corpus.meta(n)["split"] != "long"}
+    assert texts <= {"Bob ate a plum.", "Is it raining?", "Move the map.", "We won!"}
+    assert {corpus.meta(n)["emotion"] for n in corpus.clips} == {"neutral", "happy"}
+    (long_clip,) = corpus.split("long")
+    assert corpus.meta(long_clip)["sentence_id"].count("+") == 2
+    for group in corpus.metadata["pairs"].values():
+        assert set(group) == {"neutral", "happy1", "happy2"}
+    assert corpus.metadata["generator"]["sentences_file"] == str(path)
+    assert "wrote 16 clips" in capsys.readouterr().out

@@ -171,13 +171,26 @@ def test_clean_symbols_and_segments():
     mnemonics = ["'aI", ",i@3", "u:", "@2", "_:", "_", "t#"]
     assert [speech.clean_symbol(m) for m in mnemonics] == ["aI", "i@3", "u:", "@2", "_", "_", "t#"]
     # leading silence added, neighbouring pauses merged, zero-length events dropped, end = wave length
-    events = [("p", 100), ("'i:", 150), ("_:", 300), ("_", 320), ("_", 320)]
-    assert speech._segments(events, 400) == [("_", 0, 100), ("p", 100, 150), ("i:", 150, 300), ("_", 300, 400)]
-    timed = speech._to_seconds([("_", 0, 100), ("p", 100, 22050)], 22050, 16000)
-    assert timed == [("_", 0.0, 73 / 16000), ("p", 73 / 16000, 1.0)]
+    # the 4th field is espeak's stress mark: 2 primary ('), 1 secondary (,), 0 none (pauses: always 0)
+    events = [("p", 100), ("'i:", 150), (",aI", 200), ("_:", 300), ("_", 320), ("_", 320)]
+    assert speech._segments(events, 400) == [("_", 0, 100, 0), ("p", 100, 150, 0), ("i:", 150, 200, 2),
+                                             ("aI", 200, 300, 1), ("_", 300, 400, 0)]
+    timed = speech._to_seconds([("_", 0, 100, 0), ("p", 100, 22050, 2)], 22050, 16000)
+    assert timed == [("_", 0.0, 73 / 16000, 0), ("p", 73 / 16000, 1.0, 2)]
+    assert [speech.stress_level(m) for m in ("'aI", ",i@3", "u:", "_:")] == [2, 1, 0, 0]
 
 
 def test_speech_module_does_not_import_torch():
     code = "import sys, dualtalker_lite.data.speech; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_stress_marks_come_with_the_phonemes(utterance):
+    """One stress value per phoneme; primary stress falls on vowels, never on pauses."""
+    from dualtalker_lite.face import phoneme_to_viseme
+
+    assert len(utterance.stress) == len(utterance.phonemes) and set(utterance.stress) <= {0, 1, 2}
+    stressed = [p for (p, _, _), s in zip(utterance.phonemes, utterance.stress) if s == 2]
+    assert len(stressed) >= 2
+    assert all(phoneme_to_viseme(p) in ("aa", "E", "I", "O", "U", "RR") for p in stressed), stressed

@@ -39,14 +39,22 @@ _PER_FRAME = ("audio", "vertices", "phonemes", "visemes")  # keys with a time ax
 def segments_to_frames(segments, inventory: list[str], n_frames: int, fps: int, clip: str = "?") -> torch.Tensor:
     """Label ``(T,)`` long: mesh frame t (at time t / fps) gets the id of the segment ``[start, end)``
     containing it; ids index ``inventory`` (entry 0 is silence); uncovered frames get 0."""
-    ids = torch.zeros(n_frames, dtype=torch.long)
-    times = torch.arange(n_frames, dtype=torch.float64) / fps          # (T,) seconds
+    ids = np.zeros(n_frames, dtype=np.int64)
+    if not segments:
+        return torch.from_numpy(ids)
     lookup = {label: i for i, label in enumerate(inventory)}
-    for label, start, end in segments or ():
-        if label not in lookup:
-            raise ValueError(f"clip {clip!r}: label {label!r} is not in the inventory {inventory}")
-        ids[(times >= start) & (times < end)] = lookup[label]
-    return ids
+    unknown = [label for label, _, _ in segments if label not in lookup]
+    if unknown:
+        raise ValueError(f"clip {clip!r}: label {unknown[0]!r} is not in the inventory {inventory}")
+    times = np.arange(n_frames, dtype=np.float64) / fps                 # (T,) seconds
+    labels = np.array([lookup[label] for label, _, _ in segments], dtype=np.int64)
+    bounds = np.array([(start, end) for _, start, end in segments], dtype=np.float64)   # (S, 2)
+    # Frames with start <= t < end, by bisection; later segments win where segments overlap (as a loop would).
+    lo, hi = np.searchsorted(times, bounds[:, 0], "left"), np.searchsorted(times, bounds[:, 1], "left")
+    counts = np.maximum(hi - lo, 0)
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    ids[np.repeat(lo, counts) + offsets] = np.repeat(labels, counts)
+    return torch.from_numpy(ids)
 
 
 def _as_tensor(a: np.ndarray) -> torch.Tensor:

@@ -2,23 +2,33 @@
 
     python -m dualtalker_lite.data.generate --out runs/corpus --speakers 10 --sentences 48 --processes 2
     python -m dualtalker_lite.data.generate --preset sample --out data_samples    # the shipped sample, bit for bit
+    python -m dualtalker_lite.data.generate --out runs/mine --sentences-file my.txt --speakers 4 \\
+        --unseen-speakers 1 --val-sentences 1 --test-sentences 2 --emotions happy,sad
 
 Each clip: espeak-ng speaks a sentence with the speaker's voice and the emotion's prosody (``data.speech``);
-its phoneme events drive visemes, Cohen-Massaro coarticulation, blinks and brow motion (``face``); the
-speaker's rig turns those control tracks into vertices at 30 fps. Output in FaceFormer's layout (``wav/``,
+its phoneme events drive visemes and Cohen-Massaro coarticulation, its stress marks and F0 drive the weak
+upper-face motion (``face.upper``), blinks are random and likelier at pauses (``face.motion``); the speaker's
+rig turns those control tracks into vertices at 30 fps. Output in FaceFormer's layout (``wav/``,
 ``vertices_npy/``, ``templates.npz``) or the compact layout of ``data_samples/`` (FLAC + control tracks; the
 loader rebuilds exactly the same vertices). See ``docs/design.md`` for the format and metadata.
 
-Splits mirror the papers: ``train``; ``val``; ``test_a`` = seen speakers, unseen sentences (quantitative);
-``test_b`` = unseen speakers (qualitative). Emotional clips (EmoFace's pseudo-pairs: the same sentence and
-speaker, another emotion) are spoken on training sentences by the first ``emotion_speakers`` speakers.
+Splits. The neutral ones mirror the papers: ``train``; ``val``; ``test_a`` = seen speakers, unseen sentences
+(quantitative); ``test_b`` = unseen speakers (qualitative). The emotional ones are separate, so ``train`` stays
+neutral like VOCASET: ``train_emo`` = the first ``emotion_speakers`` speakers say the ``emotion_sentences``
+shortest training sentences with every emotion and level (EmoFace's pseudo-pairs: the neutral twin, same
+speaker and sentence, is in ``train``); ``test_emo_a`` = the same speakers on the ``emotion_test_sentences``
+shortest test sentences, every emotion and level (neutral twins in ``test_a``); ``test_emo_b`` = the unseen
+speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence neutral clips of 10-30 s
+(sentences outside ``train``), for length generalisation and speed.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import re
+import sys
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 
@@ -26,39 +36,55 @@ import numpy as np
 
 from .sentences import SENTENCES, sentence_id
 
-__all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "render_clip", "generate_corpus", "main"]
+__all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "render_clip", "generate_corpus", "read_sentences", "main",
+           "SPLITS", "MAX_SENTENCE_CHARS"]
 
 FPS = 30
 SAMPLE_RATE = 16000
 EMOTIONAL = ("happy", "sad", "angry", "surprised")
+SPLITS = ("train", "val", "test_a", "test_b", "train_emo", "test_emo_a", "test_emo_b", "long")
+MAX_SENTENCE_CHARS = 100     # about 6 s of speech at the slowest voice: longer sentences need several clips
+_ALLOWED = re.compile(r"[A-Za-z ,.?!'\-;:]")
 
 
 @dataclass
 class CorpusSpec:
-    speakers: int = 10          # speakers in all; the last `unseen_speakers` form test-B
+    speakers: int = 10          # speakers in all; the last `unseen_speakers` form test-B / test-emo-B
     unseen_speakers: int = 2
-    sentences: int = 48         # how many of SENTENCES to use
+    sentences: int = 48         # how many sentences to use (of SENTENCES, or of --sentences-file)
     val_sentences: int = 4
     test_sentences: int = 10
-    emotion_speakers: int = 2   # seen speakers who also speak emotional pseudo-pairs
-    emotion_sentences: int = 4  # training sentences they speak with every emotion and level
+    emotion_speakers: int = 6   # seen speakers who also speak emotional pseudo-pairs (train_emo, test_emo_a)
+    emotion_sentences: int = 8  # shortest training sentences they speak with every emotion and level
+    emotion_test_sentences: int = 2  # shortest test sentences spoken with every emotion (test_emo_a/b)
+    emotions: tuple = EMOTIONAL  # the non-neutral emotions generated, each at levels 1 and 2
+    long_clips: tuple = (5, 8, 12)  # sentences per clip of the `long` split (about 2 s each)
     vertices: int = 1500        # approximate vertex count of the template mesh
     seed: int = 0
     format: str = "faceformer"  # "faceformer" | "compact"
 
     @classmethod
     def sample(cls) -> "CorpusSpec":
-        """The corpus shipped in ``data_samples/``: 10 speakers, 30 sentences, an emotional subset."""
+        """The corpus shipped in ``data_samples/``: 10 speakers, 30 sentences, the emotional and long splits."""
         return cls(speakers=10, unseen_speakers=2, sentences=30, val_sentences=2, test_sentences=6,
-                   emotion_speakers=2, emotion_sentences=3, format="compact")
+                   emotion_speakers=6, emotion_sentences=8, emotion_test_sentences=1, long_clips=(5, 7, 10),
+                   format="compact")
 
     def __post_init__(self):
-        if not 1 <= self.sentences <= len(SENTENCES):
-            raise ValueError(f"sentences must be in 1..{len(SENTENCES)}, got {self.sentences}")
+        self.emotions, self.long_clips = tuple(self.emotions), tuple(int(n) for n in self.long_clips)
+        if self.sentences < 1:
+            raise ValueError(f"sentences must be at least 1, got {self.sentences}")
         if self.val_sentences + self.test_sentences >= self.sentences:
             raise ValueError("val_sentences + test_sentences must leave some training sentences")
         if not 0 <= self.unseen_speakers < self.speakers:
             raise ValueError("unseen_speakers must be smaller than speakers")
+        if not 0 <= self.emotion_speakers <= self.speakers - self.unseen_speakers:
+            raise ValueError(f"emotion_speakers must be in 0..{self.speakers - self.unseen_speakers} (the seen speakers)")
+        bad = [e for e in self.emotions if e not in EMOTIONAL]
+        if bad or len(set(self.emotions)) != len(self.emotions):
+            raise ValueError(f"emotions must be distinct, from {EMOTIONAL} (neutral is always generated), got {bad or self.emotions}")
+        if any(n < 1 for n in self.long_clips):
+            raise ValueError(f"long_clips must be sentence counts >= 1, got {self.long_clips}")
         if self.format not in ("faceformer", "compact"):
             raise ValueError(f"format must be 'faceformer' or 'compact', got {self.format!r}")
 
@@ -67,19 +93,31 @@ class CorpusSpec:
 class ClipPlan:
     name: str
     subject: str
-    sentence: int
+    sentence: int               # index of the (first) sentence
     emotion: str
     level: int
     split: str
+    more: tuple = ()            # further sentences of a long clip, spoken after `sentence`
 
     @property
     def seed(self) -> int:
         """Per-clip seed for blinks and brow motion: independent of which other clips are generated."""
         return zlib.crc32(self.name.encode())
 
+    @property
+    def sentences(self) -> tuple:
+        return (self.sentence, *self.more)
 
-def plan_corpus(spec: CorpusSpec, subjects: list[str]) -> list[ClipPlan]:
+
+def _shortest(ids: list[int], n: int, texts) -> list[int]:
+    """The ``n`` shortest sentences of ``ids`` (by characters; ties by index), in index order."""
+    return sorted(sorted(ids, key=lambda i: (len(texts[i]), i))[:n])
+
+
+def plan_corpus(spec: CorpusSpec, subjects: list[str], texts=SENTENCES) -> list[ClipPlan]:
     """Every clip of the corpus, with its split; deterministic given ``spec.seed``."""
+    if spec.sentences > len(texts):
+        raise ValueError(f"sentences={spec.sentences} but only {len(texts)} sentences are available")
     order = np.random.default_rng(spec.seed).permutation(spec.sentences).tolist()
     test = sorted(order[: spec.test_sentences])
     val = sorted(order[spec.test_sentences: spec.test_sentences + spec.val_sentences])
@@ -91,13 +129,61 @@ def plan_corpus(spec: CorpusSpec, subjects: list[str]) -> list[ClipPlan]:
             plans += [ClipPlan(f"{subject}_{sentence_id(s)}", subject, s, "neutral", 0, split) for s in ids]
     for subject in unseen:
         plans += [ClipPlan(f"{subject}_{sentence_id(s)}", subject, s, "neutral", 0, "test_b") for s in test]
-    for subject in seen[: spec.emotion_speakers]:
-        for s in train[: spec.emotion_sentences]:
-            for emotion in EMOTIONAL:
-                for level in (1, 2):
-                    name = f"{subject}_{sentence_id(s)}-{emotion}{level}"
-                    plans.append(ClipPlan(name, subject, s, emotion, level, "train"))
+    emo_train = _shortest(train, spec.emotion_sentences, texts)
+    emo_test = _shortest(test, spec.emotion_test_sentences, texts)
+    for split, speakers, ids in (("train_emo", seen[: spec.emotion_speakers], emo_train),
+                                 ("test_emo_a", seen[: spec.emotion_speakers], emo_test),
+                                 ("test_emo_b", unseen, emo_test)):
+        for subject in speakers:
+            for s in ids:
+                for emotion in spec.emotions:
+                    for level in (1, 2):
+                        name = f"{subject}_{sentence_id(s)}-{emotion}{level}"
+                        plans.append(ClipPlan(name, subject, s, emotion, level, split))
+    # Long clips: sentences outside `train` (test ones first, then unused ones), cycled; seen speakers in turn.
+    pool = test + [i for i in range(spec.sentences, len(texts))] + val
+    k = 0
+    for j, n in enumerate(spec.long_clips):
+        ids = [pool[(k + i) % len(pool)] for i in range(n)]
+        k += n
+        subject = seen[(3 * j) % len(seen)]
+        plans.append(ClipPlan(f"{subject}_long{j + 1:02d}", subject, ids[0], "neutral", 0, "long", tuple(ids[1:])))
     return plans
+
+
+def read_sentences(path: str | Path) -> tuple[str, ...]:
+    """Sentences of a text file, one per line; raises ValueError naming the file and line of any problem.
+
+    Refused: empty (or blank) lines, characters other than ASCII letters, spaces and ``, . ? ! ' - ; :``
+    (spell numbers out), sentences longer than ``MAX_SENTENCE_CHARS`` characters (too long for one clip),
+    repeated sentences, and files without any sentence."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: sentences file not found")
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})") from None
+    if not lines:
+        raise ValueError(f"{path}: no sentences (the file is empty)")
+    seen: dict[str, int] = {}
+    for i, line in enumerate(lines, 1):
+        text = line.strip()
+        if not text:
+            raise ValueError(f"{path}:{i}: empty line (write one sentence per line, no blank lines)")
+        bad = sorted({c for c in text if not _ALLOWED.fullmatch(c)})
+        if bad:
+            raise ValueError(f"{path}:{i}: unsupported character(s) {''.join(bad)!r} in {text!r}; use ASCII letters, "
+                             "spaces and , . ? ! ' - ; : (spell numbers out)")
+        if not re.search(r"[A-Za-z]", text):
+            raise ValueError(f"{path}:{i}: no words in {text!r}")
+        if len(text) > MAX_SENTENCE_CHARS:
+            raise ValueError(f"{path}:{i}: sentence too long for one clip ({len(text)} characters, at most "
+                             f"{MAX_SENTENCE_CHARS}, about 6 s of speech); split it into shorter sentences")
+        if text in seen:
+            raise ValueError(f"{path}:{i}: sentence repeats line {seen[text]}: {text!r}")
+        seen[text] = i
+    return tuple(seen)
 
 
 def n_frames_for(n_samples: int) -> int:
@@ -110,18 +196,23 @@ def to_pcm16(wave: np.ndarray) -> np.ndarray:
     return np.clip(np.round(wave * 32767.0), -32768, 32767).astype(np.int16)
 
 
-def render_clip(plan: ClipPlan, utterance, speaker) -> dict:
+def render_clip(plan: ClipPlan, utterance, speaker, texts=SENTENCES) -> dict:
     """Phoneme track of one utterance -> rig controls (T, C) float32 + metadata for the clip."""
     from ..face import clip_controls, phoneme_to_viseme
 
     n_frames = n_frames_for(len(utterance.wave))
-    controls = clip_controls(utterance.phonemes, n_frames, speaker, emotion=plan.emotion,
-                             level=plan.level, seed=plan.seed, fps=FPS).astype(np.float32)
+    pcm = to_pcm16(utterance.wave).astype(np.float64) / 32768.0   # exactly the samples the corpus stores
+    controls = clip_controls(utterance.phonemes, n_frames, speaker, emotion=plan.emotion, level=plan.level,
+                             seed=plan.seed, fps=FPS, stress=utterance.stress, wave=pcm,
+                             sample_rate=SAMPLE_RATE).astype(np.float32)
     visemes = [[phoneme_to_viseme(p), s, e] for p, s, e in utterance.phonemes]
-    meta = {"subject": plan.subject, "sentence_id": sentence_id(plan.sentence), "text": SENTENCES[plan.sentence],
+    sid = "+".join(sentence_id(i) for i in plan.sentences)
+    meta = {"subject": plan.subject, "sentence_id": sid, "text": " ".join(texts[i] for i in plan.sentences),
             "emotion": plan.emotion, "level": plan.level, "split": plan.split, "n_frames": n_frames,
             "n_samples": int(len(utterance.wave)),
+            "neutral_twin": f"{plan.subject}_{sid}" if plan.split != "long" else None,
             "phonemes": [[p, round(float(s), 6), round(float(e), 6)] for p, s, e in utterance.phonemes],
+            "stress": [int(x) for x in utterance.stress],
             "visemes": [[v, round(float(s), 6), round(float(e), 6)] for v, s, e in visemes]}
     return {"controls": controls, "meta": meta}
 
@@ -136,11 +227,24 @@ def _versions() -> dict[str, str]:
     return out
 
 
+def _pairs(clips: dict) -> dict[str, dict[str, str]]:
+    """``{speaker_sentence: {"neutral": clip, "happy1": clip, ...}}`` for every group with an emotional clip."""
+    groups: dict[str, dict[str, str]] = {}
+    for name, c in clips.items():
+        if c["split"] != "long":
+            key = "neutral" if c["emotion"] == "neutral" else f"{c['emotion']}{c['level']}"
+            groups.setdefault(f"{c['subject']}_{c['sentence_id']}", {})[key] = name
+    return {k: dict(sorted(v.items())) for k, v in sorted(groups.items()) if len(v) > 1}
+
+
 def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progress: bool = True,
-                    only: list[str] | None = None) -> dict:
+                    only: list[str] | None = None, texts: tuple[str, ...] | None = None,
+                    sentences_file: str | None = None) -> dict:
     """Generate the corpus described by ``spec`` into ``out``; returns the metadata dict.
 
     ``only``: generate just these clip names (for tests that check a shipped clip bit for bit).
+    ``texts``: the sentences (default :data:`SENTENCES`), e.g. from :func:`read_sentences`.
+    Everything is planned and checked before the first file is written.
     """
     import soundfile as sf
     from tqdm.auto import tqdm
@@ -148,14 +252,21 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
     from ..face import CONTROL_NAMES, VISEMES, FaceRig, build_template, make_speakers
     from .speech import ENGLISH_PHONEMES, emotional_prosody, speaker_voices, synthesize_many
 
+    texts = tuple(texts) if texts is not None else SENTENCES
     out = Path(out)
     speakers = make_speakers(spec.speakers, seed=spec.seed, n_vertices=spec.vertices)
     by_name = {s.name: s for s in speakers}
     voices = dict(zip(by_name, speaker_voices(spec.speakers)))
-    plans = plan_corpus(spec, list(by_name))
+    plans = plan_corpus(spec, list(by_name), texts)
     if only is not None:
+        unknown = sorted(set(only) - {p.name for p in plans})
+        if unknown:
+            raise ValueError(f"only: clips not in this corpus: {unknown[:5]}")
         plans = [p for p in plans if p.name in set(only)]
-    requests = [(SENTENCES[p.sentence], emotional_prosody(voices[p.subject], p.emotion, p.level)) for p in plans]
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a folder")
+    requests = [(" ".join(texts[i] for i in p.sentences), emotional_prosody(voices[p.subject], p.emotion, p.level))
+                for p in plans]
     utterances = synthesize_many(requests, processes=processes, progress=progress)
 
     audio_dir = out / ("audio" if spec.format == "compact" else "wav")
@@ -165,11 +276,12 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
     rigs = {name: FaceRig(s) for name, s in by_name.items()}
     clips, controls = {}, {}
     for plan, utt in tqdm(list(zip(plans, utterances)), desc="faces", disable=not progress, leave=False):
-        clip = render_clip(plan, utt, by_name[plan.subject])
+        clip = render_clip(plan, utt, by_name[plan.subject], texts)
         clips[plan.name] = clip["meta"]
         pcm = to_pcm16(utt.wave)
         if spec.format == "compact":
-            sf.write(audio_dir / f"{plan.name}.flac", pcm, SAMPLE_RATE, subtype="PCM_16", format="FLAC")
+            sf.write(audio_dir / f"{plan.name}.flac", pcm, SAMPLE_RATE, subtype="PCM_16", format="FLAC",
+                     compression_level=1.0)  # smallest files; still bit-exact PCM
             controls[plan.name] = clip["controls"]
         else:
             sf.write(audio_dir / f"{plan.name}.wav", pcm, SAMPLE_RATE, subtype="PCM_16")
@@ -189,38 +301,67 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
     n_seen = spec.speakers - spec.unseen_speakers
     observed = set(ENGLISH_PHONEMES) | {p for c in clips.values() for p, _, _ in c["phonemes"]}
     meta = {
-        "format": spec.format, "version": 1, "fps": FPS, "sample_rate": SAMPLE_RATE,
+        "format": spec.format, "version": 2, "fps": FPS, "sample_rate": SAMPLE_RATE,
         "n_vertices": int(mesh.vertices.shape[0]),
-        "generator": {"spec": asdict(spec), "versions": _versions(), "only": only},
+        "generator": {"spec": asdict(spec), "versions": _versions(), "only": only, "sentences_file": sentences_file},
         "speakers": {n: {"voice": asdict(voices[n]), "split": "seen" if i < n_seen else "unseen"}
                      for i, n in enumerate(by_name)},
         "emotions": ["neutral", *EMOTIONAL],
         "controls": list(CONTROL_NAMES),
         "phoneme_inventory": ["_", *sorted(observed - {"_"})],
         "viseme_inventory": list(VISEMES),
-        "splits": {s: [p.name for p in plans if p.split == s] for s in ("train", "val", "test_a", "test_b")},
+        "splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS},
+        "pairs": _pairs(clips),
         "clips": clips,
     }
-    (out / "metadata.json").write_text(json.dumps(meta, indent=1))
+    # One clip per line: compact, yet readable and diff-friendly.
+    body = ",\n".join(f"{json.dumps(k)}:{json.dumps(v, separators=(',', ':'))}" for k, v in clips.items())
+    head = json.dumps({k: v for k, v in meta.items() if k != "clips"}, indent=1)
+    (out / "metadata.json").write_text(head[:-2] + ',\n "clips": {\n' + body + "\n}\n}\n")
     return meta
+
+
+def _emotion_list(text: str) -> tuple[str, ...]:
+    items = tuple(e.strip() for e in text.split(",") if e.strip())
+    bad = [e for e in items if e not in EMOTIONAL]
+    if not items or bad:
+        raise argparse.ArgumentTypeError(f"unknown emotion(s) {bad or text!r}; choose from {','.join(EMOTIONAL)} "
+                                         "(comma-separated; neutral is always generated)")
+    return items
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--preset", choices=["sample"], help="the shipped data_samples/ corpus")
+    ap.add_argument("--sentences-file", help="text file, one sentence per line (default: the built-in sentences)")
+    ap.add_argument("--emotions", type=_emotion_list, default=None,
+                    help=f"comma-separated emotions of the emotional splits (default {','.join(EMOTIONAL)})")
     d = CorpusSpec()
     for field_name in ("speakers", "unseen_speakers", "sentences", "val_sentences", "test_sentences",
-                       "emotion_speakers", "emotion_sentences", "vertices", "seed"):
+                       "emotion_speakers", "emotion_sentences", "emotion_test_sentences", "vertices", "seed"):
         ap.add_argument("--" + field_name.replace("_", "-"), type=int, default=None,
                         help=f"default {getattr(d, field_name)}")
+    ap.add_argument("--long-clips", default=None, help="sentences per long clip, comma-separated (default 5,8,12); "
+                    "'' for none")
     ap.add_argument("--format", choices=["faceformer", "compact"], default=None)
     ap.add_argument("--processes", type=int, default=2)
     args = ap.parse_args(argv)
-    base = asdict(CorpusSpec.sample() if args.preset == "sample" else CorpusSpec())
-    base.update({k: v for k, v in vars(args).items() if k in base and v is not None})
-    spec = CorpusSpec(**base)
-    meta = generate_corpus(spec, args.out, processes=args.processes)
+    try:
+        texts = read_sentences(args.sentences_file) if args.sentences_file else SENTENCES
+        base = asdict(CorpusSpec.sample() if args.preset == "sample" else CorpusSpec())
+        if args.sentences_file and args.sentences is None:
+            base["sentences"] = len(texts)
+        if args.long_clips is not None:
+            base["long_clips"] = tuple(int(n) for n in args.long_clips.split(",") if n.strip())
+        base.update({k: v for k, v in vars(args).items() if k in base and v is not None and k != "long_clips"})
+        if args.emotion_speakers is None:  # fewer speakers than the default: every seen speaker is emotional
+            base["emotion_speakers"] = min(base["emotion_speakers"], base["speakers"] - base["unseen_speakers"])
+        spec = CorpusSpec(**base)
+        plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)  # fail before synthesizing anything
+    except ValueError as err:
+        ap.exit(2, f"error: {err}\n")
+    meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file)
     sizes = {k: len(v) for k, v in meta["splits"].items()}
     print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: {sizes}")
 

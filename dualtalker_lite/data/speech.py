@@ -22,7 +22,8 @@ variants with ``breath`` noise (``+f2 +f3 +f5`` ...) differ from run to run even
 :data:`SPEAKER_VOICES` avoids them and :func:`synthesize` warns.
 
 Phoneme symbols. espeak's ASCII phoneme mnemonics for ``en-us`` with stress marks (``' , % =``)
-removed; length marks that are part of the name are kept (``u:``, ``3:``). Every pause espeak emits
+removed (the stress itself is kept in ``Utterance.stress``: 2 for primary ``'``, 1 for secondary ``,``; the
+upper-face motion of :mod:`dualtalker_lite.face.upper` uses it); length marks that are part of the name are kept (``u:``, ``3:``). Every pause espeak emits
 (``_``, ``_:``, ``_!`` ...) and the leading silence become ``"_"``. :data:`ENGLISH_PHONEMES` lists the
 inventory observed on ~22k distinct English words and a few hundred sentences. A few that look odd:
 ``@2 @- I2 I# a#`` reduced vowels, ``t#`` flapped t (*better*), ``?`` glottal stop (*button*), ``;``
@@ -50,6 +51,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+import dataclasses
 from dataclasses import dataclass
 
 if __name__ != "__main__":  # the worker (this file run as a script) imports neither numpy nor the package
@@ -86,6 +88,8 @@ class Utterance:
     phonemes: list[tuple[str, float, float]]  # (symbol, start_s, end_s), contiguous, covers the wave
     text: str
     voice: VoiceSpec  # the voice *with* prosody actually used
+    stress: list[int] = dataclasses.field(default_factory=list)  # per phoneme: 2 primary ('), 1 secondary (,), 0
+
 
     @property
     def duration(self) -> float:
@@ -130,10 +134,11 @@ def synthesize(text: str, voice: VoiceSpec | None = None) -> Utterance:
     info = json.loads(header)
     native = np.frombuffer(pcm, dtype=np.int16)
     segments = _segments(info["events"], len(native))
-    if all(symbol == SILENCE for symbol, _, _ in segments):
+    if all(seg[0] == SILENCE for seg in segments):
         raise ValueError(f"espeak-ng produced no speech for text {text!r}")
     wave = _resample(native, info["sample_rate"])
-    return Utterance(wave, SAMPLE_RATE, _to_seconds(segments, info["sample_rate"], len(wave)), text, voice)
+    timed = _to_seconds(segments, info["sample_rate"], len(wave))
+    return Utterance(wave, SAMPLE_RATE, [seg[:3] for seg in timed], text, voice, [seg[3] for seg in timed])
 
 
 def synthesize_many(
@@ -164,28 +169,35 @@ def clean_symbol(mnemonic: str) -> str:
     return mnemonic.strip("',%=!")
 
 
-def _segments(events: list[tuple[str, int]], n_samples: int) -> list[tuple[str, int, int]]:
-    """Phoneme onsets (native samples) -> contiguous (symbol, start, end) segments over the wave."""
-    marks = [(SILENCE, 0)] + [(clean_symbol(name), min(max(s, 0), n_samples)) for name, s in events]
-    segments: list[tuple[str, int, int]] = []
-    for (symbol, start), (_, end) in zip(marks, marks[1:] + [("", n_samples)]):
+def stress_level(mnemonic: str) -> int:
+    """espeak's stress mark on a phoneme mnemonic: 2 primary (``'``), 1 secondary (``,``), else 0."""
+    return 2 if "'" in mnemonic else 1 if "," in mnemonic else 0
+
+
+def _segments(events: list[tuple[str, int]], n_samples: int) -> list[tuple[str, int, int, int]]:
+    """Phoneme onsets (native samples) -> contiguous (symbol, start, end, stress) segments over the wave."""
+    marks = [(SILENCE, 0, 0)] + [(clean_symbol(name), min(max(s, 0), n_samples), stress_level(name))
+                                 for name, s in events]
+    segments: list[tuple[str, int, int, int]] = []
+    for (symbol, start, stress), (_, end, _) in zip(marks, marks[1:] + [("", n_samples, 0)]):
         if end <= start:
             continue  # zero-length (e.g. a pause at the very start)
         if segments and symbol == SILENCE and segments[-1][0] == SILENCE:
-            segments[-1] = (SILENCE, segments[-1][1], end)  # merge neighbouring pauses
+            segments[-1] = (SILENCE, segments[-1][1], end, 0)  # merge neighbouring pauses
         else:
-            segments.append((symbol, start, end))
+            segments.append((symbol, start, end, stress if symbol != SILENCE else 0))
     return segments
 
 
-def _to_seconds(segments: list[tuple[str, int, int]], native_rate: int, n_16k: int) -> list[tuple[str, float, float]]:
-    """Put native-rate sample indices on the 16 kHz grid and convert to seconds."""
+def _to_seconds(segments: list[tuple[str, int, int, int]], native_rate: int,
+                n_16k: int) -> list[tuple[str, float, float, int]]:
+    """Put native-rate sample indices on the 16 kHz grid and convert to seconds (stress carried along)."""
     def grid(s: int) -> int:
         return min((s * SAMPLE_RATE + native_rate // 2) // native_rate, n_16k)
 
-    timed = [(symbol, grid(start), grid(end)) for symbol, start, end in segments]
-    timed[-1] = (timed[-1][0], timed[-1][1], n_16k)  # the last phoneme ends with the wave
-    return [(symbol, a / SAMPLE_RATE, b / SAMPLE_RATE) for symbol, a, b in timed if b > a]
+    timed = [(symbol, grid(start), grid(end), st) for symbol, start, end, st in segments]
+    timed[-1] = (timed[-1][0], timed[-1][1], n_16k, timed[-1][3])  # the last phoneme ends with the wave
+    return [(symbol, a / SAMPLE_RATE, b / SAMPLE_RATE, st) for symbol, a, b, st in timed if b > a]
 
 
 def _resample(pcm: np.ndarray, native_rate: int) -> np.ndarray:

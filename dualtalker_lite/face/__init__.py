@@ -6,6 +6,7 @@ numpy + trimesh only (no torch), so corpus-generation workers import it cheaply.
 - ``rig``       ``FaceRig(speaker).animate(controls (T, C)) -> (T, V, 3)``; ``CONTROL_NAMES``
 - ``speakers``  ``Speaker`` (head proportions + speaking style), ``make_speakers``
 - ``visemes``   espeak phonemes -> ``VISEMES``; Cohen-Massaro ``coarticulate``
+- ``upper``     weak motion that follows the speech: stress/F0 brow raises, cheeks, boundary blinks; ``pitch_track``
 - ``motion``    emotions, blinks and brow drift; ``clip_controls`` (what the corpus generator calls)
 """
 from .mesh import REGION_NAMES, FaceShape, TemplateMesh, build_template, lip_distance

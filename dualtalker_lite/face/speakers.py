@@ -6,7 +6,9 @@ EmoFace's style code need something to learn), so every speaker gets:
 * ``gains``: multipliers on the speech-driven controls (one opens the jaw wide, another barely does);
 * ``asymmetry``: smiles are stronger on one side, ``smile_left *= 1 + asymmetry``, ``smile_right *= 1 - asymmetry``;
 * ``rest``: resting offsets (a slight permanent smile, raised brows, a mouth that hangs open a little);
-* ``articulation``: overall amplitude of speech movements; ``blink_rate``: blinks per second.
+* ``articulation``: overall amplitude of speech movements; ``blink_rate``: blinks per second;
+* ``accent``, ``accent_lead``, ``pitch_brow``, ``cheek``, ``boundary_blink``: how this speaker's brows, cheeks
+  and blinks follow the speech (``face/upper.py``).
 
 ``make_speakers(n, seed)`` draws them deterministically; speaker ``i`` also gets one strong *signature trait*
 (cycling through ``SIGNATURES``) so that the differences are easy to see and to learn.
@@ -58,6 +60,12 @@ class Speaker:
     blink_rate: float = 0.28                                   # blinks per second
     signature: str = ""                                        # the trait that makes this speaker recognisable
     n_vertices: int = BASE_VERTICES                            # mesh resolution of this speaker's rig
+    # Upper-face motion that follows the audio (face/upper.py); drawn from a separate stream (corpus v2).
+    accent: float = 0.2                                        # brow_raise per pitch-accent pulse (~1.6 mm)
+    accent_lead: float = 0.05                                  # s the brow pulse starts before the stressed vowel
+    pitch_brow: float = 0.012                                  # brow_raise per semitone of F0 above the median
+    cheek: float = 0.25                                        # cheek_puff per unit of smile + 0.6 lip_stretch
+    boundary_blink: float = 0.6                                # blink probability at a pause (phrase boundary)
 
     def gain_vector(self) -> np.ndarray:
         """(C,) speech gains in CONTROL_NAMES order."""
@@ -87,6 +95,7 @@ def _r(x: float) -> float:
 def make_speakers(n: int, seed: int = 0, n_vertices: int = BASE_VERTICES) -> list[Speaker]:
     """``n`` deterministic speakers named SPK01, SPK02, ...: random proportions and style + a signature trait."""
     rng = np.random.default_rng(seed)
+    rng_v2 = np.random.default_rng([seed, 2])  # upper-face style: a separate stream keeps the v1 draws unchanged
     base = FaceShape()
     speakers = []
     for i in range(n):
@@ -95,6 +104,10 @@ def make_speakers(n: int, seed: int = 0, n_vertices: int = BASE_VERTICES) -> lis
         rest = {"smile_left": rng.normal(0.0, 0.05), "smile_right": rng.normal(0.0, 0.05),
                 "brow_raise": rng.normal(0.0, 0.08), "jaw_open": abs(rng.normal(0.0, 0.015))}
         name_sig, g_sig, r_sig, asym, artic = SIGNATURES[i % len(SIGNATURES)]
+        brows = {"expressive brows": 1.6, "restrained": 0.6}.get(name_sig, 1.0)
+        upper = {"accent": brows * rng_v2.uniform(0.16, 0.26), "accent_lead": rng_v2.uniform(0.02, 0.09),
+                 "pitch_brow": brows * rng_v2.uniform(0.008, 0.018), "cheek": rng_v2.uniform(0.15, 0.35),
+                 "boundary_blink": rng_v2.uniform(0.45, 0.85)}
         for k, g in g_sig.items():
             gains[k] = gains.get(k, 1.0) * g
         for k, r in r_sig.items():
@@ -103,5 +116,6 @@ def make_speakers(n: int, seed: int = 0, n_vertices: int = BASE_VERTICES) -> lis
             name=f"SPK{i + 1:02d}", shape=shape,
             gains={k: _r(v) for k, v in gains.items()}, rest={k: _r(v) for k, v in rest.items()},
             asymmetry=_r(asym + rng.normal(0.0, 0.05)), articulation=_r(artic * rng.uniform(0.92, 1.08)),
-            blink_rate=_r(rng.uniform(0.2, 0.4)), signature=name_sig, n_vertices=int(n_vertices)))
+            blink_rate=_r(rng.uniform(0.2, 0.4)), signature=name_sig, n_vertices=int(n_vertices),
+            **{k: _r(v) for k, v in upper.items()}))
     return speakers
