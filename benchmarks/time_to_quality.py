@@ -20,46 +20,27 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from dualtalker_lite.data.dataset import make_loader
-from dualtalker_lite.experiments import (_features, build_model, load_data, over_smoothing_ratio, predict_split,
-                                         table_specs)
+from dualtalker_lite.experiments import _features, build_model, load_data, predict_split, table_specs
 from dualtalker_lite.losses import LossWeights
-from dualtalker_lite.metrics import lip_distance, lve_euclidean
+from dualtalker_lite.metrics import lip_sync_metrics, lve_euclidean
 from dualtalker_lite.train import TrainConfig, train
 from dualtalker_lite.utils import set_seed
 
 ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style"}
-BILABIALS = ("p", "b", "m")
-CLOSED_MM = 2.0
-
-
-def bilabial_minima(pred, meta: dict, upper: int, lower: int, fps: int) -> list[float]:
-    """Minimum lip distance (mm) over each /p b m/ segment of a clip: frames whose time falls in
-    [start - 0.5/fps, end + 0.5/fps] (so a segment shorter than a frame still gets its nearest frame)."""
-    d = lip_distance(np.asarray(pred).reshape(len(pred), -1, 3), upper, lower)  # (T,) mm
-    t = np.arange(len(d)) / fps
-    out = []
-    for label, start, end in meta.get("phonemes") or ():
-        if label in BILABIALS:
-            sel = (t >= start - 0.5 / fps) & (t <= end + 0.5 / fps)
-            if sel.any():
-                out.append(float(d[sel].min()))
-    return out
 
 
 def quality(model, test_set, corpus, base_lve: float) -> dict:
+    """Test-A LVE (mm, Euclidean) and its ratio to the template's, and ``metrics.lip_sync_metrics``."""
     out = predict_split(model, test_set)
-    upper, lower = (int(j) for j in corpus.regions["lip_midpoints"])
-    lips = corpus.regions["lips"]
-    minima = [m for p, name in zip(out["preds"], out["names"])
-              for m in bilabial_minima(p, corpus.meta(name), upper, lower, corpus.fps)]
-    lve = float(lve_euclidean(out["preds"], out["gts"], lips))
-    return {"lve_mm": lve, "lve_ratio": lve / base_lve, "closure_rate": float(np.mean(np.array(minima) < CLOSED_MM)),
-            "bilabial_min_mm": float(np.mean(minima)), "n_bilabials": len(minima),
-            "lip_motion_ratio": over_smoothing_ratio(out["preds"], out["gts"], lips)}
+    sync = lip_sync_metrics(out["preds"], out["gts"], [corpus.meta(n)["phonemes"] for n in out["names"]],
+                            corpus.regions, fps=corpus.fps)
+    lve = float(lve_euclidean(out["preds"], out["gts"], corpus.regions["lips"]))
+    return {"lve_mm": lve, "lve_ratio": lve / base_lve, "closure_rate": sync["bilabial_closure_2mm"],
+            "bilabial_min_mm": sync["bilabial_min_mm"], "n_bilabials": sync["n_bilabials"],
+            "lip_motion_ratio": sync["lip_motion_ratio"], "lip_distance_corr": sync["lip_distance_corr"]}
 
 
 def run(model_key: str, seed: int, args, data, base_lve: float) -> dict:

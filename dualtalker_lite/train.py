@@ -1,10 +1,18 @@
 """A plain, readable training loop for every model in the package (DualTalker, its ablations, baselines).
 
-One epoch = one pass over the training clips in seeded random order. Each step computes the joint loss
-of DualTalker section III-F (``losses.joint_loss``), logs every term separately, and takes an Adam step.
-After each epoch the validation lip vertex error is measured with fully autoregressive generation,
-exactly as at test time. Checkpoints hold only tensors and plain Python values, so they load with
+One epoch = one pass over the training clips in seeded random order. Each step asks the model for its own
+loss, ``model.loss(out, batch, weights) -> (total, terms)`` (DualTalker: the joint loss of section III-F,
+``losses.joint_loss``; the baselines: its reconstruction term), logs every term separately, and takes an Adam
+step at the learning rate of the schedule (:func:`lr_factor`). The loop has no per-model branches: a new model
+plugs in by supplying ``forward(batch)``, ``loss(...)``, ``generate(...)`` and, optionally,
+``init_output_bias(mean_motion)``. Training stops after ``epochs`` epochs or when a budget (optimiser steps,
+process CPU seconds, wall seconds) is used up; validation LVE (autoregressive, as at test time) is measured only
+when a validation loader is given. Checkpoints hold only tensors and plain Python values, so they load with
 ``torch.load(weights_only=True)``; they are written atomically.
+
+The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``; issue 8). What changed and why:
+
+RECIPE_NOTES
 """
 from __future__ import annotations
 
@@ -21,7 +29,8 @@ from tqdm.auto import tqdm
 from .losses import LossWeights
 from .utils import atomic_torch_save, set_seed
 
-__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "model_loss", "train", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
+__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "model_loss", "train", "predict",
+           "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -40,7 +49,7 @@ class TrainConfig:
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
     mean_init: bool = False            # model.init_output_bias(mean training motion) before the first step
-    validate_every: int | None = None  # epochs between validation LVEs; None = after the last epoch only; 0 = never
+    validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None = last epoch only; 0 = never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
     weights: LossWeights = field(default_factory=LossWeights)
@@ -60,10 +69,11 @@ class TrainConfig:
         return cls(**{**RECIPE, **kw})
 
 
-# The recipe of the tiny models (module docstring: what changed and why). ``epochs`` is the 120 s budget on
-# the 2-core machine, one thread (the benchmark calibrates it: benchmarks/time_to_quality.py).
-RECIPE = dict(epochs=20, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=0, decay="none",
-              threads=1)
+# The recipe of the tiny models (module docstring: what changed and why, with the measurements). ``epochs`` is the
+# 120 s budget: 32 epochs x 22 steps (176 training clips, batches of 8) = 704 steps at the measured 165-175 ms of
+# one-thread CPU time per step (benchmarks/profile_step.py, benchmarks/time_to_quality.py).
+RECIPE = dict(epochs=32, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
+              min_lr_ratio=0.0, threads=1, mean_init=True)
 
 
 def lr_factor(step: int, warmup_steps: int, decay: str, progress: float, min_lr_ratio: float = 0.0) -> float:

@@ -152,3 +152,18 @@ def test_pca_decoder_init_spans_the_training_motion():
     D, centred = model.decoder.weight.detach(), (motion - motion.mean(0)).T  # (V*3, latent), (V*3, N)
     l = torch.linalg.pinv(D, rtol=1e-4) @ centred                       # (latent, N); rtol drops the ~0 directions
     torch.testing.assert_close(D @ l, centred, atol=1e-4, rtol=1e-4)
+
+
+def test_voca_loss_method_and_output_bias_init():
+    from dualtalker_lite.losses import LossWeights, joint_loss
+
+    model, batch = _model(), _batch()
+    out = model(batch)
+    total, terms = model.loss(out, batch, LossWeights())
+    assert float(total) == float(joint_loss(out, batch, LossWeights())[0]) and float(terms["dual"]) == 0.0
+    mean = torch.arange(V * 3, dtype=torch.float32) * 1e-4
+    model.init_output_bias(mean)  # zero decoder weights: output = template + mean motion in every frame
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    torch.testing.assert_close(pred, (batch["template"] + mean)[:, None].expand_as(pred), rtol=0, atol=1e-7)
+    with pytest.raises(ValueError, match="mean_motion"):
+        model.init_output_bias(torch.zeros(4))
