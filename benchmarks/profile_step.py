@@ -23,7 +23,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from dualtalker_lite.data.dataset import make_loader
 from dualtalker_lite.experiments import build_model, load_data, table_specs
-from dualtalker_lite.losses import LossWeights
+from dualtalker_lite.losses import LossWeights, rbf_kernel_weights
 from dualtalker_lite.train import TrainConfig, _crop, model_loss
 
 ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style"}
@@ -131,6 +131,14 @@ def main() -> None:
           f"(+ {collate_s * 1e3:.1f} ms to collate a batch in the loader)")
     for k, v in parts.items():
         print(f"  {k:26s} {v / args.steps * 1e3:7.1f} ms  {100 * v / args.steps / cpu:5.1f} %")
+    if weights.lambda4:  # the CCRL kernel is rebuilt from the ground-truth motion inside the loss at every step
+        c0 = time.process_time()
+        for b in raw[1:args.steps + 1]:
+            rbf_kernel_weights(b["vertices"] - b["template"][:, None], weights.bandwidth, b["mask"],
+                               weights.kernel_distance)
+        kern = (time.process_time() - c0) / args.steps
+        print(f"  {'(in the loss: CCRL kernel)':26s} {kern * 1e3:7.1f} ms  {100 * kern / cpu:5.1f} %  "
+              "(dense (T x T) Gram over all V*3 coordinates of the ground truth, every step)")
     bound = flops / (peak[1] * 1e9)
     print(f"arithmetic lower bound, FLOPs / the best 1-thread GEMM rate ({peak[1]:.1f} GFLOP/s): {bound * 1e3:.1f} ms "
           f"per step; measured CPU time / bound = {cpu / bound:.1f}x")

@@ -12,7 +12,42 @@ when a validation loader is given. Checkpoints hold only tensors and plain Pytho
 
 The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``; issue 8). What changed and why:
 
-RECIPE_NOTES
+Everything below was measured on the shipped sample (corpus v2: 176 neutral training clips of 32-77 frames, test-A
+48 clips) with ONE torch thread, budgets in process CPU seconds (``time.process_time``): the machine is shared by
+several jobs, and its wall-clock time ran 2-7x the CPU time. ``epochs=32`` is that 120 s budget as a step count
+(32 x 22 = 704 steps at 165-175 ms of CPU per step), which is what the experiments runner and ``make demo`` use.
+
+- Step profile (``benchmarks/profile_step.py``; batch 8, the sample's clips are all shorter than the 90-frame
+  crop): 171 ms CPU per step = forward 45 ms (26%), loss 47 ms (27%; about 18 ms of it the CCRL kernel, a dense
+  (T x T) Gram matrix over all V*3 ground-truth coordinates rebuilt every step), backward 68 ms (40%), gradient
+  clipping + Adam 11 ms (6%); collating a batch 4 ms. 2.5 GFLOP (matmul/conv, forward + backward) at the
+  measured 1-thread GEMM rate of 54-59 GFLOP per CPU second gives a lower bound of 43 ms: the step is 4.0x the
+  bound. The matmuls run near the GEMM rate (about 60 ms of self time); the rest is memory-bound element-wise
+  passes over (B, T, V*3) tensors (masks, the mm scaling, the vertex MSE, the kernel) and Adam. Removed: the
+  per-epoch validation (now only when a validation loader is passed, and by default the runner passes none), a
+  pass over (B, T, V*3) each way by folding the mm scale into the motion encoder/decoder weights. Not removed:
+  the CCRL kernel (caching it per clip needs ``losses.joint_loss`` to accept precomputed weights).
+  Threads: two threads give 45 GFLOP per CPU second on GEMM (0.76x per core), at most 1.5x on two idle cores and
+  much less on a shared one, so the recipe pins one thread (``threads=1``).
+- Output-bias initialisation at the training set's mean motion (``mean_init``; ``models.dualtalker`` docstring,
+  "Mean-face collapse"): the largest gain. Old sample, seed 0, lr 3e-3 constant, clip 1: test-A LVE / template
+  0.566 at 63 CPU s without it against 0.420 with it, bilabial closure 0.00 against 0.35; 0.367, closure 0.65,
+  lip motion ratio 0.94 at 120 s. It also removes the FaceFormer-style mean-face collapse
+  (``benchmarks/collapse.py``, 6 epochs: without it seed 0 collapses, training loss 1.74 mm^2 = the mean
+  motion's 1.73, lip motion 0.000, audio sensitivity 0.000; with it seeds 0, 1, 2 reach 0.37, 0.33, 0.33 mm^2
+  and audio sensitivity 0.72, 1.53, 1.17).
+- Gradient clipping at 1 stays: without it (warm-up + cosine, seed 0) LVE / template was 0.617 at 41 s against
+  0.465 with it, and 0.363 / closure 0.21 at 120 s against 0.358 / 0.27.
+- Warm-up (30 steps) and cosine decay to 0 over the budget (the schedule follows whichever budget binds: steps,
+  CPU or wall seconds): the usual remedy for the noisy end of a constant-lr run (old sample: the constant-lr run
+  went from 0.358 to 0.367 between 95 and 120 s). Not isolated on the new sample with clipping on.
+- Batch 8 and whole clips: batch 4 was worse at equal CPU time (0.714 against 0.617 at 42 s, both unclipped);
+  40-frame crops with lr 6e-3 made 48% more steps but ended at 0.373 / 0.24 / 0.80.
+- Results of the recipe at 120 CPU s, seeds 0 / 1 / 2 (``benchmarks/time_to_quality.py``): LVE / template
+  0.358 / 0.335 / 0.361 (target <= 0.35: seed 1 only), bilabial closure < 2 mm 0.27 / 0.44 / 0.51 (target >= 0.8:
+  not met; the static template scores 0.50 because its rest gap is 1.94 mm), lip motion ratio 0.86 / 0.85 / 0.85
+  (target 0.8-1.2: met). The closures are what is missing: the mean minimum lip distance at /p b m/ is 2.6-3.9 mm
+  against 0.3 mm in the ground truth.
 """
 from __future__ import annotations
 
