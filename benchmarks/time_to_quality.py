@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -45,6 +46,8 @@ def quality(model, test_set, corpus, base_lve: float) -> dict:
 
 def run(model_key: str, seed: int, args, data, base_lve: float) -> dict:
     spec = next(s for s in table_specs("main") if s.row == ROWS[model_key])
+    spec = replace(spec, model_overrides={**spec.model_overrides, **args.model},
+                   loss={**spec.loss, **args.loss})  # ablations / sweeps from the command line
     train_set, audio_dim = _features(data["train"], spec.features, data["n_phonemes"])
     set_seed(seed, threads=1)
     model, _ = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
@@ -106,6 +109,8 @@ def main() -> None:
     ap.add_argument("--cpu-seconds", type=float, default=120.0, help="training budget, process CPU seconds")
     ap.add_argument("--eval-every", type=float, default=30.0, help="CPU seconds between test-A evaluations")
     ap.add_argument("--train", type=json.loads, default={}, help="TrainConfig overrides (JSON), for sweeps")
+    ap.add_argument("--model", type=json.loads, default={}, help="model config overrides (JSON)")
+    ap.add_argument("--loss", type=json.loads, default={}, help="LossWeights overrides (JSON), e.g. '{\"lambda4\": 0}'")
     ap.add_argument("--out", type=Path, default=Path("runs/time_to_quality"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -126,7 +131,8 @@ def main() -> None:
               f"{f['closure_rate']:.2f}  lip motion {f['lip_motion_ratio']:.2f}  ({f['steps']} steps, {f['epochs']} "
               f"epochs, {f['cpu_s']:.0f} CPU s, {f['wall_s']:.0f} wall s)  {'meets' if ok else 'misses'} the targets")
     payload = {"command": "python " + " ".join(sys.argv), "cpu_seconds": args.cpu_seconds, "threads": 1,
-               "template_lve_mm": base["lve_mm"], "train_overrides": args.train, "results": results,
+               "template_lve_mm": base["lve_mm"], "train_overrides": args.train,
+               "model_overrides": args.model, "loss_overrides": args.loss, "results": results,
                "total_wall_s": time.perf_counter() - t0}
     (args.out / "time_to_quality.json").write_text(json.dumps(payload, indent=1) + "\n")
     plot(results, args.out / "time_to_quality.png", args.cpu_seconds)
