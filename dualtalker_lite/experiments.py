@@ -699,7 +699,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--table", nargs="+", default=["main"], choices=[*TABLES, "all"],
                    help="one or more tables (identical runs shared between them), or 'all'")
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    p.add_argument("--epochs", type=int, default=15, help="fixed training budget of every trained model")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="fixed training budget of every trained model (default: the recipe's, TrainConfig.tiny())")
     p.add_argument("--processes", type=int, default=1, help="worker processes, one torch thread each")
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
@@ -713,6 +714,10 @@ def main(argv: Sequence[str] | None = None) -> dict:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parse_args(argv)
     tables = list(TABLES) if "all" in args.table else list(dict.fromkeys(args.table))
+    if args.epochs is None:
+        from .train import TrainConfig
+
+        args.epochs = TrainConfig.tiny().epochs
     epochs, seeds = (1, args.seeds[:1]) if args.quick else (args.epochs, args.seeds)
     torch.set_num_threads(1)
     data = load_data(args.corpus, args.quick)

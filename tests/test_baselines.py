@@ -167,3 +167,18 @@ def test_generate_in_blocks_equals_forward():
     static = list(StaticTemplate(V).generate_chunks(batch["audio"], batch["template"], chunk=10))
     assert [c.shape[1] for c in static] == [10, 10, 10, 1]
     assert torch.equal(torch.cat(static, 1), batch["template"][:, None].expand(B, 31, -1))
+
+
+def test_voca_loss_method_and_output_bias_init():
+    from dualtalker_lite.losses import LossWeights, joint_loss
+
+    model, batch = _model(), _batch()
+    out = model(batch)
+    total, terms = model.loss(out, batch, LossWeights())
+    assert float(total) == float(joint_loss(out, batch, LossWeights())[0]) and float(terms["dual"]) == 0.0
+    mean = torch.arange(V * 3, dtype=torch.float32) * 1e-4
+    model.init_output_bias(mean)  # zero decoder weights: output = template + mean motion in every frame
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    torch.testing.assert_close(pred, (batch["template"] + mean)[:, None].expand_as(pred), rtol=0, atol=1e-7)
+    with pytest.raises(ValueError, match="mean_motion"):
+        model.init_output_bias(torch.zeros(4))

@@ -267,3 +267,29 @@ def test_long_audio_config_is_validated():
     for bad in (0, 2.5, "auto"):
         with pytest.raises(ValueError, match="window must be a positive number of frames, None or 'config'"):
             next(_model().generate_chunks(*[_batch()[k] for k in ("audio", "template", "speaker")], window=bad))
+
+
+def test_scale_folded_into_the_weights_equals_scaling_the_motion():
+    """encode_motion/decode_motion apply motion_scale to the weights: same values as nn.Linear on scaled tensors."""
+    model = _model(motion_scale=1000.0)
+    m = torch.randn(2, 5, V * 3) * 1e-3
+    h = torch.randn(2, 5, model.cfg.d_model)
+    enc, dec = model.motion_encoder, model.motion_decoder
+    torch.testing.assert_close(model.encode_motion(m), enc(m * 1000.0), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(model.decode_motion(h), dec(h) / 1000.0, rtol=1e-5, atol=1e-8)
+
+
+def test_loss_method_is_the_joint_loss_and_the_output_bias_init_gives_the_mean():
+    from dualtalker_lite.losses import LossWeights, joint_loss
+
+    model, batch = _model(perturb=False).train(), _batch()
+    torch.manual_seed(1)
+    out = model(batch)
+    total, terms = model.loss(out, batch, LossWeights())
+    ref_total, ref_terms = joint_loss(out, batch, LossWeights())
+    assert float(total) == float(ref_total) and terms.keys() == ref_terms.keys()
+    mean = torch.linspace(-0.01, 0.01, V * 3)  # metres
+    model.init_output_bias(mean)
+    pred = model.eval().generate(batch["audio"], batch["template"], batch["speaker"])
+    # zero decoder weights: every frame = template + the given mean motion
+    torch.testing.assert_close(pred, (batch["template"] + mean)[:, None].expand_as(pred), rtol=0, atol=1e-7)

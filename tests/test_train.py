@@ -26,9 +26,9 @@ def _model(corpus, seed=0):
     return DualTalker(DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160, n_speakers=8))
 
 
-def _run(corpus, train_set, val_set, seed=0, epochs=3):
+def _run(corpus, train_set, val_set, seed=0, epochs=3, **kw):
     model = _model(corpus, seed)
-    cfg = TrainConfig.tiny(epochs=epochs, seed=seed, progress=False, weights=LossWeights())
+    cfg = TrainConfig.tiny(epochs=epochs, seed=seed, progress=False, weights=LossWeights(), **kw)
     hist = train(model, make_loader(train_set, 8, shuffle=True, seed=seed), cfg,
                  val_loader=make_loader(val_set, 4, shuffle=False), lip_idx=corpus.regions["lips"])
     return model, hist
@@ -46,7 +46,7 @@ def _primal_on(model, train_set):
 def test_every_term_is_logged_and_the_primal_loss_falls(data):
     corpus, train_set, val_set = data
     before = _primal_on(_model(corpus), train_set)  # untrained: the template, zero motion
-    model, hist = _run(corpus, train_set, val_set, epochs=10)
+    model, hist = _run(corpus, train_set, val_set, epochs=10, validate_every=1)
     assert set(hist.terms[0]) == {"primal", "dual", "dr", "ccrl", "total"}
     assert _primal_on(model, train_set) < 0.5 * before
     assert len(hist.val_lve) == 10 and all(v > 0 for v in hist.val_lve)
@@ -90,3 +90,107 @@ def test_baselines_train_with_the_same_loop(data):
     hist = train(model, make_loader(train_set, 8, shuffle=True), TrainConfig.tiny(epochs=6, progress=False))
     after = validation_lve(model, make_loader(val_set, 4, shuffle=False), lips)
     assert hist.terms[0]["dual"] == 0.0 and after < before
+
+
+def test_lr_factor_warmup_and_cosine_by_hand():
+    from dualtalker_lite.train import lr_factor
+
+    # warm-up: (step + 1) / warmup_steps, whatever the decay
+    assert lr_factor(0, 4, "cosine", 0.0) == 0.25 and lr_factor(3, 4, "none", 0.9) == 1.0
+    # cosine from 1 to min_lr_ratio over the budget: 0.5 (1 + cos(pi p)) -> p = 0, 1/3, 1/2, 1
+    assert lr_factor(10, 4, "cosine", 0.0) == 1.0
+    assert abs(lr_factor(10, 4, "cosine", 1 / 3) - 0.75) < 1e-12  # cos(pi/3) = 1/2
+    assert abs(lr_factor(10, 4, "cosine", 0.5, min_lr_ratio=0.1) - 0.55) < 1e-12  # 0.1 + 0.9 * 0.5
+    assert abs(lr_factor(10, 0, "cosine", 1.0, min_lr_ratio=0.1) - 0.1) < 1e-12
+    assert lr_factor(10, 0, "none", 0.7) == 1.0
+
+
+def test_config_errors_are_clear():
+    with pytest.raises(ValueError, match="decay must be 'none' or 'cosine'"):
+        TrainConfig(decay="linear")
+    with pytest.raises(ValueError, match="lr must be > 0"):
+        TrainConfig(lr=0.0)
+
+
+class _Line(torch.nn.Module):
+    """y = a * x fitted by SGD-free Adam; records the learning rate of every step."""
+
+    def __init__(self):
+        super().__init__()
+        self.a = torch.nn.Parameter(torch.zeros(()))
+
+    def forward(self, batch):
+        return {"y": self.a * batch["audio"]}
+
+    def loss(self, out, batch, weights):
+        total = (out["y"] - 2 * batch["audio"]).square().mean()
+        return total, {"total": total.detach()}
+
+
+def _line_loader(n_batches=5):
+    x = torch.linspace(-1, 1, 8)
+    return [{"audio": x[None, :, None] * (i + 1), "mask": torch.ones(1, 8, dtype=torch.bool)} for i in range(n_batches)]
+
+
+def test_step_budget_stops_mid_epoch_and_the_schedule_follows_it(monkeypatch):
+    lrs = []
+    real_step = torch.optim.Adam.step
+
+    def spy(self, *a, **k):
+        lrs.append(self.param_groups[0]["lr"])
+        return real_step(self, *a, **k)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", spy)
+    cfg = TrainConfig(epochs=10, lr=0.1, max_steps=7, warmup_steps=2, decay="cosine", grad_clip=0, max_frames=None,
+                      progress=False)
+    hist = train(_Line(), _line_loader(), cfg)
+    assert hist.steps == [5, 7] and len(hist.terms) == 2  # 5 steps per epoch, stopped after 7
+    # warm-up 0.05, 0.1; then cosine over the 7-step budget at progress 2/7 .. 6/7
+    import math
+    expect = [0.05, 0.1] + [0.1 * 0.5 * (1 + math.cos(math.pi * s / 7)) for s in range(2, 7)]
+    assert lrs == pytest.approx(expect, rel=1e-12)
+
+
+def test_cpu_budget_stops_training():
+    hist = train(_Line(), _line_loader(), TrainConfig(epochs=10_000, cpu_budget_s=0.3, max_frames=None, progress=False))
+    assert 0.3 <= hist.cpu_seconds[-1] < 5 and len(hist.terms) < 10_000
+
+
+def test_on_epoch_time_is_not_training_time():
+    import time as _time
+
+    calls = []
+    hist = train(_Line(), _line_loader(), TrainConfig(epochs=3, max_frames=None, progress=False),
+                 on_epoch=lambda m, h: (calls.append(len(h.terms)), _time.sleep(0.2)))
+    assert calls == [1, 2, 3] and hist.seconds[-1] < 0.2 * 3
+
+
+def test_a_model_without_a_loss_method_is_a_clear_error():
+    class NoLoss(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.a = torch.nn.Parameter(torch.zeros(()))
+
+        def forward(self, batch):
+            return {"y": self.a * batch["audio"]}
+
+    with pytest.raises(TypeError, match="NoLoss has no loss"):
+        train(NoLoss(), _line_loader(), TrainConfig(epochs=1, max_frames=None, progress=False))
+
+
+def test_mean_motion_by_hand_and_mean_init_sets_the_output_bias(data):
+    from dualtalker_lite.train import mean_motion
+
+    corpus, train_set, _ = data
+    two = Subset(train_set, [0, 1])
+    items = [two[0], two[1]]
+    frames = torch.cat([it["vertices"] - it["template"][None] for it in items])  # every frame of both clips
+    torch.testing.assert_close(mean_motion(two), frames.double().mean(0).float())
+    model = _model(corpus)
+    batch = next(iter(make_loader(two, 2, shuffle=False)))
+    model.init_output_bias(mean_motion(two))
+    # the untrained model (zero decoder weights) now predicts template + mean motion in every frame
+    pred = predict(model, batch)
+    torch.testing.assert_close(pred[0, 0], batch["template"][0] + mean_motion(two), atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="mean_motion: expected shape"):
+        model.init_output_bias(torch.zeros(5))

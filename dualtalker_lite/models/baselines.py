@@ -25,6 +25,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..losses import LossWeights, joint_loss
 from ..utils import check_shape
 
 __all__ = ["StaticTemplate", "VocaConfig", "VocaStyle", "DUAL_ONLY_KEYS"]
@@ -59,6 +60,11 @@ class StaticTemplate(nn.Module):
         B, T = audio.shape[:2]
         motion = template.new_zeros(B, T, template.shape[-1])          # M_{1:T} = 0
         return _outputs(template, motion)
+
+    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[torch.Tensor, dict]:
+        """Training objective (``train.model_loss``): the shared joint loss, of which only the reconstruction
+        term λ1 L_primal applies here (the DualTalker-only outputs are None, so their terms are 0)."""
+        return joint_loss(out, batch, weights)
 
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor | None = None,
@@ -161,6 +167,11 @@ class VocaStyle(nn.Module):
         latent = self.mlp(torch.cat([z, s], dim=-1))                    # (B*T, latent)
         return self.decoder(latent).reshape(B, T, -1)                   # (B, T, V*3): M_{1:T}
 
+    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[torch.Tensor, dict]:
+        """Training objective (``train.model_loss``): the shared joint loss, of which only the reconstruction
+        term λ1 L_primal applies here (the DualTalker-only outputs are None, so their terms are 0)."""
+        return joint_loss(out, batch, weights)
+
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor,
                  use_cache: bool = True, mask: torch.Tensor | None = None) -> torch.Tensor:
@@ -187,6 +198,13 @@ class VocaStyle(nn.Module):
         code = self.speaker_code(speaker, B)                            # (B, n_speakers)
         for start in range(0, T, chunk):
             yield template[:, None, :] + self._motion(w[:, start:start + chunk], code)  # (B, n, V*3)
+
+    @torch.no_grad()
+    def init_output_bias(self, mean_motion: torch.Tensor) -> None:
+        """Data-dependent init (``train`` calls it): decoder bias = the training set's mean motion (V*3,), metres,
+        as VOCA's own PCA initialisation does (:meth:`init_decoder_pca`); the weights are left as they are."""
+        check_shape(mean_motion, (self.cfg.n_vertices * 3,), "mean_motion")
+        self.decoder.bias.copy_(mean_motion.to(self.decoder.bias))
 
     @torch.no_grad()
     def init_decoder_pca(self, motion: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,156 @@
+"""Where the time of one training step goes, and how far it is from the arithmetic lower bound.
+
+    .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca] [--steps 12] [--batch-size 8]
+        [--max-frames 90] [--threads 1]
+
+1. Throughput of this machine's matrix multiply (float32 GEMM, torch.mm) at 1 and 2 threads, on the shape of the
+   biggest product of a step (B*T frames x V*3 coordinates x d features) and on a square 1024 product.
+2. FLOPs of one step (forward + backward, counted by ``torch.utils.flop_counter``: matmuls and convolutions).
+3. Step time (process CPU time and wall time, one thread, the recipe's batch), split into data (collate + crop),
+   forward, loss, backward, optimiser (clip + Adam), and the profiler's top operators.
+4. The ratio measured step time / (FLOPs / GEMM throughput): how many times slower than pure matmul arithmetic.
+
+Measure on a quiet machine if you can; CPU time (``time.process_time``) is less affected by other jobs than wall
+time, but a busy machine still slows each core (shared caches, memory bandwidth).
+"""
+import argparse
+import collections
+import time
+
+import torch
+from torch.profiler import ProfilerActivity, profile, record_function
+from torch.utils.flop_counter import FlopCounterMode
+
+from dualtalker_lite.data.dataset import make_loader
+from dualtalker_lite.experiments import build_model, load_data, table_specs
+from dualtalker_lite.losses import LossWeights, rbf_kernel_weights
+from dualtalker_lite.train import TrainConfig, _crop, model_loss
+
+ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style"}
+
+
+def gemm_gflops(m: int, k: int, n: int, threads: int, seconds: float = 1.0) -> tuple[float, float]:
+    """(GFLOP per CPU second, GFLOP per wall second) of an (m, k) @ (k, n) float32 product, ``threads`` threads.
+
+    The CPU-second rate (``time.process_time``, summed over the threads) is what one core sustains even on a
+    busy machine; the wall rate is what this run got."""
+    torch.set_num_threads(threads)
+    a, b = torch.randn(m, k), torch.randn(k, n)
+    torch.mm(a, b)
+    reps, t0, c0 = 0, time.perf_counter(), time.process_time()
+    while time.process_time() - c0 < seconds * threads:
+        torch.mm(a, b)
+        reps += 1
+    flop = 2 * m * k * n * reps / 1e9
+    return flop / (time.process_time() - c0), flop / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--model", default="dualtalker", choices=list(ROWS))
+    ap.add_argument("--steps", type=int, default=12)
+    ap.add_argument("--batch-size", type=int, default=None, help="default: the recipe's")
+    ap.add_argument("--max-frames", type=int, default=None, help="default: the recipe's crop")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    recipe = TrainConfig.tiny()
+    bs = args.batch_size or recipe.batch_size
+    crop = args.max_frames or recipe.max_frames
+
+    data = load_data()
+    spec = next(s for s in table_specs("main") if s.row == ROWS[args.model])
+    torch.manual_seed(0)
+    model, _ = build_model(spec, data["n_vertices"], 160, data["n_speakers"])
+    weights = LossWeights(**spec.loss)
+    v3 = 3 * data["n_vertices"]
+
+    # 1. GEMM throughput
+    rows = bs * crop
+    print(f"GEMM float32 throughput (torch.mm), {torch.__version__}:")
+    peak = {}  # GFLOP per CPU second
+    for threads in (1, 2):
+        big, big_wall = gemm_gflops(rows, v3, 64, threads)
+        sq, sq_wall = gemm_gflops(1024, 1024, 1024, threads)
+        peak[threads] = max(big, sq)
+        print(f"  {threads} thread(s): ({rows} x {v3}) @ ({v3} x 64) {big:6.1f} GFLOP per CPU s ({big_wall:6.1f} per "
+              f"wall s) | 1024^3 {sq:6.1f} per CPU s ({sq_wall:6.1f} per wall s)")
+    torch.set_num_threads(args.threads)
+
+    # 2. FLOPs of one step
+    gen = torch.Generator().manual_seed(0)
+    loader = make_loader(data["train"], bs, shuffle=True, seed=0)
+    batches = [_crop(b, crop, gen) for _, b in zip(range(args.steps + 1), loader)]
+    frames = sum(int(b["mask"].sum()) for b in batches[1:]) / args.steps
+    model.train()
+    with FlopCounterMode(display=False) as fc:
+        total, _ = model_loss(model, model(batches[0]), batches[0], weights)
+        total.backward()
+    flops = fc.get_total_flops() * batches[1]["mask"].numel() / batches[0]["mask"].numel()  # ~ per average batch
+    print(f"\n{ROWS[args.model]}: {sum(p.numel() for p in model.parameters()):,} parameters; batch {bs} x up to {crop} "
+          f"frames ({frames:.0f} valid frames per step on average), V*3 = {v3}")
+    print(f"FLOPs per step (forward + backward, matmul/conv): {flops / 1e9:.2f} GFLOP")
+
+    # 3. step time, split by phase
+    opt = torch.optim.Adam(model.parameters(), 1e-3)
+    parts = collections.Counter()
+
+    def step(b, timed: bool):
+        c = time.process_time()
+        with record_function("data (crop)"):
+            b = _crop(b, crop, gen)
+        c1 = time.process_time()
+        with record_function("forward"):
+            out = model(b)
+        c2 = time.process_time()
+        with record_function("loss"):
+            total, _ = model_loss(model, out, b, weights)
+        c3 = time.process_time()
+        opt.zero_grad(set_to_none=True)
+        with record_function("backward"):
+            total.backward()
+        c4 = time.process_time()
+        with record_function("optimiser (clip + Adam)"):
+            torch.nn.utils.clip_grad_norm_(model.parameters(), recipe.grad_clip or 1e9)
+            opt.step()
+        c5 = time.process_time()
+        if timed:
+            for k, a, z in (("data (crop)", c, c1), ("forward", c1, c2), ("loss", c2, c3), ("backward", c3, c4),
+                            ("optimiser (clip + Adam)", c4, c5)):
+                parts[k] += z - a
+
+    c0 = time.process_time()
+    raw = [b for _, b in zip(range(len(loader)), make_loader(data["train"], bs, shuffle=True, seed=1))]
+    collate_s = (time.process_time() - c0) / len(raw)
+    step(raw[0], False)
+    w0, c0 = time.perf_counter(), time.process_time()
+    for b in raw[1:args.steps + 1]:
+        step(b, True)
+    cpu = (time.process_time() - c0) / args.steps
+    wall = (time.perf_counter() - w0) / args.steps
+    print(f"\nstep time ({args.threads} thread(s)): {cpu * 1e3:.1f} ms CPU, {wall * 1e3:.1f} ms wall "
+          f"(+ {collate_s * 1e3:.1f} ms to collate a batch in the loader)")
+    for k, v in parts.items():
+        print(f"  {k:26s} {v / args.steps * 1e3:7.1f} ms  {100 * v / args.steps / cpu:5.1f} %")
+    if weights.lambda4:  # the CCRL kernel is rebuilt from the ground-truth motion inside the loss at every step
+        c0 = time.process_time()
+        for b in raw[1:args.steps + 1]:
+            rbf_kernel_weights(b["vertices"] - b["template"][:, None], weights.bandwidth, b["mask"],
+                               weights.kernel_distance)
+        kern = (time.process_time() - c0) / args.steps
+        print(f"  {'(in the loss: CCRL kernel)':26s} {kern * 1e3:7.1f} ms  {100 * kern / cpu:5.1f} %  "
+              "(dense (T x T) Gram over all V*3 coordinates of the ground truth, every step)")
+    bound = flops / (peak[1] * 1e9)
+    print(f"arithmetic lower bound, FLOPs / the best 1-thread GEMM rate ({peak[1]:.1f} GFLOP/s): {bound * 1e3:.1f} ms "
+          f"per step; measured CPU time / bound = {cpu / bound:.1f}x")
+    print(f"with 2 threads the GEMM does {peak[2]:.1f} GFLOP per CPU second ({peak[2] / peak[1]:.2f}x the 1-thread "
+          f"rate per core): at best a {2 * peak[2] / peak[1]:.2f}x wall-clock speed-up, on 2 otherwise idle cores")
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for b in raw[1:6]:
+            step(b, False)
+    print("\ntop operators over 5 steps (self CPU time):")
+    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=14))
+
+
+if __name__ == "__main__":
+    main()
