@@ -386,7 +386,7 @@ def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
     """SIGTERM/Ctrl-C during the video: no --out, no hidden temporary folder, no dualtalker-video-* folder."""
     from dualtalker_lite.utils import repo_root
 
-    sf.write(tmp_path / "long.wav", _tone(10.0, 16000), 16000)
+    sf.write(tmp_path / "long.wav", _tone(40.0, 16000), 16000)  # 1,200 frames: rendering takes seconds
     tmpdir = tmp_path / "tmpdir"
     tmpdir.mkdir()
     out = tmp_path / "o"
@@ -395,7 +395,8 @@ def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
                              str(tmp_path / "long.wav"), "--out", str(out)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
-    while not list(tmpdir.glob("dualtalker-video-*")) and proc.poll() is None and time.time() < deadline:
+    # the video is rendered inside the hidden output folder: .o.<random>.tmp/dualtalker-video-<random>/
+    while not list(tmp_path.glob(".o.*/dualtalker-video-*")) and proc.poll() is None and time.time() < deadline:
         time.sleep(0.05)
     assert proc.poll() is None, proc.stderr.read().decode()[-500:]
     assert [p for p in tmp_path.iterdir() if p.name.startswith(".o.")], "work happens in a hidden folder"
