@@ -17,7 +17,7 @@ Agg figure and one collection alive and only swaps their contents, which renders
 3,000-face mesh at 256x256 on one CPU core (Agg's anti-aliased polygon filling is most of the time).
 
 ``RasterRenderer`` fills the same polygons with the same colours (steps 1-6) using Pillow's C polygon filler
-(Pillow ships with matplotlib), far to near, at twice the size, then averages 2x2 blocks (anti-aliasing): about
+(Pillow, a declared dependency), far to near, at twice the size, then averages 2x2 blocks (anti-aliasing): about
 6 ms a frame instead of ~25 ms, for long videos (issue 11); it looks the same up to edge anti-aliasing.
 """
 from __future__ import annotations
