@@ -132,19 +132,24 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     model.eval().to(dev)
 
     def blocks():
-        autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
+        gen = model.generate_chunks(audio.to(dev), torch.from_numpy(template)[None].to(dev),
+                                    torch.tensor([int(speaker)], device=dev), chunk=chunk)
         done = 0
-        with torch.no_grad(), autocast:
-            for block in model.generate_chunks(audio.to(dev), torch.from_numpy(template)[None].to(dev),
-                                               torch.tensor([int(speaker)], device=dev), chunk=chunk):
+        while True:
+            # no_grad/autocast around each step only: they must not leak into the caller between blocks
+            autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
+            with torch.no_grad(), autocast:
+                block = next(gen, None)
+                if block is None:
+                    return
                 block = block[0].float().cpu().numpy()  # (n, V*3)
-                bad = ~np.isfinite(block).all(1)  # (n,)
-                if bad.any():
-                    raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
-                                         f"{done + int(np.flatnonzero(bad)[0])}): the checkpoint's weights or "
-                                         f"the input produce NaN; nothing was written")
-                done += len(block)
-                yield block
+            bad = ~np.isfinite(block).all(1)  # (n,)
+            if bad.any():
+                raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
+                                     f"{done + int(np.flatnonzero(bad)[0])}): the checkpoint's weights or "
+                                     f"the input produce NaN; nothing was written")
+            done += len(block)
+            yield block
 
     return n_frames, blocks()
 

@@ -14,7 +14,7 @@ from matplotlib import colormaps
 
 from dualtalker_lite import audio as A
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.streaming import animate_wave_to_npy, generate_to_npy, write_npy_stream
+from dualtalker_lite.streaming import animate_wave_to_npy, generate_to_npy, predict_chunks, write_npy_stream
 from dualtalker_lite.viz.animate import animate_clip, ffmpeg_exe, render_video, stream_info
 from dualtalker_lite.viz.render import MeshRenderer, RasterRenderer
 
@@ -90,6 +90,35 @@ def test_animate_wave_to_npy_has_one_frame_per_30th_of_a_second(tmp_path):
     with pytest.raises(ValueError, match="template has 4 vertices but the model was trained on 5"):
         animate_wave_to_npy(_model(), wave, np.zeros(12), 0, tmp_path / "w.npy")
     assert not (tmp_path / "w.npy").exists()
+
+
+def test_predict_chunks_checks_everything_before_the_first_block(tmp_path):
+    """The one code path of animate_wave, animate_wave_to_npy and the CLI: errors are raised when it is called
+    (not when the first block is asked for), blocks have at most ``chunk`` frames and join to generate()'s
+    result, and grad mode is untouched between blocks."""
+    model = _model()
+    wave = (np.random.default_rng(1).standard_normal(16000) * 0.1).astype(np.float32)
+    template = np.random.default_rng(2).standard_normal(15).astype(np.float32) * 0.01
+    n, blocks = predict_chunks(model, wave, template, 1, chunk=7)
+    assert n == 30
+    got = []
+    for block in blocks:
+        assert torch.is_grad_enabled() and block.dtype == np.float32 and block.shape[1] == 15
+        got.append(block)
+    assert [len(b) for b in got] == [7, 7, 7, 7, 2]
+    audio = A.LogMelExtractor()(wave, 30)[None]
+    ref = model.generate(audio, torch.from_numpy(template)[None], torch.tensor([1]), use_cache=False)[0]
+    np.testing.assert_allclose(np.concatenate(got), ref.numpy(), atol=1e-5, rtol=0)
+    bad_template = template.copy()
+    bad_template[4] = np.inf
+    for kwargs, message in [({"chunk": 0}, "chunk must be a positive number of frames, got 0"),
+                            ({"speaker": 2}, "speaker index 2 is outside the model's 2 style embeddings"),
+                            ({"template": bad_template}, r"template contains 1 NaN/infinite value\(s\)"),
+                            ({"template": template[:12]}, "template has 4 vertices but the model was trained on 5"),
+                            ({"wave": np.zeros(0, np.float32)}, "empty")]:
+        args = {"model": model, "wave": wave, "template": template, "speaker": 0, **kwargs}
+        with pytest.raises(ValueError, match=message):
+            predict_chunks(**args)  # raised at the call: no block was asked for
 
 
 # ---- fast rendering -----------------------------------------------------------------------------------
