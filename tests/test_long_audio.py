@@ -131,6 +131,18 @@ def test_raster_renderer_looks_like_the_matplotlib_renderer(sphere):
         assert np.abs(fast.astype(int) - slow.astype(int)).mean() < 4  # same mesh, shading, colours, caption
 
 
+def test_raster_fast_path_draws_exactly_what_imagedraw_polygon_draws(sphere, monkeypatch):
+    """Packed inks straight to Pillow's C filler vs the public ImageDraw.polygon: the same pixels."""
+    from dualtalker_lite.viz import render as R
+
+    v, f = sphere
+    monkeypatch.setattr(R, "_PILLOW_PACKING", None)
+    fast = RasterRenderer(96).render(v, f, view="three_quarter", colors=v[:, 0])
+    assert R._PILLOW_PACKING is True  # the packing check passed with the installed Pillow
+    monkeypatch.setattr(R, "_PILLOW_PACKING", False)
+    np.testing.assert_array_equal(RasterRenderer(96).render(v, f, view="three_quarter", colors=v[:, 0]), fast)
+
+
 def test_raster_silhouette_area_and_painter_order(sphere):
     v, f = sphere
     image = RasterRenderer(256).render(v, f, extent=((0.0, 0.0, 0.0), 0.125))  # 1024 px per metre
