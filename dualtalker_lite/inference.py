@@ -307,6 +307,8 @@ def run(args: argparse.Namespace) -> list[Path]:
         formats = tuple(f for f in formats if f != "mp4")
     if not formats:
         raise ValueError("nothing to write: --no-video removed the only format; add e.g. --format npy")
+    if args.chunk < 1:
+        raise ValueError(f"--chunk {args.chunk}: must be a positive number of frames")
     model, ckpt = load_checkpoint(args.checkpoint)
     if args.list_speakers:
         print(describe(ckpt))
@@ -328,8 +330,6 @@ def run(args: argparse.Namespace) -> list[Path]:
                              f"mesh.obj (the speaker's neutral face with the model's topology)")
         template, faces = corpus.template(args.speaker), corpus.faces
     extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint))
-    if args.chunk < 1:
-        raise ValueError(f"--chunk {args.chunk}: must be a positive number of frames")
     wave = load_audio(args.wav, sample_rate=extractor.sample_rate)
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
