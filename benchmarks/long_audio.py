@@ -172,15 +172,23 @@ def make_checkpoint(path: Path) -> None:
     save_checkpoint(path, model, cfg, speakers=corpus.train_speakers, faces=corpus.faces)
 
 
-def cli_case(minutes: float, video: bool, tmp: Path, env: dict) -> dict:
-    """One ``animate`` run as a child process -> wall, CPU (with ffmpeg) and peak RSS."""
+def make_cli_inputs(tmp: Path, minutes: list[float]) -> None:
+    """The checkpoint and one 16-bit WAV per length in ``tmp`` (run in its own process, see :func:`cli_case`)."""
     import soundfile as sf
 
+    make_checkpoint(tmp / "model.pt")
+    for m in minutes:
+        with sf.SoundFile(str(tmp / f"speech_{m:g}min.wav"), "w", 16000, 1, subtype="PCM_16") as f:
+            for start in range(0, int(60 * m), 60):  # a minute at a time: nothing big in memory
+                f.write(speech(min(60, 60 * m - start)))
+
+
+def cli_case(minutes: float, video: bool, tmp: Path, env: dict) -> dict:
+    """One ``animate`` run as a child process -> wall, CPU (with ffmpeg) and peak RSS.
+
+    A child's ``ru_maxrss`` starts at its parent's peak (Linux keeps the high-water mark across fork + exec), so
+    the parent must stay small: the inputs are made by another process, and this one imports no torch."""
     ckpt, wav = tmp / "model.pt", tmp / f"speech_{minutes:g}min.wav"
-    if not ckpt.exists():
-        make_checkpoint(ckpt)
-    if not wav.exists():
-        sf.write(str(wav), speech(60 * minutes), 16000, subtype="PCM_16")
     out = tmp / f"anim_{minutes:g}min_{'video' if video else 'novideo'}"
     cmd = [sys.executable, "-m", "dualtalker_lite.cli", "animate", "--checkpoint", str(ckpt), "--wav", str(wav),
            "--speaker", "SPK01", "--out", str(out), "--format", "npy,mp4" if video else "npy", "--no-progress"]
@@ -270,7 +278,11 @@ def main() -> None:
                     help="instead: time `dualtalker-lite animate` end to end for each --minutes, with --no-video")
     ap.add_argument("--cli-video", type=float, nargs="*", default=[1], metavar="MINUTES",
                     help="with --cli: also run these lengths with the mp4 (default: 1; bare flag: every length)")
+    ap.add_argument("--make-cli-inputs", nargs="+", help=argparse.SUPPRESS)  # internal: DIR MINUTES...
     args = ap.parse_args()
+    if args.make_cli_inputs:
+        make_cli_inputs(Path(args.make_cli_inputs[0]), [float(m) for m in args.make_cli_inputs[1:]])
+        return
     if args.cli:
         root = Path(__file__).resolve().parents[1]
         env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
@@ -278,6 +290,9 @@ def main() -> None:
         cases = [(m, False) for m in args.minutes] + [(m, True) for m in video]
         rows = []
         with tempfile.TemporaryDirectory(prefix="long-audio-cli-") as tmp:
+            lengths = sorted({m for m, _ in cases})
+            subprocess.run([sys.executable, __file__, "--make-cli-inputs", tmp, *map(str, lengths)], env=env,
+                           check=True)
             for minutes, with_video in cases:
                 rows.append(cli_case(minutes, with_video, Path(tmp), env))
                 r = rows[-1]
