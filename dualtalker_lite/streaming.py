@@ -9,6 +9,10 @@ renders it frame by frame).
     from dualtalker_lite.streaming import animate_wave_to_npy
     animate_wave_to_npy(model, wave, template, speaker=0, path="runs/long/vertices.npy")
 
+:func:`predict_chunks` is the single inference path of the package: it validates the inputs, extracts the
+features and yields the prediction block by block; ``inference.animate_wave`` joins the blocks in memory,
+:func:`animate_wave_to_npy` and the ``dualtalker-lite animate`` command stream them to disk.
+
 Files are written to a temporary name beside the target and renamed when complete; the temporary file is
 removed on failure, Ctrl-C and SIGTERM, and a non-finite frame stops the run with a message naming the frames.
 """
