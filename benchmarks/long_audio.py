@@ -6,12 +6,22 @@ video >= 3x real time).
     python benchmarks/long_audio.py                      # 1 and 10 minutes, video on 60 s
     python benchmarks/long_audio.py --minutes 1 10 60    # the hour too (about 3-5 min of CPU)
     python benchmarks/long_audio.py --window-check 60    # trained model: windowed vs unbounded decoding, 3 min
+    python benchmarks/long_audio.py --cli                # the `dualtalker-lite animate` command end to end:
+                                                         # 1 and 10 min --no-video, 1 min with the mp4
+    python benchmarks/long_audio.py --cli --minutes 60 --cli-video   # the hour through the CLI (heavy)
 
 Each length runs in a fresh process (``--one``), so its peak resident memory (``ru_maxrss``: every numpy and torch
 allocation, plus the interpreter and libraries) is its own. The speech is the shipped sample's clips concatenated
 until the length is reached. Untrained weights (speed and memory do not depend on them). Vertices are streamed to a
 .npy (``dualtalker_lite.streaming``): held in memory, an hour of 1,558-vertex frames would be 2.0 GB by itself.
 CPU time (``time.process_time``, one torch thread) is reported beside wall time, which other jobs inflate.
+
+``--cli`` measures what a user runs instead: ``python -m dualtalker_lite.cli animate`` on a WAV of that length
+(16-bit PCM, 16 kHz) with a self-describing checkpoint of the same untrained model, as a child process. Its
+peak RSS and CPU time come from ``os.wait4`` (the process and the children it waited for, i.e. ffmpeg: the
+peak is the larger of the two, the CPU time their sum); the real-time factor is CPU seconds per second of audio.
+Everything the command does is included: imports, checkpoint, audio loading, features, generation streamed
+to ``vertices.npy``, ``frame0.obj`` and, with video, rendering and muxing the mp4.
 """
 from __future__ import annotations
 
@@ -144,6 +154,76 @@ def report(rows: list[dict]) -> None:
                       f"+ ffmpeg CPU {v['ffmpeg_cpu_s']:.1f} s")
 
 
+def make_checkpoint(path: Path) -> None:
+    """The benchmark's untrained tiny DualTalker as a self-describing checkpoint (sample speakers and faces)."""
+    import torch
+
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                                n_speakers=len(corpus.train_speakers))
+    model = DualTalker(cfg).eval()
+    torch.nn.init.normal_(model.motion_decoder.weight, std=0.01)
+    save_checkpoint(path, model, cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+
+
+def make_cli_inputs(tmp: Path, minutes: list[float]) -> None:
+    """The checkpoint and one 16-bit WAV per length in ``tmp`` (run in its own process, see :func:`cli_case`)."""
+    import soundfile as sf
+
+    make_checkpoint(tmp / "model.pt")
+    for m in minutes:
+        with sf.SoundFile(str(tmp / f"speech_{m:g}min.wav"), "w", 16000, 1, subtype="PCM_16") as f:
+            for start in range(0, int(60 * m), 60):  # a minute at a time: nothing big in memory
+                f.write(speech(min(60, 60 * m - start)))
+
+
+def cli_case(minutes: float, video: bool, tmp: Path, env: dict) -> dict:
+    """One ``animate`` run as a child process -> wall, CPU (with ffmpeg) and peak RSS.
+
+    A child's ``ru_maxrss`` starts at its parent's peak (Linux keeps the high-water mark across fork + exec), so
+    the parent must stay small: the inputs are made by another process, and this one imports no torch."""
+    ckpt, wav = tmp / "model.pt", tmp / f"speech_{minutes:g}min.wav"
+    out = tmp / f"anim_{minutes:g}min_{'video' if video else 'novideo'}"
+    cmd = [sys.executable, "-m", "dualtalker_lite.cli", "animate", "--checkpoint", str(ckpt), "--wav", str(wav),
+           "--speaker", "SPK01", "--out", str(out), "--format", "npy,mp4" if video else "npy", "--no-progress"]
+    log_out, log_err = tmp / "stdout.txt", tmp / "stderr.txt"
+    with open(log_out, "wb") as fo, open(log_err, "wb") as fe:
+        wall = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, stdout=fo, stderr=fe)
+        _, status, usage = os.wait4(proc.pid, 0)  # reaps the child with its own rusage (Popen.wait cannot)
+        wall = time.perf_counter() - wall
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    stdout, stderr = log_out.read_bytes(), log_err.read_bytes()
+    if proc.returncode != 0:
+        sys.exit(f"{' '.join(cmd)}\nfailed with status {proc.returncode}:\n{stderr.decode()[-3000:]}")
+    files = {p.name: p.stat().st_size for p in out.iterdir()}
+    for p in out.iterdir():
+        p.unlink()
+    out.rmdir()
+    return {"minutes": minutes, "video": video, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+            "peak_rss_mb": usage.ru_maxrss / 1024, "files_mb": {k: v / 1e6 for k, v in files.items()},
+            "stdout": stdout.decode().strip()}
+
+
+def cli_report(rows: list[dict]) -> None:
+    print("\n`dualtalker-lite animate` end to end (child process; tiny DualTalker, V = 1558, OMP_NUM_THREADS=1)")
+    print(f"{'audio':>7} | {'video':>5} | {'wall s':>7} | {'CPU s':>7} | {'RTF (CPU)':>9} | {'x real time':>11} | "
+          f"{'peak RSS':>9} | files")
+    for r in rows:
+        secs = 60 * r["minutes"]
+        files = ", ".join(f"{k} {v:.1f} MB" for k, v in sorted(r["files_mb"].items()))
+        print(f"{r['minutes']:>5g} m | {'yes' if r['video'] else 'no':>5} | {r['wall_s']:7.1f} | {r['cpu_s']:7.1f} | "
+              f"{r['cpu_s'] / secs:9.4f} | {secs / r['cpu_s']:10.1f}x | {r['peak_rss_mb']:6.0f} MB | {files}")
+    print("(CPU = the command plus ffmpeg; RTF = CPU seconds per second of audio; wall time is inflated by "
+          "other jobs on a shared machine)")
+
+
 def window_check(train_seconds: float, minutes: float, threads: int) -> None:
     """How far the sliding decoder window moves a *trained* model's output on a clip longer than the window:
     the tiny DualTalker trained for ``train_seconds`` on the sample, then the test-A clips' features
@@ -194,7 +274,34 @@ def main() -> None:
     ap.add_argument("--window-check", type=float, metavar="SECONDS",
                     help="instead: train the tiny model this long, compare windowed vs unbounded decoding")
     ap.add_argument("--check-minutes", type=float, default=3.0, help="clip length for --window-check")
+    ap.add_argument("--cli", action="store_true",
+                    help="instead: time `dualtalker-lite animate` end to end for each --minutes, with --no-video")
+    ap.add_argument("--cli-video", type=float, nargs="*", default=[1], metavar="MINUTES",
+                    help="with --cli: also run these lengths with the mp4 (default: 1; bare flag: every length)")
+    ap.add_argument("--make-cli-inputs", nargs="+", help=argparse.SUPPRESS)  # internal: DIR MINUTES...
     args = ap.parse_args()
+    if args.make_cli_inputs:
+        make_cli_inputs(Path(args.make_cli_inputs[0]), [float(m) for m in args.make_cli_inputs[1:]])
+        return
+    if args.cli:
+        root = Path(__file__).resolve().parents[1]
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+        video = args.minutes if args.cli_video == [] else args.cli_video
+        cases = [(m, False) for m in args.minutes] + [(m, True) for m in video]
+        rows = []
+        with tempfile.TemporaryDirectory(prefix="long-audio-cli-") as tmp:
+            lengths = sorted({m for m, _ in cases})
+            subprocess.run([sys.executable, __file__, "--make-cli-inputs", tmp, *map(str, lengths)], env=env,
+                           check=True)
+            for minutes, with_video in cases:
+                rows.append(cli_case(minutes, with_video, Path(tmp), env))
+                r = rows[-1]
+                print(f"{minutes:g} min {'with' if with_video else 'without'} video: {r['wall_s']:.1f} s wall, "
+                      f"{r['cpu_s']:.1f} s CPU, peak {r['peak_rss_mb']:.0f} MB", flush=True)
+        cli_report(rows)
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1))
+        return
     if args.window_check is not None:
         window_check(args.window_check, args.check_minutes, args.threads)
         return

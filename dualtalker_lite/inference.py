@@ -20,6 +20,12 @@ empty, NaN, overflowing or truncated files refused); the prediction must be fini
 into a temporary folder beside ``--out`` and moved into place only when all are complete, so a failure or
 Ctrl-C/SIGTERM leaves ``--out`` exactly as it was. User errors print one line (``--debug`` shows the
 traceback) and exit with status 2.
+
+Memory is bounded whatever the recording's length (issue 11): the prediction is decoded in blocks of ``--chunk``
+frames (:func:`~dualtalker_lite.streaming.predict_chunks`, bounded caches) and streamed to ``vertices.npy``;
+every other format is then written frame by frame from that memory-mapped file (the mp4 with
+:func:`~dualtalker_lite.viz.animate.render_video` and a progress bar). Short and long recordings take the same
+path; ``animate_wave`` joins the same blocks in memory for notebooks and scripts.
 """
 from __future__ import annotations
 
@@ -27,16 +33,16 @@ import argparse
 import json
 import struct
 import sys
-from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .audio import LogMelExtractor, load_audio, validate_wave
+from .audio import load_audio
 from .checkpoints import describe, extractor_from_settings, load_checkpoint, topology_fingerprint
 from .data.corpus import Corpus
-from .utils import AtomicOutputDir, NonFiniteError, check_finite
+from .streaming import predict_chunks, write_npy_stream
+from .utils import AtomicOutputDir, check_finite
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
            "write_obj", "write_glb", "write_outputs", "run", "main"]
@@ -54,40 +60,21 @@ def resolve_device(device: str | None) -> torch.device:
     return dev
 
 
-@torch.no_grad()
 def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
                  sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
-                 amp: bool = False) -> np.ndarray:
+                 amp: bool = False, chunk: int = 900) -> np.ndarray:
     """16 kHz mono speech (N,) + template (V*3,) or (V, 3) -> predicted vertices float32 (T, V*3), 30 fps.
 
-    ``device="cuda"`` runs on the GPU; ``amp=True`` adds mixed precision there (float16 autocast). Raises
-    :class:`~dualtalker_lite.utils.NonFiniteError` if the template or the model's output is not finite.
+    The blocks of :func:`~dualtalker_lite.streaming.predict_chunks` joined in memory (fine for minutes of speech;
+    for longer recordings stream them to disk with :func:`~dualtalker_lite.streaming.animate_wave_to_npy`, as the
+    ``animate`` command does). ``device="cuda"`` runs on the GPU; ``amp=True`` adds mixed precision there
+    (float16 autocast). Raises :class:`~dualtalker_lite.utils.NonFiniteError` if the template or the model's
+    output is not finite.
     """
-    validate_wave(wave, sample_rate)
-    extractor = extractor or LogMelExtractor()
-    template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
-    check_finite(template, "template")
-    n_vertices = getattr(getattr(model, "cfg", None), "n_vertices", None)
-    if n_vertices is not None and template.size != 3 * n_vertices:
-        raise ValueError(f"template has {template.size // 3} vertices but the model was trained on {n_vertices}")
-    n_speakers = getattr(getattr(model, "cfg", None), "n_speakers", None)
-    if n_speakers is not None and not 0 <= speaker < n_speakers:
-        raise ValueError(f"speaker index {speaker} is outside the model's {n_speakers} style embeddings")
-    n_frames = max(1, int(round(len(wave) * FPS / sample_rate)))
-    audio = extractor(wave, n_frames)[None]  # (1, T, D_a)
-    dev = resolve_device(str(device) if device is not None else None) if device is not None else \
-        next(model.parameters(), torch.empty(0)).device
-    model.eval().to(dev)
-    autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
-    with autocast:
-        pred = model.generate(audio.to(dev), torch.from_numpy(template)[None].to(dev),
-                              torch.tensor([speaker], device=dev))  # (1, T, V*3)
-    verts = pred[0].float().cpu().numpy()
-    try:
-        check_finite(verts, "model output")
-    except NonFiniteError as e:
-        raise NonFiniteError(f"{e}: the checkpoint's weights or the input produce NaN; nothing was written") from None
-    return verts
+    if device is not None:
+        resolve_device(str(device))
+    _, blocks = predict_chunks(model, wave, template, speaker, sample_rate, extractor, device, amp, chunk, FPS)
+    return np.concatenate(list(blocks))  # (T, V*3)
 
 
 def animate_wav(model: torch.nn.Module, wav_path: str | Path, template: np.ndarray, speaker: int = 0,
@@ -160,85 +147,122 @@ def write_obj(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None
     Path(path).write_text(lines + tris)
 
 
-def write_glb(path: str | Path, clip: np.ndarray, faces: np.ndarray, fps: float = FPS) -> None:
+def _frames(clip) -> np.ndarray:
+    """(T, V*3) or (T, V, 3) array, memory map or path of a ``.npy`` -> (T, V, 3) view (nothing loaded whole)."""
+    if isinstance(clip, (str, Path)):
+        clip = np.load(clip, mmap_mode="r", allow_pickle=False)
+    clip = clip if isinstance(clip, np.ndarray) else np.asarray(clip, np.float32)
+    return clip.reshape(len(clip), -1, 3)
+
+
+def write_glb(path: str | Path, clip, faces: np.ndarray, fps: float = FPS, block: int = 1024) -> None:
     """Animated glTF 2.0 binary: one mesh node per frame; node k is scaled 1 during frame k, 0 otherwise (STEP).
 
     Plain node-scale animation (not morph targets) keeps the file linear in T and opens in every glTF
-    viewer (Blender, three.js, Windows 3D Viewer). ``clip``: (T, V, 3) float32.
+    viewer (Blender, three.js, Windows 3D Viewer). ``clip``: (T, V, 3) or (T, V*3) float32, or a memory-mapped
+    ``.npy`` (path or array): it is read in blocks of ``block`` frames, twice (per-frame bounds, then the
+    positions), so memory stays bounded by the JSON part (~0.6 kB per frame) whatever the length.
     """
-    clip = np.asarray(clip, np.float32)
+    clip = _frames(clip)
     T, V = clip.shape[:2]
     idx = np.ascontiguousarray(faces, dtype=np.uint32).reshape(-1)
-    blobs, views, accessors = [], [], []
-
-    def add(data: np.ndarray, comp: int, typ: str, target: int | None = None, minmax: bool = False) -> int:
-        offset = sum(len(b) for b in blobs)
-        raw = data.tobytes()
-        blobs.append(raw + b"\0" * (-len(raw) % 4))
-        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(raw)}
-        if target is not None:
-            view["target"] = target
-        views.append(view)
-        acc = {"bufferView": len(views) - 1, "componentType": comp, "type": typ,
-               "count": int(data.shape[0])}
-        if minmax:
-            acc["min"] = [float(v) for v in data.min(0).reshape(-1)]
-            acc["max"] = [float(v) for v in data.max(0).reshape(-1)]
-        accessors.append(acc)
-        return len(accessors) - 1
-
+    lo, hi = np.empty((T, 3), np.float32), np.empty((T, 3), np.float32)
+    for s in range(0, T, block):  # pass 1: per-frame bounds (the accessors' required min/max)
+        frames = np.asarray(clip[s:s + block], np.float32)  # (n, V, 3)
+        lo[s:s + block], hi[s:s + block] = frames.min(1), frames.max(1)
     FLOAT, UINT = 5126, 5125
-    i_idx = add(idx, UINT, "SCALAR", target=34963)
+    frame_bytes = V * 12
+    pad = -idx.nbytes % 4
+    times = [[k / fps, (k + 1) / fps] if k == 0 else [0.0, k / fps, (k + 1) / fps] for k in range(T)]
+    times[-1] = times[-1][:-1]  # the last frame stays visible
+    flat_times = np.asarray([t for ts in times for t in ts], np.float32)
+    patterns = {(1,): [[1, 1, 1]], (1, 0): [[1, 1, 1], [0, 0, 0]], (0, 1): [[0, 0, 0], [1, 1, 1]],
+                (0, 1, 0): [[0, 0, 0], [1, 1, 1], [0, 0, 0]]}
+    scales = np.asarray([v for p in patterns.values() for v in p], np.float32)  # (10, 3) shared by all frames
+    pos_offset = idx.nbytes + pad
+    time_offset = pos_offset + T * frame_bytes
+    scale_offset = time_offset + flat_times.nbytes
+    total_bin = scale_offset + scales.nbytes
+    views = [{"buffer": 0, "byteOffset": 0, "byteLength": idx.nbytes, "target": 34963},
+             {"buffer": 0, "byteOffset": pos_offset, "byteLength": T * frame_bytes, "target": 34962},
+             {"buffer": 0, "byteOffset": time_offset, "byteLength": flat_times.nbytes},
+             {"buffer": 0, "byteOffset": scale_offset, "byteLength": scales.nbytes}]
+    accessors = [{"bufferView": 0, "componentType": UINT, "type": "SCALAR", "count": int(idx.size)}]
+    scale_acc, row = {}, 0
+    for key, values in patterns.items():
+        scale_acc[key] = len(accessors)
+        accessors.append({"bufferView": 3, "byteOffset": row * 12, "componentType": FLOAT, "type": "VEC3",
+                          "count": len(values)})
+        row += len(values)
     meshes, nodes, channels, samplers = [], [], [], []
+    t_row = 0
     for k in range(T):
-        i_pos = add(clip[k], FLOAT, "VEC3", target=34962, minmax=True)
-        meshes.append({"primitives": [{"attributes": {"POSITION": i_pos}, "indices": i_idx}]})
-        times = [k / fps, (k + 1) / fps] if k == 0 else [0.0, k / fps, (k + 1) / fps]
-        scales = [[1, 1, 1], [0, 0, 0]] if k == 0 else [[0, 0, 0], [1, 1, 1], [0, 0, 0]]
-        if k == T - 1:  # the last frame stays visible
-            times, scales = times[:-1], scales[:-1]
-        i_t = add(np.asarray(times, np.float32), FLOAT, "SCALAR", minmax=True)
-        i_s = add(np.asarray(scales, np.float32), FLOAT, "VEC3")
-        samplers.append({"input": i_t, "output": i_s, "interpolation": "STEP"})
+        accessors.append({"bufferView": 1, "byteOffset": k * frame_bytes, "componentType": FLOAT, "type": "VEC3",
+                          "count": V, "min": lo[k].tolist(), "max": hi[k].tolist()})
+        meshes.append({"primitives": [{"attributes": {"POSITION": len(accessors) - 1}, "indices": 0}]})
+        n_t = len(times[k])
+        accessors.append({"bufferView": 2, "byteOffset": t_row * 4, "componentType": FLOAT, "type": "SCALAR",
+                          "count": n_t, "min": [min(times[k])], "max": [max(times[k])]})
+        t_row += n_t
+        key = ((1,) if T == 1 else (1, 0)) if k == 0 else ((0, 1) if k == T - 1 else (0, 1, 0))
+        samplers.append({"input": len(accessors) - 1, "output": scale_acc[key], "interpolation": "STEP"})
         channels.append({"sampler": k, "target": {"node": k, "path": "scale"}})
         nodes.append({"mesh": k, "name": f"frame_{k:05d}", "scale": [1, 1, 1] if k == 0 else [0, 0, 0]})
-    accessors[i_idx]["count"] = int(idx.size)
-    binary = b"".join(blobs)
     gltf = {"asset": {"version": "2.0", "generator": "dualtalker-lite"}, "scene": 0,
             "scenes": [{"nodes": list(range(T))}], "nodes": nodes, "meshes": meshes,
             "animations": [{"name": "speech", "samplers": samplers, "channels": channels}],
-            "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(binary)}]}
+            "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": total_bin}]}
     js = json.dumps(gltf, separators=(",", ":")).encode()
+    del gltf, nodes, meshes, accessors, samplers, channels
     js += b" " * (-len(js) % 4)
-    total = 12 + 8 + len(js) + 8 + len(binary)
+    total = 12 + 8 + len(js) + 8 + total_bin
+    if total >= 2 ** 32:
+        raise ValueError(f"{path}: {T} frames make a {total / 1e9:.1f} GB GLB, over the format's 4 GB limit; "
+                         f"use --format npy or obj for recordings this long")
     with open(path, "wb") as f:
         f.write(struct.pack("<4sII", b"glTF", 2, total))
         f.write(struct.pack("<I4s", len(js), b"JSON") + js)
-        f.write(struct.pack("<I4s", len(binary), b"BIN\0") + binary)
+        f.write(struct.pack("<I4s", total_bin, b"BIN\0") + idx.tobytes() + b"\0" * pad)
+        for s in range(0, T, block):  # pass 2: the positions, block by block
+            f.write(np.ascontiguousarray(clip[s:s + block], dtype="<f4").tobytes())
+        f.write(flat_times.tobytes() + scales.tobytes())
 
 
-def write_outputs(folder: Path, verts: np.ndarray, faces: np.ndarray, wave: np.ndarray | None,
-                  formats: tuple[str, ...], sample_rate: int = 16000) -> list[Path]:
-    """Write the chosen formats of a (T, V*3) prediction into ``folder`` -> written paths."""
-    clip = verts.reshape(len(verts), -1, 3)  # (T, V, 3)
+def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | None,
+                  formats: tuple[str, ...], sample_rate: int = 16000, progress: bool = False) -> list[Path]:
+    """Write the chosen formats of a (T, V*3) prediction into ``folder`` -> written paths.
+
+    ``verts``: an array or the path of a ``.npy`` (memory-mapped: every format is written frame by frame, so
+    an hour-long prediction is never loaded whole). A ``folder/vertices.npy`` given as ``verts`` is kept only
+    if ``"npy"`` is among the formats. The mp4 comes from :func:`~dualtalker_lite.viz.animate.render_video`
+    (fast Pillow renderer, the speech muxed in, a progress bar with ``progress=True``).
+    """
+    folder = Path(folder)
+    own = isinstance(verts, (str, Path)) and Path(verts).resolve() == (folder / "vertices.npy").resolve()
+    clip = _frames(verts)  # (T, V, 3)
     written = []
     if "npy" in formats:
-        np.save(folder / "vertices.npy", verts)
+        if not own:
+            np.save(folder / "vertices.npy", np.asarray(clip, np.float32).reshape(len(clip), -1))
         write_obj(folder / "frame0.obj", clip[0], faces)
         written += [folder / "vertices.npy", folder / "frame0.obj"]
     if "obj" in formats:
         (folder / "obj").mkdir()
-        for k, frame in enumerate(clip):
-            write_obj(folder / "obj" / f"frame_{k:05d}.obj", frame, faces)
+        for k in range(len(clip)):
+            write_obj(folder / "obj" / f"frame_{k:05d}.obj", clip[k], faces)
         written.append(folder / "obj")
     if "glb" in formats:
         write_glb(folder / "animation.glb", clip, faces)
         written.append(folder / "animation.glb")
     if "mp4" in formats:
-        from .viz.animate import animate_clip
+        from .viz.animate import render_video
 
-        anim = animate_clip(clip, faces, wave=wave, sample_rate=sample_rate, path=folder / "animation.mp4")
+        anim = render_video(clip, faces, folder / "animation.mp4", wave=wave, sample_rate=sample_rate,
+                            progress=progress)
         written.append(Path(anim.path))
+    if own and "npy" not in formats:
+        del clip
+        (folder / "vertices.npy").unlink()
     return written
 
 
@@ -264,6 +288,9 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--no-video", action="store_true", help="skip the mp4 (fast for long recordings)")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
+    ap.add_argument("--chunk", type=int, default=900,
+                    help="frames decoded and written per block (memory vs. overhead; the result is the same)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar while rendering the video")
     ap.add_argument("--debug", action="store_true", help="show full tracebacks")
     return ap
 
@@ -280,6 +307,8 @@ def run(args: argparse.Namespace) -> list[Path]:
         formats = tuple(f for f in formats if f != "mp4")
     if not formats:
         raise ValueError("nothing to write: --no-video removed the only format; add e.g. --format npy")
+    if args.chunk < 1:
+        raise ValueError(f"--chunk {args.chunk}: must be a positive number of frames")
     model, ckpt = load_checkpoint(args.checkpoint)
     if args.list_speakers:
         print(describe(ckpt))
@@ -302,13 +331,17 @@ def run(args: argparse.Namespace) -> list[Path]:
         template, faces = corpus.template(args.speaker), corpus.faces
     extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint))
     wave = load_audio(args.wav, sample_rate=extractor.sample_rate)
-    verts = animate_wave(model, wave, template, speaker, sample_rate=extractor.sample_rate, extractor=extractor,
-                         device=device, amp=args.amp)  # (T, V*3)
+    # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
+    # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
+    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=extractor.sample_rate,
+                                      extractor=extractor, device=device, amp=args.amp, chunk=args.chunk, fps=FPS)
     with target as tmp:
-        written = write_outputs(tmp, verts, faces, wave, formats, extractor.sample_rate)
+        npy = write_npy_stream(tmp / "vertices.npy", blocks, n_frames, template.size)
+        written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate,
+                                progress=not args.no_progress)
     out = Path(args.out)
     names = [out / p.relative_to(tmp) for p in written]
-    print(f"{len(verts)} frames ({len(verts) / FPS:.1f} s) -> " + ", ".join(map(str, names)))
+    print(f"{n_frames} frames ({n_frames / FPS:.1f} s) -> " + ", ".join(map(str, names)))
     return names
 
 

@@ -9,6 +9,10 @@ renders it frame by frame).
     from dualtalker_lite.streaming import animate_wave_to_npy
     animate_wave_to_npy(model, wave, template, speaker=0, path="runs/long/vertices.npy")
 
+:func:`predict_chunks` is the single inference path of the package: it validates the inputs, extracts the
+features and yields the prediction block by block; ``inference.animate_wave`` joins the blocks in memory,
+:func:`animate_wave_to_npy` and the ``dualtalker-lite animate`` command stream them to disk.
+
 Files are written to a temporary name beside the target and renamed when complete; the temporary file is
 removed on failure, Ctrl-C and SIGTERM, and a non-finite frame stops the run with a message naming the frames.
 """
@@ -23,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "animate_wave_to_npy"]
+__all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "predict_chunks", "animate_wave_to_npy"]
 
 
 @contextlib.contextmanager
@@ -89,23 +93,80 @@ def generate_to_npy(model: torch.nn.Module, audio: torch.Tensor, template: torch
     return write_npy_stream(path, chunks, audio.shape[1], template.shape[1])
 
 
-def animate_wave_to_npy(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int,
-                        path: str | os.PathLike, sample_rate: int = 16000, extractor=None, fps: int = 30,
-                        chunk: int = 900) -> Path:
-    """16 kHz mono speech (N,) of any length -> predicted vertices (T, V*3) float32 in ``path``, T = N fps / sr.
+def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
+                   sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
+                   amp: bool = False, chunk: int = 900, fps: int = 30):
+    """Validate, extract features and return ``(T, blocks)``: ``blocks`` yields the predicted vertices as float32
+    (n, V*3) numpy blocks of at most ``chunk`` frames, T = N fps / sample_rate frames in all.
 
-    The streaming counterpart of ``inference.animate_wave``: features (block-wise STFT), banded audio encoding
-    and bounded-cache decoding keep the memory far below the size of the result.
+    The one code path of every inference entry point (``inference.animate_wave`` joins the blocks,
+    :func:`animate_wave_to_npy` and the ``animate`` command stream them to disk). All input checks run here,
+    before the first block (bad wave, non-finite template, wrong vertex count, speaker outside the style
+    table, missing CUDA); memory beyond the model is the wave, its features (T x D_a) and one block.
+    ``device="cuda"`` runs on the GPU, ``amp=True`` adds float16 autocast there. A block with a NaN/inf raises
+    :class:`~dualtalker_lite.utils.NonFiniteError` naming its first bad frame.
     """
+    from contextlib import nullcontext
+
     from .audio import LogMelExtractor, validate_wave
+    from .utils import NonFiniteError, check_finite
 
     validate_wave(wave, sample_rate)
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk must be a positive number of frames, got {chunk!r}")
     extractor = extractor or LogMelExtractor()
     template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
-    n_vertices = getattr(getattr(model, "cfg", None), "n_vertices", None)
+    check_finite(template, "template")
+    cfg = getattr(model, "cfg", None)
+    n_vertices = getattr(cfg, "n_vertices", None)
     if n_vertices is not None and template.size != 3 * n_vertices:
         raise ValueError(f"template has {template.size // 3} vertices but the model was trained on {n_vertices}")
+    n_speakers = getattr(cfg, "n_speakers", None)
+    if n_speakers is not None and not 0 <= speaker < n_speakers:
+        raise ValueError(f"speaker index {speaker} is outside the model's {n_speakers} style embeddings")
+    if device is not None:
+        dev = torch.device(device)
+        if dev.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"device {device}: CUDA is not available here (torch.cuda.is_available() is False)")
+    else:
+        dev = next(model.parameters(), torch.empty(0)).device
     n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
     with torch.no_grad():
-        audio = extractor(wave, n_frames)  # (T, D_a)
-        return generate_to_npy(model, audio, torch.from_numpy(template), speaker, path, chunk)
+        audio = extractor(wave, n_frames)[None]  # (1, T, D_a)
+    model.eval().to(dev)
+
+    def blocks():
+        gen = model.generate_chunks(audio.to(dev), torch.from_numpy(template)[None].to(dev),
+                                    torch.tensor([int(speaker)], device=dev), chunk=chunk)
+        done = 0
+        while True:
+            # no_grad/autocast around each step only: they must not leak into the caller between blocks
+            autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
+            with torch.no_grad(), autocast:
+                block = next(gen, None)
+                if block is None:
+                    return
+                block = block[0].float().cpu().numpy()  # (n, V*3)
+            bad = ~np.isfinite(block).all(1)  # (n,)
+            if bad.any():
+                raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
+                                     f"{done + int(np.flatnonzero(bad)[0])}): the checkpoint's weights or "
+                                     f"the input produce NaN; nothing was written")
+            done += len(block)
+            yield block
+
+    return n_frames, blocks()
+
+
+def animate_wave_to_npy(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int,
+                        path: str | os.PathLike, sample_rate: int = 16000, extractor=None, fps: int = 30,
+                        chunk: int = 900, device: str | torch.device | None = None, amp: bool = False) -> Path:
+    """16 kHz mono speech (N,) of any length -> predicted vertices (T, V*3) float32 in ``path``, T = N fps / sr.
+
+    The streaming counterpart of ``inference.animate_wave`` (same checks and numbers, see :func:`predict_chunks`):
+    block-wise STFT features, banded audio encoding and bounded-cache decoding keep the memory far below the
+    size of the result. ``path`` appears only when complete.
+    """
+    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate, extractor, device, amp,
+                                      chunk, fps)
+    return write_npy_stream(path, blocks, n_frames, np.asarray(template).size)

@@ -15,7 +15,8 @@ def test_train_evaluate_animate(tmp_path, capsys):
     ckpt = tmp_path / "m.pt"
     main(["train", "--model", "voca", "--epochs", "1", "--out", str(ckpt)])
     corpus = Corpus(sample_path())
-    assert f"trained voca for 1 epochs on {len(corpus.split('train'))} clips" in capsys.readouterr().out
+    n_train = len(corpus.split("train"))  # 176 clips in the corpus v2 sample
+    assert f"trained voca for 1 epochs on {n_train} clips" in capsys.readouterr().out
     model, info = load_checkpoint(ckpt)
     assert info["speakers"] == corpus.train_speakers and info["n_vertices"] == corpus.metadata["n_vertices"]
     assert info["history"]["terms"] and info["train_config"]["epochs"] == 1
@@ -31,6 +32,17 @@ def test_train_evaluate_animate(tmp_path, capsys):
           "--out", str(tmp_path / "anim"), "--no-video"])
     verts = np.load(tmp_path / "anim" / "vertices.npy")
     assert verts.shape == (15, corpus.metadata["n_vertices"] * 3) and np.isfinite(verts).all()
+    assert sorted(p.name for p in (tmp_path / "anim").iterdir()) == ["frame0.obj", "vertices.npy"]  # no mp4
+    # streamed in blocks of 4 frames (4 blocks, the last partial), the mp4 rendered from the memory-mapped file
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK02",
+          "--out", str(tmp_path / "anim"), "--overwrite", "--chunk", "4", "--no-progress"])
+    np.testing.assert_allclose(np.load(tmp_path / "anim" / "vertices.npy"), verts, atol=1e-6, rtol=0)
+    from dualtalker_lite.viz.animate import ffmpeg_exe, stream_info
+
+    if ffmpeg_exe() is not None:
+        streams = stream_info(tmp_path / "anim" / "animation.mp4")
+        assert "Video: h264" in streams and "Audio: aac" in streams
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
 def test_console_script_is_declared():

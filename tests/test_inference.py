@@ -386,7 +386,7 @@ def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
     """SIGTERM/Ctrl-C during the video: no --out, no hidden temporary folder, no dualtalker-video-* folder."""
     from dualtalker_lite.utils import repo_root
 
-    sf.write(tmp_path / "long.wav", _tone(10.0, 16000), 16000)
+    sf.write(tmp_path / "long.wav", _tone(40.0, 16000), 16000)  # 1,200 frames: rendering takes seconds
     tmpdir = tmp_path / "tmpdir"
     tmpdir.mkdir()
     out = tmp_path / "o"
@@ -395,7 +395,8 @@ def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
                              str(tmp_path / "long.wav"), "--out", str(out)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
-    while not list(tmpdir.glob("dualtalker-video-*")) and proc.poll() is None and time.time() < deadline:
+    # the video is rendered inside the hidden output folder: .o.<random>.tmp/dualtalker-video-<random>/
+    while not list(tmp_path.glob(".o.*/dualtalker-video-*")) and proc.poll() is None and time.time() < deadline:
         time.sleep(0.05)
     assert proc.poll() is None, proc.stderr.read().decode()[-500:]
     assert [p for p in tmp_path.iterdir() if p.name.startswith(".o.")], "work happens in a hidden folder"
@@ -404,3 +405,94 @@ def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
     assert proc.returncode == 130 and b"interrupted; temporary files removed" in err, err.decode()[-3000:]
     assert not out.exists() and list(tmpdir.iterdir()) == []
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+# ------------------------------------------------------------------------- CLI: streaming (issue 11)
+@pytest.fixture(scope="module")
+def moving_ckpt(setup, tmp_path_factory):
+    """A checkpoint whose output moves with the audio (decoder weights drawn at random)."""
+    corpus, _, cfg = setup
+    torch.manual_seed(3)
+    model = DualTalker(cfg).eval()
+    torch.nn.init.normal_(model.motion_decoder.weight, std=0.02)
+    path = tmp_path_factory.mktemp("moving") / "model.pt"
+    save_checkpoint(path, model, cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+    return path
+
+
+def test_streamed_cli_output_equals_the_uncached_reference(setup, moving_ckpt, wav, tmp_path, capsys):
+    """30 frames decoded in blocks of 7 (five blocks, the last partial), streamed to vertices.npy, against
+    the O(T^2) reference ``generate(use_cache=False)`` on the same features; OBJ and GLB from the memory map."""
+    import trimesh
+
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.checkpoints import extractor_from_settings
+
+    corpus, _, _ = setup
+    out = tmp_path / "anim"
+    main(["--checkpoint", moving_ckpt, "--wav", wav, "--speaker", "SPK02", "--out", out, "--chunk", "7",
+          "--format", "npy,obj,glb"])
+    got = np.load(out / "vertices.npy", allow_pickle=False)
+    model, info = load_checkpoint(moving_ckpt)
+    extractor = extractor_from_settings(info["features"], str(moving_ckpt))
+    wave = load_audio(wav, sample_rate=16000)
+    audio = extractor(wave, 30)[None]  # (1, 30, 160)
+    template = torch.from_numpy(corpus.template("SPK02"))[None]
+    ref = model.generate(audio, template, torch.tensor([info["speakers"].index("SPK02")]), use_cache=False)[0]
+    assert got.shape == (30, template.shape[1])
+    motion = np.abs(ref.numpy() - corpus.template("SPK02")).max()
+    assert motion > 1e-4  # the comparison is not between two copies of the template
+    np.testing.assert_allclose(got, ref.numpy(), atol=1e-5, rtol=0)
+    np.testing.assert_allclose(animate_wave(model, wave, corpus.template("SPK02"), 1, extractor=extractor, chunk=4),
+                               got, atol=1e-6, rtol=0)  # the API joins the same blocks
+    obj = trimesh.load(out / "obj" / "frame_00023.obj", process=False, force="mesh")
+    np.testing.assert_allclose(obj.vertices.reshape(-1), got[23], atol=1e-6)
+    assert len(trimesh.load(out / "animation.glb").geometry) == 30
+    raw = (out / "animation.glb").read_bytes()  # frame 23's positions, read from the binary chunk
+    js_len = struct.unpack("<I", raw[12:16])[0]
+    gltf = json.loads(raw[20:20 + js_len])
+    binary = raw[20 + js_len + 8:]
+    acc = gltf["accessors"][gltf["meshes"][23]["primitives"][0]["attributes"]["POSITION"]]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    start = view["byteOffset"] + acc["byteOffset"]
+    pos = np.frombuffer(binary[start:start + acc["count"] * 12], "<f4").reshape(-1)
+    np.testing.assert_array_equal(pos, got[23])
+    np.testing.assert_allclose(acc["min"], got[23].reshape(-1, 3).min(0))
+    assert "30 frames (1.0 s)" in capsys.readouterr().out
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_vertices_npy_is_not_left_when_not_asked_for(moving_ckpt, wav, tmp_path):
+    out = tmp_path / "anim"
+    main(["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--format", "glb", "--chunk", "8"])
+    assert sorted(p.name for p in out.iterdir()) == ["animation.glb"]
+
+
+def test_failure_in_a_later_block_leaves_nothing_behind(setup, moving_ckpt, wav, tmp_path, capsys, monkeypatch):
+    """The third of five blocks comes out NaN: one-line error naming the first bad frame (14 = 2 x 7), no --out,
+    no hidden folder, no vertices.npy.partial; an existing --out with --overwrite is left exactly as it was."""
+    real = DualTalker.generate_chunks
+
+    def broken(self, *args, **kw):
+        for k, block in enumerate(real(self, *args, **kw)):
+            yield block * float("nan") if k == 2 else block
+
+    monkeypatch.setattr(DualTalker, "generate_chunks", broken)
+    out = tmp_path / "anim"
+    line = _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7"],
+                  "model output contains NaN/infinite values (first at frame 14)", "nothing was written")
+    assert "Traceback" not in line
+    _nothing_written(tmp_path, out)
+    out.mkdir()
+    (out / "animation.mp4").write_bytes(b"old video")
+    _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7", "--overwrite"],
+           "first at frame 14")
+    assert sorted(p.name for p in out.iterdir()) == ["animation.mp4"]
+    assert (out / "animation.mp4").read_bytes() == b"old video"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_bad_chunk_is_refused_before_any_work(moving_ckpt, wav, tmp_path, capsys):
+    _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", tmp_path / "o", "--chunk", "0"],
+           "--chunk 0: must be a positive number of frames")
+    _nothing_written(tmp_path, tmp_path / "o")

@@ -14,7 +14,7 @@ from matplotlib import colormaps
 
 from dualtalker_lite import audio as A
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.streaming import animate_wave_to_npy, generate_to_npy, write_npy_stream
+from dualtalker_lite.streaming import animate_wave_to_npy, generate_to_npy, predict_chunks, write_npy_stream
 from dualtalker_lite.viz.animate import animate_clip, ffmpeg_exe, render_video, stream_info
 from dualtalker_lite.viz.render import MeshRenderer, RasterRenderer
 
@@ -92,6 +92,35 @@ def test_animate_wave_to_npy_has_one_frame_per_30th_of_a_second(tmp_path):
     assert not (tmp_path / "w.npy").exists()
 
 
+def test_predict_chunks_checks_everything_before_the_first_block(tmp_path):
+    """The one code path of animate_wave, animate_wave_to_npy and the CLI: errors are raised when it is called
+    (not when the first block is asked for), blocks have at most ``chunk`` frames and join to generate()'s
+    result, and grad mode is untouched between blocks."""
+    model = _model()
+    wave = (np.random.default_rng(1).standard_normal(16000) * 0.1).astype(np.float32)
+    template = np.random.default_rng(2).standard_normal(15).astype(np.float32) * 0.01
+    n, blocks = predict_chunks(model, wave, template, 1, chunk=7)
+    assert n == 30
+    got = []
+    for block in blocks:
+        assert torch.is_grad_enabled() and block.dtype == np.float32 and block.shape[1] == 15
+        got.append(block)
+    assert [len(b) for b in got] == [7, 7, 7, 7, 2]
+    audio = A.LogMelExtractor()(wave, 30)[None]
+    ref = model.generate(audio, torch.from_numpy(template)[None], torch.tensor([1]), use_cache=False)[0]
+    np.testing.assert_allclose(np.concatenate(got), ref.numpy(), atol=1e-5, rtol=0)
+    bad_template = template.copy()
+    bad_template[4] = np.inf
+    for kwargs, message in [({"chunk": 0}, "chunk must be a positive number of frames, got 0"),
+                            ({"speaker": 2}, "speaker index 2 is outside the model's 2 style embeddings"),
+                            ({"template": bad_template}, r"template contains 1 NaN/infinite value\(s\)"),
+                            ({"template": template[:12]}, "template has 4 vertices but the model was trained on 5"),
+                            ({"wave": np.zeros(0, np.float32)}, "empty")]:
+        args = {"model": model, "wave": wave, "template": template, "speaker": 0, **kwargs}
+        with pytest.raises(ValueError, match=message):
+            predict_chunks(**args)  # raised at the call: no block was asked for
+
+
 # ---- fast rendering -----------------------------------------------------------------------------------
 def test_raster_renderer_looks_like_the_matplotlib_renderer(sphere):
     v, f = sphere
@@ -100,6 +129,18 @@ def test_raster_renderer_looks_like_the_matplotlib_renderer(sphere):
         slow = MeshRenderer((160, 128)).render(v, f, **kw)
         assert fast.shape == slow.shape == (128, 160, 3) and fast.dtype == np.uint8
         assert np.abs(fast.astype(int) - slow.astype(int)).mean() < 4  # same mesh, shading, colours, caption
+
+
+def test_raster_fast_path_draws_exactly_what_imagedraw_polygon_draws(sphere, monkeypatch):
+    """Packed inks straight to Pillow's C filler vs the public ImageDraw.polygon: the same pixels."""
+    from dualtalker_lite.viz import render as R
+
+    v, f = sphere
+    monkeypatch.setattr(R, "_PILLOW_PACKING", None)
+    fast = RasterRenderer(96).render(v, f, view="three_quarter", colors=v[:, 0])
+    assert R._PILLOW_PACKING is True  # the packing check passed with the installed Pillow
+    monkeypatch.setattr(R, "_PILLOW_PACKING", False)
+    np.testing.assert_array_equal(RasterRenderer(96).render(v, f, view="three_quarter", colors=v[:, 0]), fast)
 
 
 def test_raster_silhouette_area_and_painter_order(sphere):

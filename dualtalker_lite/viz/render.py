@@ -17,7 +17,7 @@ Agg figure and one collection alive and only swaps their contents, which renders
 3,000-face mesh at 256x256 on one CPU core (Agg's anti-aliased polygon filling is most of the time).
 
 ``RasterRenderer`` fills the same polygons with the same colours (steps 1-6) using Pillow's C polygon filler
-(Pillow ships with matplotlib), far to near, at twice the size, then averages 2x2 blocks (anti-aliasing): about
+(Pillow, a declared dependency), far to near, at twice the size, then averages 2x2 blocks (anti-aliasing): about
 6 ms a frame instead of ~25 ms, for long videos (issue 11); it looks the same up to edge anti-aliasing.
 """
 from __future__ import annotations
@@ -265,6 +265,24 @@ def render_frame_rgb(vertices: np.ndarray, faces: np.ndarray, size: int | tuple[
                                   extent, shading, CLAY, True, label)
 
 
+_PILLOW_PACKING: bool | None = None
+
+
+def _pillow_core(draw):
+    """Pillow's C drawing object if it takes RGB inks packed as r | g << 8 | b << 16 | 255 << 24 (checked once
+    against ``draw_ink``), else None (then the public ``ImageDraw.polygon`` is used)."""
+    global _PILLOW_PACKING
+    core = getattr(draw, "draw", None)
+    if _PILLOW_PACKING is None:
+        try:
+            colour = (10, 20, 230)
+            packed = int(np.array([10 | 20 << 8 | 230 << 16 | 255 << 24], np.uint32).view(np.int32)[0])
+            _PILLOW_PACKING = core.draw_ink(colour) == packed and callable(core.draw_polygon)
+        except Exception:  # another Pillow: private API changed
+            _PILLOW_PACKING = False
+    return core if _PILLOW_PACKING else None
+
+
 class RasterRenderer:
     """:class:`MeshRenderer`'s interface and look, filled by Pillow instead of Agg: uint8 (H, W, 3) frames, about
     4x faster. ``supersample`` = 2 draws at twice the size and averages 2x2 blocks (anti-aliasing).
@@ -296,11 +314,20 @@ class RasterRenderer:
         px = np.empty_like(polys.xy)  # (N, 3, 2) metres -> pixels, rows downwards
         px[..., 0] = (polys.xy[..., 0] - (cx - hx)) / (2 * hx) * (w * ss)
         px[..., 1] = ((cy + hy) - polys.xy[..., 1]) / (2 * hy) * (h * ss)
-        rgb = np.clip(np.rint(polys.facecolors[:, :3] * 255.0), 0, 255).astype(int).tolist()
+        rgb = np.clip(np.rint(polys.facecolors[:, :3] * 255.0), 0, 255).astype(np.uint32)  # (N, 3)
         image = Image.new("RGB", (w * ss, h * ss), self.background)
         draw = ImageDraw.Draw(image)
-        for tri, colour in zip(px.reshape(len(px), 6).tolist(), rgb):  # far to near: painter's algorithm
-            draw.polygon(tri, fill=tuple(colour))
+        tris = px.reshape(len(px), 6).tolist()
+        core = _pillow_core(draw)
+        if core is not None:  # far to near: painter's algorithm
+            # Pillow's packed RGBA ink, computed for all faces at once; the C filler directly (~2x faster than
+            # ImageDraw.polygon's per-call colour parsing). The packing is checked against Pillow once.
+            inks = (rgb[:, 0] | rgb[:, 1] << 8 | rgb[:, 2] << 16 | np.uint32(255) << 24).view(np.int32).tolist()
+            for tri, ink in zip(tris, inks):
+                core.draw_polygon(tri, ink, 1)
+        else:
+            for tri, colour in zip(tris, rgb.tolist()):
+                draw.polygon(tri, fill=tuple(colour))
         if ss > 1:
             image = image.resize((w, h), Image.BOX)  # the mean of each ss x ss block
         out = np.array(image)  # (H, W, 3) uint8

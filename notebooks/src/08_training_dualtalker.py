@@ -184,11 +184,16 @@ plt.show()
 #
 # `save_checkpoint` writes the weights, both configs and the history atomically, as plain tensors and values
 # (loadable with `torch.load(weights_only=True)`); `load_checkpoint` rebuilds the model from the stored config.
+# Passing the training speakers (in style-index order) and the mesh's faces makes the checkpoint self-describing:
+# `dualtalker-lite animate --checkpoint ... --list-speakers` names them, and a corpus or template with another
+# topology is refused instead of silently giving a speaker someone else's style.
 # Everything a notebook writes goes under `runs/` (git-ignored).
 
 # %%
-path = save_checkpoint(runs_dir("nb08") / "dualtalker_tiny.pt", model, cfg, tc, history)
+path = save_checkpoint(runs_dir("nb08") / "dualtalker_tiny.pt", model, cfg, tc, history,
+                       speakers=corpus.train_speakers, faces=corpus.faces)
 reloaded, ckpt = load_checkpoint(path)
+assert ckpt["speakers"] == corpus.train_speakers and ckpt["n_vertices"] == corpus.metadata["n_vertices"]
 pred = predict(model, test_batch)                                        # (B, T, V*3) autoregressive
 torch.testing.assert_close(predict(reloaded, test_batch), pred, rtol=0, atol=0)  # bit-identical
 assert ckpt["model_config"] == asdict(cfg) and ckpt["history"]["val_lve"] == history.val_lve
