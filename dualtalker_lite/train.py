@@ -245,12 +245,27 @@ def _budget_used(cfg: TrainConfig, step: int, total_steps: int, wall: float, cpu
     return used
 
 
-def mean_motion(dataset) -> torch.Tensor:
-    """Mean displacement from the template over every frame of every clip of ``dataset`` -> (V*3,) float32, metres."""
+def mean_motion(data) -> torch.Tensor:
+    """Mean displacement from the template over every valid frame -> (V*3,) float32, metres.
+
+    ``data``: a dataset of clips (items with ``vertices`` (T, V*3) and ``template`` (V*3,)), or any iterable of
+    padded batches (``vertices`` (B, T, V*3), ``template`` (B, V*3), ``mask`` (B, T)), e.g. a list of batches.
+    """
+    if hasattr(data, "__len__") and hasattr(data, "__getitem__") and not isinstance(data, (list, tuple)):
+        batches = ({**data[i], "mask": None} for i in range(len(data)))  # one clip at a time
+    else:
+        batches = iter(data)
     total, frames = None, 0
-    for i in range(len(dataset)):
-        item = dataset[i]
-        motion = (item["vertices"] - item["template"][None, :]).double()  # (T, V*3)
+    for b in batches:
+        motion = (b["vertices"] - b["template"].unsqueeze(-2)).double()  # (T, V*3) or (B, T, V*3)
+        if b.get("mask") is not None:
+            motion = motion[b["mask"]]  # (N valid frames, V*3)
+        if not bool(torch.isfinite(motion).all()):
+            from .utils import NonFiniteError
+
+            raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
+                                 "nothing was trained")
+        motion = motion.reshape(-1, motion.shape[-1])
         total = motion.sum(0) if total is None else total + motion.sum(0)
         frames += motion.shape[0]
     if not frames:
@@ -264,7 +279,7 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
         train_loader.generator.manual_seed(cfg.seed)
     init = getattr(model, "init_output_bias", None)
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
-        init(mean_motion(train_loader.dataset))
+        init(mean_motion(getattr(train_loader, "dataset", train_loader)))
     model.to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     total_steps = cfg.epochs * len(train_loader)
