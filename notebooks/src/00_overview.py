@@ -247,7 +247,8 @@ def stand_in_checkpoint() -> Path:
 
         from torch.utils.data import Subset
 
-        data = Subset(TalkingFaceDataset(corpus, "train"), range(0, 224, 3))  # 75 clips, every speaker
+        train_set = TalkingFaceDataset(corpus, "train")
+        data = Subset(train_set, range(0, len(train_set), 3))  # every third clip (59 of 176), every speaker
         set_seed(0)
         cfg = VocaConfig.tiny(n_vertices=V, audio_dim=160, n_speakers=len(corpus.train_speakers))
         model = VocaStyle(cfg)

@@ -471,7 +471,7 @@ plt.show()
 #
 # ### 5.1 Data: two speakers
 #
-# The 44 training clips of speakers SPK03 and SPK04 (a full training run over all 224 clips takes minutes), and
+# The 44 training clips of speakers SPK03 and SPK04 (a full training run over all 176 clips takes minutes), and
 # the 12 test-A clips of the same speakers (sentences never seen in training).
 
 # %%
