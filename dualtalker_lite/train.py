@@ -163,6 +163,7 @@ def _crop(batch: dict, max_frames: int | None, gen: torch.Generator) -> dict:
         if torch.is_tensor(v) and v.dim() >= 2 and v.shape[1] == T:
             out[k] = v[:, start:start + max_frames]
     out["lengths"] = out["mask"].sum(1)
+    out["crop_start"] = start  # frame offset of the crop (per-clip caches key on it)
     if not bool((out["lengths"] > 0).all()):  # a short clip would be empty here: keep the whole batch
         return batch
     return out
