@@ -54,9 +54,9 @@ several jobs, and its wall-clock time ran 2-7x the CPU time. ``epochs=37`` is th
 - What limits the closures at this budget (seed 0, 120 CPU s, measured, not adopted): the same model trained on the
   reconstruction term alone (lambda2 = lambda3 = lambda4 = 0) made 999 steps instead of 681 and reached 0.349 /
   closure 0.62 / 0.91 (both before the kernel cache). So, before the cache, the dual, DR and CCRL terms cost about
-  30% of the step time, and they cost closures as well. The lambdas are the paper's and live in ``losses.LossWeights``, so tuning them (or computing
-  CCRL every k steps) comes next. Past-motion dropout 0.3 instead of 0.5 gave 0.362 / 0.34 / 0.86, within seed
-  noise, so 0.5 stays.
+  30% of the step time, and they cost closures as well. The lambdas are the paper's and live in
+  ``losses.LossWeights``, so tuning them (or computing CCRL every k steps) comes next. Past-motion dropout 0.3
+  instead of 0.5 gave 0.362 / 0.34 / 0.86, within seed noise, so 0.5 stays.
 - The FaceFormer-style baseline, trained with the same recipe and budget (120 CPU s, before the kernel cache, which
   it does not use), reached LVE / template 0.366 / 0.369 / 0.372, closure 0.61 / 0.48 / 0.59 and lip motion
   0.88 / 0.90 / 0.90 (seeds 0 / 1 / 2; 972-1138 steps). None collapsed.
@@ -96,7 +96,7 @@ class TrainConfig:
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
     mean_init: bool = False            # model.init_output_bias(mean training motion) before the first step
-    validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None = last epoch only; 0 = never
+    validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
     weights: LossWeights = field(default_factory=LossWeights)
