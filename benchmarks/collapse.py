@@ -47,10 +47,11 @@ def main() -> None:
                 m = r["metrics"]
                 losses = " ".join(f"{t['primal']:.2f}" for t in r["loss_history"])
                 why = collapse_reasons(m)
-                print(f"{ROWS[key]:16s} mean_init={str(init):5s} seed {seed}: train loss by epoch [{losses}]  test-A LVE "
-                      f"{m['lve_euclidean']:.3f} mm, lip motion {m['smoothing_lips']:.3f}, audio sensitivity "
-                      f"{m.get('audio_sensitivity', float('nan')):.3f} -> {'COLLAPSED (' + '; '.join(why) + ')' if why else 'trains'}"
-                      f"  [{time.process_time() - t0:.0f} CPU s]", flush=True)
+                verdict = f"COLLAPSED ({'; '.join(why)})" if why else "trains"
+                print(f"{ROWS[key]:16s} mean_init={str(init):5s} seed {seed}: train loss by epoch [{losses}]  test-A "
+                      f"LVE {m['lve_euclidean']:.3f} mm, lip motion {m['smoothing_lips']:.3f}, audio sensitivity "
+                      f"{m.get('audio_sensitivity', float('nan')):.3f} -> {verdict}  [{time.process_time() - t0:.0f} "
+                      "CPU s]", flush=True)
     train_module.RECIPE["mean_init"] = recipe_init
 
 

@@ -122,6 +122,11 @@ def main() -> None:
     raw = [b for _, b in zip(range(len(loader)), make_loader(data["train"], bs, shuffle=True, seed=1))]
     collate_s = (time.process_time() - c0) / len(raw)
     step(raw[0], False)
+    if hasattr(model, "kernel_weights") and weights.lambda4:  # per-clip CCRL kernels, as after the first epoch
+        c_k = time.process_time()
+        for b in raw:
+            model.kernel_weights(b, weights)
+        print(f"(filling DualTalker's per-clip CCRL kernel cache, once per run: {time.process_time() - c_k:.2f} s CPU)")
     w0, c0 = time.perf_counter(), time.process_time()
     for b in raw[1:args.steps + 1]:
         step(b, True)
@@ -137,8 +142,8 @@ def main() -> None:
             rbf_kernel_weights(b["vertices"] - b["template"][:, None], weights.bandwidth, b["mask"],
                                weights.kernel_distance)
         kern = (time.process_time() - c0) / args.steps
-        print(f"  {'(in the loss: CCRL kernel)':26s} {kern * 1e3:7.1f} ms  {100 * kern / cpu:5.1f} %  "
-              "(dense (T x T) Gram over all V*3 coordinates of the ground truth, every step)")
+        print(f"  {'(CCRL kernel, uncached)':26s} {kern * 1e3:7.1f} ms  {100 * kern / cpu:5.1f} %  "
+              "(dense (T x T) Gram over all V*3 ground-truth coordinates: what each step paid before the cache)")
     bound = flops / (peak[1] * 1e9)
     print(f"arithmetic lower bound, FLOPs / the best 1-thread GEMM rate ({peak[1]:.1f} GFLOP/s): {bound * 1e3:.1f} ms "
           f"per step; measured CPU time / bound = {cpu / bound:.1f}x")

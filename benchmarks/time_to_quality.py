@@ -66,7 +66,8 @@ def run(model_key: str, seed: int, args, data, base_lve: float) -> dict:
                 next_eval += args.eval_every
             print(f"  {model_key:10s} seed {seed}  {q['cpu_s']:6.1f} CPU s ({q['wall_s']:6.1f} wall, {q['steps']:4d} "
                   f"steps, {q['epochs']:3d} ep)  LVE {q['lve_mm']:.3f} mm = {q['lve_ratio']:.3f}x template  closure "
-                  f"{q['closure_rate']:.2f} (mean min {q['bilabial_min_mm']:.2f} mm)  lip motion {q['lip_motion_ratio']:.2f}",
+                  f"{q['closure_rate']:.2f} (mean min {q['bilabial_min_mm']:.2f} mm)  "
+                  f"lip motion {q['lip_motion_ratio']:.2f}",
                   flush=True)
 
     hist = train(model, make_loader(train_set, cfg.batch_size, shuffle=True, seed=seed), cfg, on_epoch=on_epoch)

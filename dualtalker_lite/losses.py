@@ -281,7 +281,8 @@ def joint_loss(out: dict, batch: dict, weights: LossWeights | None = None) -> tu
                                    beta=w.dr_beta, detach_targets=w.dr_detach_targets)
     if w.lambda4 and have("x", "y") and (w.second_term != "fused" or have("x_fused", "y_fused")):
         motion = batch["vertices"] - batch["template"][:, None, :]  # (B, T, V*3) M_{1:T}
-        terms["ccrl"] = ccrl_loss(out["x"], out["y"], motion, mask, w.bandwidth, x_fused=out.get("x_fused"),
+        terms["ccrl"] = ccrl_loss(out["x"], out["y"], motion, mask, w.bandwidth,
+                                  kernel_weights=batch.get("kernel_weights"), x_fused=out.get("x_fused"),
                                   y_fused=out.get("y_fused"), second_term=w.second_term,
                                   anchor_weighting=w.anchor_weighting, reading=w.ccrl_reading,
                                   temperature=w.temperature, distance=w.kernel_distance)

@@ -14,21 +14,23 @@ The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``; issue 8). What changed and w
 
 Everything below was measured on the shipped sample (corpus v2: 176 neutral training clips of 32-77 frames, test-A
 48 clips) with ONE torch thread, budgets in process CPU seconds (``time.process_time``): the machine is shared by
-several jobs, and its wall-clock time ran 2-7x the CPU time. ``epochs=32`` is that 120 s budget as a step count
-(32 x 22 = 704 steps at 165-175 ms of CPU per step), which is what the experiments runner and ``make demo`` use.
+several jobs, and its wall-clock time ran 2-7x the CPU time. ``epochs=37`` is that 120 s budget as a step count
+(37 x 22 = 814 steps; 795-820 were made in 120 CPU s), which is what the experiments runner and ``make demo`` use.
 
-- Step profile (``benchmarks/profile_step.py``; batch 8, the sample's clips are all shorter than the 90-frame
-  crop): 171 ms CPU per step = forward 45 ms (26%), loss 47 ms (27%; about 18 ms of it the CCRL kernel, a dense
-  (T x T) Gram matrix over all V*3 ground-truth coordinates rebuilt every step), backward 68 ms (40%), gradient
-  clipping + Adam 11 ms (6%); collating a batch 4 ms. 2.5 GFLOP (matmul/conv, forward + backward) at the
-  measured 1-thread GEMM rate of 54-59 GFLOP per CPU second gives a lower bound of 43 ms: the step is 4.0x the
-  bound. The matmuls run near the GEMM rate (about 60 ms of self time); the rest is memory-bound element-wise
-  passes over (B, T, V*3) tensors (masks, the mm scaling, the vertex MSE, the kernel) and Adam. Removed: the
-  per-epoch validation (now only when a validation loader is passed, and by default the runner passes none), a
-  pass over (B, T, V*3) each way by folding the mm scale into the motion encoder/decoder weights. Not removed:
-  the CCRL kernel (caching it per clip needs ``losses.joint_loss`` to accept precomputed weights).
-  Threads: two threads give 45 GFLOP per CPU second on GEMM (0.76x per core), at most 1.5x on two idle cores and
-  much less on a shared one, so the recipe pins one thread (``threads=1``).
+- Step profile (``benchmarks/profile_step.py``, quiet moment; batch 8, the sample's clips are all shorter than the
+  90-frame crop). Before: 156 ms CPU per step = forward 41 ms (26%), loss 44 ms (28%), backward 60 ms (38%),
+  gradient clipping + Adam 10 ms (7%). CCRL's kernel alone took 18-28 ms: a dense (T x T) Gram matrix over all
+  V*3 ground-truth coordinates, rebuilt at every step although it depends on the data only. DualTalker now
+  caches it per clip (:meth:`DualTalker.kernel_weights`, filled in 0.26 s), and the step is 128 ms = forward
+  38 ms (30%), loss 24 ms (18%), backward 56 ms (44%), clip + Adam 10 ms (8%); collating a batch takes 4 ms in
+  the loader. A step is 2.4 GFLOP (matmul/conv, forward + backward), and the 1-thread GEMM measured 60-71 GFLOP
+  per CPU second, so the arithmetic lower bound is 35 ms: the step is 3.7x the bound (4.4x before the cache).
+  The matmuls run close to the GEMM rate. The rest is memory-bound element-wise passes over (B, T, V*3) tensors
+  (padding masks, the vertex MSE and its gradient) plus Adam. Also removed: a pass over (B, T, V*3) each way, by
+  folding the mm scale into the motion encoder/decoder weights, and per-epoch validation (now only when a
+  validation loader is passed; the runner passes none). Threads: two threads give 46-49 GFLOP per CPU second
+  on GEMM (0.64-0.70x per core), so at most 1.3-1.4x on two idle cores and less on a shared machine; the recipe
+  pins one thread (``threads=1``).
 - Output-bias initialisation at the training set's mean motion (``mean_init``; ``models.dualtalker`` docstring,
   "Mean-face collapse"): the largest gain. Old sample, seed 0, lr 3e-3 constant, clip 1: test-A LVE / template
   0.566 at 63 CPU s without it against 0.420 with it, bilabial closure 0.00 against 0.35; 0.367, closure 0.65,
@@ -43,19 +45,21 @@ several jobs, and its wall-clock time ran 2-7x the CPU time. ``epochs=32`` is th
   went from 0.358 to 0.367 between 95 and 120 s). Not isolated on the new sample with clipping on.
 - Batch 8 and whole clips: batch 4 was worse at equal CPU time (0.714 against 0.617 at 42 s, both unclipped);
   40-frame crops with lr 6e-3 made 48% more steps but ended at 0.373 / 0.24 / 0.80.
-- Results of the recipe at 120 CPU s, seeds 0 / 1 / 2 (``benchmarks/time_to_quality.py``): LVE / template
-  0.358 / 0.335 / 0.361 (target <= 0.35: seed 1 only), bilabial closure < 2 mm 0.27 / 0.44 / 0.51 (target >= 0.8:
-  not met; the static template scores 0.50 because its rest gap is 1.94 mm), lip motion ratio 0.86 / 0.85 / 0.85
-  (target 0.8-1.2: met). The closures are what is missing: the mean minimum lip distance at /p b m/ is 2.6-3.9 mm
-  against 0.3 mm in the ground truth.
+- Results of the recipe at 120 CPU s, seeds 0 / 1 / 2 (``benchmarks/time_to_quality.py``, with the kernel
+  cache): LVE / template 0.342 / 0.318 / 0.352 (target <= 0.35: seeds 0 and 1), bilabial closure < 2 mm
+  0.39 / 0.53 / 0.55 (target >= 0.8: not met; the static template scores 0.50 because its rest gap is 1.94 mm),
+  lip motion ratio 0.88 / 0.87 / 0.84 (target 0.8-1.2: met). Before the cache (681-737 steps):
+  0.358 / 0.335 / 0.361, closure 0.27 / 0.44 / 0.51, lip motion 0.86 / 0.85 / 0.85. The closures are what is
+  missing: the mean minimum lip distance at /p b m/ is 2.5-3.0 mm, against 0.3 mm in the ground truth.
 - What limits the closures at this budget (seed 0, 120 CPU s, measured, not adopted): the same model trained on the
-  reconstruction term alone (lambda2 = lambda3 = lambda4 = 0) makes 999 steps instead of 681 and reaches 0.349 /
-  closure 0.62 / 0.91. The dual, DR and CCRL terms therefore cost about 30% of the step time and, so far, cost
-  closures as well. The lambdas are the paper's and live in ``losses.LossWeights``, so tuning them (or computing
-  CCRL every k steps) comes next. Past-motion dropout 0.3 instead of 0.5 gave 0.362 / 0.34 / 0.86, within seed
-  noise, so 0.5 stays.
-- The FaceFormer-style baseline trained with the same recipe and budget reaches LVE / template 0.366 and 0.369,
-  closure 0.61 and 0.48, lip motion 0.88 and 0.90 (seeds 0 and 1). Neither collapses.
+  reconstruction term alone (lambda2 = lambda3 = lambda4 = 0) made 999 steps instead of 681 and reached 0.349 /
+  closure 0.62 / 0.91 (both before the kernel cache). So, before the cache, the dual, DR and CCRL terms cost about
+  30% of the step time, and they cost closures as well. The lambdas are the paper's and live in
+  ``losses.LossWeights``, so tuning them (or computing CCRL every k steps) comes next. Past-motion dropout 0.3
+  instead of 0.5 gave 0.362 / 0.34 / 0.86, within seed noise, so 0.5 stays.
+- The FaceFormer-style baseline, trained with the same recipe and budget (120 CPU s, before the kernel cache, which
+  it does not use), reached LVE / template 0.366 / 0.369 / 0.372, closure 0.61 / 0.48 / 0.59 and lip motion
+  0.88 / 0.90 / 0.90 (seeds 0 / 1 / 2; 972-1138 steps). None collapsed.
 """
 from __future__ import annotations
 
@@ -92,7 +96,7 @@ class TrainConfig:
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
     mean_init: bool = False            # model.init_output_bias(mean training motion) before the first step
-    validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None = last epoch only; 0 = never
+    validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
     weights: LossWeights = field(default_factory=LossWeights)
@@ -113,9 +117,10 @@ class TrainConfig:
 
 
 # The recipe of the tiny models (module docstring: what changed and why, with the measurements). ``epochs`` is the
-# 120 s budget: 32 epochs x 22 steps (176 training clips, batches of 8) = 704 steps at the measured 165-175 ms of
-# one-thread CPU time per step (benchmarks/profile_step.py, benchmarks/time_to_quality.py).
-RECIPE = dict(epochs=32, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
+# 120 s budget as a step count: 37 epochs x 22 steps (176 training clips, batches of 8) = 814 steps, what the tiny
+# DualTalker made in 120 s of one-thread CPU time in benchmarks/time_to_quality.py (795-820 steps; 104 s at the
+# quiet 128 ms per step of benchmarks/profile_step.py).
+RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
               min_lr_ratio=0.0, threads=1, mean_init=True)
 
 
@@ -163,6 +168,7 @@ def _crop(batch: dict, max_frames: int | None, gen: torch.Generator) -> dict:
         if torch.is_tensor(v) and v.dim() >= 2 and v.shape[1] == T:
             out[k] = v[:, start:start + max_frames]
     out["lengths"] = out["mask"].sum(1)
+    out["crop_start"] = start  # frame offset of the crop (per-clip caches key on it)
     if not bool((out["lengths"] > 0).all()):  # a short clip would be empty here: keep the whole batch
         return batch
     return out

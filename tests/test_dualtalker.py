@@ -293,3 +293,25 @@ def test_loss_method_is_the_joint_loss_and_the_output_bias_init_gives_the_mean()
     pred = model.eval().generate(batch["audio"], batch["template"], batch["speaker"])
     # zero decoder weights: every frame = template + the given mean motion
     torch.testing.assert_close(pred, (batch["template"] + mean)[:, None].expand_as(pred), rtol=0, atol=1e-7)
+
+
+def test_cached_ccrl_kernel_equals_the_batched_kernel_and_leaves_the_loss_unchanged():
+    from dualtalker_lite.losses import LossWeights, joint_loss, rbf_kernel_weights
+
+    model, batch = _model(perturb=False).train(), _batch(b=3, t=10)
+    batch["mask"][1, 7:] = False  # a shorter clip: padding must stay out of its matrix
+    batch["name"] = ["a", "b", "c"]
+    w = LossWeights(lambda4=0.5)
+    motion = batch["vertices"] - batch["template"][:, None]
+    expected = rbf_kernel_weights(motion, None, batch["mask"])  # (B, T, T), per-sequence median heuristic
+    got = model.kernel_weights(batch, w)
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+    assert len(model._kernel_cache) == 3 and "_kernel_cache" not in str(model.state_dict().keys())
+    torch.manual_seed(0)
+    out = model(batch)
+    total, terms = model.loss(out, batch, w)
+    ref_total, ref_terms = joint_loss(out, batch, w)  # computes the kernel itself
+    torch.testing.assert_close(terms["ccrl"], ref_terms["ccrl"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(total, ref_total, rtol=1e-5, atol=1e-6)
+    batch["mask"][0, 2] = False  # not a valid prefix: no cache, the loss computes the kernel
+    assert model.kernel_weights(batch, w) is None

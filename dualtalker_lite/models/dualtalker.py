@@ -71,7 +71,7 @@ from ..blocks.attention import merge_heads, scaled_dot_product_attention, split_
 from ..blocks.fusion import DualFusionLayer
 from ..blocks.positional import PeriodicPositionalEncoding
 from ..blocks.windowed import SlidingKVCache, alibi_lag_bias
-from ..losses import LossWeights, joint_loss
+from ..losses import LossWeights, joint_loss, rbf_kernel_weights
 from .audio_encoder import AudioFeatureExtractor
 
 __all__ = ["DualTalkerConfig", "faceformer_config", "TransposedLinear", "DualTalker"]
@@ -312,8 +312,47 @@ class DualTalker(nn.Module):
 
     def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
         """The joint loss of section III-F, λ1 L_primal + λ2 L_dual + λ3 L_DR + λ4 L_CCRL (``losses.joint_loss``)
-        on :meth:`forward`'s output -> (total, detached terms). The training loop calls this, not the loss module."""
-        return joint_loss(out, batch, weights)
+        on :meth:`forward`'s output -> (total, detached terms). The training loop calls this, not the loss module.
+
+        In training, CCRL's kernel weights (a function of the ground-truth motion only) come from a per-clip cache
+        (:meth:`kernel_weights`) instead of a dense Gram matrix over all V*3 coordinates at every step."""
+        w = weights or LossWeights()
+        if w.lambda4 and self.training and "kernel_weights" not in batch:
+            kernel = self.kernel_weights(batch, w)
+            if kernel is not None:
+                batch = {**batch, "kernel_weights": kernel}
+        return joint_loss(out, batch, w)
+
+    _KERNEL_CACHE_SIZE = 8192  # clips (x crop offsets); a (T, T) float32 matrix each, ~24 kB at T = 77
+
+    @torch.no_grad()
+    def kernel_weights(self, batch: dict, weights: LossWeights) -> Tensor | None:
+        """CCRL's w_{k,t} (``losses.rbf_kernel_weights``) for a batch, assembled from per-clip matrices computed
+        once per (clip, crop offset, valid length, bandwidth, distance) -> (B, T, T), or None when the batch has
+        no clip names or a mask that is not a valid prefix (then the loss computes it). Each clip's matrix is what
+        the batched function gives for that clip (the median heuristic is per sequence), so the loss is unchanged."""
+        mask, names = batch.get("mask"), batch.get("name")
+        if mask is None or names is None or len(names) != mask.shape[0]:
+            return None
+        lengths = mask.sum(1)
+        if not bool((mask == (torch.arange(mask.shape[1], device=mask.device)[None] < lengths[:, None])).all()):
+            return None
+        cache = self.__dict__.setdefault("_kernel_cache", {})  # a plain attribute: not in the state_dict
+        if len(cache) > self._KERNEL_CACHE_SIZE:
+            cache.clear()
+        B, T = mask.shape
+        out = batch["vertices"].new_zeros(B, T, T)
+        start = int(batch.get("crop_start", 0))
+        for i, name in enumerate(names):
+            n = int(lengths[i])
+            key = (name, start, n, weights.bandwidth, weights.kernel_distance)
+            k = cache.get(key)
+            if k is None:
+                motion = (batch["vertices"][i, :n] - batch["template"][i])[None]  # (1, n, V*3)
+                valid = torch.ones(1, n, dtype=torch.bool, device=mask.device)
+                k = cache[key] = rbf_kernel_weights(motion, weights.bandwidth, valid, weights.kernel_distance)[0]
+            out[i, :n, :n] = k
+        return out  # (B, T, T)
 
     # ---- inference: the primal task, autoregressively ---------------------------------------------
     @torch.no_grad()
