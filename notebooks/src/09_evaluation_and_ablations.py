@@ -102,8 +102,9 @@ plot_frames(np.stack([template0] * 3), corpus.faces, colors=member, cmap="Blues"
             suptitle="The vertex sets of the three metrics (template of SPK03)")
 
 # %% [markdown]
-# The live part of this notebook trains two small models the way notebook 08 did (learning rate 6e-3, 40-frame
-# crops), both with the same features, data and number of epochs and no model selection: the tiny **DualTalker**
+# The live part of this notebook trains two small models the way notebook 08 did (`TrainConfig.tiny` with learning
+# rate 6e-3 and 40-frame crops; the recipe's warm-up, cosine decay and mean-motion output initialisation), both
+# with the same features, data and number of epochs and no model selection: the tiny **DualTalker**
 # (joint loss, default $\lambda$'s) and the **FaceFormer-style** baseline (`faceformer_config`: primal task only,
 # no speaker gate, FaceFormer's diagonal alignment; reconstruction loss alone). To fit in the time budget they see
 # only the 44 training clips of speakers SPK03 and SPK04, for 12 epochs, and are evaluated on the
