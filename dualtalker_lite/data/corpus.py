@@ -246,13 +246,13 @@ class Corpus:
 
     def _check_plausible(self, name: str, verts: np.ndarray, tpl: np.ndarray) -> None:
         """NaN/inf, millimetres-instead-of-metres and scrambled layouts, judged against the speaker's template."""
-        bad = ~np.isfinite(verts)
-        if bad.any():
+        far = float(np.abs(verts - tpl).max())  # one pass; NaN if any value is NaN, inf if any is infinite
+        if not np.isfinite(far):
+            bad = ~np.isfinite(verts)
             frames = np.unique(np.nonzero(bad)[0])
             raise ValueError(f"clip {name!r} ({self.root}): {int(bad.sum())} NaN/infinite vertex value(s) in "
                              f"{len(frames)} frame(s), first at frame {int(frames[0])}")
         size = _extent(tpl)
-        far = float(np.abs(verts - tpl).max())
         if far > MAX_DISPLACEMENT * size:
             ratio = _extent(verts) / max(size, 1e-12)
             if 300 < ratio < 3000:
