@@ -1,4 +1,7 @@
 """The retraining panel of notebook 08 (dualtalker_lite.viz.widgets), without a browser."""
+import datetime
+
+import numpy as np
 import pytest
 import torch
 
@@ -59,3 +62,77 @@ def test_panel_gives_the_button_back_after_a_failure():
         panel.run()
     assert not panel.button.disabled and panel.progress.bar_style == "danger"
     assert panel.status.value.startswith("training failed after ") and "loss is NaN" in panel.status.value
+
+
+# ---------------------------------------------------------------------------------- RecordingPanel (notebook 00)
+@pytest.fixture(scope="module")
+def recording_setup(tmp_path_factory):
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+    from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = VocaConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                          n_speakers=len(corpus.train_speakers))
+    path = tmp_path_factory.mktemp("ckpt") / "voca.pt"
+    save_checkpoint(path, VocaStyle(cfg).eval(), cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+    wave = corpus.wave("SPK01_s02")[:16000]  # 1 s of a test clip's speech -> 30 frames
+    return corpus, path, wave
+
+
+def test_recording_panel_builds_with_the_checkpoints_speakers(recording_setup):
+    from dualtalker_lite.viz.widgets import RecordingPanel
+
+    corpus, path, wave = recording_setup
+    panel = RecordingPanel(corpus, [path], default_wave=wave, root=path.parent)
+    assert panel.checkpoint.options == (("voca.pt", path),)
+    assert list(panel.speaker.options) == corpus.train_speakers and panel.speaker.value == "SPK01"
+    assert not panel.button.disabled and panel.button.description == "Animate"
+
+
+def test_recording_panel_default_path_animates_like_the_cli(recording_setup):
+    from dualtalker_lite.checkpoints import load_checkpoint
+    from dualtalker_lite.inference import animate_wave
+    from dualtalker_lite.viz import ClipAnimation
+    from dualtalker_lite.viz.widgets import RecordingPanel, animate_recording
+
+    corpus, path, wave = recording_setup
+    panel = RecordingPanel(corpus, [path], default_wave=wave, size=64)
+    panel.speaker.value = "SPK03"
+    states = []
+    panel.button.observe(lambda change: states.append(change["new"]), names="disabled")
+    anim = panel.run()
+    assert isinstance(anim, ClipAnimation)
+    assert states == [True, False] and not panel.button.disabled and panel.button.description == "Animate"
+    assert panel.status.value.startswith("the default clip: 30 frames (1.0 s) as SPK03, done in ")
+    # the same vertices as the inference path with SPK03's style index (2 in the checkpoint's list) and template
+    model, _ = load_checkpoint(path)
+    expected = animate_wave(model, wave, corpus.template("SPK03"), corpus.train_speakers.index("SPK03"))
+    _, verts = animate_recording(wave, path, "SPK03", corpus, size=64)
+    assert verts.shape == (30, 3 * corpus.metadata["n_vertices"])
+    np.testing.assert_allclose(verts, expected, atol=1e-6)
+
+
+def test_recording_panel_bad_upload_is_one_line_in_the_status(recording_setup):
+    from dualtalker_lite.viz.widgets import RecordingPanel
+
+    corpus, path, wave = recording_setup
+    panel = RecordingPanel(corpus, [path], default_wave=wave, size=64)
+    noise = np.random.default_rng(0).integers(0, 256, 2000, dtype=np.uint8).tobytes()
+    panel.upload.value = ({"name": "me.wav", "type": "audio/wav", "size": len(noise), "content": memoryview(noise),
+                           "last_modified": datetime.datetime(2026, 1, 1, tzinfo=datetime.timezone.utc)},)
+    assert panel.run() is None  # no exception
+    assert panel.status.value.startswith("error: ") and "me.wav" in panel.status.value
+    assert "\n" not in panel.status.value and not panel.button.disabled
+
+
+def test_recording_panel_unknown_speaker_and_no_checkpoint(recording_setup):
+    from dualtalker_lite.viz.widgets import RecordingPanel, animate_recording
+
+    corpus, path, wave = recording_setup
+    with pytest.raises(ValueError, match="unknown speaker 'NOBODY'; this model knows: SPK01"):
+        animate_recording(wave, path, "NOBODY", corpus)
+    with pytest.raises(ValueError, match="at least one checkpoint"):
+        RecordingPanel(corpus, [], default_wave=wave)

@@ -6,6 +6,12 @@ number of training steps, a Train button, a progress bar and a status line. Pres
 runs the notebook's own retrain function with the current settings while the progress bar follows the training
 steps, shows the figure it returns, writes "retrained in X s" and enables the button again (also after an error).
 
+``RecordingPanel`` (notebook 00) animates the user's own recording: a WAV/FLAC upload, checkpoint and speaker
+dropdowns, an Animate button (disabled while working) with a one-line status, and an output area. The work is
+:func:`animate_recording`, the ``dualtalker-lite animate`` path (:func:`~dualtalker_lite.checkpoints.load_checkpoint`,
+:func:`~dualtalker_lite.inference.resolve_speaker`, the checkpoint's own feature extractor,
+:func:`~dualtalker_lite.inference.animate_wave`) ending in an embedded animation instead of files.
+
 ``progress_loader`` wraps a data loader so that a callback runs once per batch, without changing the batches,
 their order or the seeding ``train`` applies to the loader's generator (same settings, same history).
 
@@ -13,12 +19,16 @@ ipywidgets is imported when a panel is built, so importing this module needs onl
 """
 from __future__ import annotations
 
+import tempfile
 import time
+from pathlib import Path
 from typing import Callable, Iterable
+
+import numpy as np
 
 from ..losses import LossWeights
 
-__all__ = ["progress_loader", "RetrainPanel"]
+__all__ = ["progress_loader", "RetrainPanel", "animate_recording", "RecordingPanel"]
 
 Settings = tuple[tuple[float, float, float, float], "float | None", int]
 
@@ -113,3 +123,100 @@ class RetrainPanel:
 
             display(fig)
         return result
+
+
+def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, corpus, size: int = 256):
+    """16 kHz speech (N,) -> the animation (with the speech) of ``speaker``'s face, predicted as the CLI does.
+
+    The speaker names come from the checkpoint (old checkpoints without names: from ``corpus``); the neutral
+    face is the corpus template of that speaker. Returns ``(animation, vertices (T, V*3))``.
+    """
+    from ..checkpoints import extractor_from_settings, load_checkpoint
+    from ..inference import animate_wave, resolve_speaker
+    from .animate import animate_clip
+
+    model, info = load_checkpoint(checkpoint)
+    index, _ = resolve_speaker(info, speaker, corpus)
+    if speaker not in corpus.speakers:
+        raise ValueError(f"the corpus has no face for speaker {speaker!r}")
+    extractor = extractor_from_settings(info.get("features"), str(checkpoint))
+    verts = animate_wave(model, wave, corpus.template(speaker), index, extractor=extractor)  # (T, V*3)
+    anim = animate_clip(verts.reshape(len(verts), -1, 3), corpus.faces, wave=wave,
+                        sample_rate=extractor.sample_rate, size=size)
+    return anim, verts
+
+
+class RecordingPanel:
+    """Upload + checkpoint + speaker + Animate button for :func:`animate_recording` (notebook 00, section 6).
+
+    ``checkpoints``: paths of ``*.pt`` files (labelled relative to ``root`` when given); ``default_wave``: the
+    16 kHz speech animated when nothing is uploaded. ``panel.widget`` is the box to ``display``;
+    ``panel.run()`` does what the button does and returns the animation (None after an error, whose first line
+    is shown in ``panel.status``).
+    """
+
+    def __init__(self, corpus, checkpoints: Iterable[str | Path], default_wave: np.ndarray,
+                 root: str | Path | None = None, size: int = 256):
+        import ipywidgets as widgets
+
+        checkpoints = [Path(p) for p in checkpoints]
+        if not checkpoints:
+            raise ValueError("RecordingPanel needs at least one checkpoint")
+        label = (lambda p: str(p.relative_to(root))) if root is not None else str
+        self.corpus, self.default_wave, self.size = corpus, np.asarray(default_wave, np.float32), size
+        self.upload = widgets.FileUpload(accept=".wav,.flac", multiple=False, description="WAV")
+        self.checkpoint = widgets.Dropdown(options=[(label(p), p) for p in checkpoints], description="checkpoint")
+        self.speaker = widgets.Dropdown(description="speaker")
+        self.button = widgets.Button(description="Animate", button_style="primary")
+        self.status = widgets.Label(value="no upload: the default clip's speech will be animated")
+        self.output = widgets.Output()
+        self.checkpoint.observe(lambda _: self._speakers(), names="value")
+        self.button.on_click(lambda _: self.run())
+        self._speakers()
+        self.widget = widgets.VBox([widgets.HBox([self.upload, self.checkpoint, self.speaker, self.button]),
+                                    self.status, self.output])
+
+    def _speakers(self) -> None:
+        from ..checkpoints import load_checkpoint
+
+        options = list(load_checkpoint(self.checkpoint.value)[1].get("speakers") or self.corpus.train_speakers)
+        self.speaker.options = options
+        self.speaker.value = "SPK01" if "SPK01" in options else options[0]
+
+    def _wave(self) -> tuple[np.ndarray, str]:
+        """The uploaded file (validated, resampled to 16 kHz) or the default speech, and its name."""
+        from ..audio import load_audio
+
+        if not self.upload.value:
+            return self.default_wave, "the default clip"
+        item = self.upload.value[0]  # ipywidgets 8: a tuple of {"name", "content", ...}
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / Path(item["name"]).name
+            path.write_bytes(bytes(item["content"]))
+            try:
+                return load_audio(path), item["name"]
+            except Exception as e:  # the message names the temporary path; name the upload instead
+                raise ValueError(str(e).replace(str(path), item["name"])) from e
+
+    def run(self):
+        """Animate the upload (or the default speech) with the chosen checkpoint and speaker."""
+        self.button.disabled, self.button.description = True, "Working..."
+        self.status.value = "animating..."
+        t0 = time.perf_counter()
+        try:
+            wave, source = self._wave()
+            anim, verts = animate_recording(wave, self.checkpoint.value, self.speaker.value, self.corpus, self.size)
+        except (ValueError, KeyError, OSError, RuntimeError) as e:  # bad audio, unknown speaker, bad checkpoint
+            lines = str(e).strip().splitlines()
+            self.status.value = f"error: {lines[0] if lines else type(e).__name__}"
+            return None
+        finally:
+            self.button.disabled, self.button.description = False, "Animate"
+        self.status.value = (f"{source}: {len(verts)} frames ({len(wave) / 16000:.1f} s) as "
+                             f"{self.speaker.value}, done in {time.perf_counter() - t0:.1f} s")
+        with self.output:
+            self.output.clear_output(wait=True)
+            from IPython.display import display
+
+            display(anim)
+        return anim

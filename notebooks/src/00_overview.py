@@ -224,107 +224,58 @@ HTML(video._repr_html_())  # the player only (the object's repr would show a loc
 
 # %%
 # NBVAL_IGNORE_OUTPUT
-import tempfile
-from pathlib import Path
-
-import ipywidgets as widgets
-from IPython.display import display
-
-from dualtalker_lite.audio import load_audio
 from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint, save_checkpoint
 from dualtalker_lite.inference import animate_wave, resolve_speaker
 from dualtalker_lite.utils import runs_dir
 
 
-def stand_in_checkpoint() -> Path:
+def stand_in_checkpoint():
     """A quickly trained VOCA-style model, written once to runs/nb00/ (a self-describing checkpoint)."""
+    from torch.utils.data import Subset
+
+    from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
+    from dualtalker_lite.losses import LossWeights
+    from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
+    from dualtalker_lite.train import TrainConfig, train
+
     path = runs_dir("nb00") / "voca_stand_in.pt"
     if not path.exists():
-        from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
-        from dualtalker_lite.losses import LossWeights
-        from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
-        from dualtalker_lite.train import TrainConfig, train
-
-        from torch.utils.data import Subset
-
         train_set = TalkingFaceDataset(corpus, "train")
         data = Subset(train_set, range(0, len(train_set), 3))  # every third clip (59 of 176), every speaker
         set_seed(0)
         cfg = VocaConfig.tiny(n_vertices=V, audio_dim=160, n_speakers=len(corpus.train_speakers))
-        model = VocaStyle(cfg)
-        tc = TrainConfig.tiny(epochs=3, progress=False, validate_every=0,
-                              weights=LossWeights(lambda2=0.0, lambda3=0.0, lambda4=0.0))
+        model, tc = VocaStyle(cfg), TrainConfig.tiny(epochs=3, progress=False, validate_every=0,
+                                                     weights=LossWeights(lambda2=0.0, lambda3=0.0, lambda4=0.0))
         history = train(model, make_loader(data, tc.batch_size, seed=0), tc)
         save_checkpoint(path, model, cfg, tc, history, speakers=corpus.train_speakers, faces=corpus.faces)
     return path
 
 
-checkpoints = sorted(p for p in runs_dir().rglob("*.pt") if not p.name.startswith(".")) or [stand_in_checkpoint()]
-print("checkpoints:", [str(p.relative_to(runs_dir())) for p in checkpoints])
-
-
-def animate_recording(wave: np.ndarray, checkpoint: Path, speaker: str):
-    """16 kHz speech -> an mp4 (with the speech) of the chosen speaker's face, as the CLI would make it."""
-    model, info = load_checkpoint(checkpoint)
-    index, _ = resolve_speaker(info, speaker, corpus)  # names from the checkpoint (old ones: from the corpus)
-    extractor = extractor_from_settings(info.get("features"), str(checkpoint))
-    verts = animate_wave(model, wave, corpus.template(speaker), index, extractor=extractor)  # (T, V*3)
-    return animate_clip(verts.reshape(len(verts), V, 3), corpus.faces, wave=wave, sample_rate=16000, size=256)
-
-
 # %% [markdown]
-# The widget: upload, pick, animate. Errors (a stereo file, a speaker the model does not know, ...) appear as
-# one line under the button.
+# The widget (`dualtalker_lite.viz.widgets.RecordingPanel`): upload, pick, animate. The button is disabled while
+# it works; errors (a stereo file, a speaker the model does not know, ...) appear as one line under it.
 
 # %%
 # NBVAL_IGNORE_OUTPUT
-upload = widgets.FileUpload(accept=".wav,.flac", multiple=False, description="WAV")
-pick_ckpt = widgets.Dropdown(options=[(str(p.relative_to(runs_dir())), p) for p in checkpoints],
-                             description="checkpoint")
-pick_speaker = widgets.Dropdown(description="speaker")
-go = widgets.Button(description="Animate", button_style="primary")
-shown = widgets.Output()
+from IPython.display import display
 
+from dualtalker_lite.viz.widgets import RecordingPanel
 
-def _speakers(_=None):
-    info = load_checkpoint(pick_ckpt.value)[1]
-    options = list(info.get("speakers") or corpus.train_speakers)
-    pick_speaker.options = options
-    pick_speaker.value = "SPK01" if "SPK01" in options else options[0]
-
-
-def _animate(_=None):
-    shown.clear_output()
-    with shown:
-        try:
-            if upload.value:  # ipywidgets 8: a tuple of {"name", "content", ...}
-                item = upload.value[0]
-                with tempfile.TemporaryDirectory() as tmp:
-                    path = Path(tmp) / Path(item["name"]).name
-                    path.write_bytes(bytes(item["content"]))
-                    wave = load_audio(path)  # validated, resampled to 16 kHz
-            else:
-                wave = corpus.wave(name)     # no upload: the test clip of the tour
-            display(animate_recording(wave, pick_ckpt.value, pick_speaker.value))
-        except (ValueError, KeyError, OSError) as e:
-            print(f"error: {e}")
-
-
-pick_ckpt.observe(_speakers, names="value")
-go.on_click(_animate)
-_speakers()
-display(widgets.VBox([widgets.HBox([upload, pick_ckpt, pick_speaker, go]), shown]))
-_animate()  # the default path, run once so the notebook shows (and nbval checks) a result
+checkpoints = sorted(p for p in runs_dir().rglob("*.pt") if not p.name.startswith(".")) or [stand_in_checkpoint()]
+panel = RecordingPanel(corpus, checkpoints, default_wave=corpus.wave(name), root=runs_dir())
+display(panel.widget)
+panel.run()  # the default path (no upload: the tour's test clip), run once so the notebook shows a result
+print(panel.status.value)
 
 # %%
 # The default path without widgets, checked: a shipped clip's speech through the chosen checkpoint.
-model_own, info_own = load_checkpoint(pick_ckpt.value)
-index_own, _ = resolve_speaker(info_own, pick_speaker.value, corpus)
-verts_own = animate_wave(model_own, corpus.wave(name), corpus.template(pick_speaker.value), index_own,
+model_own, info_own = load_checkpoint(panel.checkpoint.value)
+index_own, _ = resolve_speaker(info_own, panel.speaker.value, corpus)
+verts_own = animate_wave(model_own, corpus.wave(name), corpus.template(panel.speaker.value), index_own,
                          extractor=extractor_from_settings(info_own.get("features")))  # (T, V*3)
 assert verts_own.shape == (T, 3 * V) and np.isfinite(verts_own).all()
-print(f"{pick_speaker.value}: {len(verts_own)} frames, mouth moves up to "
-      f"{1000 * np.abs(verts_own - corpus.template(pick_speaker.value)).max():.1f} mm from the template")
+print(f"{panel.speaker.value}: {len(verts_own)} frames, mouth moves up to "
+      f"{1000 * np.abs(verts_own - corpus.template(panel.speaker.value)).max():.1f} mm from the template")
 
 # %% [markdown]
 # ## Summary
