@@ -222,3 +222,73 @@ def test_prosody_features_stack_context_frames():
     np.testing.assert_array_equal(f[:3, 0:3], np.repeat(base[:1], 3, 0))   # t - 2 < 0: the first frame (edge)
     np.testing.assert_array_equal(f[:-2, 12:15], base[2:])   # k = 4: frame t + 2
     assert (base[2:-2, 1] == 1).all() and np.abs(base[2:-2, 0]).max() < 0.2   # voiced, at the median F0
+
+
+class _TinyCorpus:
+    """Two brow vertices on one clip whose brow height (mm) and blink control are set by hand."""
+
+    fps, metadata = 30, {"n_vertices": 2}
+    regions = {"brows": np.array([0, 1])}
+
+    def __init__(self, brow_mm, blink, phonemes, stress):
+        T = len(brow_mm)
+        v = np.zeros((T, 2, 3), np.float32)
+        v[:, :, 1] = np.asarray(brow_mm)[:, None] / 1000 + 0.01     # both vertices, template y = 0.01 m
+        self._v, self._meta = v.reshape(T, 6), {"subject": "S", "phonemes": phonemes, "stress": stress}
+        controls = np.zeros((T, len(C)), np.float32)
+        controls[:, C["blink"]] = blink
+        self._controls = {"clip": controls}
+
+    def meta(self, name):
+        return self._meta
+
+    def vertices(self, name):
+        return self._v
+
+    def template(self, subject):
+        return np.tile(np.float32([0.0, 0.01, 0.0]), 2)
+
+    def _all_controls(self):
+        return self._controls
+
+
+def test_event_locked_brows_hand_made_clip():
+    """Brow height t^2/10 mm at frame t: each window row is ((f+w)^2 - (f-6)^2)/10 for onset frame f."""
+    from dualtalker_lite.data.probe import event_locked_brows, onset_lift
+
+    t = np.arange(40.0)
+    phonemes = [("a", 0.05, 0.2),   # frame 2: window starts before the clip -> skipped
+                ("p", 0.3, 0.5),    # a consonant -> not a vowel onset
+                ("a", 0.5, 0.6),    # frame 15, primary stress
+                ("I", 0.8, 0.9),    # frame 24, unstressed
+                ("E", 0.7, 0.8),    # frame 21, secondary stress (1) counts as unstressed
+                ("O", 0.85, 1.0)]   # frame 26 (25.5 rounds to 26): 26 + 15 = 41 > 39 -> skipped
+    corpus = _TinyCorpus(t ** 2 / 10, np.zeros(40), phonemes, [2, 0, 2, 0, 1, 0])
+    window = np.arange(-6, 16)
+    locked = event_locked_brows(corpus, ["clip"], window)
+    row = lambda f: ((f + window) ** 2 - (f - 6) ** 2) / 10
+    np.testing.assert_allclose(locked["stressed vowel"], [row(15)], atol=1e-3)
+    np.testing.assert_allclose(locked["unstressed vowel"], [row(24), row(21)], atol=1e-3)
+    # lift: max over [0, 6] minus min over [-6, 0]; for row(15): (21^2 - 9^2)/10 - 0 = 36
+    assert onset_lift(locked["stressed vowel"][0], window) == pytest.approx(36.0, abs=1e-3)
+    assert onset_lift(-window.astype(float), window) == 0.0   # falling: both extremes are the onset value 0
+
+
+def test_pause_blink_ratio_hand_made_clip():
+    """2 s, pauses at 0.5 s (0.1 s long, counts) and 1.0 s (0.05 s, too short); blinks start after frames 16
+    (0.53 s, near), 31 (1.03 s, near only the short pause) and 45 (1.5 s). Near frames: 15..22 (8 of 60)."""
+    from dualtalker_lite.data.probe import pause_blink_ratio
+
+    blink = np.zeros(60)
+    for start in (17, 32, 46):
+        blink[start:start + 3] = 1.0
+    phonemes = [("_", 0.0, 0.2), ("a", 0.2, 0.5), ("_", 0.5, 0.6), ("a", 0.6, 1.0), ("_", 1.0, 1.05),
+                ("a", 1.05, 2.0)]
+    out = pause_blink_ratio(_TinyCorpus(np.zeros(60), blink, phonemes, [0] * 6), ["clip"])
+    assert (out["near"], out["blinks"]) == (1, 3)
+    assert out["near_share"] == pytest.approx(8 / 60)
+    assert out["ratio"] == pytest.approx((1 / 3) / (8 / 60))   # 2.5
+    # the leading silence is not a pause: a blink right after it is not "near"
+    blink0 = np.zeros(60)
+    blink0[2:5] = 1.0
+    assert pause_blink_ratio(_TinyCorpus(np.zeros(60), blink0, phonemes, [0] * 6), ["clip"])["near"] == 0

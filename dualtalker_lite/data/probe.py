@@ -19,7 +19,10 @@ import numpy as np
 
 from ..face.upper import pitch_track
 
-__all__ = ["prosody_features", "brow_height_mm", "upper_face_probe", "stress_onset_precision"]
+__all__ = ["prosody_features", "brow_height_mm", "upper_face_probe", "stress_onset_precision", "event_locked_brows",
+           "onset_lift", "pause_blink_ratio"]
+
+VOWEL_VISEMES = frozenset({"aa", "E", "I", "O", "U"})
 
 
 def prosody_features(wave: np.ndarray, n_frames: int, fps: float = 30.0, sample_rate: int = 16000,
@@ -101,3 +104,68 @@ def stress_onset_precision(corpus, clips: list[str], threshold: float = 0.012, b
         chance_hits, frames = chance_hits + int(((dt >= -before) & (dt <= after)).any(1).sum()), frames + len(t)
     return {"precision": near / max(total, 1), "chance": chance_hits / max(frames, 1),
             "recall": recalled / max(n_stress, 1), "onsets": total}
+
+
+def event_locked_brows(corpus, clips: str | list[str], window: np.ndarray | None = None,
+                       baseline: int | None = None) -> dict[str, np.ndarray]:
+    """Brow height around vowel onsets: {"stressed vowel": (n_s, W), "unstressed vowel": (n_u, W)} in mm.
+
+    For every vowel (visemes aa, E, I, O, U) of each clip (a list, or a split name), the mean y displacement of
+    the ``brows`` vertices from the speaker's template at the frames ``onset + window`` (default -6..15 frames),
+    minus its value at ``onset + baseline`` (default: the first frame of the window). "Stressed" is espeak's
+    primary stress (mark 2); secondary and unstressed vowels go to "unstressed vowel". Onsets whose window does
+    not fit in the clip are skipped. The onset frame is ``round(start * fps)``.
+    """
+    from ..face import phoneme_to_viseme
+
+    window = np.arange(-6, 16) if window is None else np.asarray(window, int)
+    baseline = int(window[0]) if baseline is None else baseline
+    lo, hi = min(int(window.min()), baseline), max(int(window.max()), baseline)
+    clips = corpus.split(clips) if isinstance(clips, str) else clips
+    V, brows = corpus.metadata["n_vertices"], corpus.regions["brows"]
+    locked = {"stressed vowel": [], "unstressed vowel": []}
+    for name in clips:
+        meta = corpus.meta(name)
+        x = corpus.vertices(name).reshape(-1, V, 3)[:, brows, 1]                      # (T, B)
+        y = 1000 * (x - corpus.template(meta["subject"]).reshape(V, 3)[brows, 1]).mean(1)   # (T,) mm
+        for (p, s, _), st in zip(meta["phonemes"], meta["stress"]):
+            f = int(round(s * corpus.fps))
+            if phoneme_to_viseme(p) in VOWEL_VISEMES and 0 <= f + lo and f + hi < len(y):
+                locked["stressed vowel" if st == 2 else "unstressed vowel"].append(y[f + window] - y[f + baseline])
+    return {k: np.asarray(v, np.float64).reshape(len(v), len(window)) for k, v in locked.items()}
+
+
+def onset_lift(curve: np.ndarray, window: np.ndarray, frames: int = 6) -> float:
+    """Rise of an event-locked curve: its highest value in frames [0, +frames] minus its lowest in [-frames, 0]."""
+    curve, window = np.asarray(curve), np.asarray(window)
+    before, after = (window >= -frames) & (window <= 0), (window >= 0) & (window <= frames)
+    return float(curve[after].max() - curve[before].min())
+
+
+def pause_blink_ratio(corpus, clips: str | list[str], within: float = 0.25, min_pause: float = 0.08) -> dict:
+    """How much more often blinks start just after a pause starts than chance would give.
+
+    A blink starts at frame t+1 when the ``blink`` control crosses 0.5 upwards between frames t and t+1; its
+    time is taken as t / fps. A pause is a "_" phoneme of at least ``min_pause`` s after the first phoneme (the
+    leading silence is not a phrase boundary). A blink is "near" when it starts within [s, s + within) of a pause
+    start s. {"near": blinks near a pause, "blinks": all blinks, "near_share": share of frames near a pause,
+    "ratio": (near / blinks) / near_share}.
+    """
+    from ..face import CONTROL_INDEX
+
+    clips = corpus.split(clips) if isinstance(clips, str) else clips
+    near_blinks = blinks = near_frames = frames = 0
+    for name in clips:
+        meta = corpus.meta(name)
+        b = corpus._all_controls()[name][:, CONTROL_INDEX["blink"]]
+        ups = np.nonzero((b[1:] >= 0.5) & (b[:-1] < 0.5))[0] / corpus.fps
+        starts = np.array([s for p, s, e in meta["phonemes"][1:] if p == "_" and e - s >= min_pause])
+        t = np.arange(len(b)) / corpus.fps
+        if len(starts):
+            near = ((t[:, None] >= starts) & (t[:, None] < starts + within)).any(1)
+            near_blinks += int(((ups[:, None] >= starts) & (ups[:, None] < starts + within)).any(1).sum())
+            near_frames += int(near.sum())
+        blinks, frames = blinks + len(ups), frames + len(b)
+    share = near_frames / max(frames, 1)
+    ratio = (near_blinks / blinks) / share if blinks and share else float("nan")
+    return {"near": near_blinks, "blinks": blinks, "near_share": share, "ratio": ratio}

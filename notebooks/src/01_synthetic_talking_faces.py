@@ -53,7 +53,8 @@ from matplotlib.patches import Patch
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.data.probe import stress_onset_precision, upper_face_probe
+from dualtalker_lite.data.probe import (event_locked_brows, onset_lift, pause_blink_ratio, stress_onset_precision,
+                                        upper_face_probe)
 from dualtalker_lite.data.speech import emotional_prosody, speaker_voices, synthesize
 from dualtalker_lite.face import (CONTROL_INDEX, CONTROL_NAMES, CONTROL_RANGES, CONTROL_REGIONS, EMOTIONS, VISEMES,
                                   FaceRig, build_template, clip_controls, coarticulate, control_vector,
@@ -485,35 +486,15 @@ plt.show()
 # pile up in the 250 ms after a pause starts.
 
 # %%
-window = np.arange(-6, 16)                                                     # frames around an onset
-locked = {"stressed vowel": [], "unstressed vowel": []}
-blink_near, blink_all, near_time, total_time = 0, 0, 0, 0
-vowels = {"aa", "E", "I", "O", "U"}
-for name in corpus.split("train"):
-    m = corpus.meta(name)
-    x = corpus.vertices(name).reshape(-1, V, 3)
-    h = corpus.template(m["subject"]).reshape(V, 3)
-    y = 1000 * (x[:, brows, 1] - h[brows, 1]).mean(1)
-    for (p, s, e), st in zip(m["phonemes"], m["stress"]):
-        f = int(round(s * FPS))
-        if phoneme_to_viseme(p) in vowels and 6 <= f < len(y) - 16:
-            locked["stressed vowel" if st == 2 else "unstressed vowel"].append(y[f + window] - y[f - 6])
-    b = corpus._all_controls()[name][:, CONTROL_INDEX["blink"]]
-    ups = np.nonzero((b[1:] >= 0.5) & (b[:-1] < 0.5))[0] / FPS
-    starts = [s for p, s, e in m["phonemes"][1:] if p == "_" and e - s >= 0.08]
-    tt = np.arange(len(b)) / FPS
-    near = np.zeros(len(b), bool)
-    for s in starts:
-        near |= (tt >= s) & (tt < s + 0.25)
-    blink_near += sum(any(s <= u < s + 0.25 for s in starts) for u in ups)
-    blink_all, near_time, total_time = blink_all + len(ups), near_time + near.sum(), total_time + len(b)
-rise = {k: np.mean(v, 0) for k, v in locked.items()}                           # (22,) mm
-before, after = (window >= -6) & (window <= 0), (window >= 0) & (window <= 6)
-lift = {k: r[after].max() - r[before].min() for k, r in rise.items()}
+window = np.arange(-6, 16)                                            # frames around a vowel onset
+locked = event_locked_brows(corpus, "train", window)                 # {kind: (n, 22)} mm, minus frame -6
+rise = {k: v.mean(0) for k, v in locked.items()}                     # (22,) mm
+lift = {k: onset_lift(r, window) for k, r in rise.items()}           # max over [0, 6] - min over [-6, 0]
 print(f"brow lift at the vowel onset: stressed {lift['stressed vowel']:.2f} mm ({len(locked['stressed vowel'])} "
       f"vowels), unstressed {lift['unstressed vowel']:.2f} mm ({len(locked['unstressed vowel'])} vowels)")
-ratio = (blink_near / blink_all) / (near_time / total_time)
-print(f"blinks starting within 250 ms of a pause: {blink_near}/{blink_all}, "
+blinks = pause_blink_ratio(corpus, "train")                          # blink onsets within 250 ms of a pause
+ratio = blinks["ratio"]
+print(f"blinks starting within 250 ms of a pause: {blinks['near']}/{blinks['blinks']}, "
       f"{ratio:.1f}x the rate expected by chance")
 assert lift["stressed vowel"] > 0.25 and lift["stressed vowel"] > lift["unstressed vowel"] + 0.2
 assert ratio > 3
