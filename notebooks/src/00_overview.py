@@ -223,9 +223,7 @@ HTML(video._repr_html_())  # the player only (the object's repr would show a loc
 # notebook also runs unattended.
 
 # %%
-# NBVAL_IGNORE_OUTPUT
-from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint, save_checkpoint
-from dualtalker_lite.inference import animate_wave, resolve_speaker
+from dualtalker_lite.checkpoints import save_checkpoint
 from dualtalker_lite.utils import runs_dir
 
 
@@ -269,6 +267,9 @@ print(panel.status.value)
 
 # %%
 # The default path without widgets, checked: a shipped clip's speech through the chosen checkpoint.
+from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+from dualtalker_lite.inference import animate_wave, resolve_speaker
+
 model_own, info_own = load_checkpoint(panel.checkpoint.value)
 index_own, _ = resolve_speaker(info_own, panel.speaker.value, corpus)
 verts_own = animate_wave(model_own, corpus.wave(name), corpus.template(panel.speaker.value), index_own,
