@@ -81,8 +81,7 @@ def _train(argv: list[str]) -> Path:
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset, make_loader
     from .experiments import _features, build_model, table_specs
-    from .losses import LossWeights
-    from .train import TrainConfig, train
+    from .train import TrainConfig, loss_weights, train
 
     specs = {s.model: s for s in table_specs("main") if s.model != "template"}
     ap = argparse.ArgumentParser(prog="dualtalker-lite train", epilog=TRAIN_EXAMPLE,
@@ -118,7 +117,7 @@ def _train(argv: list[str]) -> Path:
     n_vertices = int(train_set[0]["template"].numel() // 3)
     model, model_cfg = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers))
     cfg = TrainConfig.tiny(epochs=args.epochs, seed=args.seed, validate_every=0, device=str(device),
-                           weights=LossWeights(**spec.loss))
+                           weights=loss_weights(model, spec.loss))
     history = train(model, make_loader(train_set, cfg.batch_size, shuffle=True, seed=args.seed), cfg)
     model.cpu()
     save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,

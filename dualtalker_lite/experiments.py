@@ -410,8 +410,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
     stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
     """
     from .data.dataset import make_loader
-    from .losses import LossWeights
-    from .train import TrainConfig, save_checkpoint, train
+    from .train import TrainConfig, loss_weights, save_checkpoint, train
     from .utils import set_seed
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
@@ -423,7 +422,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
         model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
         train_cfg = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, progress=False,
-                                     weights=LossWeights(**spec.loss), time_budget_s=time_budget_s)
+                                     weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
         t0 = time.perf_counter()
         history = None
         if any(p.requires_grad for p in model.parameters()):

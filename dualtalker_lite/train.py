@@ -73,11 +73,10 @@ from typing import Any, Callable
 import torch
 from tqdm.auto import tqdm
 
-from .losses import LossWeights
 from .utils import atomic_torch_save, set_seed
 
-__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "model_loss", "train", "predict",
-           "validation_lve", "save_checkpoint", "load_checkpoint"]
+__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights", "model_loss", "train",
+           "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -99,7 +98,8 @@ class TrainConfig:
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
-    weights: LossWeights = field(default_factory=LossWeights)
+    weights: Any = None                # the model's loss weights (an instance of model.loss_weights_cls);
+                                       # None: that class's defaults (see loss_weights)
 
     def __post_init__(self):
         if self.decay not in ("none", "cosine"):
@@ -209,6 +209,28 @@ def _guard_finite(value: torch.Tensor, what: str, epoch: int, step: int, batch: 
                              f"no checkpoint was written")
 
 
+def loss_weights(model: torch.nn.Module, overrides: dict | None = None) -> Any:
+    """The model's loss-weight dataclass (``model.loss_weights_cls``: ``LossWeights`` for DualTalker and the
+    baselines, each new paper its own) built with ``overrides``, e.g. ``{"lambda4": 0.1}``."""
+    cls = getattr(model, "loss_weights_cls", None)
+    if cls is None:
+        raise TypeError(f"{type(model).__name__} has no loss_weights_cls: every model trained by "
+                        "dualtalker_lite.train names the dataclass of its loss weights")
+    return cls(**(overrides or {}))
+
+
+def _check_weights(model: torch.nn.Module, weights: Any) -> Any:
+    """``weights`` if it is of the model's kind, the model's defaults if None (or None for a model without
+    ``loss_weights_cls``: its loss takes no weights); one clear TypeError otherwise."""
+    cls = getattr(model, "loss_weights_cls", None)
+    if weights is None:
+        return None if cls is None else cls()
+    if cls is not None and not isinstance(weights, cls):
+        raise TypeError(f"TrainConfig.weights is a {type(weights).__name__}, but {type(model).__name__} is trained "
+                        f"with {cls.__name__} (use train.loss_weights(model, overrides))")
+    return weights
+
+
 def model_loss(model: torch.nn.Module, out: dict, batch: dict, weights: Any) -> tuple[torch.Tensor, dict]:
     """The model's own training objective: ``model.loss(out, batch, weights) -> (total, terms)``.
 
@@ -286,6 +308,7 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     init = getattr(model, "init_output_bias", None)
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
+    weights = _check_weights(model, cfg.weights)
     model.to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     total_steps = cfg.epochs * len(train_loader)
@@ -303,7 +326,7 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
                 group["lr"] = cfg.lr * lr_factor(step, cfg.warmup_steps, cfg.decay, used, cfg.min_lr_ratio)
             batch = _to_device(_crop(batch, cfg.max_frames, gen), torch.device(cfg.device))
             out = model(batch)
-            total, terms = model_loss(model, out, batch, cfg.weights)
+            total, terms = model_loss(model, out, batch, weights)
             _guard_finite(total, "loss", epoch, n_steps, batch)
             opt.zero_grad(set_to_none=True)
             total.backward()

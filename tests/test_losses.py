@@ -9,7 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from dualtalker_lite import losses
+from dualtalker_lite.losses import dualtalker as losses
 from dualtalker_lite.losses import (LossWeights, ccrl_anchor_losses, ccrl_loss, dual_loss, duality_loss, joint_loss,
                                     primal_loss, rbf_kernel_weights)
 

@@ -194,3 +194,25 @@ def test_mean_motion_by_hand_and_mean_init_sets_the_output_bias(data):
     torch.testing.assert_close(pred[0, 0], batch["template"][0] + mean_motion(two), atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match="mean_motion: expected shape"):
         model.init_output_bias(torch.zeros(5))
+
+
+def test_weights_of_another_model_kind_are_refused_with_one_line():
+    """TrainConfig.weights must be the model's own loss-weight dataclass; None means that class's defaults."""
+    from dataclasses import dataclass
+
+    from dualtalker_lite.train import loss_weights
+
+    @dataclass
+    class OtherWeights:
+        alpha: float = 1.0
+
+    class Weighted(_Line):
+        loss_weights_cls = OtherWeights
+
+    cfg = TrainConfig(epochs=1, lr=0.1, max_frames=None, progress=False, weights=LossWeights())
+    with pytest.raises(TypeError, match=r"TrainConfig.weights is a LossWeights, but Weighted is trained with "
+                                        r"OtherWeights"):
+        train(Weighted(), _line_loader(), cfg)
+    assert loss_weights(Weighted(), {"alpha": 2.0}) == OtherWeights(alpha=2.0)
+    with pytest.raises(TypeError, match="_Line has no loss_weights_cls"):
+        loss_weights(_Line(), {"alpha": 2.0})

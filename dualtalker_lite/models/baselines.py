@@ -25,7 +25,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..losses import LossWeights, joint_loss
+from ..losses.dualtalker import LossWeights, joint_loss
 from ..utils import check_shape
 
 __all__ = ["StaticTemplate", "VocaConfig", "VocaStyle", "DUAL_ONLY_KEYS"]
@@ -47,6 +47,8 @@ def _check_vertices(batch_or_template: torch.Tensor, n_vertices: int | None, nam
 
 class StaticTemplate(nn.Module):
     """Predicts the template for every frame (zero motion). ``n_vertices`` (optional) only validates shapes."""
+
+    loss_weights_cls = LossWeights  # the dataclass of this model's loss weights (train.loss_weights)
 
     def __init__(self, n_vertices: int | None = None):
         super().__init__()
@@ -102,6 +104,8 @@ class VocaConfig:
 
 class VocaStyle(nn.Module):
     """VOCA-style sliding-window regressor: audio window -> conv encoder -> [; speaker] -> MLP -> linear decoder."""
+
+    loss_weights_cls = LossWeights  # the dataclass of this model's loss weights (train.loss_weights)
 
     def __init__(self, cfg: VocaConfig):
         super().__init__()

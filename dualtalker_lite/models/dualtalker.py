@@ -71,7 +71,7 @@ from ..blocks.attention import merge_heads, scaled_dot_product_attention, split_
 from ..blocks.fusion import DualFusionLayer
 from ..blocks.positional import PeriodicPositionalEncoding
 from ..blocks.windowed import SlidingKVCache, alibi_lag_bias
-from ..losses import LossWeights, joint_loss, rbf_kernel_weights
+from ..losses.dualtalker import LossWeights, joint_loss, rbf_kernel_weights
 from .audio_encoder import AudioFeatureExtractor
 
 __all__ = ["DualTalkerConfig", "faceformer_config", "TransposedLinear", "DualTalker"]
@@ -159,6 +159,8 @@ class TransposedLinear(nn.Module):
 
 class DualTalker(nn.Module):
     """Primal (eq. 1) and dual (eq. 2) tasks with shared encoders and a shared dual integration (Fig. 1)."""
+
+    loss_weights_cls = LossWeights  # the dataclass of this model's loss weights (train.loss_weights)
 
     def __init__(self, cfg: DualTalkerConfig):
         super().__init__()

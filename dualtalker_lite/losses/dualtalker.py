@@ -14,21 +14,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .common import _masked, masked_mean
+
 __all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights", "READINGS",
            "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss"]
-
-
-def masked_mean(values: Tensor, mask: Tensor) -> Tensor:
-    """Mean of ``values`` (B, T, ...) over valid frames and all trailing elements; 0 if nothing is valid."""
-    m = mask.reshape(*mask.shape, *([1] * (values.dim() - mask.dim())))  # (B, T, 1, ...)
-    total = torch.where(m, values, values.new_zeros(())).sum()  # where, not *: NaN padding stays out
-    count = mask.sum() * values[0, 0].numel()
-    return total / count.clamp(min=1)
-
-
-def _masked(v: Tensor, mask: Tensor) -> Tensor:
-    """Zero the padded frames (so NaN/inf padding cannot leak into values or gradients)."""
-    return v.masked_fill(~mask[..., None], 0.0)
 
 
 def primal_loss(pred_vertices: Tensor, vertices: Tensor, mask: Tensor) -> Tensor:

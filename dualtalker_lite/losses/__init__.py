@@ -1,0 +1,9 @@
+"""Training losses, one module per paper: ``dualtalker`` (eqs. 8-11 of DualTalker; re-exported here, so
+``from dualtalker_lite.losses import joint_loss`` keeps working), ``common`` (masked reductions shared by all).
+CorrTalk's and EmoFace's losses sit beside them in their own modules."""
+from .common import masked_mean
+from .dualtalker import (READINGS, LossWeights, ccrl_anchor_losses, ccrl_loss, dual_loss, duality_loss, joint_loss,
+                         primal_loss, rbf_kernel_weights)
+
+__all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights", "READINGS",
+           "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss"]
