@@ -6,7 +6,8 @@ import trimesh
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
-from dualtalker_lite.viz import plot_branch_error_maps, plot_vertex_maps, plot_vertex_spectrograms
+from dualtalker_lite.viz import (branch_mean_errors, plot_branch_error_maps, plot_vertex_maps,
+                                 plot_vertex_spectrograms)
 
 
 @pytest.fixture(scope="module")
@@ -70,3 +71,22 @@ def test_vertex_spectrograms_figure_and_bad_index():
     assert [ax.get_ylabel() for ax in fig.axes[:4]] == ["displacement (mm)", "frequency (Hz)"] * 2
     with pytest.raises(ValueError, match=r"^vertex index out of range 0\.\.1: \{'x': 5\}$"):
         plot_vertex_spectrograms(disp, 30.0, {"x": 5})
+
+
+def test_branch_mean_errors_hand_case():
+    # Two vertices, 4 frames. Ground truth: vertex 0 moves 4 mm along x in every frame, vertex 1 stays.
+    # mask (0.75, 0.25); both branches predict the ground truth exactly, so the sum is exact:
+    # strong part = 0.75 * 4 mm at vertex 0 -> error 1 mm; weak part = 0.25 * 4 mm -> error 3 mm; sum -> 0.
+    gt = np.zeros((1, 4, 6))
+    gt[..., 0] = 0.004                                                    # (B, T, V*3) metres
+    mask_xyz = np.repeat([0.75, 0.25], 3)
+    strong, weak = mask_xyz * gt, (1 - mask_xyz) * gt
+    errors = branch_mean_errors(strong, weak, strong + weak, gt)
+    np.testing.assert_allclose(errors["strong branch"], [1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(errors["weak branch"], [3.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(errors["sum (output)"], [0.0, 0.0], atol=1e-12)
+    valid = np.array([[True, True, False, False]])                        # padding frames are ignored
+    strong_padded = strong.copy()
+    strong_padded[:, 2:] = 1.0
+    np.testing.assert_allclose(branch_mean_errors(strong_padded, weak, strong + weak, gt, mask=valid)
+                               ["strong branch"], [1.0, 0.0], atol=1e-12)

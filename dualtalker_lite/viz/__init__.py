@@ -10,7 +10,7 @@
 - ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
 """
 from .animate import ClipAnimation, animate_clip, render_video
-from .heatmap import plot_branch_error_maps, plot_vertex_maps, plot_vertex_spectrograms
+from .heatmap import branch_mean_errors, plot_branch_error_maps, plot_vertex_maps, plot_vertex_spectrograms
 from .plots import plot_frames, plot_lip_distance, plot_vertex_map, plot_waveform_and_phonemes
 from .render import VIEWS, MeshRenderer, RasterRenderer, draw_mesh, render_frame_rgb
 from .viewer import MeshViewer, static_html
@@ -28,6 +28,7 @@ __all__ = [
     "plot_vertex_maps",
     "plot_vertex_spectrograms",
     "plot_branch_error_maps",
+    "branch_mean_errors",
     "ClipAnimation",
     "animate_clip",
     "render_video",

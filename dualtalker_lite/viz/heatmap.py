@@ -7,7 +7,15 @@
   next to its amplitude spectrogram (CorrTalk Fig. 1(a, c): a mouth vertex against a forehead vertex), computed with
   :func:`dualtalker_lite.fai.displacement_stft`, on one colour scale.
 - ``plot_branch_error_maps``: the Fig. 9 analogue, per-vertex errors of the strong branch, the weak branch and
-  their sum on one colour scale.
+  their sum on one colour scale; ``branch_mean_errors`` computes those errors from the branch outputs.
+
+Fig. 9 is read as follows (the symbols were lost in extraction: "we visualize the synthetic sequences [strong],
+[weak] and [output] with the ground truth mean error"): each branch's sequence is the template plus the part of
+the motion that branch contributes (``mask * M^s`` and ``(1 - mask) * M^w``, CorrTalk's ``motion_strong`` and
+``motion_weak``, which sum to the output), and its error is the per-vertex Euclidean distance to the ground truth,
+averaged over all frames (``metrics.mean_vertex_error``). This matches the text's observation that the weak branch
+has large errors at the mouth (it carries almost none of the mouth's motion) and small ones elsewhere. The other
+reading, each branch's raw output before the mask, can be passed in the same way.
 
 Figures are returned detached from pyplot (see ``viz.plots``): make the call a cell's last expression.
 """
@@ -23,7 +31,7 @@ from matplotlib.figure import Figure
 from .plots import _SCALE, _axis_labels, _detach, add_colorbar
 from .render import draw_mesh, mesh_extent
 
-__all__ = ["plot_vertex_maps", "plot_vertex_spectrograms", "plot_branch_error_maps"]
+__all__ = ["plot_vertex_maps", "plot_vertex_spectrograms", "plot_branch_error_maps", "branch_mean_errors"]
 
 
 def _bar_label(label: str, units: str) -> str:
@@ -104,6 +112,21 @@ def plot_branch_error_maps(vertices: np.ndarray, faces: np.ndarray, strong: np.n
     return plot_vertex_maps(vertices, faces, {"strong branch": strong, "weak branch": weak, "sum (output)": total},
                             shared_scale=True, views=views, cmap=cmap, vmin=0.0, label="mean error",
                             units=units, suptitle=suptitle)
+
+
+def branch_mean_errors(strong, weak, total, gt, *, mask=None, unit: str = "mm") -> dict[str, np.ndarray]:
+    """Per-vertex mean Euclidean errors (V,) in ``unit`` of the strong part, the weak part and their sum against the
+    ground truth: ``{"strong branch", "weak branch", "sum (output)"}``, for :func:`plot_branch_error_maps`.
+
+    All four are motions (offsets from the template; the template cancels in the distance) in any layout
+    ``metrics.mean_vertex_error`` takes: a list of (T, V*3) / (T, V, 3) sequences, or padded (B, T, V*3) with
+    ``mask`` (B, T). With CorrTalk: ``out["motion_strong"], out["motion_weak"], out["motion"]`` and
+    ``batch["vertices"] - batch["template"][:, None]``.
+    """
+    from ..metrics import mean_vertex_error
+
+    return {label: mean_vertex_error(pred, gt, mask=mask, unit=unit)
+            for label, pred in (("strong branch", strong), ("weak branch", weak), ("sum (output)", total))}
 
 
 def plot_vertex_spectrograms(disp: np.ndarray, fps: float, vertices: Mapping[str, int], n_fft: int = 32,
