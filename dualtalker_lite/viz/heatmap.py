@@ -69,8 +69,9 @@ def plot_vertex_maps(vertices: np.ndarray, faces: np.ndarray, maps, titles: Sequ
     """Per-vertex scalars painted on one (V, 3) mesh (metres): one column per map, one row per view.
 
     ``maps``: a dict ``{title: (V,)}``, a list of (V,) arrays with ``titles``, or one (V,) array. ``units`` are
-    those of the values (colour bar "label (units)", just "label" if ``units`` is empty); the mesh axes are in mm. ``shared_scale=True``: one colour
-    range (``vmin``/``vmax``, default the min/max over all maps) and one colour bar; ``False``: one per map.
+    those of the values (colour bar "label (units)", just "label" if ``units`` is empty); the mesh axes are in
+    mm. ``shared_scale=True``: one colour range (``vmin``/``vmax``, default the min/max over all maps) and one
+    colour bar; ``False``: one per map.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     if vertices.ndim != 2 or vertices.shape[1] != 3:

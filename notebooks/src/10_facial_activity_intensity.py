@@ -114,9 +114,9 @@ print("known signal, mean amplitude per bin (mm):", np.round(known[:7], 3))
 # %% [markdown]
 # Bin 1 reads 2.0, as much as the mean, and bins 3 and 5 read 0.75: a Hann window spreads each frequency over
 # its neighbours, with exactly half the peak's raw magnitude one bin away. That is why a displacement with a large
-# mean (every distance is $\ge 0$) always shows up in bin 1 too; section 6 comes back to this. Now the real clip, three ways: our
-# function, SciPy (`scipy.signal.stft` divides by $\sum_n w_n$, so only the one-sided factor 2 is missing), and the
-# package (`torch.stft`).
+# mean (every distance is $\ge 0$) always shows up in bin 1 too; section 6 comes back to this. Now the real clip,
+# three ways: our function, SciPy (`scipy.signal.stft` divides by $\sum_n w_n$, so only the one-sided factor 2 is
+# missing), and the package (`torch.stft`).
 
 # %%
 freqs, amp = displacement_stft(disp, FPS, N_FFT, HOP)                          # (F,), (F, M, V)
@@ -173,13 +173,15 @@ plot_vertex_maps(tpl0, faces, {"FAI (band dc)": 1e3 * fai.numpy()}, label="FAI",
 
 # %%
 # NBVAL_CHECK_OUTPUT
-by_region = {r: 1e3 * float(fai[regions[r]].mean()) for r in ("lips", "jaw", "cheeks", "nose", "brows", "forehead")}
+names = ("lower_lip", "jaw", "mouth_corners", "upper_lip", "lips", "cheeks", "brows", "forehead", "nose")
+by_region = {r: 1e3 * float(fai[regions[r]].mean()) for r in names}
 print("mean FAI per region (mm):", {r: round(v, 3) for r, v in by_region.items()})
+assert by_region["lower_lip"] > by_region["mouth_corners"] > by_region["upper_lip"] > by_region["cheeks"]
 assert by_region["lips"] > 3 * by_region["forehead"] and by_region["jaw"] > by_region["cheeks"] > by_region["brows"]
 
 # %% [markdown]
 # The jaw and the lower lip lead (the jaw opens for every vowel), the upper lip and the mouth corners follow,
-# then the cheeks (smile, lip stretch); brows and forehead move a few tenths of a millimetre on average (raises
+# then the cheeks (smile, lip stretch); brows and forehead move well under a millimetre on average (raises
 # on stressed syllables, blinks nearby); the back of the head never moves, so its FAI is exactly 0.
 #
 # ## 5. Strong and weak regions, and the mask the FAI initialises
