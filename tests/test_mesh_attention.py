@@ -5,7 +5,7 @@ import torch
 import torch.nn.functional as F
 
 from dualtalker_lite.blocks.mesh_attention import MeshAttention
-from dualtalker_lite.blocks.spiral import spiral_indices
+from dualtalker_lite.blocks.spiral import spiral_indices, spiral_mask
 
 # The 4 x 4 grid of test_spiral.py (ids row by row from the bottom, rising diagonals), 16 vertices.
 GRID_VERTICES = np.array([[x, y, 0.0] for y in range(4) for x in range(4)])
@@ -40,14 +40,18 @@ def test_shapes_range_and_convex_fusion():
     assert att.vertex_embedding.shape == (V, C // 16)
 
 
-def test_attention_equals_the_pipeline_written_out():
+@pytest.mark.parametrize("time_pad", ["zeros", "replicate"])
+def test_attention_equals_the_pipeline_written_out(time_pad):
     torch.manual_seed(1)
-    att = MeshAttention(V, C, SPIRALS, delta=2, n_layers=3)
-    fe, fc, _, _ = _inputs(B=1, T=5)
+    spirals = spiral_indices(GRID_FACES, V, rings=2, vertices=GRID_VERTICES)  # small disks at the edges: padding
+    assert not spiral_mask(spirals).all()
+    att = MeshAttention(V, C, spirals, delta=3, n_layers=3, time_pad=time_pad)
+    fe, fc, _, _ = _inputs(B=2, T=5)
     f_e1 = F.relu(fe @ att.emotion_proj.weight.t() + att.emotion_proj.bias)  # (B, T, C/4)
     f_c1 = F.relu(fc @ att.content_proj.weight.t() + att.content_proj.bias)
     f_audio = torch.cat([f_e1, f_c1], -1) @ att.audio_fuse.weight.t() + att.audio_fuse.bias  # (B, T, C/16)
-    h = f_audio[:, :, None, :].expand(1, 5, V, C // 16) + att.vertex_embedding[None, None]  # (B, T, V, C/16)
+    h = f_audio[:, :, None, :].expand(2, 5, V, C // 16) + att.vertex_embedding[None, None]  # (B, T, V, C/16)
+    torch.testing.assert_close(att.first_layer(f_audio), att.convs[0](h))  # the split of eq. 3 is exact
     h = F.elu(att.convs[0](h))
     h = F.elu(att.convs[1](h))
     a = torch.sigmoid(att.convs[2](h))[..., 0]

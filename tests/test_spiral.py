@@ -259,3 +259,19 @@ def test_spiral_linear_gradcheck_and_chunking(monkeypatch):
     conv = SpiralConv3D(2, 3, spirals, delta=2).double()
     x = torch.randn(1, 4, 7, 2, dtype=torch.float64)
     torch.testing.assert_close(conv(x), _dense_reference(conv, x))  # many chunks, same result
+
+
+def test_spiral_conv_output_follows_a_relabelling():
+    torch.manual_seed(0)
+    perm = np.random.default_rng(1).permutation(16)  # old vertex i becomes perm[i]
+    new_vertices = np.empty_like(GRID_VERTICES)
+    new_vertices[perm] = GRID_VERTICES
+    old = SpiralConv3D(2, 3, spiral_indices(GRID_FACES, 16, length=9, vertices=GRID_VERTICES))
+    new = SpiralConv3D(2, 3, spiral_indices(perm[GRID_FACES], 16, length=9, vertices=new_vertices))
+    with torch.no_grad():
+        new.weight.copy_(old.weight)
+        new.bias.copy_(old.bias)
+    x = torch.randn(2, 4, 16, 2)
+    x_new = torch.empty_like(x)
+    x_new[:, :, perm] = x  # the same features under the new ids
+    torch.testing.assert_close(new(x_new)[:, :, perm], old(x))

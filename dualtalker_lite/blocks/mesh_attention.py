@@ -23,6 +23,10 @@ Readings taken where the paper is silent:
   towards the full offsets (eq. 7), so a convex combination keeps the fused output on their scale.
 - The attention sees the branch *features* (section 3.2), not the offsets: eqs. 17-18 list the offsets as
   epsilon's arguments because those are what it fuses.
+- Build the spirals once, from one canonical template (the positions only choose where each one-ring starts):
+  every speaker shares the topology, hence the spirals and the learned weights.
+- Speed: the first SpiralConv3D layer sees F = F'_audio + F'_vertices-emb, a per-frame plus a per-vertex term,
+  so eq. 3 splits exactly and that layer needs no gather (``first_layer``; tested equal to the plain layer).
 - Causal: the MLPs act per frame, the embedding is constant and SpiralConv3D only looks back delta - 1 frames
   per layer. ``receptive_field`` = n_layers (delta - 1) + 1 frames: running the module on the last
   ``receptive_field`` frames gives the last frame's map exactly (for autoregressive generation).
@@ -34,7 +38,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
-from .spiral import PAPER_DELTA, SpiralConv3D
+from .spiral import PAPER_DELTA, SpiralConv3D, spiral_mask, temporal_neighbourhood
 
 __all__ = ["MeshAttention"]
 
@@ -80,13 +84,32 @@ class MeshAttention(nn.Module):
         if emotion_feat.shape != content_feat.shape:
             raise ValueError(f"MeshAttention: emotion_feat {tuple(emotion_feat.shape)} and content_feat "
                              f"{tuple(content_feat.shape)} differ")
-        h = self.audio_feature(emotion_feat, content_feat)[:, :, None, :]  # (B, T, 1, C/16) F'_audio
-        h = h + self.vertex_embedding  # (B, T, V, C/16) F = F'_audio + F'_vertices-emb
-        for i, conv in enumerate(self.convs):
-            h = conv(h)
-            if i < len(self.convs) - 1:
-                h = F.elu(h)
+        h = self.first_layer(self.audio_feature(emotion_feat, content_feat))  # (B, T, V, C') = convs[0](F)
+        for conv in self.convs[1:]:
+            h = conv(F.elu(h))
         return torch.sigmoid(h[..., 0])  # (B, T, V)
+
+    def first_layer(self, audio: Tensor) -> Tensor:
+        """convs[0](F) for F = F'_audio + F'_vertices-emb, without gathering F: (B, T, C/16) -> (B, T, V, C').
+
+        F[t, u] = a[t] + e[u] is a per-frame term plus a per-vertex term, so eq. 3 splits exactly into
+        sum_j M_{v,j} a[t_j] + E_{v,j}, with M_{v,j} = sum_l m_{v,l} W_{j,l} (m: the spiral mask) and
+        E_{v,j} = sum_l m_{v,l} W_{j,l} e[s(v, l)] computed once per call: no (B, T, V, L, C) gather, about L times
+        fewer operations than ``self.convs[0](audio[:, :, None] + self.vertex_embedding)``, which it equals.
+        """
+        conv = self.convs[0]
+        B, T, _ = audio.shape
+        m = spiral_mask(conv.spirals).to(audio.dtype)  # (V, L)
+        w = conv.weight  # (C', delta, L, C) W
+        mw = torch.einsum("vl,ojlc->jcvo", m, w)  # (delta, C, V, C') M, the audio weights per vertex
+        e = self.vertex_embedding[conv.spirals] * m[..., None]  # (V, L, C) e[s(v, l)], padded slots zeroed
+        ew = torch.einsum("vlc,ojlc->jvo", e, w)  # (delta, V, C') E
+        window = temporal_neighbourhood(audio, conv.delta, conv.time_pad)  # (B, T, delta, C), oldest first
+        out = (window.reshape(B * T, -1) @ mw.reshape(-1, mw.shape[2] * mw.shape[3])).view(B, T, *mw.shape[2:])
+        valid = torch.ones(T, conv.delta, dtype=audio.dtype, device=audio.device)  # frame t_j exists
+        if conv.time_pad == "zeros":  # zero padding removes the embedding term too before the first frame
+            valid = (torch.arange(T)[:, None] + torch.arange(conv.delta)[None] >= conv.delta - 1).to(audio.dtype)
+        return out + torch.einsum("tj,jvo->tvo", valid, ew) + conv.bias  # (B, T, V, C')
 
     def forward(self, emotion_feat: Tensor, content_feat: Tensor, emotion_offsets: Tensor,
                 content_offsets: Tensor) -> tuple[Tensor, Tensor]:
