@@ -128,3 +128,19 @@ def test_bad_inputs_are_refused_with_one_clear_line():
         att(fe, fc[:, :8], me, mc)
     with pytest.raises(ValueError, match=r"content_offsets expected \(B, T, V\*3\) = \(2, 9, 48\), got \(2, 9, 16\)"):
         att(fe, fc, me, mc[..., :16])
+
+
+def test_mlp_ablation_is_a_per_vertex_linear_map():
+    torch.manual_seed(4)
+    att = MeshAttention(V, C, torch.arange(V)[:, None], delta=1, n_layers=2)  # "MLP in place of SpiralConv3D"
+    fe, fc, _, _ = _inputs(B=1, T=4)
+    h = att.audio_feature(fe, fc)[:, :, None, :] + att.vertex_embedding  # (B, T, V, C/16)
+    for i, conv in enumerate(att.convs):
+        w = conv.weight[:, 0, 0, :]  # (C_out, C_in): kernel of one vertex and one frame
+        h = h @ w.t() + conv.bias
+        if i == 0:
+            h = F.elu(h)
+    torch.testing.assert_close(att.attention(fe, fc), torch.sigmoid(h[..., 0]))
+    fe2 = fe.clone()
+    fe2[:, :2] += 1.0  # with delta = 1 a frame sees only itself
+    torch.testing.assert_close(att.attention(fe2, fc)[:, 2:], att.attention(fe, fc)[:, 2:])

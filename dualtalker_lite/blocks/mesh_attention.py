@@ -23,6 +23,8 @@ Readings taken where the paper is silent:
   towards the full offsets (eq. 7), so a convex combination keeps the fused output on their scale.
 - The attention sees the branch *features* (section 3.2), not the offsets: eqs. 17-18 list the offsets as
   epsilon's arguments because those are what it fuses.
+- Ablation "w/o SpiralConv3D, MLP in its place" (issue 10, section 6): pass ``spirals = arange(V)[:, None]`` and
+  ``delta=1``; every layer is then one linear map per vertex and frame (an MLP layer shared by the vertices).
 - Build the spirals once, from one canonical template (the positions only choose where each one-ring starts):
   every speaker shares the topology, hence the spirals and the learned weights.
 - Speed: the first SpiralConv3D layer sees F = F'_audio + F'_vertices-emb, a per-frame plus a per-vertex term,

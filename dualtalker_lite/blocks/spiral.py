@@ -12,10 +12,10 @@ where the previous one ended. ``spiral_indices`` builds one per vertex, of one l
 - **Cyclic order** follows the faces' orientation: around v, face (v, a, b) means "after a comes b".
 - **Starting point** of the one-ring (reading taken; SpiralNet++ starts wherever its mesh library's circulator
   starts, which depends on the vertex labels). Interior vertex with ``vertices`` given: the highest neighbour
-  (largest y, ties by z, then x, compared to 1e-9 of the mesh size; y is up in this package), so slot 1 means "the neighbour above" everywhere and
-  the spirals do not depend on how the vertices are numbered. Boundary vertex: the first neighbour of its open
-  fan (also label-free). Without ``vertices``: the lowest-index neighbour (label-dependent; only the rings'
-  *sets* are then independent of the labels).
+  (largest y, ties by z, then x, compared to 1e-9 of the mesh size; y is up in this package), so slot 1 means
+  "the neighbour above" everywhere and the spirals do not depend on how the vertices are numbered. Boundary
+  vertex: the first neighbour of its open fan (also label-free). Without ``vertices``: the lowest-index
+  neighbour (label-dependent; only the rings' *sets* are then independent of the labels).
 - **Next rings.** For each vertex u of the last ring, in spiral order, walk u's cyclic one-ring starting just
   after its neighbour that entered the spiral last, and append every neighbour not yet in the spiral. On a
   regular patch this is SpiralNet++'s order; it is defined the same way at irregular and boundary vertices.
@@ -50,8 +50,6 @@ Defaults of the paper (Table 4, the row it adopts): spiral length 18, dilation 2
 from __future__ import annotations
 
 import math
-from collections import deque
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -120,7 +118,7 @@ def one_ring_order(faces, n_vertices: int, vertices=None) -> tuple[list[list[int
 
 
 def _key(x: int, pos: np.ndarray | None):
-    """Sort key of a starting neighbour: highest first (then front-most, then left-most), else the lowest index."""
+    """Sort key of a starting neighbour: highest first (then front-most, then +x), else the lowest index."""
     if pos is None:
         return (x,)
     return (-pos[x, 1], -pos[x, 2], -pos[x, 0], x)

@@ -309,8 +309,9 @@ print(f"{name}: {T_clip} frames; A in [{a.min():.3f}, {a.max():.3f}], mean {a.me
 # over time with the audio stand-in, but it is almost uniform over the face, because the position embedding
 # starts small (std 0.02). Can the module learn *where* each branch should win? A toy target with a known answer:
 # the angry clip's offsets on the upper face (eyes, brows, forehead), the neutral twin's elsewhere, i.e.
-# $A^* = 1$ on the upper face and $0$ below. Since $\Delta M - \Delta M_{target} = (A - A^*)\,(\Delta M^e - \Delta M^c)$,
-# only vertices where the two clips differ carry information; we fit $|A - A^*|$ there, upper and lower face
+# $A^* = 1$ on the upper face and $0$ below. Since
+# $\Delta M - \Delta M_{target} = (A - A^*)\,(\Delta M^e - \Delta M^c)$, only vertices where the two clips differ
+# carry information; we fit $|A - A^*|$ there, upper and lower face
 # weighted equally (the lower face differs far more, and an unweighted loss first pushes the shared bias until
 # the sigmoid saturates everywhere). 60 Adam steps, Mesh Attention alone; notebook 15 trains the whole EmoFace.
 
