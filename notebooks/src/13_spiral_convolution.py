@@ -338,11 +338,12 @@ print(f"|A - A*|: {losses[0]:.3f} -> {losses[-1]:.4f}; worst offset error to the
 assert losses[-1] < 0.05 and err[1] < 0.1 * err[0]
 
 # %%
-frames = [5, 15, 25, 35]
-fig = plot_frames(np.repeat(mesh.vertices[None], len(frames), 0), faces, colors=a_fit[0, frames].numpy(),
-                  titles=[f"t = {f / corpus.fps:.2f} s" for f in frames], cmap="coolwarm", vmin=0.0, vmax=1.0,
+frames = [15, 35]
+maps = torch.cat([a[0, frames], a_fit[0, frames]]).numpy()  # (4, V): untrained, then fitted
+fig = plot_frames(np.repeat(mesh.vertices[None], 4, 0), faces, colors=maps, cmap="coolwarm", vmin=0.0, vmax=1.0,
+                  titles=[f"{w}, t = {f / corpus.fps:.2f} s" for w in ("untrained", "fitted") for f in frames],
                   color_label="A, emotion share", color_units="0-1", units="mm",
-                  suptitle="Mesh Attention map after fitting the toy target (upper face: emotion branch)")
+                  suptitle="Mesh Attention map on the face: untrained, and after the toy fit")
 fig
 
 # %%
