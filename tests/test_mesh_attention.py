@@ -144,3 +144,12 @@ def test_mlp_ablation_is_a_per_vertex_linear_map():
     fe2 = fe.clone()
     fe2[:, :2] += 1.0  # with delta = 1 a frame sees only itself
     torch.testing.assert_close(att.attention(fe2, fc)[:, 2:], att.attention(fe, fc)[:, 2:])
+
+
+@pytest.mark.parametrize("T", [1, 2])
+def test_first_layer_split_holds_for_clips_shorter_than_delta(T):
+    torch.manual_seed(5)
+    att = MeshAttention(V, C, SPIRALS, delta=3)
+    audio = torch.randn(2, T, C // 16)
+    plain = att.convs[0](audio[:, :, None, :] + att.vertex_embedding)  # (B, T, V, C/16)
+    torch.testing.assert_close(att.first_layer(audio), plain)

@@ -110,7 +110,8 @@ class MeshAttention(nn.Module):
         out = (window.reshape(B * T, -1) @ mw.reshape(-1, mw.shape[2] * mw.shape[3])).view(B, T, *mw.shape[2:])
         valid = torch.ones(T, conv.delta, dtype=audio.dtype, device=audio.device)  # frame t_j exists
         if conv.time_pad == "zeros":  # zero padding removes the embedding term too before the first frame
-            valid = (torch.arange(T)[:, None] + torch.arange(conv.delta)[None] >= conv.delta - 1).to(audio.dtype)
+            steps = torch.arange(max(T, conv.delta), device=audio.device)
+            valid = (steps[:T, None] + steps[None, :conv.delta] >= conv.delta - 1).to(audio.dtype)
         return out + torch.einsum("tj,jvo->tvo", valid, ew) + conv.bias  # (B, T, V, C')
 
     def forward(self, emotion_feat: Tensor, content_feat: Tensor, emotion_offsets: Tensor,
