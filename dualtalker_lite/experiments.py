@@ -610,7 +610,7 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
              f"{TEST_SPLIT} clips: {meta['n_test_clips']}{quick}; "
-             f"autoregressive generation; mean ± sample std over seeds. Corpus `{_display_path(meta['corpus'])}`; "
+             f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
              f"commit {meta['git']}; {meta['created']}.", "",
              "| model | " + " | ".join(h for _, h, _ in METRICS) + " | collapsed | train (s) | params | note |",
              "|---" * (len(METRICS) + 5) + "|"]

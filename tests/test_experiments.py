@@ -314,3 +314,12 @@ def test_results_carry_no_machine_paths(quick_tables, tmp_path):
     assert data["corpus"] == "data_samples"
     assert ex._display_path(tmp_path / "my_corpus") == "my_corpus"  # outside the repository: the name only
     assert ex._display_path(Path(repo_root()) / "data_samples") == "data_samples"
+
+
+def test_markdown_names_the_stored_corpus_whatever_the_working_directory(quick_tables, monkeypatch):
+    """The table text quotes the corpus path stored in the JSON; rendering from notebooks/ must not re-resolve it."""
+    specs, runs, payload = ex.load_table(quick_tables / "main.json")
+    assert payload["corpus"] == "data_samples"
+    monkeypatch.chdir(Path(ex.__file__).resolve().parents[1] / "notebooks")
+    md = ex.table_markdown("main", specs, runs, payload)
+    assert "Corpus `data_samples`" in md and "notebooks/data_samples" not in md
