@@ -94,7 +94,7 @@ class TrainConfig:
     cpu_budget_s: float | None = None  # stop once this process has used this many CPU seconds in train()
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
-    mean_init: bool = False            # model.init_output_bias(mean training motion) before the first step
+    mean_init: bool = False            # model.init_output_bias(mean training motion) (and init_from_data(data)) first
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
@@ -308,6 +308,9 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     init = getattr(model, "init_output_bias", None)
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
+    init_data = getattr(model, "init_from_data", None)  # e.g. CorrTalk's FAI-initialised mask
+    if cfg.mean_init and callable(init_data):
+        init_data(getattr(train_loader, "dataset", train_loader))
     weights = _check_weights(model, cfg.weights)
     model.to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)

@@ -1,6 +1,8 @@
 """CorrTalk: loss (eqs. 9-11, hand-computed), mask complement and initialisation, cached = uncached generation,
 teacher forcing = generation on its own output, training sanity, seeds, checkpoints, bad inputs."""
 
+import math
+
 import pytest
 import torch
 
@@ -250,3 +252,44 @@ def test_checkpoint_round_trip(tmp_path):
     b = _batch(b=1, t=9)
     torch.testing.assert_close(loaded.generate(b["audio"], b["template"], b["speaker"]),
                                model.generate(b["audio"], b["template"], b["speaker"]))
+
+
+# ---------------------------------------------------------------- FAI initialisation through train()
+def _oscillating_batches(t=64, fps=30.0):
+    """Vertex v moves along x with amplitude (v + 1) mm at 2 Hz except vertex 3, which never moves."""
+    time = torch.arange(t) / fps
+    amp = (torch.arange(V) + 1.0) * 1e-3
+    amp[3] = 0.0
+    x = amp[None, :] * (1 + torch.sin(2 * math.pi * 2.0 * time))[:, None]  # (T, V) >= 0: distance = x
+    motion = torch.zeros(t, V, 3)
+    motion[..., 0] = x
+    template = torch.zeros(V * 3)
+    b = _batch(b=2, t=t)
+    b["vertices"] = template + motion.reshape(1, t, V * 3).repeat(2, 1, 1)
+    b["template"] = template.repeat(2, 1)
+    b["mask"][1, 40:] = False
+    b["vertices"][1, 40:] = float("nan")  # padding is never read
+    b["vertices"] = torch.where(b["mask"][..., None], b["vertices"], torch.zeros(()))
+    return [b]
+
+
+def test_fai_mask_initialisation_through_train():
+    from dualtalker_lite.fai import fai_from_dataset, normalised_fai
+    from dualtalker_lite.train import TrainConfig, train
+
+    batches = _oscillating_batches()
+    torch.manual_seed(0)
+    model = CorrTalk(_cfg())
+    train(model, batches, TrainConfig(epochs=0, mean_init=True, progress=False, validate_every=0))
+    clips = [{"vertices": batches[0]["vertices"][0], "template": batches[0]["template"][0]},
+             {"vertices": batches[0]["vertices"][1, :40], "template": batches[0]["template"][1]}]
+    expected = normalised_fai(fai_from_dataset(clips, fps=30.0))
+    torch.testing.assert_close(model.mask.detach(), expected)
+    assert model.mask[3].item() == 0.0 and model.mask.argmax().item() == V - 1  # static vertex 0, largest 1
+    assert torch.all(model.mask[4:].diff() > 0)  # amplitude order kept
+    for kind in ("random", "uniform"):  # other initialisations are left alone by train()
+        torch.manual_seed(0)
+        other = CorrTalk(_cfg(mask_init=kind))
+        before = other.mask.detach().clone()
+        train(other, batches, TrainConfig(epochs=0, mean_init=True, progress=False, validate_every=0))
+        assert torch.equal(other.mask.detach(), before)

@@ -259,14 +259,23 @@ class CorrTalk(nn.Module):
             raise ValueError("mask values: non-finite entries (is the FAI of a static training set all zero?)")
         self.mask.copy_(values.to(self.mask.device))
 
-    def init_from_data(self, dataset) -> None:
+    def init_from_data(self, data) -> None:
         """Data-dependent init (``train`` calls it when ``mean_init``): ``mask_init="fai"`` sets the mask to the
-        normalised FAI of the training clips (section III-B); "random"/"uniform" and single-branch models keep theirs."""
+        normalised FAI of the training clips (section III-B); "random"/"uniform" and single-branch models keep theirs.
+
+        ``data``: a dataset of clips (a feature wrapper with ``.base``, e.g. phoneme one-hot, is looked through)
+        or a list of padded batches, as ``train`` accepts. The frame rate is the corpus's, else ``cfg.fps``."""
         if self.weak is None or self.cfg.mask_init != "fai":
             return
         from ..fai import fai_from_dataset, normalised_fai
 
-        self.init_mask(normalised_fai(fai_from_dataset(dataset)))
+        base = getattr(data, "base", data)  # the clips behind a feature wrapper
+        fps = getattr(getattr(base, "corpus", None), "fps", None) or self.cfg.fps
+        if isinstance(base, (list, tuple)):  # padded batches -> whole clips
+            base = [{"vertices": b["vertices"][i, :n], "template": b["template"][i]} for b in base
+                    for i, n in enumerate(b["mask"].sum(1).tolist() if b.get("mask") is not None
+                                          else [b["vertices"].shape[1]] * b["vertices"].shape[0])]
+        self.init_mask(normalised_fai(fai_from_dataset(base, fps=fps)))
 
     @torch.no_grad()
     def init_output_bias(self, mean_motion: Tensor) -> None:
