@@ -293,3 +293,46 @@ def test_fai_mask_initialisation_through_train():
         before = other.mask.detach().clone()
         train(other, batches, TrainConfig(epochs=0, mean_init=True, progress=False, validate_every=0))
         assert torch.equal(other.mask.detach(), before)
+
+
+# ---------------------------------------------------------------- command line and runner
+def test_cli_train_evaluate_animate_corrtalk(tmp_path, capsys):
+    import json
+
+    import numpy as np
+    import soundfile as sf
+
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+
+    corpus = Corpus(sample_path())
+    ckpt = tmp_path / "ct.pt"
+    main(["train", "--model", "corrtalk", "--epochs", "1", "--out", str(ckpt)])
+    assert f"trained corrtalk for 1 epochs on {len(corpus.split('train'))} clips" in capsys.readouterr().out
+    model, info = load_checkpoint(ckpt)
+    assert isinstance(model, CorrTalk) and info["speakers"] == corpus.train_speakers
+    mask = model.mask.detach()  # the normalised FAI after one epoch of learning: near [0, 1], far from uniform
+    assert -0.05 <= mask.min().item() and mask.max().item() <= 1.05 and mask.std().item() > 0.1
+    main(["evaluate", "--checkpoint", str(ckpt), "--split", "test_a", "--json", str(tmp_path / "m.json")])
+    assert np.isfinite(json.loads((tmp_path / "m.json").read_text())["metrics"]["lve_euclidean"])
+    sf.write(tmp_path / "me.wav", 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK02",
+          "--out", str(tmp_path / "anim"), "--no-video", "--chunk", "4", "--no-progress"])
+    verts = np.load(tmp_path / "anim" / "vertices.npy")
+    assert verts.shape == (15, corpus.metadata["n_vertices"] * 3) and np.isfinite(verts).all()
+
+
+def test_runner_tables_name_corrtalk_rows():
+    from dualtalker_lite import experiments as ex
+
+    assert "corrtalk" in ex.TABLES and "corrtalk" in ex.TITLES
+    rows = {s.row: s for s in ex.table_specs("corrtalk")}
+    assert list(rows) == ["CorrTalk", "w/o hierarchical encoder", "single branch", "mask initialised at random",
+                          "phoneme one-hot features"]
+    assert rows["CorrTalk"].reference and rows["phoneme one-hot features"].features == "phonemes"
+    main_rows = {s.row: s for s in ex.table_specs("main")}
+    assert main_rows["CorrTalk"].model == "corrtalk" and main_rows["CorrTalk"].loss == {}
+    for spec in rows.values():  # every row builds at the tiny sizes with its overrides
+        model, cfg = ex.build_model(spec, V, DA, NS)
+        assert isinstance(model, CorrTalk) and all(getattr(cfg, k) == v for k, v in spec.model_overrides.items())

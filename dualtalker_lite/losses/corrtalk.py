@@ -35,32 +35,41 @@ __all__ = ["vertex_distances", "reconstruction_loss", "velocity_loss", "CorrTalk
 DISTANCES = ("euclidean", "squared")
 
 
-def vertex_distances(pred: Tensor, target: Tensor, distance: str = "euclidean") -> Tensor:
-    """Per-vertex distance of eq. 10: (B, T, V*3) x 2 -> (B, T, V); Euclidean norm of each 3-D error, or its square."""
+def vertex_distances(pred: Tensor, target: Tensor | None = None, distance: str = "euclidean") -> Tensor:
+    """Per-vertex distance of eq. 10: (B, T, V*3) -> (B, T, V); the Euclidean norm of each 3-D error (or its
+    square). ``target`` None: ``pred`` already is the error."""
     if distance not in DISTANCES:
         raise ValueError(f"distance must be one of {DISTANCES}, got {distance!r}")
-    err = (pred - target).unflatten(-1, (-1, 3))  # (B, T, V, 3)
-    sq = err.square().sum(-1)  # (B, T, V)
-    return sq if distance == "squared" else torch.linalg.vector_norm(err, dim=-1)
+    err = (pred if target is None else pred - target).unflatten(-1, (-1, 3))  # (B, T, V, 3)
+    return err.square().sum(-1) if distance == "squared" else torch.linalg.vector_norm(err, dim=-1)  # (B, T, V)
 
 
-def reconstruction_loss(pred: Tensor, target: Tensor, mask: Tensor, distance: str = "euclidean") -> Tensor:
-    """Eq. 10 (reconstructed), mean over valid frames and vertices: pred, target (B, T, V*3), mask (B, T) -> ()."""
-    d = vertex_distances(pred.masked_fill(~mask[..., None], 0.0), target.masked_fill(~mask[..., None], 0.0),
-                         distance)  # (B, T, V)
-    return masked_mean(d, mask)
+def _error(pred: Tensor, target: Tensor, mask: Tensor, scale: float = 1.0) -> Tensor:
+    """(pred - target) x scale with padded frames zeroed (one pass over the (B, T, V*3) tensors) -> (B, T, V*3)."""
+    err = (pred - target).masked_fill(~mask[..., None], 0.0)
+    return err * scale if scale != 1.0 else err
 
 
-def velocity_loss(pred: Tensor, target: Tensor, mask: Tensor, distance: str = "euclidean") -> Tensor:
+def reconstruction_loss(pred: Tensor, target: Tensor, mask: Tensor, distance: str = "euclidean",
+                        scale: float = 1.0) -> Tensor:
+    """Eq. 10 (reconstructed), mean over valid frames and vertices: pred, target (B, T, V*3), mask (B, T) -> ().
+    Distances are taken on (pred - target) x ``scale``."""
+    return masked_mean(vertex_distances(_error(pred, target, mask, scale), None, distance), mask)
+
+
+def velocity_loss(pred: Tensor, target: Tensor, mask: Tensor, distance: str = "euclidean",
+                  scale: float = 1.0) -> Tensor:
     """Eq. 11 (reconstructed): the eq.-10 distance between predicted and true frame differences, mean over the
-    valid consecutive pairs (t-1, t) and vertices -> (); 0 when no clip has two valid frames."""
+    valid consecutive pairs (t-1, t) and vertices -> (); 0 when no clip has two valid frames.
+    (m̂_t - m̂_{t-1}) - (m_t - m_{t-1}) = e_t - e_{t-1} with e = m̂ - m, so one error tensor serves both terms."""
+    return _velocity(_error(pred, target, mask, scale), mask, distance)
+
+
+def _velocity(err: Tensor, mask: Tensor, distance: str) -> Tensor:
     if mask.shape[1] < 2:
-        return pred.new_zeros(())
+        return err.new_zeros(())
     pair = mask[:, 1:] & mask[:, :-1]  # (B, T-1) both frames valid
-    p = pred.masked_fill(~mask[..., None], 0.0)
-    g = target.masked_fill(~mask[..., None], 0.0)
-    d = vertex_distances(p[:, 1:] - p[:, :-1], g[:, 1:] - g[:, :-1], distance)  # (B, T-1, V)
-    return masked_mean(d, pair)
+    return masked_mean(vertex_distances(err[:, 1:] - err[:, :-1], None, distance), pair)
 
 
 @dataclass
@@ -86,9 +95,9 @@ def corrtalk_loss(out: dict, batch: dict, weights: CorrTalkWeights | None = None
     target = batch["vertices"]
     if mask is None:
         mask = torch.ones(target.shape[:2], dtype=torch.bool, device=target.device)
-    pred, target = out["vertices"] * w.vertex_scale, target * w.vertex_scale  # (B, T, V*3) mm
-    zero = pred.new_zeros(())
-    rec = reconstruction_loss(pred, target, mask, w.distance) if w.reconstruction else zero
-    vel = velocity_loss(pred, target, mask, w.distance) if w.velocity else zero
+    err = _error(out["vertices"], target, mask, w.vertex_scale)  # (B, T, V*3) mm, padding zeroed
+    zero = err.new_zeros(())
+    rec = masked_mean(vertex_distances(err, None, w.distance), mask) if w.reconstruction else zero
+    vel = _velocity(err, mask, w.distance) if w.velocity else zero
     total = w.reconstruction * rec + w.velocity * vel
     return total, {"reconstruction": rec.detach(), "velocity": vel.detach(), "total": total.detach()}
