@@ -307,7 +307,7 @@ print("Fig. 7's ordering (weak branch gives the frame level the smallest share):
 # frame and phoneme levels (asserted above), and the printout says whether the weak branch gives the frame level
 # the smallest share, as in the paper's Fig. 7. In the committed run it does **not**: the weak branch leans on the
 # frame level even more than the strong one. A 48-step run is no test of the paper's claim (the Table III analogue,
-# `results/corrtalk.md` once the coordinator has run it, trains for the full recipe), and on this corpus the
+# `results/corrtalk.md` once it has been run, trains for the full recipe), and on this corpus the
 # "weak" face (brows, cheeks, blinks) is partly random and partly driven by prosody at stressed vowels, which is
 # itself a fast, syllable-scale signal. The paper's Fig. 8 says the strong branch's weighted features vary faster
 # than the weak branch's; the roughness of both is printed below for comparison.
