@@ -1,7 +1,7 @@
 """Where the time of one training step goes, and how far it is from the arithmetic lower bound.
 
-    .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca|corrtalk] [--steps 12] [--batch-size 8]
-        [--max-frames 90] [--threads 1]
+    .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca|corrtalk] [--steps 12]
+        [--batch-size 8] [--max-frames 90] [--threads 1]
 
 1. Throughput of this machine's matrix multiply (float32 GEMM, torch.mm) at 1 and 2 threads, on the shape of the
    biggest product of a step (B*T frames x V*3 coordinates x d features) and on a square 1024 product.
