@@ -148,7 +148,8 @@ def test_output_bias_init_gives_mean_motion_whatever_the_mask():
 
 # ---------------------------------------------------------------- generation
 @pytest.mark.parametrize("t,kw", [(1, {}), (31, {}), (47, {}), (47, {"dual_branch": False}),
-                                  (33, {"hierarchical": False}), (37, {"n_layers": 2})])
+                                  (33, {"hierarchical": False}), (37, {"n_layers": 2}),
+                                  (29, {"utterance_radius": 5})])  # banded utterance level (long-audio cap)
 def test_cached_equals_uncached(t, kw):
     torch.manual_seed(0)
     model = _perturbed(CorrTalk(_cfg(**kw)))

@@ -8,9 +8,10 @@ Pipeline (Fig. 3), shapes for a batch of B clips of T mesh frames, V vertices::
 
     A (B, T, D_a) -> shared audio front-end (wavLM stand-in) -> A' (B, T, C)
     A' -> hierarchical extractor (Fig. 4) -> F^f, F^p, F^w, F^u       (B, T, 4, d)   blocks.hierarchical
-       -> weight generator s -> F^s (B, T, d), α^s (B, T, 4);  weight generator w -> F^w, α^w   (eqs. 4-6)
-    strong branch: FaceFormer-style decoder on (S_n, past motion, F^s) -> M^s (B, T, V*3)
-    weak branch:   the same with its own weights on F^w                 -> M^w
+       -> weight generator s -> F̃^s (B, T, d), α^s (B, T, 4);  weight generator w -> F̃^w, α^w   (eqs. 4-6)
+    strong branch: FaceFormer-style decoder on (S_n, past motion, F̃^s) -> M^s (B, T, V*3)
+    weak branch:   the same with its own weights on F̃^w                 -> M^w
+    (F^w without a tilde is the word level; F̃^s, F̃^w are the two branches' weighted features)
     M̂ = mask ⊙ M^s + (1 - mask) ⊙ M^w,  vertices = template + M̂                                   (eqs. 7-8)
 
 Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.fai`,
@@ -18,11 +19,13 @@ Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.fai`,
 
 .. math::
 
-    (F^s, F^w) = E_{\theta_h}(\mathrm{Interp}(W_{\theta_a}(A)))                                      && (1)\\
-    \hat M = \mathrm{Dec}_{\theta_s}(F^s, S_n) \oplus \mathrm{Dec}_{\theta_w}(F^w, S_n)                 && (2)\\
-    \hat M^{s}_t = \mathcal{M} \odot \mathrm{MotionDec}_s\big(\mathrm{TransDec}_s(E_s(\hat M_{<t}) + S_n, F^s)\big),
+    (\tilde F^s, \tilde F^w) = E_{\theta_h}(\mathrm{Interp}(W_{\theta_a}(A)))                        && (1)\\
+    \hat M = \mathrm{Dec}_{\theta_s}(\tilde F^s, S_n) \oplus \mathrm{Dec}_{\theta_w}(\tilde F^w, S_n)     && (2)\\
+    \hat M^{s}_t = \mathcal{M} \odot
+        \mathrm{MotionDec}_s\big(\mathrm{TransDec}_s(E_s(\hat M_{<t}) + S_n, \tilde F^s)\big),
         \quad \mathcal{M} \leftarrow \mathrm{norm}(\mathrm{FAI}) \text{ at initialisation}          && (7)\\
-    \hat M^{w}_t = (1 - \mathcal{M}) \odot \mathrm{MotionDec}_w\big(\mathrm{TransDec}_w(E_w(\hat M_{<t}) + S_n, F^w)\big)\\
+    \hat M^{w}_t = (1 - \mathcal{M}) \odot
+        \mathrm{MotionDec}_w\big(\mathrm{TransDec}_w(E_w(\hat M_{<t}) + S_n, \tilde F^w)\big)\\
     \hat M_t = \hat M^{s}_t + \hat M^{w}_t                                                            && (8)
 
 Readings taken:
