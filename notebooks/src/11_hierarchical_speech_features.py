@@ -305,8 +305,8 @@ print("Fig. 7's ordering (weak branch gives the frame level the smallest share):
 # **Reading the bars.** Before training both generators spread their weight almost evenly (about 1/4 per
 # level). After this short run, both branches have moved weight away from the word and utterance levels to the
 # frame and phoneme levels (asserted above), and the printout says whether the weak branch gives the frame level
-# the smallest share, as in the paper's Fig. 7. In the committed run it does **not**: the weak branch leans on the
-# frame level even more than the strong one. A 48-step run is no test of the paper's claim (the Table III analogue,
+# the smallest share, as in the paper's Fig. 7. In the run committed with this notebook it did **not** (the weak
+# branch leaned on the frame level even more than the strong one); the printout says which holds for your run. A 48-step run is no test of the paper's claim (the Table III analogue,
 # `results/corrtalk.md` once it has been run, trains for the full recipe), and on this corpus the
 # "weak" face (brows, cheeks, blinks) is partly random and partly driven by prosody at stressed vowels, which is
 # itself a fast, syllable-scale signal. The paper's Fig. 8 says the strong branch's weighted features vary faster
