@@ -1,7 +1,7 @@
 """Where the time of one training step goes, and how far it is from the arithmetic lower bound.
 
-    .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca] [--steps 12] [--batch-size 8]
-        [--max-frames 90] [--threads 1]
+    .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca|corrtalk] [--steps 12]
+        [--batch-size 8] [--max-frames 90] [--threads 1]
 
 1. Throughput of this machine's matrix multiply (float32 GEMM, torch.mm) at 1 and 2 threads, on the shape of the
    biggest product of a step (B*T frames x V*3 coordinates x d features) and on a square 1024 product.
@@ -23,10 +23,10 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from dualtalker_lite.data.dataset import make_loader
 from dualtalker_lite.experiments import build_model, load_data, table_specs
-from dualtalker_lite.losses import LossWeights, rbf_kernel_weights
-from dualtalker_lite.train import TrainConfig, _crop, model_loss
+from dualtalker_lite.losses import rbf_kernel_weights
+from dualtalker_lite.train import TrainConfig, _crop, loss_weights, model_loss
 
-ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style"}
+ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style", "corrtalk": "CorrTalk"}
 
 
 def gemm_gflops(m: int, k: int, n: int, threads: int, seconds: float = 1.0) -> tuple[float, float]:
@@ -61,7 +61,7 @@ def main() -> None:
     spec = next(s for s in table_specs("main") if s.row == ROWS[args.model])
     torch.manual_seed(0)
     model, _ = build_model(spec, data["n_vertices"], 160, data["n_speakers"])
-    weights = LossWeights(**spec.loss)
+    weights = loss_weights(model, spec.loss)  # the model's own loss-weight class
     v3 = 3 * data["n_vertices"]
 
     # 1. GEMM throughput
@@ -136,7 +136,7 @@ def main() -> None:
           f"(+ {collate_s * 1e3:.1f} ms to collate a batch in the loader)")
     for k, v in parts.items():
         print(f"  {k:26s} {v / args.steps * 1e3:7.1f} ms  {100 * v / args.steps / cpu:5.1f} %")
-    if weights.lambda4:  # the CCRL kernel is rebuilt from the ground-truth motion inside the loss at every step
+    if getattr(weights, "lambda4", 0):  # the CCRL kernel is rebuilt from the ground truth in the loss, every step
         c0 = time.process_time()
         for b in raw[1:args.steps + 1]:
             rbf_kernel_weights(b["vertices"] - b["template"][:, None], weights.bandwidth, b["mask"],

@@ -123,9 +123,11 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
 def model_registry() -> dict[str, tuple[type, type | None]]:
     """``model_class`` name -> (class, config class or None)."""
     from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
+    from .models.corrtalk import CorrTalk, CorrTalkConfig
     from .models.dualtalker import DualTalker, DualTalkerConfig
 
     return {"DualTalker": (DualTalker, DualTalkerConfig), "VocaStyle": (VocaStyle, VocaConfig),
+            "CorrTalk": (CorrTalk, CorrTalkConfig),
             "StaticTemplate": (StaticTemplate, None)}
 
 

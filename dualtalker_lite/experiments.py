@@ -34,9 +34,10 @@ Runs are independent jobs ``(row, seed)``; ``--processes N`` spreads them over N
 torch thread, and the metrics do not depend on N (each run reseeds everything and builds its own loader).
 Identical configurations that appear in several requested tables (e.g. the full DualTalker in all three) run once.
 
-Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker), ``ablation`` (w/o CCRL,
-w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared encoder/decoder
-weights) and ``sweep`` (λ4, the CCRL kernel bandwidth σ, and the kernel-weighted vs InfoNCE reading of eq. 9).
+Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker, CorrTalk), ``ablation``
+(w/o CCRL, w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared
+encoder/decoder weights), ``sweep`` (λ4, the CCRL kernel bandwidth σ, and the kernel-weighted vs InfoNCE reading of
+eq. 9) and ``corrtalk`` (CorrTalk's Table III: w/o hierarchical encoder, single branch, random mask, feature swap).
 
     python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
     python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
@@ -73,7 +74,7 @@ __all__ = ["TABLES", "METRICS", "RunSpec", "table_specs", "phoneme_onehot", "Pho
            "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
            "write_table", "load_table", "table_markdown", "main"]
 
-TABLES = ("main", "ablation", "sweep")
+TABLES = ("main", "ablation", "sweep", "corrtalk")
 TEST_SPLIT = "test_a"
 QUICK_CLIPS = {"train": 16, TEST_SPLIT: 4}  # --quick: the first clips of each split
 # (key, column header, digits) of the Markdown tables, in order.
@@ -98,6 +99,7 @@ TITLES = {
     "main": "Table I analogue: comparison with the baselines on test-A",
     "ablation": "Table IV analogue: ablations of DualTalker on test-A",
     "sweep": "CCRL sweep: weight λ4 and kernel bandwidth σ on test-A",
+    "corrtalk": "Table III analogue (CorrTalk): ablations of CorrTalk on test-A",
 }
 
 
@@ -107,7 +109,7 @@ class RunSpec:
     """One row of a table: which model, which overrides, which features. A run is a (RunSpec, seed) pair."""
 
     row: str                                            # label in the table
-    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker"
+    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker" | "corrtalk"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
     features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
@@ -122,6 +124,7 @@ class RunSpec:
 
 
 PRIMAL_ONLY = {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}  # baselines: the reconstruction loss alone
+CORRTALK_NOTE = "rec. + velocity loss (eqs. 9-11, λ=1, 1), FAI-initialised mask, 4 levels"
 
 
 def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
@@ -134,6 +137,22 @@ def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
             RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
                     expect="worse"),
             RunSpec("DualTalker", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+            RunSpec("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
+        ]
+    if table == "corrtalk":
+        ct = dict(model="corrtalk")
+        return [
+            RunSpec("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
+            RunSpec("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
+                    note="frame level only (softmax over one level = 1)", expect="worse"),
+            RunSpec("single branch", **ct, model_overrides={"dual_branch": False},
+                    note="one FaceFormer-style branch decodes the whole face, no mask", expect="worse"),
+            RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
+                    note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
+            RunSpec("phoneme one-hot features", **ct, features="phonemes",
+                    note="acoustic-feature swap (paper: wavLM -> wav2vec 2.0); here log-mel -> one-hot phoneme ids, "
+                         "the only other front-end usable offline (the rig's own driving signal: an easier input)",
+                    expect="worse"),
         ]
     if table == "ablation":
         return [
@@ -345,6 +364,7 @@ def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset
 def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int) -> tuple[torch.nn.Module, object]:
     """The model of a row at the tiny sizes; returns (model, config) where config is None for the template."""
     from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
+    from .models.corrtalk import CorrTalk, CorrTalkConfig
     from .models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
 
     sizes = dict(n_vertices=n_vertices, audio_dim=audio_dim, n_speakers=n_speakers)
@@ -359,6 +379,9 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int)
     if spec.model == "dualtalker":
         cfg = DualTalkerConfig.tiny(**sizes, **spec.model_overrides)
         return DualTalker(cfg), cfg
+    if spec.model == "corrtalk":
+        cfg = CorrTalkConfig.tiny(**sizes, **spec.model_overrides)
+        return CorrTalk(cfg), cfg
     raise ValueError(f"unknown model {spec.model!r}")
 
 
@@ -756,7 +779,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
                 unique.setdefault((s.key(), seed), (s, seed))
     old, reused = reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick) if args.reuse else ({}, [])
     taken = {k: old[k] for k in unique if k in old}
-    cost = {"template": 0, "voca": 1}  # longest jobs first: the pool finishes together
+    cost = {"template": 0, "voca": 1, "corrtalk": 4}  # longest jobs first: the pool finishes together
     jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
     print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused ({', '.join(tables)}; seeds {seeds}; "
           f"{epochs} epochs; {args.processes} process(es))", flush=True)

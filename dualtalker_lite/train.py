@@ -5,9 +5,10 @@ loss, ``model.loss(out, batch, weights) -> (total, terms)`` (DualTalker: the joi
 ``losses.joint_loss``; the baselines: its reconstruction term), logs every term separately, and takes an Adam
 step at the learning rate of the schedule (:func:`lr_factor`). The loop has no per-model branches: a new model
 plugs in by supplying ``forward(batch)``, ``loss(...)``, ``generate(...)`` and, optionally,
-``init_output_bias(mean_motion)``. Training stops after ``epochs`` epochs or when a budget (optimiser steps,
-process CPU seconds, wall seconds) is used up; validation LVE (autoregressive, as at test time) is measured only
-when a validation loader is given. Checkpoints hold only tensors and plain Python values, so they load with
+``init_output_bias(mean_motion)`` and ``init_from_data(dataset)`` (CorrTalk: the FAI-initialised mask), both
+called before the first step when ``mean_init`` is on. Training stops after ``epochs`` epochs or when a budget
+(optimiser steps, process CPU seconds, wall seconds) is used up; validation LVE (autoregressive, as at test time) is
+measured only when a validation loader is given. Checkpoints hold only tensors and plain Python values, so they load with
 ``torch.load(weights_only=True)``; they are written atomically.
 
 The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``; issue 8). What changed and why:
@@ -94,7 +95,7 @@ class TrainConfig:
     cpu_budget_s: float | None = None  # stop once this process has used this many CPU seconds in train()
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
-    mean_init: bool = False            # model.init_output_bias(mean training motion) before the first step
+    mean_init: bool = False            # model.init_output_bias(mean training motion) (and init_from_data(data)) first
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
@@ -308,6 +309,9 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     init = getattr(model, "init_output_bias", None)
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
+    init_data = getattr(model, "init_from_data", None)  # e.g. CorrTalk's FAI-initialised mask
+    if cfg.mean_init and callable(init_data):
+        init_data(getattr(train_loader, "dataset", train_loader))
     weights = _check_weights(model, cfg.weights)
     model.to(cfg.device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)

@@ -1,0 +1,384 @@
+r"""CorrTalk: hierarchical speech features and a strong/weak dual-branch decoder (Chu et al., "CorrTalk: Correlation
+Between Hierarchical Speech and Facial Activity Variances for 3D Animation"; Figs. 3, 4, 7, 9; eqs. 1-11).
+
+**Every numbered equation of the paper (1-11) was lost in the text extraction. The formulas below are
+reconstructions from the surrounding prose, not the printed ones; the readings that were possible are named.**
+
+Pipeline (Fig. 3), shapes for a batch of B clips of T mesh frames, V vertices::
+
+    A (B, T, D_a) -> shared audio front-end (wavLM stand-in) -> A' (B, T, C)
+    A' -> hierarchical extractor (Fig. 4) -> F^f, F^p, F^w, F^u       (B, T, 4, d)   blocks.hierarchical
+       -> weight generator s -> F̃^s (B, T, d), α^s (B, T, 4);  weight generator w -> F̃^w, α^w   (eqs. 4-6)
+    strong branch: FaceFormer-style decoder on (S_n, past motion, F̃^s) -> M^s (B, T, V*3)
+    weak branch:   the same with its own weights on F̃^w                 -> M^w
+    (F^w without a tilde is the word level; F̃^s, F̃^w are the two branches' weighted features)
+    M̂ = mask ⊙ M^s + (1 - mask) ⊙ M^w,  vertices = template + M̂                                   (eqs. 7-8)
+
+Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.fai`,
+:mod:`dualtalker_lite.blocks.hierarchical` and :mod:`dualtalker_lite.losses.corrtalk`):
+
+.. math::
+
+    (\tilde F^s, \tilde F^w) = E_{\theta_h}(\mathrm{Interp}(W_{\theta_a}(A)))                        && (1)\\
+    \hat M = \mathrm{Dec}_{\theta_s}(\tilde F^s, S_n) \oplus \mathrm{Dec}_{\theta_w}(\tilde F^w, S_n)     && (2)\\
+    \hat M^{s}_t = \mathcal{M} \odot
+        \mathrm{MotionDec}_s\big(\mathrm{TransDec}_s(E_s(\hat M_{<t}) + S_n, \tilde F^s)\big),
+        \quad \mathcal{M} \leftarrow \mathrm{norm}(\mathrm{FAI}) \text{ at initialisation}          && (7)\\
+    \hat M^{w}_t = (1 - \mathcal{M}) \odot
+        \mathrm{MotionDec}_w\big(\mathrm{TransDec}_w(E_w(\hat M_{<t}) + S_n, \tilde F^w)\big)\\
+    \hat M_t = \hat M^{s}_t + \hat M^{w}_t                                                            && (8)
+
+Readings taken:
+
+- Eq. 2's combination is eq. 8's sum, and the mask sits *inside* each branch's output (eq. 7: "we replace M
+  with 1 - M" for the weak branch), so ``out["motion_strong"] + out["motion_weak"] = out["motion"]`` exactly.
+  The mask is per vertex (V,), repeated over x, y, z. It is a plain learnable parameter (the text: "a learnable
+  mask initialised with a normalised FAI"), not squashed into [0, 1]: after training it may leave [0, 1]; the
+  two branch masks always sum to 1 (a sigmoid-parameterised mask is the other possible reading).
+- "The newly predicted motion is employed to update the past motions": both branches are fed the *summed*
+  prediction M̂_{<t} (ground truth in teacher forcing), each through its own embedding layer.
+- Each branch is FaceFormer's decoder as in the project's FaceFormer-style baseline: past-motion embedding + the
+  talking-style vector S_n (start token S_n), periodic positional encoding, a transformer decoder layer with the
+  ALiBi-biased causal self-attention and cross-attention to the branch's features under the diagonal alignment,
+  and a linear motion decoder (zero-initialised: an untrained model outputs the template). These pieces *are*
+  :class:`~dualtalker_lite.blocks.fusion.DualFusionLayer` (primal only, no gate, queries from the decoder) and
+  :class:`~dualtalker_lite.models.dualtalker.DualTalker`'s motion encoder/decoder, stream, teacher-forced fusion
+  and bounded-cache decoding step, reused (the methods are DualTalker's own functions, not copies).
+- One style embedding shared by both branches (one "talking style vector" per speaker in the text).
+- Past-motion dropout (``motion_dropout``, the project's exposure-bias remedy, 0.5 in ``tiny()`` as for every
+  autoregressive model of the recipe): a fed-back frame is hidden (zero motion) for both branches at once.
+- Ablations (Table III): ``hierarchical=False`` keeps the frame level only (the weight generator's softmax over
+  one level is 1); ``dual_branch=False`` decodes the whole face with the strong branch alone (no mask);
+  ``mask_init="random"`` draws the mask from U(0, 1) instead of the FAI; ``"uniform"`` is 0.5 everywhere.
+
+Mask initialisation from data: :meth:`CorrTalk.init_from_data` (called by ``train`` beside ``init_output_bias``
+when the recipe's ``mean_init`` is on) sets the mask to the normalised FAI of the training set
+(:func:`dualtalker_lite.fai.fai_from_dataset`, :func:`dualtalker_lite.fai.normalised_fai`); :meth:`init_mask`
+takes any (V,) vector.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn as nn
+from torch import Tensor
+
+from ..blocks.fusion import DualFusionLayer
+from ..blocks.hierarchical import HierarchicalFeatureExtractor, WeightGenerator, window_radius
+from ..blocks.positional import PeriodicPositionalEncoding
+from ..losses.corrtalk import CorrTalkWeights, corrtalk_loss
+from .audio_encoder import AudioFeatureExtractor
+from .dualtalker import DualTalker
+
+__all__ = ["CorrTalkConfig", "MotionBranch", "CorrTalk", "MASK_INITS"]
+
+MASK_INITS = ("fai", "random", "uniform")
+
+
+@dataclass
+class CorrTalkConfig:
+    """Sizes and switches of :class:`CorrTalk`. ``paper()``: the paper's sizes where printed, else FaceFormer's."""
+
+    n_vertices: int = 1500  # V
+    audio_dim: int = 160  # D_a: log-mel 2 x 80 per mesh frame (or n_phonemes for the feature-swap row)
+    n_speakers: int = 8  # rows of the style embedding
+    d_model: int = 128  # d: speech feature dimension of both branches (lost in the text; FaceFormer's BIWI size)
+    n_heads: int = 4
+    d_ff: int = 256  # decoder FF width
+    n_layers: int = 1  # decoder layers per branch
+    period: int = 30  # PPE / ALiBi period (frames)
+    fps: float = 30.0  # mesh frame rate: turns the unit durations into window sizes
+    phoneme_s: float = 0.2  # window of the phoneme level: upper end of 50-200 ms (blocks.hierarchical)
+    word_s: float = 1.0  # window of the word level: upper end of 250-1000 ms
+    utterance_radius: int | None = 450  # utterance level: whole clip up to 451 frames (long-audio cap, 15 s)
+    encoder_heads: int = 4
+    encoder_ff: int = 256
+    weight_hidden: int = 32  # h of the weight generator (eq. 4; the paper's value)
+    hierarchical: bool = True  # False: frame level only (Table III "w/o hierarchical encoder")
+    dual_branch: bool = True  # False: one branch decodes the whole face (Table III "single branch")
+    mask_init: str = "fai"  # "fai" | "random" | "uniform" (Table III "initialised at random"); "fai" is 0.5
+    # everywhere until init_from_data (train calls it when TrainConfig.mean_init, the recipe's default)
+    audio_hidden: int = 256  # C: width of the acoustic front-end (1024 for wavLM large)
+    audio_heads: int = 4
+    audio_conv_layers: int = 2
+    audio_kernel: int = 5
+    audio_layers: int = 1
+    audio_radius: int | None = 450
+    dropout: float = 0.1
+    motion_scale: float = 1000.0  # motion enters/leaves the branches in mm (as DualTalker)
+    motion_dropout: float = 0.0  # probability of hiding a fed-back past frame in training
+    add_style_to_motion: bool = True  # FaceFormer: S_n added to every past-motion token
+    decoder_window: int | None = 1800  # generate(): each branch's self-attention sees the last 1800 tokens
+
+    def __post_init__(self):
+        if self.mask_init not in MASK_INITS:
+            raise ValueError(f"mask_init must be one of {MASK_INITS}, got {self.mask_init!r}")
+        if not 0.0 <= self.motion_dropout <= 1.0:
+            raise ValueError(f"motion_dropout is a probability, got {self.motion_dropout}")
+        for name, heads in (("d_model", self.n_heads), ("d_model", self.encoder_heads),
+                            ("audio_hidden", self.audio_heads)):
+            if getattr(self, name) % heads:
+                raise ValueError(f"{name}={getattr(self, name)} must be divisible by its number of heads ({heads})")
+        for name in ("utterance_radius", "audio_radius", "decoder_window"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise ValueError(f"{name} must be a positive number of frames or None, got {value!r}")
+
+    @classmethod
+    def tiny(cls, **overrides) -> "CorrTalkConfig":
+        """d=64, 4 heads, FF 128, 1 layer per branch, past-motion dropout 0.5: the sizes of DualTalkerConfig.tiny."""
+        base = dict(d_model=64, n_heads=4, d_ff=128, encoder_heads=4, encoder_ff=128, audio_hidden=64,
+                    audio_heads=4, dropout=0.0, motion_dropout=0.5)
+        return cls(**{**base, **overrides})
+
+    @classmethod
+    def paper(cls, **overrides) -> "CorrTalkConfig":
+        """Weight generator h=32 (printed); d=128 and FF 256 (FaceFormer's, the printed d was lost)."""
+        return cls(**overrides)
+
+    @property
+    def radii(self) -> tuple[int, int, int | None]:
+        """Band radii (frames) of the phoneme, word and utterance SpeechFormer blocks."""
+        return window_radius(self.phoneme_s, self.fps), window_radius(self.word_s, self.fps), self.utterance_radius
+
+
+class MotionBranch(nn.Module):
+    """One FaceFormer-style decoding branch (Fig. 3 right): embedding layer E_b (V*3 -> d), PPE, transformer
+    decoder layer(s) (biased causal self-attention, diagonal cross-attention to the branch's features), linear
+    motion decoder (d -> V*3, zero-initialised). Its methods are DualTalker's, reused as they are."""
+
+    # DualTalker's own functions (same code path as the FaceFormer-style baseline), not copies:
+    encode_motion = DualTalker.encode_motion  # (..., V*3) metres -> (..., d)
+    decode_motion = DualTalker.decode_motion  # (..., d) -> (..., V*3) metres
+    _stream = DualTalker._stream  # [S_n, E(m_1) (+S_n), ..., E(m_{T-1}) (+S_n)]
+    _fuse = DualTalker._fuse  # PPE + decoder layers over a whole stream (teacher forcing)
+    _feedback = DualTalker._feedback  # next stream token from the frame just predicted
+    _decoder_state = DualTalker._decoder_state  # bounded caches of one layer
+    _lag_bias = DualTalker._lag_bias
+    _decode_step = DualTalker._decode_step  # one frame of one layer with bounded caches
+
+    def __init__(self, cfg: CorrTalkConfig):
+        super().__init__()
+        self.cfg = cfg
+        d, v3 = cfg.d_model, 3 * cfg.n_vertices
+        self.motion_encoder = nn.Linear(v3, d)  # embedding layer of the branch
+        self.ppe = PeriodicPositionalEncoding(d, cfg.period, cfg.dropout)
+        self.layers = nn.ModuleList(
+            DualFusionLayer(d, cfg.n_heads, cfg.d_ff, window=1, query_from="decoder", period=cfg.period,
+                            speaker_gate=False, dual=False, dropout=cfg.dropout) for _ in range(cfg.n_layers))
+        self.motion_decoder = nn.Linear(d, v3)  # zero: first prediction = template
+        nn.init.zeros_(self.motion_decoder.weight)
+        nn.init.zeros_(self.motion_decoder.bias)
+
+    def teacher_forced(self, fed_motion: Tensor, features: Tensor, style: Tensor, mask: Tensor | None) -> Tensor:
+        """Branch output for every frame from the (true) past motion: fed (B, T, V*3), F (B, T, d) -> (B, T, V*3)."""
+        h = self._fuse(self._stream(self.encode_motion(fed_motion), style), features, style, "primal", mask)
+        return self.decode_motion(h)  # (B, T, V*3)
+
+    def prefix_step(self, tokens: list[Tensor], features: Tensor, style: Tensor, mask: Tensor | None) -> Tensor:
+        """Uncached reference: re-run the decoder on the whole prefix, return the last frame (B, 1, V*3)."""
+        h = self.ppe(torch.cat(tokens, dim=1))  # (B, t+1, d)
+        for layer in self.layers:
+            h, _ = layer(h, features, style, "primal", key_mask=mask)
+        return self.decode_motion(h[:, -1:])  # (B, 1, V*3)
+
+    def cached_step(self, states: list[dict], token: Tensor, features: Tensor, style: Tensor, t: int,
+                    mask: Tensor | None) -> Tensor:
+        """Frame t with bounded caches (DualTalker._decode_step per layer): token (B, 1, d) -> (B, 1, V*3)."""
+        ppe = self.ppe.encoding(1, offset=t).to(token.dtype)  # (1, d) PPE of frame t (eval: no dropout)
+        h = token + ppe
+        for layer, state in zip(self.layers, states):
+            h = self._decode_step(layer, state, h, features, style, t, mask)
+        return self.decode_motion(h)  # (B, 1, V*3)
+
+
+class CorrTalk(nn.Module):
+    """Shared audio front-end, weighted hierarchical encoder (one weight generator per branch), strong and weak
+    FaceFormer-style branches combined by a learnable FAI-initialised mask (eqs. 1-8, reconstructed)."""
+
+    loss_weights_cls = CorrTalkWeights  # train.loss_weights builds it
+
+    speaker_style = DualTalker.speaker_style  # S_n with a clear error for unknown speakers
+    _check = DualTalker._check  # shapes of audio / template / speaker / vertices
+
+    def __init__(self, cfg: CorrTalkConfig):
+        super().__init__()
+        self.cfg = cfg
+        d, c = cfg.d_model, cfg.audio_hidden
+        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
+                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
+                                               radius=cfg.audio_radius)  # the wavLM stand-in (shared front-end)
+        n_levels = 4 if cfg.hierarchical else 1
+        self.hierarchy = HierarchicalFeatureExtractor(c, d, cfg.encoder_heads, cfg.encoder_ff, cfg.radii,
+                                                      cfg.dropout, n_levels)
+        self.style = nn.Embedding(cfg.n_speakers, d)  # the talking-style vectors S_n
+        self.weights_strong = WeightGenerator(d, n_levels, cfg.weight_hidden)
+        self.strong = MotionBranch(cfg)
+        self.weights_weak = self.weak = None
+        mask = torch.full((cfg.n_vertices,), 0.5)
+        if cfg.dual_branch:
+            self.weights_weak = WeightGenerator(d, n_levels, cfg.weight_hidden)
+            self.weak = MotionBranch(cfg)
+            if cfg.mask_init == "random":
+                mask = torch.rand(cfg.n_vertices)  # Table III "initialised at random" (global seed)
+        self.mask = nn.Parameter(mask)  # (V,) learnable; replaced by the normalised FAI in init_from_data
+        if not cfg.dual_branch:
+            self.mask.requires_grad_(False)  # unused by a single branch
+
+    def num_parameters(self) -> int:
+        """Number of trainable scalars."""
+        return sum(p.numel() for p in self.parameters() if p.requires_grad)
+
+    # ---- encoder ---------------------------------------------------------------------------------
+    def encode_audio(self, audio: Tensor, mask: Tensor | None = None) -> dict:
+        """Eqs. 1, 4-6: A (B, T, D_a) -> {"levels" (B, T, L, d), "strong"/"weak" F (B, T, d) and α (B, T, L)}."""
+        levels = self.hierarchy(self.extractor(audio, mask), mask)  # (B, T, L, d)
+        f_s, a_s = self.weights_strong(levels)  # (B, T, d), (B, T, L)
+        out = {"levels": levels, "strong": f_s, "alpha_strong": a_s, "weak": None, "alpha_weak": None}
+        if self.weak is not None:
+            out["weak"], out["alpha_weak"] = self.weights_weak(levels)
+        return out
+
+    # ---- mask --------------------------------------------------------------------------------------
+    def coordinate_mask(self) -> Tensor:
+        """The per-vertex mask repeated over x, y, z -> (V*3,) (vertex-major layout of ``docs/design.md``)."""
+        return self.mask.repeat_interleave(3)
+
+    def combine(self, strong: Tensor, weak: Tensor | None) -> tuple[Tensor, Tensor, Tensor | None]:
+        """Eqs. 7-8: (M^s, M^w) raw branch outputs (..., V*3) -> (M̂, mask ⊙ M^s, (1 - mask) ⊙ M^w)."""
+        if weak is None:
+            return strong, strong, None
+        m = self.coordinate_mask()  # (V*3,)
+        s, w = m * strong, (1.0 - m) * weak
+        return s + w, s, w
+
+    @torch.no_grad()
+    def init_mask(self, values: Tensor) -> None:
+        """Set the learnable mask to ``values`` (V,), e.g. the normalised FAI (values in [0, 1])."""
+        values = torch.as_tensor(values, dtype=self.mask.dtype)
+        if tuple(values.shape) != (self.cfg.n_vertices,):
+            raise ValueError(f"mask values: expected shape ({self.cfg.n_vertices},), got {tuple(values.shape)}")
+        if not bool(torch.isfinite(values).all()):
+            raise ValueError("mask values: non-finite entries (is the FAI of a static training set all zero?)")
+        self.mask.copy_(values.to(self.mask.device))
+
+    def init_from_data(self, data) -> None:
+        """Data-dependent init (``train`` calls it when ``mean_init``): ``mask_init="fai"`` sets the mask to the
+        normalised FAI of the training clips (section III-B); "random"/"uniform" and single-branch models keep theirs.
+
+        ``data``: a dataset of clips (a feature wrapper with ``.base``, e.g. phoneme one-hot, is looked through)
+        or a list of padded batches, as ``train`` accepts. The frame rate is the corpus's, else ``cfg.fps``."""
+        if self.weak is None or self.cfg.mask_init != "fai":
+            return
+        from ..fai import fai_from_dataset, normalised_fai
+
+        base = getattr(data, "base", data)  # the clips behind a feature wrapper
+        fps = getattr(getattr(base, "corpus", None), "fps", None) or self.cfg.fps
+        if isinstance(base, (list, tuple)):  # padded batches -> whole clips
+            base = [{"vertices": b["vertices"][i, :n], "template": b["template"][i]} for b in base
+                    for i, n in enumerate(b["mask"].sum(1).tolist() if b.get("mask") is not None
+                                          else [b["vertices"].shape[1]] * b["vertices"].shape[0])]
+        self.init_mask(normalised_fai(fai_from_dataset(base, fps=fps)))
+
+    @torch.no_grad()
+    def init_output_bias(self, mean_motion: Tensor) -> None:
+        """Both motion decoders' biases = the training mean motion (V*3,) in metres: the untrained model outputs
+        template + mean motion whatever the mask (mask ⊙ b + (1 - mask) ⊙ b = b); see DualTalker's docstring."""
+        v3 = 3 * self.cfg.n_vertices
+        if tuple(mean_motion.shape) != (v3,):
+            raise ValueError(f"mean_motion: expected shape ({v3},), got {tuple(mean_motion.shape)}")
+        for branch in (self.strong, self.weak):
+            if branch is not None:
+                branch.motion_decoder.bias.copy_(mean_motion.to(branch.motion_decoder.bias) * self.cfg.motion_scale)
+
+    # ---- training: teacher forcing -----------------------------------------------------------------
+    def forward(self, batch: dict) -> dict:
+        """Eqs. 1-8 with teacher forcing on a batch (``docs/design.md``) -> dict.
+
+        Keys: vertices, motion (B, T, V*3); motion_strong, motion_weak (masked branch outputs, summing to motion;
+        weak None for one branch); features {"strong", "weak"} (B, T, d); alpha {"strong", "weak"} (B, T, L);
+        levels (B, T, L, d)."""
+        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
+        self._check(audio, template, speaker, vertices)
+        mask = batch.get("mask")
+        motion = vertices - template[:, None, :]  # (B, T, V*3)
+        if mask is not None:  # padding may hold anything (even NaN)
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+            motion = motion.masked_fill(~mask[..., None], 0.0)
+        style = self.speaker_style(speaker)  # (B, d)
+        enc = self.encode_audio(audio, mask)
+        fed = motion  # teacher forcing: the true past, for both branches
+        if self.training and self.cfg.motion_dropout > 0:
+            drop = torch.rand(motion.shape[:2], device=motion.device)[..., None] < self.cfg.motion_dropout
+            fed = motion.masked_fill(drop, 0.0)  # (B, T, V*3) hidden frames = template
+        m_s = self.strong.teacher_forced(fed, enc["strong"], style, mask)  # (B, T, V*3)
+        m_w = None if self.weak is None else self.weak.teacher_forced(fed, enc["weak"], style, mask)
+        motion_hat, part_s, part_w = self.combine(m_s, m_w)
+        return {"vertices": template[:, None, :] + motion_hat, "motion": motion_hat, "motion_strong": part_s,
+                "motion_weak": part_w, "features": {"strong": enc["strong"], "weak": enc["weak"]},
+                "alpha": {"strong": enc["alpha_strong"], "weak": enc["alpha_weak"]}, "levels": enc["levels"]}
+
+    def loss(self, out: dict, batch: dict, weights: CorrTalkWeights | None = None) -> tuple[Tensor, dict]:
+        """Eq. 9 (reconstructed): λ_rec L_rec + λ_vel L_vel (``losses.corrtalk``) -> (total, detached terms)."""
+        return corrtalk_loss(out, batch, weights)
+
+    # ---- inference -------------------------------------------------------------------------------
+    @torch.no_grad()
+    def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
+                 mask: Tensor | None = None, window: int | None | str = "config") -> Tensor:
+        """Eqs. 7-8 frame by frame: A (B, T, D_a), template (B, V*3), speaker (B,) -> vertices (B, T, V*3).
+
+        ``use_cache=True``: bounded caches (:meth:`generate_chunks`, exact for clips up to ``window`` frames);
+        False: both branches re-run on the whole prefix at every frame (O(T^2), the reference). Call ``eval()``."""
+        self._check(audio, template, speaker)
+        if use_cache:
+            out = template.new_empty(audio.shape[0], audio.shape[1], template.shape[1])  # (B, T, V*3)
+            start = 0
+            for chunk in self.generate_chunks(audio, template, speaker, mask=mask, window=window):
+                out[:, start:start + chunk.shape[1]] = chunk
+                start += chunk.shape[1]
+            return out
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        style = self.speaker_style(speaker)  # (B, d)
+        enc = self.encode_audio(audio, mask)
+        branches = [(b, enc[k]) for b, k in ((self.strong, "strong"), (self.weak, "weak")) if b is not None]
+        tokens = [[style[:, None, :]] for _ in branches]  # start token S_n per branch
+        motions = []
+        for _ in range(audio.shape[1]):
+            raw = [b.prefix_step(tok, f, style, mask) for (b, f), tok in zip(branches, tokens)]  # (B, 1, V*3) each
+            m_t = self.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # (B, 1, V*3) eq. 8
+            motions.append(m_t)
+            for (b, _), tok in zip(branches, tokens):
+                tok.append(b._feedback(m_t, style))
+        return template[:, None, :] + torch.cat(motions, dim=1)  # (B, T, V*3)
+
+    @torch.no_grad()
+    def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
+                        window: int | None | str = "config", chunk: int = 900):
+        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (as DualTalker's:
+        each branch's self-attention keeps the last ``window`` tokens, its cross-attention the diagonal)."""
+        self._check(audio, template, speaker)
+        window = self.cfg.decoder_window if window == "config" else window
+        if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
+            raise ValueError(f"window must be a positive number of frames, None or 'config', got {window!r}")
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        b, t_total = audio.shape[:2]
+        style = self.speaker_style(speaker)  # (B, d)
+        enc = self.encode_audio(audio, mask)
+        branches = [(br, enc[k]) for br, k in ((self.strong, "strong"), (self.weak, "weak")) if br is not None]
+        states = [[br._decoder_state(layer, f, window) for layer in br.layers] for br, f in branches]
+        tokens = [style[:, None, :] for _ in branches]  # (B, 1, d) start token S_n
+        for start in range(0, t_total, chunk):
+            n = min(chunk, t_total - start)
+            block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
+            for r in range(n):
+                t = start + r
+                raw = [br.cached_step(st, tok, f, style, t, mask)
+                       for (br, f), st, tok in zip(branches, states, tokens)]  # (B, 1, V*3) each
+                m_t = self.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # (B, 1, V*3)
+                block[:, r] = template + m_t[:, 0]
+                tokens = [br._feedback(m_t, style) for br, _ in branches]
+            yield block

@@ -1,0 +1,366 @@
+"""CorrTalk: loss (eqs. 9-11, hand-computed), mask complement and initialisation, cached = uncached generation,
+teacher forcing = generation on its own output, training sanity, seeds, checkpoints, bad inputs."""
+
+import math
+
+import pytest
+import torch
+
+from dualtalker_lite.checkpoints import load_checkpoint, model_registry, save_checkpoint
+from dualtalker_lite.losses.corrtalk import CorrTalkWeights, corrtalk_loss, reconstruction_loss, velocity_loss
+from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
+
+V, DA, NS = 12, 8, 3
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _cfg(**kw):
+    kw = {"motion_dropout": 0.0, "d_model": 32, "d_ff": 64, "encoder_ff": 64, "audio_hidden": 32, **kw}
+    return CorrTalkConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, **kw)
+
+
+def _batch(b=2, t=20, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    template = torch.randn(b, V * 3, generator=g) * 0.01
+    motion = torch.cumsum(torch.randn(b, t, V * 3, generator=g) * 1e-4, dim=1)  # metres, smooth-ish
+    return {"audio": torch.randn(b, t, DA, generator=g), "vertices": template[:, None] + motion,
+            "template": template, "speaker": torch.arange(b) % NS, "mask": torch.ones(b, t, dtype=torch.bool)}
+
+
+def _perturbed(model, scale=0.05, seed=0):
+    """An untrained model has zero decoders (it outputs the template): give every weight some value."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(torch.randn(p.shape, generator=g) * scale)
+    return model.eval()
+
+
+# ---------------------------------------------------------------- loss, hand-computed
+def _hand_case():
+    pred = torch.tensor([[[3., 4, 0, 0, 0, 0], [0, 0, 0, 1, 2, 2], [0, 0, 1, 0, 0, 0]]])  # (1, 3, V*3), V = 2
+    return pred, torch.zeros_like(pred), torch.ones(1, 3, dtype=torch.bool)
+
+
+def test_reconstruction_and_velocity_hand_computed():
+    pred, target, mask = _hand_case()
+    # per-vertex distances: frame 0 (5, 0), frame 1 (0, 3), frame 2 (1, 0) -> mean 9 / 6
+    assert reconstruction_loss(pred, target, mask).item() == pytest.approx(1.5)
+    # frame differences: (5, 3) then (1, 3) -> mean 12 / 4
+    assert velocity_loss(pred, target, mask).item() == pytest.approx(3.0)
+    assert reconstruction_loss(pred, target, mask, "squared").item() == pytest.approx(35 / 6)
+    assert velocity_loss(pred, target, mask, "squared").item() == pytest.approx(11.0)
+
+
+def test_loss_masks_padding_and_weights_terms():
+    pred, target, mask = _hand_case()
+    pred[0, 2] = float("nan")  # padding may hold anything
+    mask[0, 2] = False
+    assert reconstruction_loss(pred, target, mask).item() == pytest.approx(2.0)  # (5 + 3) / 4
+    assert velocity_loss(pred, target, mask).item() == pytest.approx(4.0)  # one pair: (5 + 3) / 2
+    # metres in, mm distances out (vertex_scale 1000); total = λ_rec L_rec + λ_vel L_vel
+    pred, target, mask = _hand_case()
+    batch = {"vertices": target * 1e-3 + 0.5, "mask": mask}
+    total, terms = corrtalk_loss({"vertices": pred * 1e-3 + 0.5}, batch, CorrTalkWeights(velocity=0.5))
+    assert terms["reconstruction"].item() == pytest.approx(1.5, rel=1e-4)
+    assert terms["velocity"].item() == pytest.approx(3.0, rel=1e-4)
+    assert total.item() == pytest.approx(1.5 + 0.5 * 3.0, rel=1e-4)
+    _, terms = corrtalk_loss({"vertices": pred * 1e-3}, {"vertices": target, "mask": mask},
+                             CorrTalkWeights(velocity=0.0))
+    assert terms["velocity"].item() == 0.0
+
+
+def test_velocity_loss_single_frame_is_zero_and_bad_distance():
+    pred = torch.ones(2, 1, 6)
+    assert velocity_loss(pred, torch.zeros_like(pred), torch.ones(2, 1, dtype=torch.bool)).item() == 0.0
+    with pytest.raises(ValueError, match="distance must be one of"):
+        CorrTalkWeights(distance="l1")
+
+
+# ---------------------------------------------------------------- configuration
+def test_config_presets_and_validation():
+    cfg = CorrTalkConfig.tiny(n_vertices=5, audio_dim=7, n_speakers=2)
+    assert (cfg.n_vertices, cfg.audio_dim, cfg.n_speakers, cfg.d_model, cfg.motion_dropout) == (5, 7, 2, 64, 0.5)
+    assert CorrTalkConfig.paper().weight_hidden == 32
+    assert cfg.radii == (3, 15, 450)  # 200 ms and 1 s at 30 fps
+    assert CorrTalkConfig.tiny(fps=25.0).radii[:2] == (2, 12)
+    with pytest.raises(ValueError, match="mask_init must be one of"):
+        CorrTalkConfig.tiny(mask_init="pca")
+    with pytest.raises(ValueError, match="divisible"):
+        CorrTalkConfig.tiny(d_model=30)
+    with pytest.raises(ValueError, match="decoder_window must be a positive"):
+        CorrTalkConfig.tiny(decoder_window=0)
+
+
+# ---------------------------------------------------------------- mask
+def test_mask_complement_and_parts_sum_to_output():
+    torch.manual_seed(0)
+    model = _perturbed(CorrTalk(_cfg()))
+    m = model.coordinate_mask()
+    total, strong, weak = model.combine(torch.ones(1, 1, 3 * V), torch.ones(1, 1, 3 * V))
+    torch.testing.assert_close(total[0, 0], torch.ones(3 * V))  # strong mask + weak mask = 1
+    torch.testing.assert_close(strong[0, 0], m)
+    torch.testing.assert_close(m, model.mask.repeat_interleave(3))
+    assert torch.equal(m.view(V, 3)[:, 0], model.mask.detach())  # vertex-major: x, y, z of vertex v together
+    out = model(_batch())
+    torch.testing.assert_close(out["motion_strong"] + out["motion_weak"], out["motion"])
+
+
+def test_mask_initialisations():
+    torch.manual_seed(0)
+    assert torch.equal(CorrTalk(_cfg(mask_init="uniform")).mask.detach(), torch.full((V,), 0.5))
+    torch.manual_seed(1)
+    a = CorrTalk(_cfg(mask_init="random")).mask.detach()
+    torch.manual_seed(1)
+    b = CorrTalk(_cfg(mask_init="random")).mask.detach()
+    assert torch.equal(a, b) and bool(((a >= 0) & (a < 1)).all()) and a.std() > 0.1
+    model = CorrTalk(_cfg())
+    values = torch.linspace(0, 1, V)
+    model.init_mask(values)
+    assert torch.equal(model.mask.detach(), values) and model.mask.requires_grad
+    with pytest.raises(ValueError, match=rf"expected shape \({V},\), got \(3,\)"):
+        model.init_mask(torch.ones(3))
+    with pytest.raises(ValueError, match="non-finite"):
+        model.init_mask(torch.full((V,), float("nan")))
+    single = CorrTalk(_cfg(dual_branch=False))
+    assert single.weak is None and not single.mask.requires_grad
+
+
+def test_output_bias_init_gives_mean_motion_whatever_the_mask():
+    torch.manual_seed(0)
+    model = CorrTalk(_cfg())
+    model.init_mask(torch.rand(V))
+    mean = torch.randn(3 * V) * 1e-3
+    model.init_output_bias(mean)
+    batch = _batch()
+    out = model.eval()(batch)
+    torch.testing.assert_close(out["motion"], mean.expand_as(out["motion"]), atol=1e-7, rtol=1e-5)
+    with pytest.raises(ValueError, match="mean_motion: expected shape"):
+        model.init_output_bias(torch.zeros(5))
+
+
+# ---------------------------------------------------------------- generation
+@pytest.mark.parametrize("t,kw", [(1, {}), (31, {}), (47, {}), (47, {"dual_branch": False}),
+                                  (33, {"hierarchical": False}), (37, {"n_layers": 2}),
+                                  (29, {"utterance_radius": 5})])  # banded utterance level (long-audio cap)
+def test_cached_equals_uncached(t, kw):
+    torch.manual_seed(0)
+    model = _perturbed(CorrTalk(_cfg(**kw)))
+    b = _batch(b=2, t=t, seed=3)
+    mask = b["mask"].clone()
+    mask[1, max(1, t - 5):] = False  # a padded clip in the batch
+    fast = model.generate(b["audio"], b["template"], b["speaker"], use_cache=True, mask=mask)
+    slow = model.generate(b["audio"], b["template"], b["speaker"], use_cache=False, mask=mask)
+    assert fast.shape == (2, t, 3 * V)
+    torch.testing.assert_close(fast, slow, atol=1e-5, rtol=0)
+
+
+def test_chunks_and_window_equal_whole_generation():
+    torch.manual_seed(0)
+    model = _perturbed(CorrTalk(_cfg()))
+    b = _batch(b=1, t=41, seed=4)
+    whole = model.generate(b["audio"], b["template"], b["speaker"])
+    chunks = torch.cat(list(model.generate_chunks(b["audio"], b["template"], b["speaker"], chunk=8)), dim=1)
+    torch.testing.assert_close(chunks, whole, atol=1e-6, rtol=0)
+    near = model.generate(b["audio"], b["template"], b["speaker"], window=41)  # the window holds every frame
+    torch.testing.assert_close(near, whole, atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="window must be a positive"):
+        model.generate(b["audio"], b["template"], b["speaker"], window=0)
+
+
+def test_teacher_forcing_on_own_output_equals_generation():
+    torch.manual_seed(0)
+    model = _perturbed(CorrTalk(_cfg()))
+    b = _batch(b=2, t=25, seed=5)
+    gen = model.generate(b["audio"], b["template"], b["speaker"])
+    out = model({**b, "vertices": gen})
+    torch.testing.assert_close(out["vertices"], gen, atol=1e-5, rtol=0)
+
+
+def test_level_weights_and_ablation_shapes():
+    torch.manual_seed(0)
+    out = _perturbed(CorrTalk(_cfg()))(_batch())
+    for branch in ("strong", "weak"):
+        assert out["alpha"][branch].shape == (2, 20, 4)
+        torch.testing.assert_close(out["alpha"][branch].sum(-1), torch.ones(2, 20))
+    flat = _perturbed(CorrTalk(_cfg(hierarchical=False)))(_batch())
+    assert flat["levels"].shape == (2, 20, 1, 32) and torch.equal(flat["alpha"]["strong"], torch.ones(2, 20, 1))
+    single = _perturbed(CorrTalk(_cfg(dual_branch=False)))(_batch())
+    assert single["motion_weak"] is None and single["alpha"]["weak"] is None
+
+
+def test_bad_inputs_name_the_problem():
+    model = CorrTalk(_cfg()).eval()
+    b = _batch()
+    with pytest.raises(ValueError, match=rf"audio: expected \(B, T, {DA}\)"):
+        model.generate(b["audio"][..., :3], b["template"], b["speaker"])
+    with pytest.raises(ValueError, match="unknown speaker index"):
+        model.generate(b["audio"], b["template"], torch.tensor([0, NS]))
+    with pytest.raises(ValueError, match="template: expected"):
+        model({**b, "template": b["template"][:, :6]})
+
+
+# ---------------------------------------------------------------- training
+def _train(seed, steps=25, **kw):
+    from dualtalker_lite.utils import set_seed
+
+    set_seed(seed, threads=1)
+    model = CorrTalk(_cfg(**kw))
+    batch = _batch(b=2, t=16, seed=7)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    model.train()
+    for _ in range(steps):
+        total, _ = model.loss(model(batch), batch)
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+        losses.append(total.item())
+    return model, losses
+
+
+def test_loss_falls_when_overfitting_one_batch():
+    _, losses = _train(0, steps=40)
+    assert losses[-1] < 0.5 * losses[0], losses[::8]
+
+
+def test_same_seed_same_result():
+    a, la = _train(3, steps=4, motion_dropout=0.5)
+    b, lb = _train(3, steps=4, motion_dropout=0.5)
+    assert la == lb
+    for (n, p), q in zip(a.state_dict().items(), b.state_dict().values()):
+        assert torch.equal(p, q), n
+    c, lc = _train(4, steps=4, motion_dropout=0.5)
+    assert lc != la
+
+
+def test_checkpoint_round_trip(tmp_path):
+    assert model_registry()["CorrTalk"][0] is CorrTalk
+    torch.manual_seed(0)
+    model = _perturbed(CorrTalk(_cfg(mask_init="random")))
+    model.init_mask(torch.linspace(0.1, 0.9, V))
+    path = save_checkpoint(tmp_path / "ct.pt", model, model.cfg, speakers=["a", "b", "c"])
+    loaded, info = load_checkpoint(path)
+    assert isinstance(loaded, CorrTalk) and loaded.cfg == model.cfg and info["model_class"] == "CorrTalk"
+    assert torch.equal(loaded.mask, model.mask)
+    b = _batch(b=1, t=9)
+    torch.testing.assert_close(loaded.generate(b["audio"], b["template"], b["speaker"]),
+                               model.generate(b["audio"], b["template"], b["speaker"]))
+
+
+# ---------------------------------------------------------------- FAI initialisation through train()
+def _oscillating_batches(t=64, fps=30.0):
+    """Vertex v moves along x with amplitude (v + 1) mm at 2 Hz except vertex 3, which never moves."""
+    time = torch.arange(t) / fps
+    amp = (torch.arange(V) + 1.0) * 1e-3
+    amp[3] = 0.0
+    x = amp[None, :] * (1 + torch.sin(2 * math.pi * 2.0 * time))[:, None]  # (T, V) >= 0: distance = x
+    motion = torch.zeros(t, V, 3)
+    motion[..., 0] = x
+    template = torch.zeros(V * 3)
+    b = _batch(b=2, t=t)
+    b["vertices"] = template + motion.reshape(1, t, V * 3).repeat(2, 1, 1)
+    b["template"] = template.repeat(2, 1)
+    b["mask"][1, 40:] = False
+    b["vertices"][1, 40:] = float("nan")  # padding is never read
+    b["vertices"] = torch.where(b["mask"][..., None], b["vertices"], torch.zeros(()))
+    return [b]
+
+
+def test_fai_mask_initialisation_through_train():
+    from dualtalker_lite.fai import fai_from_dataset, normalised_fai
+    from dualtalker_lite.train import TrainConfig, train
+
+    batches = _oscillating_batches()
+    torch.manual_seed(0)
+    model = CorrTalk(_cfg())
+    train(model, batches, TrainConfig(epochs=0, mean_init=True, progress=False, validate_every=0))
+    clips = [{"vertices": batches[0]["vertices"][0], "template": batches[0]["template"][0]},
+             {"vertices": batches[0]["vertices"][1, :40], "template": batches[0]["template"][1]}]
+    expected = normalised_fai(fai_from_dataset(clips, fps=30.0))
+    torch.testing.assert_close(model.mask.detach(), expected)
+    assert model.mask[3].item() == 0.0 and model.mask.argmax().item() == V - 1  # static vertex 0, largest 1
+    assert torch.all(model.mask[4:].diff() > 0)  # amplitude order kept
+    for kind in ("random", "uniform"):  # other initialisations are left alone by train()
+        torch.manual_seed(0)
+        other = CorrTalk(_cfg(mask_init=kind))
+        before = other.mask.detach().clone()
+        train(other, batches, TrainConfig(epochs=0, mean_init=True, progress=False, validate_every=0))
+        assert torch.equal(other.mask.detach(), before)
+
+
+# ---------------------------------------------------------------- command line and runner
+def test_cli_train_evaluate_animate_corrtalk(tmp_path, capsys):
+    import json
+
+    import numpy as np
+    import soundfile as sf
+
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+
+    corpus = Corpus(sample_path())
+    ckpt = tmp_path / "ct.pt"
+    main(["train", "--model", "corrtalk", "--epochs", "1", "--out", str(ckpt)])
+    assert f"trained corrtalk for 1 epochs on {len(corpus.split('train'))} clips" in capsys.readouterr().out
+    model, info = load_checkpoint(ckpt)
+    assert isinstance(model, CorrTalk) and info["speakers"] == corpus.train_speakers
+    mask = model.mask.detach()  # the normalised FAI after one epoch of learning: near [0, 1], far from uniform
+    assert -0.05 <= mask.min().item() and mask.max().item() <= 1.05 and mask.std().item() > 0.1
+    main(["evaluate", "--checkpoint", str(ckpt), "--split", "test_a", "--json", str(tmp_path / "m.json")])
+    assert np.isfinite(json.loads((tmp_path / "m.json").read_text())["metrics"]["lve_euclidean"])
+    sf.write(tmp_path / "me.wav", 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK02",
+          "--out", str(tmp_path / "anim"), "--no-video", "--chunk", "4", "--no-progress"])
+    verts = np.load(tmp_path / "anim" / "vertices.npy")
+    assert verts.shape == (15, corpus.metadata["n_vertices"] * 3) and np.isfinite(verts).all()
+
+
+def test_runner_tables_name_corrtalk_rows():
+    from dualtalker_lite import experiments as ex
+
+    assert "corrtalk" in ex.TABLES and "corrtalk" in ex.TITLES
+    rows = {s.row: s for s in ex.table_specs("corrtalk")}
+    assert list(rows) == ["CorrTalk", "w/o hierarchical encoder", "single branch", "mask initialised at random",
+                          "phoneme one-hot features"]
+    assert rows["CorrTalk"].reference and rows["phoneme one-hot features"].features == "phonemes"
+    main_rows = {s.row: s for s in ex.table_specs("main")}
+    assert main_rows["CorrTalk"].model == "corrtalk" and main_rows["CorrTalk"].loss == {}
+    for spec in rows.values():  # every row builds at the tiny sizes with its overrides
+        model, cfg = ex.build_model(spec, V, DA, NS)
+        assert isinstance(model, CorrTalk) and all(getattr(cfg, k) == v for k, v in spec.model_overrides.items())
+
+
+def test_static_training_data_cannot_initialise_the_fai_mask():
+    from dualtalker_lite.train import TrainConfig, train
+
+    batches = _oscillating_batches()
+    batches[0]["vertices"] = batches[0]["template"][:, None, :].repeat(1, batches[0]["vertices"].shape[1], 1)
+    model = CorrTalk(_cfg())
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    with pytest.raises(ValueError, match="all 12 values equal"):
+        train(model, batches, TrainConfig(epochs=1, mean_init=True, progress=False, validate_every=0))
+    assert all(torch.equal(v, before[k]) for k, v in model.state_dict().items())  # nothing was trained
+
+
+def test_checkpoint_with_a_bad_config_is_refused(tmp_path):
+    model = CorrTalk(_cfg())
+    path = save_checkpoint(tmp_path / "ct.pt", model, model.cfg)
+    ckpt = torch.load(path, weights_only=True)
+    ckpt["model_config"]["mask_init"] = "pca"
+    torch.save(ckpt, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match=r"bad\.pt: invalid model_config for CorrTalk: mask_init must be one of"):
+        load_checkpoint(tmp_path / "bad.pt")
+    ckpt["model_config"]["mask_init"] = "fai"
+    ckpt["state_dict"]["mask"] = torch.ones(V + 1)
+    torch.save(ckpt, tmp_path / "bad2.pt")
+    with pytest.raises(ValueError, match=r"bad2\.pt: weights do not fit a CorrTalk"):
+        load_checkpoint(tmp_path / "bad2.pt")
