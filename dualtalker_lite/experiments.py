@@ -727,8 +727,35 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     p.add_argument("--quick", action="store_true", help="smoke test: 1 epoch, first seed only, few clips")
+    p.add_argument("--reuse", nargs="+", type=Path, default=[], metavar="TABLE_JSON",
+                   help="tables written earlier (e.g. results/main.json): their runs with the same row computation, "
+                        "seed, epochs and corpus are taken over instead of recomputed (their git commit is recorded)")
     p.add_argument("--no-progress", action="store_true")
     return p.parse_args(argv)
+
+
+def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False
+                  ) -> tuple[dict, list[dict]]:
+    """Runs of earlier tables that a new invocation may take over: {(key, seed): run}, plus one provenance entry
+    per table (file name, git commit, runs taken). Only tables with the same epoch budget, the same corpus and
+    the same ``--quick`` setting qualify; a table that does not is refused with one line naming it and the mismatch."""
+    found: dict = {}
+    provenance = []
+    for path in paths:
+        path = Path(path)
+        try:
+            payload = json.loads(path.read_text())
+            runs = payload["runs"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ValueError(f"{path}: not a table written by this runner ({type(e).__name__}: {e})") from None
+        for field_, want in (("epochs", epochs), ("corpus", corpus), ("quick", quick)):
+            if payload.get(field_) != want:
+                raise ValueError(f"{path}: cannot reuse its runs: {field_} is {payload.get(field_)!r}, "
+                                 f"this invocation has {want!r}")
+        for run in runs:
+            found.setdefault((run["key"], run["seed"]), run)
+        provenance.append({"table": path.name, "git": payload.get("git", ""), "n_runs": len(runs)})
+    return found, provenance
 
 
 def main(argv: Sequence[str] | None = None) -> dict:
@@ -750,18 +777,20 @@ def main(argv: Sequence[str] | None = None) -> dict:
         for s in specs[t]:
             for seed in seeds:
                 unique.setdefault((s.key(), seed), (s, seed))
+    old, reused = reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick) if args.reuse else ({}, [])
+    taken = {k: old[k] for k in unique if k in old}
     cost = {"template": 0, "voca": 1, "corrtalk": 4}  # longest jobs first: the pool finishes together
-    jobs = sorted(unique.values(), key=lambda job: -cost.get(job[0].model, 3))
-    print(f"{len(jobs)} distinct runs ({', '.join(tables)}; seeds {seeds}; {epochs} epochs; "
-          f"{args.processes} process(es))", flush=True)
+    jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
+    print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused ({', '.join(tables)}; seeds {seeds}; "
+          f"{epochs} epochs; {args.processes} process(es))", flush=True)
     results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, progress=not args.no_progress)
-    by_key = {(r["key"], r["seed"]): r for r in results}
+    by_key = {**taken, **{(r["key"], r["seed"]): r for r in results}}
     meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
             "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
             "corpus": _display_path(data["path"]), "test_split": TEST_SPLIT, "n_train_clips": len(data["train"]),
             "n_test_clips": len(data["test"]), "typical_bandwidth_m": bandwidth, "git": _git(),
             "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
-            "torch_threads_per_process": 1}
+            "torch_threads_per_process": 1, "reused_from": reused, "n_runs_reused": len(taken)}
     written = {}
     for t in tables:
         runs = [{**by_key[(s.key(), seed)], "row": s.row} for s in specs[t] for seed in seeds]

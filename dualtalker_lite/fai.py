@@ -52,7 +52,8 @@ with bin k at frequency :math:`k f_s / N` (f_s the mesh frame rate), :math:`\mat
   mean displacement with the slowest oscillation, and ``"dominant"`` (it searches the non-DC bins; bin 0 seldom
   exceeds bin 1 anyway, because of that leakage) lands on bin 1 for nearly every vertex.
   ``detrend=True`` subtracts each vertex's clip mean before the STFT, so that ``"first"`` and ``"dominant"``
-  measure oscillation only.
+  measure oscillation only. On the shipped corpus the dominant bin is still bin 1 for every moving vertex after
+  detrending: the motion spectrum falls with frequency, so the strongest oscillation is the slowest resolved one.
 - *Averaging*: over each clip's STFT frames, then over clips with equal weight per clip (a long clip does not
   count more). Mean over frames commutes with band selection, so :func:`mean_amplitude_spectrum` averages the
   whole spectrum once and :func:`select_band` picks the band.

@@ -142,6 +142,35 @@ def test_same_seed_same_metrics(quick_tables, tmp_path):
         assert a["loss_history"] == b["loss_history"], a["row"]
 
 
+def test_reuse_takes_over_matching_runs_and_computes_none(quick_tables, tmp_path, monkeypatch, capsys):
+    """--reuse: every (row, seed) of the earlier table is taken over, nothing is trained, provenance recorded."""
+    def no_training(*a, **k):
+        raise AssertionError("a reused run was recomputed")
+
+    monkeypatch.setattr(ex, "run_one", no_training)
+    ex.main(["--table", "main", "--quick", "--out", str(tmp_path), "--no-progress",
+             "--reuse", str(quick_tables / "main.json")])
+    assert "0 distinct runs to compute, 4 reused" in capsys.readouterr().out
+    first = json.loads((quick_tables / "main.json").read_text())
+    second = json.loads((tmp_path / "main.json").read_text())
+    assert [r["metrics"] for r in second["runs"]] == [r["metrics"] for r in first["runs"]]
+    assert second["n_runs_reused"] == 4
+    assert second["reused_from"] == [{"table": "main.json", "git": first["git"], "n_runs": 4}]
+
+
+def test_reuse_refuses_a_table_with_another_budget(quick_tables, tmp_path):
+    """A table trained for another number of epochs (or on another corpus) is refused, naming the file."""
+    path = quick_tables / "main.json"
+    with pytest.raises(ValueError, match=r"main\.json: cannot reuse its runs: epochs is 1, this invocation has 37"):
+        ex.reusable_runs([path], 37, json.loads(path.read_text())["corpus"], quick=True)
+    with pytest.raises(ValueError, match=r"main\.json: cannot reuse its runs: quick is True, this invocation has False"):
+        ex.reusable_runs([path], 1, json.loads(path.read_text())["corpus"], quick=False)
+    bad = tmp_path / "junk.json"
+    bad.write_text("[1, 2]")
+    with pytest.raises(ValueError, match=r"junk\.json: not a table written by this runner"):
+        ex.reusable_runs([bad], 1, "data_samples")
+
+
 # ------------------------------------------------------------------------------ the demo
 def test_demo_quick_writes_every_file(tmp_path):
     from dualtalker_lite import demo

@@ -3,11 +3,14 @@
 - ``render``   matplotlib mesh renderer: orthographic views, back-face culling, painter's algorithm, Lambert shading,
                per-vertex colour maps; ``render_frame_rgb`` -> uint8 (H, W, 3); ``RasterRenderer`` (Pillow, ~4x faster)
 - ``plots``    figures: mesh frame grids, per-vertex (error) maps, lip distance and waveform with phonemes
+- ``heatmap``  several per-vertex maps side by side (shared colour scale option), vertex spectrograms (CorrTalk
+               Figs. 1 and 9)
 - ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback;
                ``render_video``: long clips (memory-mapped .npy, fast renderer, progress bar, clean-up)
 - ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
 """
 from .animate import ClipAnimation, animate_clip, render_video
+from .heatmap import branch_mean_errors, plot_branch_error_maps, plot_vertex_maps, plot_vertex_spectrograms
 from .plots import plot_frames, plot_lip_distance, plot_vertex_map, plot_waveform_and_phonemes
 from .render import VIEWS, MeshRenderer, RasterRenderer, draw_mesh, render_frame_rgb
 from .viewer import MeshViewer, static_html
@@ -22,6 +25,10 @@ __all__ = [
     "plot_vertex_map",
     "plot_lip_distance",
     "plot_waveform_and_phonemes",
+    "plot_vertex_maps",
+    "plot_vertex_spectrograms",
+    "plot_branch_error_maps",
+    "branch_mean_errors",
     "ClipAnimation",
     "animate_clip",
     "render_video",
