@@ -1,5 +1,6 @@
-"""The retraining panel of notebook 08 (dualtalker_lite.viz.widgets), without a browser."""
+"""The panels of dualtalker_lite.viz.widgets (retraining: notebooks 08 and 12; recording: notebook 00), no browser."""
 import datetime
+import re
 
 import numpy as np
 import pytest
@@ -136,3 +137,62 @@ def test_recording_panel_unknown_speaker_and_no_checkpoint(recording_setup):
         animate_recording(wave, path, "NOBODY", corpus)
     with pytest.raises(ValueError, match="at least one checkpoint"):
         RecordingPanel(corpus, [], default_wave=wave)
+
+
+# ---------------------------------------------------------------------------------- TrainingPanel (notebook 12)
+def test_training_panel_controls_from_defaults_and_run():
+    from dualtalker_lite.viz.widgets import TrainingPanel
+
+    seen = {}
+
+    def retrain(settings, steps, on_step):
+        seen["settings"], seen["disabled_during"] = settings, panel.button.disabled
+        for _ in range(steps):
+            on_step()
+        seen["status_during"] = panel.status.value
+        return "history", "figure"
+
+    panel = TrainingPanel(retrain, {"velocity": 1.0, "mask_init": ("fai", "random", "uniform")}, steps=10)
+    assert panel.settings() == {"velocity": 1.0, "mask_init": "fai"}
+    assert list(panel.controls["mask_init"][0].options) == ["fai", "random", "uniform"]
+    panel.controls["velocity"][1].value = False          # untick: the term is switched off (0.0)
+    panel.controls["mask_init"][0].value = "uniform"
+    panel.steps.value = 15
+    assert panel.run() == ("history", "figure")
+    assert seen == {"settings": {"velocity": 0.0, "mask_init": "uniform"}, "disabled_during": True,
+                    "status_during": "training: step 15 of 15"}
+    assert panel.progress.value == panel.progress.max == 15 and panel.progress.bar_style == "success"
+    assert not panel.button.disabled and panel.button.description == "Train"
+    assert panel.status.value.startswith("retrained in ") and panel.status.value.endswith(" s (15 steps)")
+    panel.controls["velocity"][1].value = True
+    panel.controls["velocity"][0].value = 0.01
+    assert panel.settings()["velocity"] == pytest.approx(0.01)
+
+
+def test_training_panel_gives_the_button_back_after_a_failure():
+    from dualtalker_lite.viz.widgets import TrainingPanel
+
+    def broken(settings, steps, on_step):
+        on_step()
+        raise ValueError("mask_init must be one of ('fai', 'random', 'uniform'), got 'x'")
+
+    panel = TrainingPanel(broken, {"velocity": 1.0})
+    with pytest.raises(ValueError, match="mask_init must be one of"):
+        panel.run()
+    assert not panel.button.disabled and panel.progress.bar_style == "danger" and panel.progress.value == 1
+    assert panel.status.value.startswith("training failed after ") and "mask_init must be one of" in panel.status.value
+
+
+@pytest.mark.parametrize("default, message", [
+    ((), "control 'c': a choice needs a non-empty tuple of strings, got ()"),
+    (("fai", 3), "control 'c': a choice needs a non-empty tuple of strings, got ('fai', 3)"),
+    (0.0, "control 'c': the default must be a positive number (log slider) or a tuple of choices, got 0.0"),
+    (-1.0, "control 'c': the default must be a positive number (log slider) or a tuple of choices, got -1.0"),
+    (True, "control 'c': the default must be a positive number (log slider) or a tuple of choices, got True"),
+    ("fai", "control 'c': the default must be a positive number (log slider) or a tuple of choices, got 'fai'"),
+])
+def test_training_panel_refuses_bad_control_defaults(default, message):
+    from dualtalker_lite.viz.widgets import TrainingPanel
+
+    with pytest.raises(ValueError, match="^" + re.escape(message) + "$"):
+        TrainingPanel(lambda *a: None, {"c": default})
