@@ -29,6 +29,30 @@ def test_progress_loader_counts_and_keeps_batches_and_generator():
     wrapped = progress_loader(base, lambda: calls.append(1))
     assert wrapped.generator is base.generator and len(wrapped) == 3
     assert list(wrapped) == list(base) and len(calls) == 3
+    assert not hasattr(wrapped, "dataset")            # train() then reads the batches, as without the wrapper
+
+
+def test_progress_loader_exposes_the_dataset_for_trains_initialisation():
+    from torch.utils.data import Subset
+
+    from dualtalker_lite.train import mean_motion
+
+    class _Clips:
+        def __init__(self):
+            self.clips = [{"vertices": torch.full((2, 3), float(i)), "template": torch.zeros(3)} for i in range(4)]
+
+        def __len__(self):
+            return 4
+
+        def __getitem__(self, i):
+            return self.clips[i]
+
+    data, calls = Subset(_Clips(), [1, 3]), []
+    loader = torch.utils.data.DataLoader(data, batch_size=2, collate_fn=lambda items: items)
+    wrapped = progress_loader(loader, lambda: calls.append(1))
+    assert wrapped.dataset is data
+    torch.testing.assert_close(mean_motion(getattr(wrapped, "dataset", wrapped)), torch.full((3,), 2.0))
+    assert calls == []                                # the initialisation pass does not move the progress bar
 
 
 def test_panel_run_disables_button_counts_steps_and_reports_time():

@@ -41,11 +41,14 @@ class progress_loader:  # noqa: N801 (used like a function)
     """Iterate ``loader`` and call ``on_batch()`` before each batch is handed out.
 
     ``generator`` is the wrapped loader's own generator object, so ``train`` re-seeds exactly what it would
-    re-seed without the wrapper."""
+    re-seed without the wrapper; ``dataset`` (when the loader has one) is its dataset, so ``train``'s data-dependent
+    initialisation (mean motion, CorrTalk's FAI mask) reads the clips, not the batches (no extra ``on_batch``)."""
 
     def __init__(self, loader: Iterable, on_batch: Callable[[], None]):
         self.loader, self.on_batch = loader, on_batch
         self.generator = getattr(loader, "generator", None)
+        if hasattr(loader, "dataset"):
+            self.dataset = loader.dataset
 
     def __iter__(self):
         for batch in self.loader:
