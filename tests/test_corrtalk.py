@@ -336,3 +336,30 @@ def test_runner_tables_name_corrtalk_rows():
     for spec in rows.values():  # every row builds at the tiny sizes with its overrides
         model, cfg = ex.build_model(spec, V, DA, NS)
         assert isinstance(model, CorrTalk) and all(getattr(cfg, k) == v for k, v in spec.model_overrides.items())
+
+
+def test_static_training_data_cannot_initialise_the_fai_mask():
+    from dualtalker_lite.train import TrainConfig, train
+
+    batches = _oscillating_batches()
+    batches[0]["vertices"] = batches[0]["template"][:, None, :].repeat(1, batches[0]["vertices"].shape[1], 1)
+    model = CorrTalk(_cfg())
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    with pytest.raises(ValueError, match="all 12 values equal"):
+        train(model, batches, TrainConfig(epochs=1, mean_init=True, progress=False, validate_every=0))
+    assert all(torch.equal(v, before[k]) for k, v in model.state_dict().items())  # nothing was trained
+
+
+def test_checkpoint_with_a_bad_config_is_refused(tmp_path):
+    model = CorrTalk(_cfg())
+    path = save_checkpoint(tmp_path / "ct.pt", model, model.cfg)
+    ckpt = torch.load(path, weights_only=True)
+    ckpt["model_config"]["mask_init"] = "pca"
+    torch.save(ckpt, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match=r"bad\.pt: invalid model_config for CorrTalk: mask_init must be one of"):
+        load_checkpoint(tmp_path / "bad.pt")
+    ckpt["model_config"]["mask_init"] = "fai"
+    ckpt["state_dict"]["mask"] = torch.ones(V + 1)
+    torch.save(ckpt, tmp_path / "bad2.pt")
+    with pytest.raises(ValueError, match=r"bad2\.pt: weights do not fit a CorrTalk"):
+        load_checkpoint(tmp_path / "bad2.pt")

@@ -1,13 +1,16 @@
 """Building blocks of the models: attention (eqs. 3-4), FaceFormer's positional encoding/biases, the
-speaker-aware gate (eq. 5), DualTalker's cross-modal fusion with its dual form (eqs. 6-7, Figs. 2-3), and windowed
-attention for long audio (banded encoder attention, sliding-window decoder cache)."""
+speaker-aware gate (eq. 5), DualTalker's cross-modal fusion with its dual form (eqs. 6-7, Figs. 2-3), windowed
+attention for long audio (banded encoder attention, sliding-window decoder cache), and CorrTalk's hierarchical speech
+encoder (SpeechFormer blocks at four levels, the weight generator)."""
 from .attention import FeedForward, KVCache, MultiHeadAttention, multi_head_attention, scaled_dot_product_attention
 from .fusion import CrossModalFusion, DualFusionLayer, DualIntegration
 from .gates import SpeakerAwareGate
+from .hierarchical import HierarchicalFeatureExtractor, SpeechFormerBlock, WeightGenerator, window_radius
 from .positional import PeriodicPositionalEncoding, alibi_causal_bias, alibi_slopes, alignment_mask
 from .windowed import SlidingKVCache, banded_attention, banded_multi_head_attention, dropped_mass_bound
 
 __all__ = ["scaled_dot_product_attention", "multi_head_attention", "MultiHeadAttention", "KVCache", "FeedForward",
            "PeriodicPositionalEncoding", "alibi_slopes", "alibi_causal_bias", "alignment_mask",
            "SpeakerAwareGate", "DualIntegration", "CrossModalFusion", "DualFusionLayer",
-           "banded_attention", "banded_multi_head_attention", "SlidingKVCache", "dropped_mass_bound"]
+           "banded_attention", "banded_multi_head_attention", "SlidingKVCache", "dropped_mass_bound",
+           "SpeechFormerBlock", "HierarchicalFeatureExtractor", "WeightGenerator", "window_radius"]

@@ -135,7 +135,8 @@ class WeightGenerator(nn.Module):
     def scores(self, levels: Tensor) -> Tensor:
         """Eq. 4: e^l_t = w_l tanh(W_l F^l_t + b_l) + c_l for levels (B, T, L, d) -> (B, T, L)."""
         if levels.shape[2] != len(self.project):
-            raise ValueError(f"expected {len(self.project)} levels, got {levels.shape[2]} (shape {tuple(levels.shape)})")
+            raise ValueError(f"expected {len(self.project)} levels, got {levels.shape[2]} "
+                             f"(shape {tuple(levels.shape)})")
         return torch.cat([s(torch.tanh(p(levels[:, :, i]))) for i, (p, s) in enumerate(zip(self.project, self.score))],
                          dim=-1)  # (B, T, L)
 

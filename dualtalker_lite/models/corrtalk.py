@@ -13,7 +13,7 @@ Pipeline (Fig. 3), shapes for a batch of B clips of T mesh frames, V vertices::
     weak branch:   the same with its own weights on F^w                 -> M^w
     M̂ = mask ⊙ M^s + (1 - mask) ⊙ M^w,  vertices = template + M̂                                   (eqs. 7-8)
 
-Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.fai` (by ct-fai),
+Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.fai`,
 :mod:`dualtalker_lite.blocks.hierarchical` and :mod:`dualtalker_lite.losses.corrtalk`):
 
 .. math::
@@ -94,7 +94,8 @@ class CorrTalkConfig:
     weight_hidden: int = 32  # h of the weight generator (eq. 4; the paper's value)
     hierarchical: bool = True  # False: frame level only (Table III "w/o hierarchical encoder")
     dual_branch: bool = True  # False: one branch decodes the whole face (Table III "single branch")
-    mask_init: str = "fai"  # "fai" | "random" | "uniform" (Table III "initialised at random")
+    mask_init: str = "fai"  # "fai" | "random" | "uniform" (Table III "initialised at random"); "fai" is 0.5
+    # everywhere until init_from_data (train calls it when TrainConfig.mean_init, the recipe's default)
     audio_hidden: int = 256  # C: width of the acoustic front-end (1024 for wavLM large)
     audio_heads: int = 4
     audio_conv_layers: int = 2
