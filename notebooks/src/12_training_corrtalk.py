@@ -221,6 +221,7 @@ print("training CPU time (one thread):", {k: f"{v:.1f} s" for k, v in cpu_s.item
       f"= {1e3 * cpu_s['CorrTalk'] / ct_hist.steps[-1]:.0f} and "
       f"{1e3 * cpu_s['DualTalker'] / ct_hist.steps[-1]:.0f} ms a step (with validation)")
 print("parameters:", {k: f"{m.num_parameters():,}" for k, m in models.items()})
+assert models["CorrTalk"].num_parameters() > 1.5 * models["DualTalker"].num_parameters()
 
 # %% [markdown]
 # CorrTalk has about twice DualTalker's parameters (two decoders, four SpeechFormer levels) and costs more per
@@ -265,7 +266,7 @@ for key in ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "
             "lip_distance_corr", "lip_motion_ratio"):
     gt = f"   ground truth {sync['CorrTalk'][key + '_gt']:5.2f}" if key + "_gt" in sync["CorrTalk"] else ""
     print(f"{key:<22}" + "".join(f" {k} {s[key]:5.2f}" for k, s in sync.items()) + gt)
-assert all(v < lve_static for v in lve.values())
+assert all(v < lve_static for v in lve.values()) and all(s["lip_motion_ratio"] < 1 for s in sync.values())
 assert sync["CorrTalk"]["bilabial_closure_2mm_gt"] == 1.0 and sync["CorrTalk"]["n_bilabials"] > 0
 
 # %% [markdown]
@@ -284,9 +285,11 @@ plot_lip_distance(times, curves, phonemes=corpus.meta(CLIP)["phonemes"],
                   title=f"Lip distance, {CLIP}: '{corpus.meta(CLIP)['text']}' (48 training steps)")
 
 # %% [markdown]
-# After 48 steps both models follow the timing of the openings and closures roughly and with too small an
-# amplitude, like DualTalker in notebook 08: this is a few seconds of training, not a trained model. The
-# comparison that counts is the table of section 6 (every model trained with the full recipe, several seeds).
+# After 48 steps both models stay close to the average mouth: the lips move far less than in the ground truth
+# (lip motion ratio under 1, asserted above), with some of the timing of the openings (the correlation), and
+# the closure rates at /p b m/ are far from the ground truth's. That is a few seconds of training, not a trained
+# model (notebook 08 shows the same for DualTalker). The comparison that counts is the table of section 6 (every
+# model trained with the full recipe, several seeds).
 #
 # ## 4. Where each branch is wrong (Fig. 9 analogue)
 #
