@@ -267,6 +267,7 @@ for key in ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "
     gt = f"   ground truth {sync['CorrTalk'][key + '_gt']:5.2f}" if key + "_gt" in sync["CorrTalk"] else ""
     print(f"{key:<22}" + "".join(f" {k} {s[key]:5.2f}" for k, s in sync.items()) + gt)
 assert all(v < lve_static for v in lve.values()) and all(s["lip_motion_ratio"] < 1 for s in sync.values())
+assert all(s["bilabial_closure_1mm"] <= 0.5 * s["bilabial_closure_1mm_gt"] for s in sync.values())  # far from it
 assert sync["CorrTalk"]["bilabial_closure_2mm_gt"] == 1.0 and sync["CorrTalk"]["n_bilabials"] > 0
 
 # %% [markdown]
