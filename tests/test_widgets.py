@@ -1,5 +1,6 @@
-"""The retraining panel of notebook 08 (dualtalker_lite.viz.widgets), without a browser."""
+"""The panels of dualtalker_lite.viz.widgets (retraining: notebooks 08 and 12; recording: notebook 00), no browser."""
 import datetime
+import re
 
 import numpy as np
 import pytest
@@ -28,6 +29,30 @@ def test_progress_loader_counts_and_keeps_batches_and_generator():
     wrapped = progress_loader(base, lambda: calls.append(1))
     assert wrapped.generator is base.generator and len(wrapped) == 3
     assert list(wrapped) == list(base) and len(calls) == 3
+    assert not hasattr(wrapped, "dataset")            # train() then reads the batches, as without the wrapper
+
+
+def test_progress_loader_exposes_the_dataset_for_trains_initialisation():
+    from torch.utils.data import Subset
+
+    from dualtalker_lite.train import mean_motion
+
+    class _Clips:
+        def __init__(self):
+            self.clips = [{"vertices": torch.full((2, 3), float(i)), "template": torch.zeros(3)} for i in range(4)]
+
+        def __len__(self):
+            return 4
+
+        def __getitem__(self, i):
+            return self.clips[i]
+
+    data, calls = Subset(_Clips(), [1, 3]), []
+    loader = torch.utils.data.DataLoader(data, batch_size=2, collate_fn=lambda items: items)
+    wrapped = progress_loader(loader, lambda: calls.append(1))
+    assert wrapped.dataset is data
+    torch.testing.assert_close(mean_motion(getattr(wrapped, "dataset", wrapped)), torch.full((3,), 2.0))
+    assert calls == []                                # the initialisation pass does not move the progress bar
 
 
 def test_panel_run_disables_button_counts_steps_and_reports_time():
@@ -136,3 +161,62 @@ def test_recording_panel_unknown_speaker_and_no_checkpoint(recording_setup):
         animate_recording(wave, path, "NOBODY", corpus)
     with pytest.raises(ValueError, match="at least one checkpoint"):
         RecordingPanel(corpus, [], default_wave=wave)
+
+
+# ---------------------------------------------------------------------------------- TrainingPanel (notebook 12)
+def test_training_panel_controls_from_defaults_and_run():
+    from dualtalker_lite.viz.widgets import TrainingPanel
+
+    seen = {}
+
+    def retrain(settings, steps, on_step):
+        seen["settings"], seen["disabled_during"] = settings, panel.button.disabled
+        for _ in range(steps):
+            on_step()
+        seen["status_during"] = panel.status.value
+        return "history", "figure"
+
+    panel = TrainingPanel(retrain, {"velocity": 1.0, "mask_init": ("fai", "random", "uniform")}, steps=10)
+    assert panel.settings() == {"velocity": 1.0, "mask_init": "fai"}
+    assert list(panel.controls["mask_init"][0].options) == ["fai", "random", "uniform"]
+    panel.controls["velocity"][1].value = False          # untick: the term is switched off (0.0)
+    panel.controls["mask_init"][0].value = "uniform"
+    panel.steps.value = 15
+    assert panel.run() == ("history", "figure")
+    assert seen == {"settings": {"velocity": 0.0, "mask_init": "uniform"}, "disabled_during": True,
+                    "status_during": "training: step 15 of 15"}
+    assert panel.progress.value == panel.progress.max == 15 and panel.progress.bar_style == "success"
+    assert not panel.button.disabled and panel.button.description == "Train"
+    assert panel.status.value.startswith("retrained in ") and panel.status.value.endswith(" s (15 steps)")
+    panel.controls["velocity"][1].value = True
+    panel.controls["velocity"][0].value = 0.01
+    assert panel.settings()["velocity"] == pytest.approx(0.01)
+
+
+def test_training_panel_gives_the_button_back_after_a_failure():
+    from dualtalker_lite.viz.widgets import TrainingPanel
+
+    def broken(settings, steps, on_step):
+        on_step()
+        raise ValueError("mask_init must be one of ('fai', 'random', 'uniform'), got 'x'")
+
+    panel = TrainingPanel(broken, {"velocity": 1.0})
+    with pytest.raises(ValueError, match="mask_init must be one of"):
+        panel.run()
+    assert not panel.button.disabled and panel.progress.bar_style == "danger" and panel.progress.value == 1
+    assert panel.status.value.startswith("training failed after ") and "mask_init must be one of" in panel.status.value
+
+
+@pytest.mark.parametrize("default, message", [
+    ((), "control 'c': a choice needs a non-empty tuple of strings, got ()"),
+    (("fai", 3), "control 'c': a choice needs a non-empty tuple of strings, got ('fai', 3)"),
+    (0.0, "control 'c': the default must be a positive number (log slider) or a tuple of choices, got 0.0"),
+    (-1.0, "control 'c': the default must be a positive number (log slider) or a tuple of choices, got -1.0"),
+    (True, "control 'c': the default must be a positive number (log slider) or a tuple of choices, got True"),
+    ("fai", "control 'c': the default must be a positive number (log slider) or a tuple of choices, got 'fai'"),
+])
+def test_training_panel_refuses_bad_control_defaults(default, message):
+    from dualtalker_lite.viz.widgets import TrainingPanel
+
+    with pytest.raises(ValueError, match="^" + re.escape(message) + "$"):
+        TrainingPanel(lambda *a: None, {"c": default})

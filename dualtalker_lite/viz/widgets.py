@@ -1,10 +1,14 @@
-"""Notebook widgets for retraining a model interactively (notebook 08).
+"""Notebook widgets for retraining a model interactively (notebooks 08 and 12).
 
-``RetrainPanel`` holds the controls: sliders for the loss weights λ1..λ4 of the joint loss (log scales, a
-checkbox per term to switch it off), the CCRL kernel bandwidth σ (mm, or the per-clip median heuristic), the
-number of training steps, a Train button, a progress bar and a status line. Pressing Train disables the button,
-runs the notebook's own retrain function with the current settings while the progress bar follows the training
-steps, shows the figure it returns, writes "retrained in X s" and enables the button again (also after an error).
+``TrainingPanel`` is the generic one (notebook 12, CorrTalk): named controls given by their defaults (a float: a
+log slider with an "on" checkbox, e.g. a loss weight; a tuple of strings: a dropdown, e.g. the mask
+initialisation), a steps slider, a Train button, a progress bar and a status line, around the notebook's own
+``retrain(settings, steps, on_step)``, which builds the model from the settings. ``RetrainPanel`` (notebook 08) is
+DualTalker's: sliders for the loss weights λ1..λ4 of the joint loss (log scales, a checkbox per term to switch
+it off) and the CCRL kernel bandwidth σ (mm, or the per-clip median heuristic), with the same steps slider, button,
+progress bar and status line. In both, pressing Train disables the button, runs the notebook's own retrain
+function with the current settings while the progress bar follows the training steps, shows the figure it
+returns, writes "retrained in X s" and enables the button again (also after an error).
 
 ``RecordingPanel`` (notebook 00) animates the user's own recording: a WAV/FLAC upload, checkpoint and speaker
 dropdowns, an Animate button (disabled while working) with a one-line status, and an output area. The work is
@@ -22,13 +26,13 @@ from __future__ import annotations
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 
 from ..losses import LossWeights
 
-__all__ = ["progress_loader", "RetrainPanel", "animate_recording", "RecordingPanel"]
+__all__ = ["progress_loader", "TrainingPanel", "RetrainPanel", "animate_recording", "RecordingPanel"]
 
 Settings = tuple[tuple[float, float, float, float], "float | None", int]
 
@@ -37,11 +41,14 @@ class progress_loader:  # noqa: N801 (used like a function)
     """Iterate ``loader`` and call ``on_batch()`` before each batch is handed out.
 
     ``generator`` is the wrapped loader's own generator object, so ``train`` re-seeds exactly what it would
-    re-seed without the wrapper."""
+    re-seed without the wrapper; ``dataset`` (when the loader has one) is its dataset, so ``train``'s data-dependent
+    initialisation (mean motion, CorrTalk's FAI mask) reads the clips, not the batches (no extra ``on_batch``)."""
 
     def __init__(self, loader: Iterable, on_batch: Callable[[], None]):
         self.loader, self.on_batch = loader, on_batch
         self.generator = getattr(loader, "generator", None)
+        if hasattr(loader, "dataset"):
+            self.dataset = loader.dataset
 
     def __iter__(self):
         for batch in self.loader:
@@ -52,27 +59,41 @@ class progress_loader:  # noqa: N801 (used like a function)
         return len(self.loader)
 
 
-class RetrainPanel:
-    """Controls + Train button for ``retrain(lambdas, bandwidth_mm, steps, on_step) -> (history, ..., figure)``.
+class TrainingPanel:
+    """Named controls + steps slider + Train button for any model: ``retrain(settings, steps, on_step) -> (...,
+    figure)``.
 
-    ``retrain`` must call ``on_step()`` once per training step (e.g. through :func:`progress_loader`) and return a
-    tuple whose last element is a matplotlib figure (shown in the panel's output area). ``panel.widget`` is the
-    box to ``display``; ``panel.settings()`` reads the controls; ``panel.run()`` does what the button does and
-    returns what ``retrain`` returned.
+    ``controls`` maps a setting's name to its default, which also picks the control: a float -> a log-scale slider
+    (10^-4..10) with an "on" checkbox (unticked: the setting is 0.0, e.g. a loss term switched off); a tuple of
+    strings -> a dropdown whose first entry is the default (e.g. ``{"velocity": 1.0, "mask_init": MASK_INITS}``).
+    The notebook's ``retrain`` builds its model from ``settings`` (a dict ``{name: value}``), must call ``on_step()``
+    once per training step (e.g. through :func:`progress_loader`) and return a tuple whose last element is a
+    matplotlib figure (shown in the panel's output area). ``panel.widget`` is the box to ``display``;
+    ``panel.settings()`` reads the controls; ``panel.run()`` does what the button does and returns what
+    ``retrain`` returned.
     """
 
-    def __init__(self, retrain: Callable, defaults: LossWeights | None = None, steps: int = 10,
-                 max_steps: int = 60):
+    def __init__(self, retrain: Callable, controls: Mapping[str, float | tuple[str, ...]] | None = None,
+                 steps: int = 10, max_steps: int = 60):
         import ipywidgets as widgets
 
-        d = defaults or LossWeights()
         self.retrain = retrain
-        self.lambdas = {i: self._log_slider(widgets, getattr(d, f"lambda{i}"), f"λ{i}") for i in (1, 2, 3, 4)}
-        self.on = {i: widgets.Checkbox(value=True, description="on", indent=False,
-                                       layout=widgets.Layout(width="60px")) for i in (1, 2, 3, 4)}
-        sigma_mm = 1.0 if d.bandwidth is None else d.bandwidth * 1e3
-        self.sigma = self._log_slider(widgets, sigma_mm, "σ (mm)", lo=-1, hi=1)
-        self.median = widgets.Checkbox(value=d.bandwidth is None, description="median", indent=False)
+        self.controls: dict = {}  # name -> (value widget, "on" checkbox or None)
+        rows = []
+        for name, default in (controls or {}).items():
+            if isinstance(default, (tuple, list)):
+                if not default or not all(isinstance(o, str) for o in default):
+                    raise ValueError(f"control {name!r}: a choice needs a non-empty tuple of strings, got {default!r}")
+                box = widgets.Dropdown(options=list(default), value=default[0], description=name)
+                self.controls[name] = (box, None)
+                rows.append(box)
+            elif isinstance(default, (int, float)) and not isinstance(default, bool) and default > 0:
+                slider, on = self._log_slider(widgets, float(default), name), self._on(widgets)
+                self.controls[name] = (slider, on)
+                rows.append(widgets.HBox([slider, on]))
+            else:
+                raise ValueError(f"control {name!r}: the default must be a positive number (log slider) or a "
+                                 f"tuple of choices, got {default!r}")
         self.steps = widgets.IntSlider(value=steps, min=5, max=max_steps, step=5, description="steps",
                                        continuous_update=False)
         self.button = widgets.Button(description="Train", button_style="primary", icon="play")
@@ -80,19 +101,28 @@ class RetrainPanel:
         self.status = widgets.Label(value="not trained yet")
         self.output = widgets.Output()
         self.button.on_click(lambda _: self.run())
-        controls = [widgets.HBox([self.lambdas[i], self.on[i]]) for i in (1, 2, 3, 4)]
-        controls += [widgets.HBox([self.sigma, self.median]), self.steps, self.button, self.progress, self.status]
-        self.widget = widgets.HBox([widgets.VBox(controls), self.output])
+        self._rows = rows
+        self.widget = widgets.HBox([widgets.VBox(self._control_rows() + [self.steps, self.button, self.progress,
+                                                                         self.status]), self.output])
+
+    def _control_rows(self) -> list:
+        return self._rows
+
+    @staticmethod
+    def _on(widgets):
+        return widgets.Checkbox(value=True, description="on", indent=False, layout=widgets.Layout(width="60px"))
 
     @staticmethod
     def _log_slider(widgets, value: float, description: str, lo: float = -4, hi: float = 1):
         return widgets.FloatLogSlider(value=value, base=10, min=lo, max=hi, step=0.1, description=description,
                                       readout_format=".1e", continuous_update=False)
 
-    def settings(self) -> Settings:
-        """(λ1..λ4 with 0 for unticked terms, bandwidth in mm or None for the median heuristic, steps)."""
-        lambdas = tuple(self.lambdas[i].value if self.on[i].value else 0.0 for i in (1, 2, 3, 4))
-        return lambdas, None if self.median.value else self.sigma.value, self.steps.value
+    def settings(self) -> dict:
+        """``{name: value}`` of the controls (0.0 for an unticked slider)."""
+        return {name: (w.value if on is None or on.value else 0.0) for name, (w, on) in self.controls.items()}
+
+    def _retrain(self, steps: int):
+        return self.retrain(self.settings(), steps, self._step)
 
     def _step(self) -> None:
         self.progress.value += 1
@@ -101,13 +131,13 @@ class RetrainPanel:
     def run(self):
         """Disable the button, retrain with the current settings (progress bar per step), show the figure,
         report the time; the button comes back even if training fails."""
-        lambdas, bandwidth_mm, steps = self.settings()
+        steps = self.steps.value
         self.button.disabled, self.button.description = True, "Training..."
         self.progress.max, self.progress.value, self.progress.bar_style = steps, 0, "info"
         self.status.value = f"training: step 0 of {steps}"
         t0 = time.perf_counter()
         try:
-            result = self.retrain(lambdas, bandwidth_mm, steps, self._step)
+            result = self._retrain(steps)
         except Exception as e:
             self.progress.bar_style = "danger"
             self.status.value = f"training failed after {time.perf_counter() - t0:.1f} s: {e}"
@@ -123,6 +153,42 @@ class RetrainPanel:
 
             display(fig)
         return result
+
+
+class RetrainPanel(TrainingPanel):
+    """DualTalker's panel (notebook 08): ``retrain(lambdas, bandwidth_mm, steps, on_step) -> (history, ..., figure)``.
+
+    Log sliders for λ1..λ4 of the joint loss, each with an "on" checkbox, the CCRL bandwidth σ (mm) or the
+    per-clip median heuristic; everything else (steps, button, progress, status, output) is
+    :class:`TrainingPanel`'s.
+    """
+
+    def __init__(self, retrain: Callable, defaults: LossWeights | None = None, steps: int = 10,
+                 max_steps: int = 60):
+        import ipywidgets as widgets
+
+        d = defaults or LossWeights()
+        self.lambdas = {i: self._log_slider(widgets, getattr(d, f"lambda{i}"), f"λ{i}") for i in (1, 2, 3, 4)}
+        self.on = {i: self._on(widgets) for i in (1, 2, 3, 4)}
+        sigma_mm = 1.0 if d.bandwidth is None else d.bandwidth * 1e3
+        self.sigma = self._log_slider(widgets, sigma_mm, "σ (mm)", lo=-1, hi=1)
+        self.median = widgets.Checkbox(value=d.bandwidth is None, description="median", indent=False)
+        super().__init__(retrain, None, steps, max_steps)
+
+    def _control_rows(self) -> list:
+        import ipywidgets as widgets
+
+        rows = [widgets.HBox([self.lambdas[i], self.on[i]]) for i in (1, 2, 3, 4)]
+        return rows + [widgets.HBox([self.sigma, self.median])]
+
+    def settings(self) -> Settings:
+        """(λ1..λ4 with 0 for unticked terms, bandwidth in mm or None for the median heuristic, steps)."""
+        lambdas = tuple(self.lambdas[i].value if self.on[i].value else 0.0 for i in (1, 2, 3, 4))
+        return lambdas, None if self.median.value else self.sigma.value, self.steps.value
+
+    def _retrain(self, steps: int):
+        lambdas, bandwidth_mm, _ = self.settings()
+        return self.retrain(lambdas, bandwidth_mm, steps, self._step)
 
 
 def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, corpus, size: int = 256):
