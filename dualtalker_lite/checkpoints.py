@@ -124,9 +124,10 @@ def model_registry() -> dict[str, tuple[type, type | None]]:
     """``model_class`` name -> (class, config class or None)."""
     from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
     from .models.dualtalker import DualTalker, DualTalkerConfig
+    from .models.emoface import EmoFace, EmoFaceConfig
 
     return {"DualTalker": (DualTalker, DualTalkerConfig), "VocaStyle": (VocaStyle, VocaConfig),
-            "StaticTemplate": (StaticTemplate, None)}
+            "StaticTemplate": (StaticTemplate, None), "EmoFace": (EmoFace, EmoFaceConfig)}
 
 
 def _first_line(e: BaseException) -> str:

@@ -107,7 +107,7 @@ class RunSpec:
     """One row of a table: which model, which overrides, which features. A run is a (RunSpec, seed) pair."""
 
     row: str                                            # label in the table
-    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker"
+    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker" | "emoface"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
     features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
@@ -359,6 +359,11 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int)
     if spec.model == "dualtalker":
         cfg = DualTalkerConfig.tiny(**sizes, **spec.model_overrides)
         return DualTalker(cfg), cfg
+    if spec.model == "emoface":
+        from .models.emoface import EmoFace, EmoFaceConfig
+
+        cfg = EmoFaceConfig.tiny(**sizes, **spec.model_overrides)
+        return EmoFace(cfg), cfg
     raise ValueError(f"unknown model {spec.model!r}")
 
 
