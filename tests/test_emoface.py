@@ -304,3 +304,152 @@ def test_build_model_emoface():
 
     model, cfg = build_model(RunSpec(row="EmoFace", model="emoface"), n_vertices=V, audio_dim=DA, n_speakers=NS)
     assert isinstance(model, EmoFace) and cfg.n_vertices == V and cfg.d_model == 64
+
+
+def test_bad_generation_conditions_fail_before_any_block():
+    model, batch = _model(), _batch(t=5)
+    args = (batch["audio"], batch["template"], batch["speaker"])
+    with pytest.raises(ValueError, match=r"emotion \[5\]: expected an index in 0..4"):
+        model.generate_chunks(*args, emotion=5)  # raised at the call, not at the first next()
+    with pytest.raises(ValueError, match=r"level \[3\]: expected 1..2"):
+        model.generate(*args, level=3)
+
+
+# ---- pseudo-pairs on the shipped corpus ------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def pairs():
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.pairs import PairDataset
+
+    return PairDataset(sample_path())
+
+
+def test_resample_time_by_hand():
+    from dualtalker_lite.data.pairs import resample_time
+
+    x = torch.tensor([[0.0, 10.0], [2.0, 10.0], [4.0, 30.0]])  # (T=3, D=2)
+    torch.testing.assert_close(resample_time(x, 5), torch.tensor([[0.0, 10.0], [1.0, 10.0], [2.0, 10.0],
+                                                                  [3.0, 20.0], [4.0, 30.0]]))
+    torch.testing.assert_close(resample_time(x, 2), torch.tensor([[0.0, 10.0], [4.0, 30.0]]))
+    assert resample_time(x, 3) is x
+    with pytest.raises(ValueError, match="expected a"):
+        resample_time(x[0], 4)
+
+
+def test_pair_dataset_partners(pairs):
+    import json
+
+    meta = json.loads((pairs.corpus.root / "metadata.json").read_text())
+    wanted = set(meta["splits"]["train"]) | set(meta["splits"]["train_emo"])
+    grouped = {c for g in meta["pairs"].values() for c in g.values() if c in wanted}
+    assert len(pairs) == len(wanted) and pairs.n_paired == len(grouped)
+    for i in range(0, len(pairs), 7):
+        item = pairs[i]
+        a, b = meta["clips"][item["name"]], meta["clips"][item["pair_name"]]
+        if item["pair_valid"]:
+            assert item["pair_name"] != item["name"]
+            assert (a["subject"], a["sentence_id"]) == (b["subject"], b["sentence_id"])
+            assert (a["emotion"], a["level"]) != (b["emotion"], b["level"])
+            assert item["pair_emotion"] == meta["emotions"].index(b["emotion"])
+        else:
+            assert item["pair_name"] == item["name"] and item["name"] not in grouped
+        n = item["audio"].shape[0]
+        assert item["pair_audio"].shape == (n, item["audio"].shape[1])
+        assert item["pair_vertices"].shape == item["vertices"].shape
+        other = pairs.items[pairs.names.index(item["pair_name"])]
+        torch.testing.assert_close(item["pair_vertices"][[0, -1]], other["vertices"][[0, -1]])  # ends kept
+
+
+def test_pair_collate_and_one_training_step(pairs):
+    from dualtalker_lite.data.pairs import make_pair_loader
+
+    batch = next(iter(make_pair_loader(pairs, batch_size=4, seed=1)))
+    assert torch.equal(batch["pair_mask"], batch["mask"]) and batch["pair_valid"].dtype == torch.bool
+    assert batch["pair_audio"].shape == batch["audio"].shape and len(batch["pair_name"]) == 4
+    c = pairs.corpus
+    torch.manual_seed(0)
+    model = EmoFace(EmoFaceConfig.tiny(n_vertices=c.metadata["n_vertices"], n_speakers=len(c.train_speakers),
+                                       n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32)).train()
+    total, terms = model.loss(model(batch), batch)
+    total.backward()
+    assert torch.isfinite(total) and float(terms["cross"]) > 0 and float(terms["cls"]) > 0
+
+
+def test_pair_groups_refuse_a_group_mixing_speakers(pairs):
+    from dualtalker_lite.data.pairs import pair_groups
+
+    corpus = pairs.corpus
+    saved = corpus.metadata["pairs"]
+    try:
+        corpus.metadata["pairs"] = {"bad": {"neutral": "SPK01_s00", "happy1": "SPK02_s00-happy1"}}
+        with pytest.raises(ValueError, match=r"metadata.json: pairs\['bad'\] mixes subjects"):
+            pair_groups(corpus, ["SPK01_s00", "SPK02_s00-happy1"])
+        corpus.metadata["pairs"] = {"bad": ["SPK01_s00"]}
+        with pytest.raises(ValueError, match=r"pairs\['bad'\] must be an object"):
+            pair_groups(corpus, ["SPK01_s00"])
+    finally:
+        corpus.metadata["pairs"] = saved
+
+
+# ---- inference CLI: --emotion / --level -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def emoface_ckpt(pairs, tmp_path_factory):
+    from dualtalker_lite.checkpoints import save_checkpoint
+
+    c = pairs.corpus
+    torch.manual_seed(0)
+    cfg = EmoFaceConfig.tiny(n_vertices=c.metadata["n_vertices"], n_speakers=len(c.train_speakers),
+                             n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32)
+    model = EmoFace(cfg).eval()
+    for dec in (model.emotion_decoder, model.content_decoder):
+        torch.nn.init.normal_(dec.motion_decoder.weight, std=1e-2)
+    torch.nn.init.normal_(model.emotion_type.weight, std=1.0)
+    path = tmp_path_factory.mktemp("emo") / "emoface.pt"
+    save_checkpoint(path, model, cfg, speakers=c.train_speakers, faces=c.faces)
+    return path
+
+
+def _wav(tmp_path):
+    import numpy as np
+    import soundfile as sf
+
+    t = np.arange(16000) / 16000
+    path = tmp_path / "me.wav"
+    sf.write(path, (0.3 * np.sin(2 * np.pi * 220 * t) * (1 + np.sin(2 * np.pi * 3 * t)) / 2).astype("float32"), 16000)
+    return path
+
+
+def test_cli_emotion_and_level(emoface_ckpt, tmp_path):
+    import numpy as np
+
+    from dualtalker_lite.inference import main
+
+    wav, outs = _wav(tmp_path), {}
+    for emotion in ("happy", "sad"):
+        main(["--checkpoint", str(emoface_ckpt), "--wav", str(wav), "--speaker", "SPK01", "--emotion", emotion,
+              "--level", "2", "--format", "npy", "--out", str(tmp_path / emotion)])
+        outs[emotion] = np.load(tmp_path / emotion / "vertices.npy")
+    n_vertices = torch.load(emoface_ckpt, weights_only=True)["n_vertices"]
+    assert outs["happy"].shape == outs["sad"].shape == (30, 3 * n_vertices)  # 1 s at 30 fps
+    assert np.abs(outs["happy"] - outs["sad"]).max() > 1e-6  # the condition reaches the face
+
+
+def test_cli_emotion_errors(emoface_ckpt, tmp_path, capsys):
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.inference import main
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    wav = _wav(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main(["--checkpoint", str(emoface_ckpt), "--wav", str(wav), "--emotion", "furious", "--format", "npy",
+              "--out", str(tmp_path / "a")])
+    assert e.value.code == 2 and "unknown emotion 'furious'" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
+    dual = tmp_path / "dual.pt"
+    cfg = DualTalkerConfig.tiny(n_vertices=torch.load(emoface_ckpt, weights_only=True)["n_vertices"])
+    save_checkpoint(dual, DualTalker(cfg), cfg)
+    with pytest.raises(SystemExit) as e:
+        main(["--checkpoint", str(dual), "--wav", str(wav), "--emotion", "happy", "--format", "npy",
+              "--out", str(tmp_path / "b")])
+    assert e.value.code == 2 and "DualTalker model takes no emotion condition" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()

@@ -354,6 +354,7 @@ class EmoFace(nn.Module):
         ``level``: the corpus's 1 (normal, default) or 2 (strong). ``use_cache=False`` re-runs both decoders and
         the fusion on the whole prefix at every frame (the O(T^2) reference); ``True`` uses bounded KV caches."""
         self._check(audio, template, speaker)
+        self.check_conditions(emotion, level)
         if use_cache:
             return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, emotion=emotion,
                                                        level=level)), dim=1)
@@ -375,8 +376,26 @@ class EmoFace(nn.Module):
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
                         emotion=None, level=None, window: int | None | str = "config", chunk: int = 900):
         """Yield the vertices in consecutive (B, <= chunk, V*3) blocks, both decoders with DualTalker's bounded
-        caches (:meth:`DualTalker.generate_chunks`), fused frame by frame, the fused motion fed back to both."""
+        caches (:meth:`DualTalker.generate_chunks`), fused frame by frame, the fused motion fed back to both.
+
+        Inputs and conditions are checked here, before the first block is asked for (not a generator itself)."""
         self._check(audio, template, speaker)
+        self.check_conditions(emotion, level)
+        return self._chunks(audio, template, speaker, mask, emotion, level, window, chunk)
+
+    def check_conditions(self, emotion, level) -> None:
+        """One ValueError line for an emotion index outside 0..N_e-1 or a level outside 0..n_levels (corpus levels)."""
+        if emotion is not None:
+            e = torch.as_tensor(emotion).reshape(-1)
+            if e.dtype.is_floating_point or bool(((e < 0) | (e >= self.cfg.n_emotions)).any()):
+                raise ValueError(f"emotion {e.tolist()}: expected an index in 0..{self.cfg.n_emotions - 1}")
+        if level is not None:
+            lv = torch.as_tensor(level).reshape(-1)
+            if lv.dtype.is_floating_point or bool(((lv < 0) | (lv > self.cfg.n_levels)).any()):
+                raise ValueError(f"level {lv.tolist()}: expected 1..{self.cfg.n_levels} (0 = neutral counts as 1)")
+
+    @torch.no_grad()
+    def _chunks(self, audio, template, speaker, mask, emotion, level, window, chunk):
         window = self.cfg.decoder_window if window == "config" else window
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
