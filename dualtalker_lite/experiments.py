@@ -342,8 +342,10 @@ def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset
     raise ValueError(f"unknown features {features!r}; expected 'logmel' or 'phonemes'")
 
 
-def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int) -> tuple[torch.nn.Module, object]:
-    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template."""
+def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
+                vertices=None) -> tuple[torch.nn.Module, object]:
+    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template.
+    ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention)."""
     from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
     from .models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
 
@@ -363,7 +365,7 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int)
         from .models.emoface import EmoFace, EmoFaceConfig
 
         cfg = EmoFaceConfig.tiny(**sizes, **spec.model_overrides)
-        return EmoFace(cfg), cfg
+        return EmoFace(cfg, faces=faces, vertices=vertices), cfg
     raise ValueError(f"unknown model {spec.model!r}")
 
 
@@ -425,7 +427,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         train_set, audio_dim = _features(data["train"], spec.features, data["n_phonemes"])
         test_set, _ = _features(data["test"], spec.features, data["n_phonemes"])
         set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
-        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
+        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"],
+                                       faces=data["corpus"].faces)
         train_cfg = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, progress=False,
                                      weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
         t0 = time.perf_counter()

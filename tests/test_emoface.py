@@ -109,9 +109,20 @@ def _cfg(**kw):
                               audio_hidden=32, **kw)
 
 
+def _grid_faces(rows=4, cols=5):
+    """A flat (rows x cols) grid, two triangles per square, consistently oriented: V = 20 vertices."""
+    faces = []
+    for i in range(rows - 1):
+        for j in range(cols - 1):
+            a, b, c, d = i * cols + j, i * cols + j + 1, (i + 1) * cols + j, (i + 1) * cols + j + 1
+            faces += [(a, b, d), (a, d, c)]
+    return torch.tensor(faces).numpy()
+
+
 def _model(seed=0, **kw):
     torch.manual_seed(seed)
-    model = EmoFace(_cfg(**kw)).eval()
+    cfg = _cfg(**kw)
+    model = EmoFace(cfg, faces=_grid_faces() if cfg.fusion == "mesh_attention" else None).eval()
     for dec in (model.emotion_decoder, model.content_decoder):  # zero decoders: every frame = template
         torch.nn.init.normal_(dec.motion_decoder.weight, std=0.05)
     return model
@@ -131,8 +142,9 @@ def _batch(b=2, t=12, seed=0):
             "pair_valid": torch.ones(b, dtype=torch.bool)}
 
 
-def test_forward_shapes():
-    out = _model()(_batch(b=2, t=12))
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_forward_shapes(fusion):
+    out = _model(fusion=fusion)(_batch(b=2, t=12))
     for key in ("vertices", "emotion", "content", "motion", "cross_vertices", "cross_emotion", "cross_content"):
         assert out[key].shape == (2, 12, V * 3), key
     assert out["attention"].shape == (2, 12, V)
@@ -142,10 +154,11 @@ def test_forward_shapes():
     assert "cross_vertices" not in no_cross
 
 
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
 @pytest.mark.parametrize("emotion,level", [(None, None), (3, 2), (torch.tensor([1, 4]), torch.tensor([1, 2]))])
-def test_cached_generation_equals_uncached(emotion, level):
+def test_cached_generation_equals_uncached(emotion, level, fusion):
     batch = _batch(t=30)
-    model = _model()
+    model = _model(fusion=fusion)
     args = (batch["audio"], batch["template"], batch["speaker"])
     fast = model.generate(*args, emotion=emotion, level=level, use_cache=True)
     slow = model.generate(*args, emotion=emotion, level=level, use_cache=False)
@@ -153,9 +166,10 @@ def test_cached_generation_equals_uncached(emotion, level):
     assert (fast - batch["template"][:, None]).abs().amax() > 1e-3  # not vacuous
 
 
-def test_generate_equals_teacher_forcing_on_own_predictions():
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_generate_equals_teacher_forcing_on_own_predictions(fusion):
     batch = _batch(t=20)
-    model = _model()
+    model = _model(fusion=fusion)
     pred = model.generate(batch["audio"], batch["template"], batch["speaker"], emotion=batch["emotion"],
                           level=batch["level"])
     with torch.no_grad():
@@ -175,9 +189,10 @@ def test_emotion_condition_changes_the_output():
     assert (happy - strong).abs().amax() > 1e-4
 
 
-def test_cross_reconstruction_uses_the_partners_emotion_features():
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_cross_reconstruction_uses_the_partners_emotion_features(fusion):
     """Eqs. 15-16: M^e_{c1,e2} = D_e(F_e2) depends on clip 2's audio only, M^c_{c1,e2} = D_c(F_c1) on clip 1's."""
-    model, batch = _model(), _batch(t=14)
+    model, batch = _model(fusion=fusion), _batch(t=14)
     with torch.no_grad():
         out = model(batch)
         other_own = model({**batch, "audio": torch.randn_like(batch["audio"])})  # clip 1's audio changed
@@ -227,9 +242,9 @@ def test_train_calls_set_epoch_each_epoch():
     assert calls == [(0, 3), (1, 3), (2, 3)]
 
 
-def test_loss_falls_when_overfitting_one_pair_batch():
-    torch.manual_seed(0)
-    model = EmoFace(_cfg()).train()
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_loss_falls_when_overfitting_one_pair_batch(fusion):
+    model = _model(fusion=fusion).train()
     batch = _batch(b=2, t=16)
     weights = EmoFaceWeights(vertex_scale=100.0)
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
@@ -291,7 +306,7 @@ def test_bad_config_fails():
 def test_checkpoint_round_trip(tmp_path):
     from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint
 
-    model, batch = _model(), _batch(t=9)
+    model, batch = _model(fusion="mesh_attention"), _batch(t=9)
     path = save_checkpoint(tmp_path / "emoface.pt", model, model.cfg, speakers=["A", "B", "C"])
     loaded, info = load_checkpoint(path)
     assert type(loaded) is EmoFace and info["model_class"] == "EmoFace" and loaded.cfg == model.cfg
@@ -302,8 +317,20 @@ def test_checkpoint_round_trip(tmp_path):
 def test_build_model_emoface():
     from dualtalker_lite.experiments import RunSpec, build_model
 
-    model, cfg = build_model(RunSpec(row="EmoFace", model="emoface"), n_vertices=V, audio_dim=DA, n_speakers=NS)
+    model, cfg = build_model(RunSpec(row="EmoFace", model="emoface"), n_vertices=V, audio_dim=DA, n_speakers=NS,
+                             faces=_grid_faces())
     assert isinstance(model, EmoFace) and cfg.n_vertices == V and cfg.d_model == 64
+    assert cfg.fusion == "mesh_attention" and model.mesh_attention is not None
+    spirals = model.mesh_attention.convs[0].spirals
+    # vertex 6 (row 1, column 1): itself, then its one-ring on the grid (edges + the two diagonals of _grid_faces)
+    assert spirals.shape == (V, 9) and spirals[6, 0] == 6 and set(spirals[6, 1:7].tolist()) == {0, 1, 5, 7, 11, 12}
+
+
+def test_mesh_attention_without_a_mesh_refuses_to_run():
+    torch.manual_seed(0)
+    model = EmoFace(_cfg(fusion="mesh_attention"))
+    with pytest.raises(ValueError, match="Mesh Attention has no spirals yet"):
+        model(_batch(t=4))
 
 
 def test_bad_generation_conditions_fail_before_any_block():
@@ -369,7 +396,8 @@ def test_pair_collate_and_one_training_step(pairs):
     c = pairs.corpus
     torch.manual_seed(0)
     model = EmoFace(EmoFaceConfig.tiny(n_vertices=c.metadata["n_vertices"], n_speakers=len(c.train_speakers),
-                                       n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32)).train()
+                                       n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32),
+                    faces=c.faces).train()
     total, terms = model.loss(model(batch), batch)
     total.backward()
     assert torch.isfinite(total) and float(terms["cross"]) > 0 and float(terms["cls"]) > 0
@@ -400,7 +428,7 @@ def emoface_ckpt(pairs, tmp_path_factory):
     torch.manual_seed(0)
     cfg = EmoFaceConfig.tiny(n_vertices=c.metadata["n_vertices"], n_speakers=len(c.train_speakers),
                              n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32)
-    model = EmoFace(cfg).eval()
+    model = EmoFace(cfg, faces=c.faces).eval()
     for dec in (model.emotion_decoder, model.content_decoder):
         torch.nn.init.normal_(dec.motion_decoder.weight, std=1e-2)
     torch.nn.init.normal_(model.emotion_type.weight, std=1.0)

@@ -57,6 +57,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..losses.emoface import EmoFaceWeights, emoface_loss
+from ..blocks.mesh_attention import MeshAttention
+from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
 from .audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
 from .dualtalker import DualTalker, DualTalkerConfig, faceformer_config
 
@@ -87,11 +89,11 @@ class EmoFaceConfig:
     audio_kernel: int = 5
     audio_layers: int = 1
     dropout: float = 0.1
-    fusion: str = "sum"  # "mesh_attention" | "sum" (equal-weight mean: the ablation)
-    mesh_channels: int = 64  # C of Mesh Attention's audio fusion (C/4, C/16 inside)
-    spiral_length: int = 9  # spiral sequence length L per vertex
-    spiral_delta: int = 3  # δ frames of SpiralConv3D
-    mesh_layers: int = 2  # SpiralConv3D layers of Mesh Attention
+    fusion: str = "mesh_attention"  # "mesh_attention" | "sum" (equal-weight mean: the ablation)
+    spiral_length: int = PAPER_SPIRAL_LENGTH  # L: spiral entries per vertex (Table 4: 18)
+    spiral_dilation: int = PAPER_DILATION  # every d-th of the first L d spiral entries (Table 4: 2)
+    spiral_delta: int = PAPER_DELTA  # δ frames of SpiralConv3D (Table 4: 3)
+    mesh_layers: int = 2  # SpiralConv3D layers of Mesh Attention (not given in the paper)
     past_motion: str = "self_growing"  # see PAST_MOTION
     growing_warmup: float = 0.2  # θ of eq. 6 as a fraction of the epochs
     sampling_p: float = 0.5  # prediction share ("scheduled_sampling") or drop probability ("dropout")
@@ -114,9 +116,10 @@ class EmoFaceConfig:
 
     @classmethod
     def tiny(cls, **overrides) -> "EmoFaceConfig":
-        """DualTalkerConfig.tiny's sizes (d=64, 4 heads, FF 128, C=64, no dropout): trains on a CPU in minutes."""
+        """DualTalkerConfig.tiny's sizes (d=64, 4 heads, FF 128, C=64, no dropout) and a shorter, undilated spiral
+        (L=9: the one-ring and part of the second; the (B, T, V, L C/16) gather is the largest tensor of a step)."""
         base = dict(d_model=64, n_heads=4, d_ff=128, n_layers=1, audio_hidden=64, audio_heads=4, dropout=0.0,
-                    mesh_channels=32)
+                    spiral_length=9, spiral_dilation=1)
         return cls(**{**base, **overrides})
 
     @classmethod
@@ -161,7 +164,10 @@ class EmoFace(nn.Module):
 
     loss_weights_cls = EmoFaceWeights
 
-    def __init__(self, cfg: EmoFaceConfig, faces=None):
+    def __init__(self, cfg: EmoFaceConfig, faces=None, vertices=None):
+        """``faces`` (F, 3) of the mesh (and optionally a template's ``vertices`` (V, 3), for label-free spirals) are
+        needed by Mesh Attention; without them its spirals are a placeholder that a checkpoint's state_dict fills
+        (:func:`~dualtalker_lite.checkpoints.load_checkpoint`), and the model refuses to run until then."""
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
@@ -177,11 +183,16 @@ class EmoFace(nn.Module):
         self.emotion_level = nn.Linear(cfg.n_levels, d, bias=False)  # level one-hot l
         self.emotion_decoder = BranchDecoder(cfg.branch_config())  # D_e
         self.content_decoder = BranchDecoder(cfg.branch_config())  # D_c
-        self.mesh_attention = self._build_mesh_attention(faces) if cfg.fusion == "mesh_attention" else None
+        self.mesh_attention = None
+        if cfg.fusion == "mesh_attention":
+            if faces is None:  # placeholder: every slot repeats the centre (masked); filled by load_state_dict
+                spirals = torch.arange(cfg.n_vertices)[:, None].repeat(1, cfg.spiral_length)  # (V, L)
+            else:
+                spirals = spiral_indices(faces, cfg.n_vertices, length=cfg.spiral_length,
+                                         dilation=cfg.spiral_dilation, vertices=vertices)  # (V, L)
+            self.mesh_attention = MeshAttention(cfg.n_vertices, d, spirals, delta=cfg.spiral_delta,
+                                                n_layers=cfg.mesh_layers)  # ε of eqs. 17-18
         self._share = 1.0  # ground-truth share of the past motion (set_epoch); 1 = teacher forcing
-
-    def _build_mesh_attention(self, faces):
-        raise NotImplementedError("fusion='mesh_attention' needs blocks.mesh_attention (branch ef-spiral)")
 
     # ---- schedule ---------------------------------------------------------------------------------
     def set_epoch(self, epoch: int, n_epochs: int) -> None:
@@ -257,6 +268,10 @@ class EmoFace(nn.Module):
         if self.mesh_attention is None:  # "sum": the map held at 0.5
             alpha = oe.new_full((oe.shape[0], oe.shape[1], self.cfg.n_vertices), 0.5)
             return 0.5 * (oe + oc), alpha
+        spirals = self.mesh_attention.convs[0].spirals
+        if bool((spirals == torch.arange(spirals.shape[0], device=spirals.device)[:, None]).all()):
+            raise ValueError("EmoFace: Mesh Attention has no spirals yet; build it with EmoFace(cfg, faces=...) "
+                             "or load a checkpoint (fusion='sum' needs no mesh)")
         return self.mesh_attention(fe, fc, oe, oc)
 
     def _decode(self, fe: Tensor, fc: Tensor, past: Tensor, speaker: Tensor, mask: Tensor | None):
