@@ -5,7 +5,8 @@ loss, ``model.loss(out, batch, weights) -> (total, terms)`` (DualTalker: the joi
 ``losses.joint_loss``; the baselines: its reconstruction term), logs every term separately, and takes an Adam
 step at the learning rate of the schedule (:func:`lr_factor`). The loop has no per-model branches: a new model
 plugs in by supplying ``forward(batch)``, ``loss(...)``, ``generate(...)`` and, optionally,
-``init_output_bias(mean_motion)``. Training stops after ``epochs`` epochs or when a budget (optimiser steps,
+``init_output_bias(mean_motion)`` and ``set_epoch(epoch, n_epochs)`` (called at each epoch start; EmoFace's
+self-growing schedule, :func:`self_growing_share`). Training stops after ``epochs`` epochs or when a budget (optimiser steps,
 process CPU seconds, wall seconds) is used up; validation LVE (autoregressive, as at test time) is measured only
 when a validation loader is given. Checkpoints hold only tensors and plain Python values, so they load with
 ``torch.load(weights_only=True)``; they are written atomically.

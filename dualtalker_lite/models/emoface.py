@@ -178,7 +178,7 @@ class EmoFace(nn.Module):
         self.emotion_projection = nn.Linear(c, d)  # E_e, first part
         self.emotion_layers = nn.ModuleList(TransformerEncoderLayer(d, cfg.n_heads, 2 * d, cfg.dropout)
                                             for _ in range(cfg.emotion_layers))  # E_e: whole-clip context
-        self.classifier = nn.Linear(d, cfg.n_emotions)  # p_{iφ} of eq. 10
+        self.classifier = nn.Linear(2 * d, cfg.n_emotions)  # p_{iφ} of eq. 10, from [mean_t F_e, std_t F_e]
         self.emotion_type = nn.Linear(cfg.n_emotions, d, bias=False)  # type condition (label or p)
         self.emotion_level = nn.Linear(cfg.n_levels, d, bias=False)  # level one-hot l
         self.emotion_decoder = BranchDecoder(cfg.branch_config())  # D_e
@@ -224,13 +224,13 @@ class EmoFace(nn.Module):
         return self.content_encoder(h), fe
 
     def classify(self, fe: Tensor, mask: Tensor | None = None) -> Tensor:
-        """Emotion logits (B, N_e) from the emotion features averaged over valid frames (eq. 10's p = softmax)."""
-        if mask is None:
-            pooled = fe.mean(1)
-        else:
-            m = mask[..., None].to(fe.dtype)  # (B, T, 1)
-            pooled = (fe * m).sum(1) / m.sum(1).clamp(min=1)  # (B, d)
-        return self.classifier(pooled)  # (B, N_e)
+        """Emotion logits (B, N_e) from the mean and standard deviation of the emotion features over the valid frames
+        (eq. 10's p = softmax): utterance-level statistics, as emotion is a property of the whole sentence."""
+        m = torch.ones_like(fe[..., :1]) if mask is None else mask[..., None].to(fe.dtype)  # (B, T, 1)
+        n = m.sum(1).clamp(min=1)  # (B, 1)
+        mean = (fe * m).sum(1) / n  # (B, d)
+        std = (((fe - mean[:, None]) * m).square().sum(1) / n + 1e-6).sqrt()  # (B, d)
+        return self.classifier(torch.cat([mean, std], dim=-1))  # (B, N_e)
 
     def level_one_hot(self, level: Tensor) -> Tensor:
         """Corpus level 0/1/2 (B,) -> one-hot l (B, n_levels): 0 and 1 -> first level, 2 -> second."""
