@@ -234,6 +234,21 @@ def test_teacher_forcing_option_ignores_the_schedule():
         torch.testing.assert_close(model(batch)["vertices"], reference, atol=0, rtol=0)
 
 
+def test_the_other_past_motion_schemes():
+    batch = _batch(t=10)
+    sampled = _model(past_motion="scheduled_sampling", sampling_p=0.3)
+    sampled.set_epoch(0, 10)  # constant share, whatever the epoch
+    assert sampled.ground_truth_share == pytest.approx(0.7)
+    sampled.set_epoch(9, 10)
+    assert sampled.ground_truth_share == pytest.approx(0.7)
+    dropped = _model(past_motion="dropout", sampling_p=1.0)  # every past frame hidden: the template is fed back
+    with torch.no_grad():
+        still = dropped({**batch, "vertices": batch["template"][:, None].expand_as(batch["vertices"])})["vertices"]
+        dropped.train()
+        hidden = dropped(batch)["vertices"]
+    torch.testing.assert_close(hidden, still, atol=1e-6, rtol=0)
+
+
 def test_train_calls_set_epoch_each_epoch():
     calls = []
     model = _model()

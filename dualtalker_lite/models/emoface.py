@@ -7,7 +7,7 @@ Attention (section 3.2, ``blocks.mesh_attention``) weighs the two offsets per ve
     A -> extractor -> H                                                         (B, T, C)
     content encoder  E_c: F_c = W_c H                          (eq. 12)          (B, T, d)  short-term, per frame
     emotion encoder  E_e: F_e = TransformerLayer(W_e H)        (eqs. 13-14)      (B, T, d)  whole-clip context
-    classifier: p = softmax(W_cls mean_t F_e)                  (eq. 10)          (B, N_e)
+    classifier: p = softmax(W_cls [mean_t F_e, std_t F_e])     (eq. 10)          (B, N_e)
     conditions: F_e += W_type y_emotion + W_level l (one-hot level l in R^2); speaking style s (one-hot) = the
                 decoders' style embeddings S_n
     decoders D_c, D_e (eqs. 15-16): [S_n, Me(m_1), ...] -> FaceFormer layers (features F) -> ΔM^c, ΔM^e (B, T, V*3)
@@ -35,6 +35,8 @@ Readings taken (the paper leaves these open):
   is what makes the CLI's ``--emotion`` possible; without it the type follows the audio.
 - Level: the corpus numbers intensities 0 (neutral clips), 1 (normal), 2 (strong); the paper's 2-level one-hot
   gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
+- The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
+  and standard deviation over the valid frames, as emotion is a property of the whole sentence.
 - Self-growing training (section 3.3.1, Fig. 2, eq. 6): stage one is the whole model teacher-forced (no gradient;
   the paper does not supervise it), stage two feeds each past frame from the ground truth with probability
   ``train.self_growing_share(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop
