@@ -237,3 +237,25 @@ def test_bad_inputs_are_refused_with_one_clear_line():
         conv(torch.zeros(1, 3, 6, 2))
     with pytest.raises(ValueError, match="time pad must be 'zeros' or 'replicate', got 'reflect'"):
         temporal_neighbourhood(torch.zeros(1, 2, 1), 2, pad="reflect")
+
+
+def test_spiral_linear_gradcheck_and_chunking(monkeypatch):
+    import dualtalker_lite.blocks.spiral as spiral_module
+    from dualtalker_lite.blocks.spiral import SpiralLinear
+
+    torch.manual_seed(0)
+    spirals = spiral_indices(HEX_FACES, 7, length=9, vertices=HEX_VERTICES)
+    index = torch.where(spiral_mask(spirals), spirals, 7)  # padded slots -> the zero row 7
+    rows = torch.randn(8, 2, 5, dtype=torch.float64)
+    rows[7] = 0.0
+    rows.requires_grad_(True)
+    w = torch.randn(4, 9 * 2, dtype=torch.float64, requires_grad=True)
+    monkeypatch.setattr(spiral_module, "CHUNK_NUMBERS", 40)
+    assert len(spiral_module._chunks(7, 9 * 2 * 5)) == 7  # 90 numbers per vertex > 40: one vertex per chunk
+    assert torch.autograd.gradcheck(SpiralLinear.apply, (rows, index, w))
+    # Against a gather written with plain indexing: h[v, :, n] = W @ stack_l rows[index[v, l], :, n]
+    expect = torch.stack([w @ rows[index[v]].reshape(-1, 5) for v in range(7)])
+    torch.testing.assert_close(SpiralLinear.apply(rows, index, w), expect)
+    conv = SpiralConv3D(2, 3, spirals, delta=2).double()
+    x = torch.randn(1, 4, 7, 2, dtype=torch.float64)
+    torch.testing.assert_close(conv(x), _dense_reference(conv, x))  # many chunks, same result

@@ -36,9 +36,12 @@ frames: zeros (``time_pad="zeros"``, default, as a zero-padded causal convolutio
 
 **Eq. 3.** SpiralConv3D(v) = W f(cnt_delta(k-disk(v))) + b: the features f of the delta x L neighbours,
 concatenated (oldest frame first, then spiral order, then channels), one linear map W of shape
-(C_out, delta L C_in) and a bias b. It is computed as one spatial gather (``index_select``, no loop over
-vertices), one matmul to delta x C_out channels, and a shifted sum over the delta frames: the same linear map,
-without materialising the (B, T, V, delta L C_in) neighbourhood tensor.
+(C_out, delta L C_in) and a bias b. It is computed as a spatial gather (``index_select`` of whole vertex rows,
+no loop over single vertices), one matmul to delta x C_out channels, and a shifted sum over the delta frames:
+the same linear map, without materialising the (B, T, V, delta L C_in) neighbourhood tensor. ``SpiralLinear``
+(a custom autograd function) runs the gather + matmul over blocks of vertices and recomputes the gathered block
+in backward, so memory stays near the size of the output (the gathered tensor is L = 18 times the input).
+``SpiralConv3D.gather`` is the plain one-line gather, for reading and for the notebook.
 
 Layout: (B, T, V, C) throughout (frames before vertices, like the (B, T, V*3) motion tensors of the package);
 the paper's Mesh Attention writes the same tensor as (B, V, T, C).
@@ -56,7 +59,7 @@ import torch.nn as nn
 from torch import Tensor
 
 __all__ = ["PAPER_SPIRAL_LENGTH", "PAPER_DILATION", "PAPER_DELTA", "one_ring_order", "k_rings", "spiral_indices",
-           "spiral_mask", "spiral_ring_index", "temporal_neighbourhood", "SpiralConv3D"]
+           "spiral_mask", "spiral_ring_index", "temporal_neighbourhood", "SpiralLinear", "SpiralConv3D"]
 
 PAPER_SPIRAL_LENGTH, PAPER_DILATION, PAPER_DELTA = 18, 2, 3  # Table 4, adopted row: kernel 18, dilation 2, 3 frames
 
@@ -228,6 +231,53 @@ def temporal_neighbourhood(x: Tensor, delta: int, pad: str = "zeros") -> Tensor:
     return torch.stack([xp[:, j:j + T] for j in range(delta)], dim=2)
 
 
+class SpiralLinear(torch.autograd.Function):
+    """h[v, :, n] = W g_v[:, n], g_v = the features of spiral(v) stacked (L C_in): the spatial half of eq. 3.
+
+    x_rows (V + 1, C_in, N): the vertices' features, channels before the N = B T frames, plus a zero row (index
+    V) that padded spiral slots point to; index (V, L); w (D, L C_in) -> (V, D, N). Vertices are processed in
+    chunks and the gathered (chunk, L C_in, N) block is recomputed in backward instead of stored: memory stays
+    O(V D N + chunk L C_in N), not O(V L C_in N) (the gathered tensor is 18x the input at L = 18).
+    """
+
+    @staticmethod
+    def forward(ctx, x_rows: Tensor, index: Tensor, w: Tensor) -> Tensor:
+        V, L = index.shape
+        N = x_rows.shape[-1]
+        out = x_rows.new_empty(V, w.shape[0], N)  # (V, D, N)
+        for v0, v1 in _chunks(V, L * x_rows.shape[1] * N):
+            g = x_rows.index_select(0, index[v0:v1].reshape(-1)).view(v1 - v0, -1, N)  # (v, L*C, N)
+            torch.matmul(w, g, out=out[v0:v1])
+        ctx.save_for_backward(x_rows, index, w)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor):
+        x_rows, index, w = ctx.saved_tensors
+        V, L = index.shape
+        C, N = x_rows.shape[1], x_rows.shape[2]
+        grad_x = torch.zeros_like(x_rows) if ctx.needs_input_grad[0] else None
+        grad_w = torch.zeros_like(w) if ctx.needs_input_grad[2] else None
+        for v0, v1 in _chunks(V, L * C * N):
+            go = grad_out[v0:v1]  # (v, D, N)
+            if grad_w is not None:
+                g = x_rows.index_select(0, index[v0:v1].reshape(-1)).view(v1 - v0, -1, N)  # recomputed
+                grad_w += torch.matmul(go, g.transpose(1, 2)).sum(0)  # (D, L*C)
+            if grad_x is not None:
+                gg = torch.matmul(w.t(), go)  # (v, L*C, N)
+                grad_x.index_add_(0, index[v0:v1].reshape(-1), gg.view(-1, C, N))
+        return grad_x, None, grad_w
+
+
+CHUNK_NUMBERS = 1 << 18  # numbers in one gathered block (1 MB in float32: cache-sized; measured best on 1 core)
+
+
+def _chunks(n_vertices: int, per_vertex: int):
+    """Vertex ranges whose gathered block holds about ``CHUNK_NUMBERS`` numbers."""
+    step = max(1, CHUNK_NUMBERS // max(per_vertex, 1))
+    return [(v0, min(v0 + step, n_vertices)) for v0 in range(0, n_vertices, step)]
+
+
 class SpiralConv3D(nn.Module):
     """Eq. 3: out[b, t, v] = W [f(frame t-delta+1 .. t, vertices spirals[v])] + b; (B, T, V, C_in) -> (B, T, V, C_out).
 
@@ -274,11 +324,14 @@ class SpiralConv3D(nn.Module):
         if x.ndim != 4 or x.shape[2] != self.n_vertices or x.shape[3] != self.in_channels:
             raise ValueError(f"SpiralConv3D: expected input (B, T, {self.n_vertices}, {self.in_channels}), "
                              f"got {tuple(x.shape)}")
-        B, T, V, _ = x.shape
-        g = self.gather(x).reshape(B, T, V, -1)  # (B, T, V, L*C_in)
+        B, T, V, C = x.shape
+        rows = x.permute(2, 3, 0, 1).reshape(V, C, B * T)  # (V, C_in, N): one row per vertex
+        rows = torch.cat([rows, rows.new_zeros(1, C, B * T)])  # (V + 1, C_in, N): row V = zeros for padding
+        index = torch.where(spiral_mask(self.spirals), self.spirals, V)  # (V, L): padded slots -> zero row
         w = self.weight.permute(1, 0, 2, 3).reshape(self.delta * self.out_channels, -1)  # (delta*C_out, L*C_in)
-        h = (g @ w.t()).view(B, T, V, self.delta, self.out_channels)  # (B, T, V, delta, C_out): W_j f(frame)
-        first = h[:, :1] if self.time_pad == "replicate" else torch.zeros_like(h[:, :1])
-        hp = torch.cat([first.expand(-1, self.delta - 1, -1, -1, -1), h], dim=1)  # (B, T+delta-1, V, delta, C_out)
-        out = sum(hp[:, j:j + T, :, j] for j in range(self.delta))  # frame t-(delta-1)+j through W_j
-        return out + self.bias  # (B, T, V, C_out)
+        h = SpiralLinear.apply(rows, index, w)  # (V, delta*C_out, N): W_j f(k-disk(v)) for every frame
+        h = h.view(V, self.delta, self.out_channels, B, T)  # (V, delta, C_out, B, T)
+        first = h[..., :1] if self.time_pad == "replicate" else torch.zeros_like(h[..., :1])
+        hp = torch.cat([first.expand(-1, -1, -1, -1, self.delta - 1), h], dim=-1)  # Pad(delta - t): T+delta-1 frames
+        out = sum(hp[:, j, :, :, j:j + T] for j in range(self.delta))  # (V, C_out, B, T): frame t-(delta-1)+j via W_j
+        return out.permute(2, 3, 0, 1) + self.bias  # (B, T, V, C_out)

@@ -6,10 +6,12 @@
 - ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback;
                ``render_video``: long clips (memory-mapped .npy, fast renderer, progress bar, clean-up)
 - ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
+- ``spirals``  ``plot_spirals``: EmoFace's spiral sequences on the face, coloured by ring, with a numbered close-up
 """
 from .animate import ClipAnimation, animate_clip, render_video
 from .plots import plot_frames, plot_lip_distance, plot_vertex_map, plot_waveform_and_phonemes
 from .render import VIEWS, MeshRenderer, RasterRenderer, draw_mesh, render_frame_rgb
+from .spirals import plot_spirals
 from .viewer import MeshViewer, static_html
 
 __all__ = [
@@ -22,6 +24,7 @@ __all__ = [
     "plot_vertex_map",
     "plot_lip_distance",
     "plot_waveform_and_phonemes",
+    "plot_spirals",
     "ClipAnimation",
     "animate_clip",
     "render_video",
