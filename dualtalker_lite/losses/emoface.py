@@ -65,6 +65,11 @@ class EmoFaceWeights:
     mm, so λ = 1 / 1 / 0.5 gives the same λ·L as the paper's metres. λ4: the paper's 1e-4 multiplies a summed
     cross-entropy at batch size 1; we use the batch mean and 0.01 (untuned) so the emotion encoder gets a
     classification signal of about 1% of the reconstruction's at initialisation (CE ~1.6 against L1 ~1-3 mm).
+    Measured on the shipped corpus (tiny EmoFace, "sum" fusion, seed 0, pair loader, recipe lr): with λ4 = 0.01 the
+    classifier stays near the class prior after 280 steps (two-clip CE 3.05 against 3.22 at chance; accuracy on
+    test_emo_a 0.06) while test_emo_a LVE falls to 4.47 mm (template 8.60); with λ4 = 1 the CE reaches 2.57 after 140
+    steps (accuracy 0.19). The emotion is in the audio (a linear probe on pooled log-mel: 0.62 on test_emo_a), so
+    λ4 and the classifier's learning rate are open tuning questions.
     """
 
     lambda_self: float = 1.0    # λ1, eq. 7
