@@ -125,9 +125,10 @@ def model_registry() -> dict[str, tuple[type, type | None]]:
     from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
     from .models.corrtalk import CorrTalk, CorrTalkConfig
     from .models.dualtalker import DualTalker, DualTalkerConfig
+    from .models.emoface import EmoFace, EmoFaceConfig
 
     return {"DualTalker": (DualTalker, DualTalkerConfig), "VocaStyle": (VocaStyle, VocaConfig),
-            "CorrTalk": (CorrTalk, CorrTalkConfig),
+            "CorrTalk": (CorrTalk, CorrTalkConfig), "EmoFace": (EmoFace, EmoFaceConfig),
             "StaticTemplate": (StaticTemplate, None)}
 
 

@@ -115,7 +115,7 @@ def _train(argv: list[str]) -> Path:
     train_set, audio_dim = _features(dataset, spec.features, len(corpus.phoneme_inventory))
     torch.manual_seed(args.seed)
     n_vertices = int(train_set[0]["template"].numel() // 3)
-    model, model_cfg = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers))
+    model, model_cfg = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers), faces=corpus.faces)
     cfg = TrainConfig.tiny(epochs=args.epochs, seed=args.seed, validate_every=0, device=str(device),
                            weights=loss_weights(model, spec.loss))
     history = train(model, make_loader(train_set, cfg.batch_size, shuffle=True, seed=args.seed), cfg)

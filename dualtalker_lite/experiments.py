@@ -109,7 +109,8 @@ class RunSpec:
     """One row of a table: which model, which overrides, which features. A run is a (RunSpec, seed) pair."""
 
     row: str                                            # label in the table
-    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker" | "corrtalk"
+    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker" |
+                                                        # "corrtalk" | "emoface"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
     features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
@@ -361,8 +362,10 @@ def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset
     raise ValueError(f"unknown features {features!r}; expected 'logmel' or 'phonemes'")
 
 
-def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int) -> tuple[torch.nn.Module, object]:
-    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template."""
+def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
+                vertices=None) -> tuple[torch.nn.Module, object]:
+    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template.
+    ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention)."""
     from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
     from .models.corrtalk import CorrTalk, CorrTalkConfig
     from .models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
@@ -382,6 +385,11 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int)
     if spec.model == "corrtalk":
         cfg = CorrTalkConfig.tiny(**sizes, **spec.model_overrides)
         return CorrTalk(cfg), cfg
+    if spec.model == "emoface":
+        from .models.emoface import EmoFace, EmoFaceConfig
+
+        cfg = EmoFaceConfig.tiny(**sizes, **spec.model_overrides)
+        return EmoFace(cfg, faces=faces, vertices=vertices), cfg
     raise ValueError(f"unknown model {spec.model!r}")
 
 
@@ -443,7 +451,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         train_set, audio_dim = _features(data["train"], spec.features, data["n_phonemes"])
         test_set, _ = _features(data["test"], spec.features, data["n_phonemes"])
         set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
-        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
+        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"],
+                                       faces=data["corpus"].faces)
         train_cfg = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, progress=False,
                                      weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
         t0 = time.perf_counter()

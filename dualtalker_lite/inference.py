@@ -45,6 +45,7 @@ from .streaming import predict_chunks, write_npy_stream
 from .utils import AtomicOutputDir, check_finite
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
+           "resolve_emotion",
            "write_obj", "write_glb", "write_outputs", "run", "main"]
 
 FPS = 30
@@ -62,7 +63,7 @@ def resolve_device(device: str | None) -> torch.device:
 
 def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
                  sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
-                 amp: bool = False, chunk: int = 900) -> np.ndarray:
+                 amp: bool = False, chunk: int = 900, conditions: dict | None = None) -> np.ndarray:
     """16 kHz mono speech (N,) + template (V*3,) or (V, 3) -> predicted vertices float32 (T, V*3), 30 fps.
 
     The blocks of :func:`~dualtalker_lite.streaming.predict_chunks` joined in memory (fine for minutes of speech;
@@ -73,7 +74,8 @@ def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray,
     """
     if device is not None:
         resolve_device(str(device))
-    _, blocks = predict_chunks(model, wave, template, speaker, sample_rate, extractor, device, amp, chunk, FPS)
+    _, blocks = predict_chunks(model, wave, template, speaker, sample_rate, extractor, device, amp, chunk, FPS,
+                               conditions)
     return np.concatenate(list(blocks))  # (T, V*3)
 
 
@@ -126,6 +128,21 @@ def resolve_speaker(ckpt: dict, name: str, corpus: Corpus | None) -> tuple[int, 
         raise ValueError(f"speaker {name!r} has index {index}, outside the model's {n} style embeddings "
                          f"(wrong --corpus for this old checkpoint?)")
     return index, list(speakers)
+
+
+def resolve_emotion(value: str | None, corpus: Corpus | None) -> int | None:
+    """``--emotion``: None, an index, or a name from the corpus's emotion list (default corpus: data_samples/)."""
+    if value is None:
+        return None
+    if str(value).strip().lstrip("-").isdigit():
+        return int(value)
+    if corpus is None:
+        from .data import sample_path
+
+        corpus = Corpus(sample_path())
+    if value not in corpus.emotions:
+        raise ValueError(f"unknown emotion {value!r}; the corpus {corpus.root.name} has: {', '.join(corpus.emotions)}")
+    return corpus.emotions.index(value)
 
 
 def _check_corpus(corpus: Corpus, ckpt: dict) -> None:
@@ -280,6 +297,10 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--wav", help="speech recording (WAV/FLAC, mono, any sample rate)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style to use (see --list-speakers)")
     ap.add_argument("--list-speakers", action="store_true", help="print the speakers the model knows and exit")
+    ap.add_argument("--emotion", help="emotion-aware models (EmoFace): emotion name (e.g. happy) or index; "
+                    "default: recognised from the speech")
+    ap.add_argument("--level", type=int, choices=(1, 2), help="emotion-aware models: intensity 1 (normal, default) "
+                    "or 2 (strong)")
     ap.add_argument("--template", help="neutral mesh (OBJ/PLY) with the model's topology; default: the speaker's")
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
     ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
@@ -333,8 +354,10 @@ def run(args: argparse.Namespace) -> list[Path]:
     wave = load_audio(args.wav, sample_rate=extractor.sample_rate)
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
+    conditions = {"emotion": resolve_emotion(args.emotion, corpus), "level": args.level}
     n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=extractor.sample_rate,
-                                      extractor=extractor, device=device, amp=args.amp, chunk=args.chunk, fps=FPS)
+                                      extractor=extractor, device=device, amp=args.amp, chunk=args.chunk, fps=FPS,
+                                      conditions=conditions)
     with target as tmp:
         npy = write_npy_stream(tmp / "vertices.npy", blocks, n_frames, template.size)
         written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate,

@@ -95,9 +95,12 @@ def generate_to_npy(model: torch.nn.Module, audio: torch.Tensor, template: torch
 
 def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
                    sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
-                   amp: bool = False, chunk: int = 900, fps: int = 30):
+                   amp: bool = False, chunk: int = 900, fps: int = 30, conditions: dict | None = None):
     """Validate, extract features and return ``(T, blocks)``: ``blocks`` yields the predicted vertices as float32
     (n, V*3) numpy blocks of at most ``chunk`` frames, T = N fps / sample_rate frames in all.
+
+    ``conditions``: extra keyword arguments of the model's ``generate_chunks`` (EmoFace: ``emotion``, ``level``);
+    None values are dropped, and a condition the model does not take is refused with one line.
 
     The one code path of every inference entry point (``inference.animate_wave`` joins the blocks,
     :func:`animate_wave_to_npy` and the ``animate`` command stream them to disk). All input checks run here,
@@ -112,6 +115,15 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     from .utils import NonFiniteError, check_finite
 
     validate_wave(wave, sample_rate)
+    conditions = {k: v for k, v in (conditions or {}).items() if v is not None}
+    if conditions:
+        import inspect
+
+        accepted = inspect.signature(model.generate_chunks).parameters
+        refused = sorted(k for k in conditions if k not in accepted)
+        if refused:
+            raise ValueError(f"this {type(model).__name__} model takes no {'/'.join(refused)} condition "
+                             f"(only emotion-aware models such as EmoFace do)")
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive number of frames, got {chunk!r}")
     extractor = extractor or LogMelExtractor()
@@ -137,7 +149,7 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
 
     def blocks():
         gen = model.generate_chunks(audio.to(dev), torch.from_numpy(template)[None].to(dev),
-                                    torch.tensor([int(speaker)], device=dev), chunk=chunk)
+                                    torch.tensor([int(speaker)], device=dev), chunk=chunk, **conditions)
         done = 0
         while True:
             # no_grad/autocast around each step only: they must not leak into the caller between blocks

@@ -1,0 +1,455 @@
+"""EmoFace: emotion-content disentangled speech-driven 3D talking faces (Figs. 1, 2, 5; section 3.1, 3.3; eqs. 6-18).
+
+Two branches read the same speech through the shared acoustic front-end (the wav2vec 2.0 stand-in of
+:mod:`.audio_encoder`) and each drives the template with its own FaceFormer-style autoregressive decoder; Mesh
+Attention (section 3.2, ``blocks.mesh_attention``) weighs the two offsets per vertex and frame (Fig. 1):
+
+    A -> extractor -> H                                                         (B, T, C)
+    content encoder  E_c: F_c = W_c H                          (eq. 12)          (B, T, d)  short-term, per frame
+    emotion encoder  E_e: F_e = TransformerLayer(W_e H)        (eqs. 13-14)      (B, T, d)  whole-clip context
+    classifier: p = softmax(W_cls [mean_t F_e, std_t F_e])     (eq. 10)          (B, N_e)
+    conditions: F_e += W_type y_emotion + W_level l (one-hot level l in R^2); speaking style s (one-hot) = the
+                decoders' style embeddings S_n
+    decoders D_c, D_e (eqs. 15-16): [S_n, Me(m_1), ...] -> FaceFormer layers (features F) -> ΔM^c, ΔM^e (B, T, V*3)
+    fusion ε (eqs. 17-18): ΔM = Mesh Attention(F_e, F_c, ΔM^e, ΔM^c), or the mean of the two ("sum" ablation)
+
+Cross-reconstruction (section 3.3.2, appendix A.2, Fig. 5): for a pseudo-pair (clip 1 = c1,e1; clip 2 = c1,e2:
+same speaker and sentence, another emotion) the decoders also reconstruct clip 2 from *clip 1's content features*
+and *clip 2's emotion features*: M^c_{c1,e2} = D_c(F_c1), M^e_{c1,e2} = D_e(F_e2), M_{c1,e2} = ε(...).
+
+Readings taken (the paper leaves these open):
+
+- Equal lengths. Eqs. 12-18 treat both clips of a pair as the same length T; spoken with another emotion they are
+  not (prosody). We resample clip 2 (its features and vertices) *linearly in time* to clip 1's length before
+  anything else (``data.pairs``), so M_{c1,e2} is literally a length-T sequence: start and end are aligned,
+  the middle only approximately (no DTW). The cross targets are therefore the time-warped partner frames.
+- The branch decoders are DualTalker's primal task in its FaceFormer configuration (queries from the motion
+  stream, diagonal alignment, ALiBi, PPE, style added to every token), reused as :class:`BranchDecoder`: the
+  "audio" they attend to is the branch's features F_c or F_e. Both decoders are fed back the *fused* motion
+  (teacher forcing: the ground truth; generation: the fused prediction), because the paper predicts one mesh
+  sequence M_t "conditioned on ... the prior sequence of face motions M_<=t" (section 3.3.1).
+- Teacher forcing of the cross pass uses clip 2's (warped) ground-truth past motion.
+- Emotion type: the paper's inputs are speech, level, style and template; the type is recognised from speech
+  (the classifier). We add the type to the emotion branch as a condition, like the level: in training the label
+  one-hot, in generation the classifier's probabilities p, or a one-hot chosen by the caller (``emotion=``). This
+  is what makes the CLI's ``--emotion`` possible; without it the type follows the audio.
+- Level: the corpus numbers intensities 0 (neutral clips), 1 (normal), 2 (strong); the paper's 2-level one-hot
+  gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
+- The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
+  and standard deviation over the valid frames, as emotion is a property of the whole sentence.
+- Self-growing training (section 3.3.1, Fig. 2, eq. 6): stage one is the whole model teacher-forced (no gradient;
+  the paper does not supervise it), stage two feeds each past frame from the ground truth with probability
+  ``train.self_growing_share(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop
+  tells the model the epoch through :meth:`EmoFace.set_epoch`; θ = ``growing_warmup`` x N epochs (untuned).
+  ``past_motion`` selects the alternatives compared in notebook 14/15: "teacher_forcing", "scheduled_sampling"
+  (constant prediction share ``sampling_p``) and "dropout" (DualTalker's past-motion dropout with ``sampling_p``).
+- "sum" fusion (the "w/o Mesh Attention" ablation): both branches are supervised towards the *whole* target
+  (eqs. 7-8), so their plain sum would double it; "sum" is therefore the equal-weight mean, i.e. Mesh Attention's
+  map held at 0.5 everywhere.
+- Motion enters and leaves the decoders in mm (``motion_scale``), and :meth:`init_output_bias` starts both decoder
+  biases at the training mean motion, as for DualTalker (see its "Mean-face collapse" note).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..losses.emoface import EmoFaceWeights, emoface_loss
+from ..blocks.mesh_attention import MeshAttention
+from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
+from .audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
+from .dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+
+__all__ = ["EmoFaceConfig", "BranchDecoder", "EmoFace", "PAST_MOTION", "FUSIONS"]
+
+PAST_MOTION = ("self_growing", "teacher_forcing", "scheduled_sampling", "dropout")
+FUSIONS = ("mesh_attention", "sum")
+
+
+@dataclass
+class EmoFaceConfig:
+    """Sizes and switches of :class:`EmoFace`. Defaults: FaceFormer's VOCASET decoder sizes, small audio stand-in."""
+
+    n_vertices: int = 1500
+    audio_dim: int = 160  # D_a: log-mel per mesh frame
+    n_speakers: int = 8  # speaking styles (one-hot s in R^n)
+    n_emotions: int = 5  # N_e: emotion categories (corpus.emotions; 0 = neutral)
+    n_levels: int = 2  # emotion levels (one-hot l in R^2)
+    d_model: int = 128  # d: branch features and decoder width
+    n_heads: int = 4
+    d_ff: int = 2048
+    n_layers: int = 1  # decoder layers per branch
+    emotion_layers: int = 1  # transformer layers of the emotion encoder (long-term context)
+    period: int = 30
+    audio_hidden: int = 256  # C of the front-end
+    audio_heads: int = 4
+    audio_conv_layers: int = 2
+    audio_kernel: int = 5
+    audio_layers: int = 1
+    dropout: float = 0.1
+    fusion: str = "mesh_attention"  # "mesh_attention" | "sum" (equal-weight mean: the ablation)
+    spiral_length: int = PAPER_SPIRAL_LENGTH  # L: spiral entries per vertex (Table 4: 18)
+    spiral_dilation: int = PAPER_DILATION  # every d-th of the first L d spiral entries (Table 4: 2)
+    spiral_delta: int = PAPER_DELTA  # δ frames of SpiralConv3D (Table 4: 3)
+    mesh_layers: int = 2  # SpiralConv3D layers of Mesh Attention (not given in the paper)
+    past_motion: str = "self_growing"  # see PAST_MOTION
+    growing_warmup: float = 0.2  # θ of eq. 6 as a fraction of the epochs
+    sampling_p: float = 0.5  # prediction share ("scheduled_sampling") or drop probability ("dropout")
+    cross_reconstruction: bool = True  # False: the "w/o cross-reconstruction" ablation
+    motion_scale: float = 1000.0
+    audio_radius: int | None = 450
+    decoder_window: int | None = 1800
+
+    def __post_init__(self):
+        if self.fusion not in FUSIONS:
+            raise ValueError(f"fusion must be one of {FUSIONS}, got {self.fusion!r}")
+        if self.past_motion not in PAST_MOTION:
+            raise ValueError(f"past_motion must be one of {PAST_MOTION}, got {self.past_motion!r}")
+        for name in ("growing_warmup", "sampling_p"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
+        for name in ("n_emotions", "n_levels", "n_speakers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    @classmethod
+    def tiny(cls, **overrides) -> "EmoFaceConfig":
+        """DualTalkerConfig.tiny's sizes (d=64, 4 heads, FF 128, C=64, no dropout) and a shorter, undilated spiral
+        (L=9: the one-ring and part of the second; the (B, T, V, L C/16) gather is the largest tensor of a step)."""
+        base = dict(d_model=64, n_heads=4, d_ff=128, n_layers=1, audio_hidden=64, audio_heads=4, dropout=0.0,
+                    spiral_length=9, spiral_dilation=1)
+        return cls(**{**base, **overrides})
+
+    @classmethod
+    def paper(cls, **overrides) -> "EmoFaceConfig":
+        """FaceFormer's VOCASET decoder sizes (the paper builds on FaceFormer and gives no other sizes)."""
+        return cls(**overrides)
+
+    def branch_config(self) -> DualTalkerConfig:
+        """The FaceFormer-style decoder of one branch, reading d-channel branch features as its 'audio'."""
+        base = DualTalkerConfig(n_vertices=self.n_vertices, audio_dim=self.d_model, n_speakers=self.n_speakers,
+                                d_model=self.d_model, n_heads=self.n_heads, d_ff=self.d_ff, n_layers=self.n_layers,
+                                period=self.period, audio_hidden=self.d_model, audio_heads=self.n_heads,
+                                audio_conv_layers=0, audio_layers=0, dropout=self.dropout,
+                                motion_scale=self.motion_scale, audio_radius=self.audio_radius,
+                                decoder_window=self.decoder_window)
+        return faceformer_config(base)
+
+
+class BranchDecoder(DualTalker):
+    """D_c or D_e (eqs. 15-16): DualTalker's primal task in FaceFormer's configuration, attending to branch features.
+
+    Everything (motion encoder, style embeddings S_n, PPE, ALiBi self-attention, diagonal alignment, zero-initialised
+    motion decoder, cached decoding steps) is DualTalker's; only the audio path is replaced by the identity."""
+
+    def __init__(self, cfg: DualTalkerConfig):
+        super().__init__(cfg)
+        self.extractor = None  # the branch reads features, not audio
+        self.audio_encoder = nn.Identity()
+
+    def encode_audio(self, features: Tensor, mask: Tensor | None = None) -> Tensor:
+        """The branch features F (B, T, d) are the decoder's 'audio' X as they are."""
+        return features
+
+    def teacher_forced(self, features: Tensor, past_motion: Tensor, style: Tensor, mask: Tensor | None) -> Tensor:
+        """Offsets ΔM_{1:T} (B, T, V*3) from features (B, T, d) and the motion M_{0:T-1} fed back (B, T, V*3)."""
+        stream = self._stream(self.encode_motion(past_motion), style)  # (B, T, d) [S_n, Me(m_1), ...]
+        return self.decode_motion(self._fuse(stream, features, style, "primal", mask))  # (B, T, V*3)
+
+
+class EmoFace(nn.Module):
+    """Emotion and content branches, emotion classifier, level/type/style conditions and the offset fusion (Fig. 1)."""
+
+    loss_weights_cls = EmoFaceWeights
+
+    def __init__(self, cfg: EmoFaceConfig, faces=None, vertices=None):
+        """``faces`` (F, 3) of the mesh (and optionally a template's ``vertices`` (V, 3), for label-free spirals) are
+        needed by Mesh Attention; without them its spirals are a placeholder that a checkpoint's state_dict fills
+        (:func:`~dualtalker_lite.checkpoints.load_checkpoint`), and the model refuses to run until then."""
+        super().__init__()
+        self.cfg = cfg
+        d, c = cfg.d_model, cfg.audio_hidden
+        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
+                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
+                                               radius=cfg.audio_radius)
+        self.content_encoder = nn.Linear(c, d)  # E_c: per frame (short-term content)
+        self.emotion_projection = nn.Linear(c, d)  # E_e, first part
+        self.emotion_layers = nn.ModuleList(TransformerEncoderLayer(d, cfg.n_heads, 2 * d, cfg.dropout)
+                                            for _ in range(cfg.emotion_layers))  # E_e: whole-clip context
+        self.classifier = nn.Linear(2 * d, cfg.n_emotions)  # p_{iφ} of eq. 10, from [mean_t F_e, std_t F_e]
+        self.emotion_type = nn.Linear(cfg.n_emotions, d, bias=False)  # type condition (label or p)
+        self.emotion_level = nn.Linear(cfg.n_levels, d, bias=False)  # level one-hot l
+        self.emotion_decoder = BranchDecoder(cfg.branch_config())  # D_e
+        self.content_decoder = BranchDecoder(cfg.branch_config())  # D_c
+        self.mesh_attention = None
+        if cfg.fusion == "mesh_attention":
+            if faces is None:  # placeholder: every slot repeats the centre (masked); filled by load_state_dict
+                spirals = torch.arange(cfg.n_vertices)[:, None].repeat(1, cfg.spiral_length)  # (V, L)
+            else:
+                spirals = spiral_indices(faces, cfg.n_vertices, length=cfg.spiral_length,
+                                         dilation=cfg.spiral_dilation, vertices=vertices)  # (V, L)
+            self.mesh_attention = MeshAttention(cfg.n_vertices, d, spirals, delta=cfg.spiral_delta,
+                                                n_layers=cfg.mesh_layers)  # ε of eqs. 17-18
+        self._share = 1.0  # ground-truth share of the past motion (set_epoch); 1 = teacher forcing
+
+    # ---- schedule ---------------------------------------------------------------------------------
+    def set_epoch(self, epoch: int, n_epochs: int) -> None:
+        """Called by ``train`` at each epoch start: the ground-truth share of stage two (eq. 6) for this epoch."""
+        from ..train import self_growing_share
+
+        cfg = self.cfg
+        if cfg.past_motion == "self_growing":
+            self._share = self_growing_share(epoch, n_epochs, int(round(cfg.growing_warmup * n_epochs)))
+        elif cfg.past_motion == "scheduled_sampling":
+            self._share = 1.0 - cfg.sampling_p
+        else:
+            self._share = 1.0
+
+    @property
+    def ground_truth_share(self) -> float:
+        return self._share
+
+    # ---- encoders and conditions ------------------------------------------------------------------
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters() if p.requires_grad)
+
+    def encode(self, audio: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Eqs. 12-13: A (B, T, D_a) -> content features F_c, emotion features F_e, each (B, T, d)."""
+        h = self.extractor(audio, mask)  # (B, T, C) shared front-end
+        fe = self.emotion_projection(h)  # (B, T, d)
+        for layer in self.emotion_layers:
+            fe = layer(fe, key_mask=mask, radius=self.cfg.audio_radius)  # (B, T, d)
+        return self.content_encoder(h), fe
+
+    def classify(self, fe: Tensor, mask: Tensor | None = None) -> Tensor:
+        """Emotion logits (B, N_e) from the mean and standard deviation of the emotion features over the valid frames
+        (eq. 10's p = softmax): utterance-level statistics, as emotion is a property of the whole sentence."""
+        m = torch.ones_like(fe[..., :1]) if mask is None else mask[..., None].to(fe.dtype)  # (B, T, 1)
+        n = m.sum(1).clamp(min=1)  # (B, 1)
+        mean = (fe * m).sum(1) / n  # (B, d)
+        std = (((fe - mean[:, None]) * m).square().sum(1) / n + 1e-6).sqrt()  # (B, d)
+        return self.classifier(torch.cat([mean, std], dim=-1))  # (B, N_e)
+
+    def level_one_hot(self, level: Tensor) -> Tensor:
+        """Corpus level 0/1/2 (B,) -> one-hot l (B, n_levels): 0 and 1 -> first level, 2 -> second."""
+        idx = (level.long() - 1).clamp(min=0)
+        if bool((idx >= self.cfg.n_levels).any()):
+            raise ValueError(f"emotion level {level.tolist()} outside 0..{self.cfg.n_levels} "
+                             f"(the model has {self.cfg.n_levels} levels)")
+        return F.one_hot(idx, self.cfg.n_levels).to(self.emotion_level.weight.dtype)  # (B, n_levels)
+
+    def condition(self, fe: Tensor, emotion: Tensor, level: Tensor) -> Tensor:
+        """F_e + W_type y + W_level l: emotion (B,) labels or (B, N_e) probabilities, level (B,) -> (B, T, d)."""
+        if emotion.dim() == 1:
+            if bool(((emotion < 0) | (emotion >= self.cfg.n_emotions)).any()):
+                raise ValueError(f"emotion index {emotion.tolist()} outside 0..{self.cfg.n_emotions - 1}")
+            emotion = F.one_hot(emotion.long(), self.cfg.n_emotions).to(fe.dtype)  # (B, N_e)
+        cond = self.emotion_type(emotion) + self.emotion_level(self.level_one_hot(level))  # (B, d)
+        return fe + cond[:, None, :]  # (B, T, d)
+
+    def _check(self, audio: Tensor, template: Tensor, speaker: Tensor, vertices: Tensor | None = None) -> None:
+        """Raise a ValueError naming expected vs got for inputs of the wrong shape."""
+        v3, da = 3 * self.cfg.n_vertices, self.cfg.audio_dim
+        if audio.dim() != 3 or audio.shape[-1] != da:
+            raise ValueError(f"audio: expected (B, T, {da}) features, got {tuple(audio.shape)}")
+        b, t = audio.shape[:2]
+        if template.shape != (b, v3):
+            raise ValueError(f"template: expected (B, V*3) = ({b}, {v3}), got {tuple(template.shape)}")
+        if vertices is not None and vertices.shape != (b, t, v3):
+            raise ValueError(f"vertices: expected (B, T, V*3) = ({b}, {t}, {v3}), got {tuple(vertices.shape)}")
+        if speaker.shape != (b,):
+            raise ValueError(f"speaker: expected shape ({b},), got {tuple(speaker.shape)}")
+
+    # ---- fusion (eqs. 17-18) ------------------------------------------------------------------------
+    def fuse(self, fe: Tensor, fc: Tensor, oe: Tensor, oc: Tensor) -> tuple[Tensor, Tensor]:
+        """ε: offsets ΔM^e, ΔM^c (B, T, V*3) and features -> (fused ΔM (B, T, V*3), emotion weight α (B, T, V))."""
+        if self.mesh_attention is None:  # "sum": the map held at 0.5
+            alpha = oe.new_full((oe.shape[0], oe.shape[1], self.cfg.n_vertices), 0.5)
+            return 0.5 * (oe + oc), alpha
+        spirals = self.mesh_attention.convs[0].spirals
+        if bool((spirals == torch.arange(spirals.shape[0], device=spirals.device)[:, None]).all()):
+            raise ValueError("EmoFace: Mesh Attention has no spirals yet; build it with EmoFace(cfg, faces=...) "
+                             "or load a checkpoint (fusion='sum' needs no mesh)")
+        return self.mesh_attention(fe, fc, oe, oc)
+
+    def _decode(self, fe: Tensor, fc: Tensor, past: Tensor, speaker: Tensor, mask: Tensor | None):
+        """Both decoders teacher-forced on ``past`` (B, T, V*3), then fused -> (ΔM^e, ΔM^c, ΔM, α)."""
+        de, dc = self.emotion_decoder, self.content_decoder
+        oe = de.teacher_forced(fe, past, de.speaker_style(speaker), mask)  # (B, T, V*3)
+        oc = dc.teacher_forced(fc, past, dc.speaker_style(speaker), mask)  # (B, T, V*3)
+        fused, alpha = self.fuse(fe, fc, oe, oc)
+        return oe, oc, fused, alpha
+
+    def _past_motion(self, fe: Tensor, fc: Tensor, motion: Tensor, speaker: Tensor, mask: Tensor | None) -> Tensor:
+        """Stage two's input (Fig. 2): ground truth, mixed with stage one's detached prediction or dropped."""
+        cfg = self.cfg
+        if not self.training or cfg.past_motion == "teacher_forcing":
+            return motion
+        pick = torch.rand(motion.shape[:2], device=motion.device)[..., None]  # (B, T, 1) rand() of eq. 6
+        if cfg.past_motion == "dropout":  # DualTalker's remedy: hide a past frame (zero motion = template)
+            return torch.where(pick < cfg.sampling_p, torch.zeros_like(motion), motion)
+        if self._share >= 1.0:  # all ground truth: stage one would be thrown away
+            return motion
+        with torch.no_grad():  # stage one: the whole model, teacher-forced
+            guess = self._decode(fe, fc, motion, speaker, mask)[2]  # (B, T, V*3) P
+        return torch.where(pick < self._share, motion, guess)  # I_{n,t} of eq. 6
+
+    # ---- training ----------------------------------------------------------------------------------
+    def forward(self, batch: dict) -> dict:
+        """Teacher-forced (or self-growing) pass over a batch, plus the cross pass when it carries a partner.
+
+        Keys (absolute vertices (B, T, V*3) unless noted): "vertices" (fused M_{c1,e1}), "emotion", "content" (the
+        branches' M^e, M^c), "motion" (fused offsets), "attention" α (B, T, V), "emotion_logits" (B, N_e),
+        "content_features", "emotion_features" (B, T, d); with "pair_*" keys also "cross_vertices",
+        "cross_emotion", "cross_content" (M_{c1,e2}, ...), "pair_emotion_logits", "pair_emotion_features".
+        """
+        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
+        self._check(audio, template, speaker, vertices)
+        mask = batch.get("mask")
+        motion = vertices - template[:, None, :]  # (B, T, V*3)
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+            motion = motion.masked_fill(~mask[..., None], 0.0)
+        fc, fe_raw = self.encode(audio, mask)  # (B, T, d) F_c1, F_e1
+        fe = self.condition(fe_raw, batch["emotion"], batch["level"])  # (B, T, d)
+        oe, oc, fused, alpha = self._decode(fe, fc, self._past_motion(fe, fc, motion, speaker, mask), speaker, mask)
+        tpl = template[:, None, :]
+        out = {"vertices": tpl + fused, "emotion": tpl + oe, "content": tpl + oc, "motion": fused,
+               "attention": alpha, "emotion_logits": self.classify(fe_raw, mask),
+               "content_features": fc, "emotion_features": fe_raw}
+        if self.cfg.cross_reconstruction and "pair_audio" in batch:
+            out.update(self._cross(batch, fc, template, speaker))
+        return out
+
+    def _cross(self, batch: dict, fc1: Tensor, template: Tensor, speaker: Tensor) -> dict:
+        """Eqs. 14-16, 18: clip 2 from clip 1's content features and clip 2's emotion features (Fig. 5)."""
+        pair_audio, pair_mask = batch["pair_audio"], batch["pair_mask"]
+        if pair_audio.shape[:2] != batch["audio"].shape[:2]:
+            raise ValueError(f"pair_audio: expected the clip's (B, T) = {tuple(batch['audio'].shape[:2])} "
+                             f"(partners are resampled to the clip's length), got {tuple(pair_audio.shape[:2])}")
+        motion2 = (batch["pair_vertices"] - template[:, None, :]).masked_fill(~pair_mask[..., None], 0.0)
+        _, fe2_raw = self.encode(pair_audio.masked_fill(~pair_mask[..., None], 0.0), pair_mask)  # F_e2 (eq. 14)
+        fe2 = self.condition(fe2_raw, batch["pair_emotion"], batch["pair_level"])
+        past = self._past_motion(fe2, fc1, motion2, speaker, pair_mask)
+        oe, oc, fused, _ = self._decode(fe2, fc1, past, speaker, pair_mask)  # M^e_{c1,e2}, M^c_{c1,e2}, M_{c1,e2}
+        tpl = template[:, None, :]
+        return {"cross_vertices": tpl + fused, "cross_emotion": tpl + oe, "cross_content": tpl + oc,
+                "pair_emotion_logits": self.classify(fe2_raw, pair_mask), "pair_emotion_features": fe2_raw}
+
+    def loss(self, out: dict, batch: dict, weights: EmoFaceWeights | None = None):
+        """Eq. 11 (``losses.emoface.emoface_loss``) -> (total, detached terms)."""
+        return emoface_loss(out, batch, weights)
+
+    @torch.no_grad()
+    def init_output_bias(self, mean_motion: Tensor) -> None:
+        """Both decoder biases = the training mean motion (V*3,), metres: the untrained model outputs it."""
+        self.emotion_decoder.init_output_bias(mean_motion)
+        self.content_decoder.init_output_bias(mean_motion)
+
+    # ---- inference ---------------------------------------------------------------------------------
+    def _conditions(self, audio: Tensor, mask: Tensor | None, emotion, level) -> tuple[Tensor, Tensor]:
+        """Encode and condition for generation: emotion None -> classifier probabilities; int/(B,) -> one-hot."""
+        b = audio.shape[0]
+        fc, fe_raw = self.encode(audio, mask)
+        if emotion is None:
+            emo = torch.softmax(self.classify(fe_raw, mask), dim=-1)  # (B, N_e) p
+        else:
+            emo = torch.as_tensor(emotion, device=audio.device).long().reshape(-1).expand(b)  # (B,)
+        lvl = torch.as_tensor(1 if level is None else level, device=audio.device).long().reshape(-1).expand(b)
+        return fc, self.condition(fe_raw, emo, lvl)
+
+    @torch.no_grad()
+    def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, emotion=None, level=None,
+                 use_cache: bool = True, mask: Tensor | None = None) -> Tensor:
+        """Autoregressive generation (section 3.3.1): A (B, T, D_a), template (B, V*3), speaker (B,) -> (B, T, V*3).
+
+        ``emotion``: None (recognised from the audio by the classifier) or an index into the corpus emotions;
+        ``level``: the corpus's 1 (normal, default) or 2 (strong). ``use_cache=False`` re-runs both decoders and
+        the fusion on the whole prefix at every frame (the O(T^2) reference); ``True`` uses bounded KV caches."""
+        self._check(audio, template, speaker)
+        self.check_conditions(emotion, level)
+        if use_cache:
+            return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, emotion=emotion,
+                                                       level=level)), dim=1)
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        fc, fe = self._conditions(audio, mask, emotion, level)
+        de, dc = self.emotion_decoder, self.content_decoder
+        se, sc = de.speaker_style(speaker), dc.speaker_style(speaker)
+        past = template.new_zeros(audio.shape[0], 0, template.shape[1])  # (B, t, V*3) fused motion so far
+        for t in range(audio.shape[1]):
+            feed = torch.cat([past, past.new_zeros(past.shape[0], 1, past.shape[2])], dim=1)  # last one unused
+            oe = de.teacher_forced(fe[:, :t + 1], feed, se, None if mask is None else mask[:, :t + 1])
+            oc = dc.teacher_forced(fc[:, :t + 1], feed, sc, None if mask is None else mask[:, :t + 1])
+            fused, _ = self.fuse(fe[:, :t + 1], fc[:, :t + 1], oe, oc)  # (B, t+1, V*3)
+            past = torch.cat([past, fused[:, -1:]], dim=1)
+        return template[:, None, :] + past  # (B, T, V*3)
+
+    @torch.no_grad()
+    def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
+                        emotion=None, level=None, window: int | None | str = "config", chunk: int = 900):
+        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks, both decoders with DualTalker's bounded
+        caches (:meth:`DualTalker.generate_chunks`), fused frame by frame, the fused motion fed back to both.
+
+        Inputs and conditions are checked here, before the first block is asked for (not a generator itself)."""
+        self._check(audio, template, speaker)
+        self.check_conditions(emotion, level)
+        return self._chunks(audio, template, speaker, mask, emotion, level, window, chunk)
+
+    def check_conditions(self, emotion, level) -> None:
+        """One ValueError line for an emotion index outside 0..N_e-1 or a level outside 0..n_levels (corpus levels)."""
+        if emotion is not None:
+            e = torch.as_tensor(emotion).reshape(-1)
+            if e.dtype.is_floating_point or bool(((e < 0) | (e >= self.cfg.n_emotions)).any()):
+                raise ValueError(f"emotion {e.tolist()}: expected an index in 0..{self.cfg.n_emotions - 1}")
+        if level is not None:
+            lv = torch.as_tensor(level).reshape(-1)
+            if lv.dtype.is_floating_point or bool(((lv < 0) | (lv > self.cfg.n_levels)).any()):
+                raise ValueError(f"level {lv.tolist()}: expected 1..{self.cfg.n_levels} (0 = neutral counts as 1)")
+
+    @torch.no_grad()
+    def _chunks(self, audio, template, speaker, mask, emotion, level, window, chunk):
+        window = self.cfg.decoder_window if window == "config" else window
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        b, t_total = audio.shape[:2]
+        fc, fe = self._conditions(audio, mask, emotion, level)
+        branches = []
+        for dec, feats in ((self.emotion_decoder, fe), (self.content_decoder, fc)):
+            style = dec.speaker_style(speaker)
+            states = [dec._decoder_state(layer, feats, window) for layer in dec.layers]
+            ppe = dec.ppe.encoding(dec.ppe.period).to(feats.dtype)  # (p, d)
+            branches.append({"dec": dec, "x": feats, "style": style, "states": states, "ppe": ppe,
+                             "token": style[:, None, :], "out": []})
+        context = self._fusion_context()
+        for start in range(0, t_total, chunk):
+            n = min(chunk, t_total - start)
+            block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
+            for r in range(n):
+                t = start + r
+                for br in branches:
+                    dec, h = br["dec"], br["token"] + br["ppe"][t % br["ppe"].shape[0]]  # (B, 1, d)
+                    for layer, state in zip(dec.layers, br["states"]):
+                        h = dec._decode_step(layer, state, h, br["x"], br["style"], t, mask)
+                    br["out"].append(dec.decode_motion(h))  # (B, 1, V*3)
+                    if context is not None and len(br["out"]) > context:
+                        br["out"].pop(0)
+                lo = t + 1 - len(branches[0]["out"])
+                fused, _ = self.fuse(fe[:, lo:t + 1], fc[:, lo:t + 1], torch.cat(branches[0]["out"], 1),
+                                     torch.cat(branches[1]["out"], 1))
+                m_t = fused[:, -1:]  # (B, 1, V*3)
+                block[:, r] = template + m_t[:, 0]
+                for br in branches:
+                    br["token"] = br["dec"]._feedback(m_t, br["style"])
+            yield block
+
+    def _fusion_context(self) -> int | None:
+        """Frames of past branch offsets the fusion needs at frame t (1 for "sum"; Mesh Attention: its causal
+        receptive field, None = the whole prefix)."""
+        if self.mesh_attention is None:
+            return 1
+        return getattr(self.mesh_attention, "receptive_field", None)

@@ -1,0 +1,498 @@
+"""EmoFace: self-growing schedule (eq. 6), losses (eqs. 7-11, hand-computed), model, pseudo-pairs, checkpoints."""
+import math
+
+import pytest
+import torch
+
+from dualtalker_lite.losses.emoface import (EmoFaceWeights, classification_loss, emoface_loss, l1_loss,
+                                            reconstruction_loss, velocity_loss)
+from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
+from dualtalker_lite.train import TrainConfig, self_growing_share, train
+
+V, DA, NS, NE = 20, 12, 3, 5  # tiny sizes keep the tests fast
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+# ---- eq. 6: the ground-truth share -------------------------------------------------------------------
+def test_self_growing_share_boundaries():
+    n_epochs, warmup = 20, 4
+    for n in range(warmup):  # n < θ: all ground truth
+        assert self_growing_share(n, n_epochs, warmup) == 1.0
+    assert self_growing_share(4, n_epochs, warmup) == 1.0  # cos(0) = 1 at n = θ
+    assert self_growing_share(8, n_epochs, warmup) == pytest.approx(math.sqrt(0.5), abs=1e-12)  # cos(π 4/16)
+    assert self_growing_share(10, n_epochs, warmup) == pytest.approx(0.3826834323650898, abs=1e-12)  # cos(3π/8)
+    assert self_growing_share(12, n_epochs, warmup) == 0.0  # n = (N+θ)/2: cos(π/2) = 0
+    assert self_growing_share(16, n_epochs, warmup) == 0.0  # phase 3: predictions only (cos < 0 clipped)
+    assert self_growing_share(20, n_epochs, warmup) == 0.0  # n = N
+    values = [self_growing_share(n, n_epochs, warmup) for n in range(n_epochs)]
+    assert all(a >= b for a, b in zip(values, values[1:]))  # never grows back
+
+
+def test_self_growing_share_bad_arguments():
+    with pytest.raises(ValueError, match="0 <= warmup <= n_epochs"):
+        self_growing_share(0, 10, 11)
+    with pytest.raises(ValueError, match="n_epochs >= 1"):
+        self_growing_share(0, 0, 0)
+
+
+# ---- eqs. 7-11, values written out by hand --------------------------------------------------------------
+PRED = torch.tensor([[[0.0, 0.0], [1.0, 2.0], [3.0, 3.0]]])  # (B=1, T=3, 2 coordinates)
+ZERO = torch.zeros(1, 3, 2)
+FULL = torch.ones(1, 3, dtype=torch.bool)
+PREFIX = torch.tensor([[True, True, False]])
+
+
+def test_l1_and_velocity_by_hand():
+    assert float(l1_loss(PRED, ZERO, FULL)) == pytest.approx((0 + 0 + 1 + 2 + 3 + 3) / 6)
+    assert float(l1_loss(PRED, ZERO, PREFIX)) == pytest.approx((1 + 2) / 4)
+    # velocities of PRED - 0: (1, 2) and (2, 1) -> mean |.| = 6 / 4
+    assert float(velocity_loss(PRED, ZERO, FULL)) == pytest.approx(1.5)
+    assert float(velocity_loss(PRED, ZERO, PREFIX)) == pytest.approx((1 + 2) / 2)  # only t = 1 has t-1 valid
+    nan_pad = PRED.clone()
+    nan_pad[0, 2] = float("nan")  # padding may hold NaN: it must not leak
+    assert float(velocity_loss(nan_pad, ZERO, PREFIX)) == pytest.approx(1.5)
+    assert float(reconstruction_loss(PRED, ZERO, PRED, ZERO, FULL)) == pytest.approx(1.5 + 0 + 1.5)
+
+
+def test_classification_by_hand():
+    logits = torch.tensor([[0.0, math.log(3.0)], [math.log(4.0), 0.0]])  # p = (1/4, 3/4), (4/5, 1/5)
+    expected = -(math.log(3 / 4) + math.log(1 / 5)) / 2  # labels 1 and 1, mean over samples
+    assert float(classification_loss(logits, torch.tensor([1, 1]))) == pytest.approx(expected, abs=1e-6)
+
+
+def test_weighted_sum_by_hand():
+    target = torch.zeros(1, 3, 2)
+    out = {"emotion": PRED, "content": ZERO, "vertices": PRED * 0.5, "emotion_logits": torch.tensor([[0.0, 0.0]]),
+           "cross_emotion": ZERO, "cross_content": PRED, "cross_vertices": ZERO,
+           "pair_emotion_logits": torch.tensor([[0.0, math.log(3.0)]])}
+    batch = {"vertices": target, "mask": FULL, "emotion": torch.tensor([0]), "pair_vertices": target,
+             "pair_mask": FULL, "pair_emotion": torch.tensor([1]), "pair_valid": torch.tensor([True])}
+    w = EmoFaceWeights(lambda_self=2.0, lambda_cross=3.0, lambda_vel=5.0, lambda_cls=7.0, vertex_scale=10.0)
+    total, terms = emoface_loss(out, batch, w)
+    self_ = 10 * (1.5 + 0 + 0.75)  # ‖M^e‖ + ‖M^c‖ + ‖M‖, x vertex_scale
+    cross = 10 * (0 + 1.5 + 0)
+    vel = 10 * (0.75 + 0)  # fused self (0.5 PRED: velocities (.5, 1), (1, .5)) + fused cross (0)
+    cls = math.log(2) + -math.log(3 / 4)
+    assert float(terms["self"]) == pytest.approx(self_)
+    assert float(terms["cross"]) == pytest.approx(cross)
+    assert float(terms["vel"]) == pytest.approx(vel)
+    assert float(terms["cls"]) == pytest.approx(cls, abs=1e-6)
+    assert float(total) == pytest.approx(2 * self_ + 3 * cross + 5 * vel + 7 * cls, rel=1e-6)
+    # a row without a partner gets no cross term
+    _, terms = emoface_loss(out, {**batch, "pair_valid": torch.tensor([False])}, w)
+    assert float(terms["cross"]) == 0.0
+
+
+def test_paper_weights_equal_tiny_weights_on_vertex_terms():
+    """1000 x (L1 in metres) = 1 x (L1 in mm): the two presets agree on every vertex term."""
+    g = torch.Generator().manual_seed(0)
+    out = {k: torch.randn(2, 5, 6, generator=g) * 1e-3 for k in ("emotion", "content", "vertices")}
+    batch = {"vertices": torch.randn(2, 5, 6, generator=g) * 1e-3, "mask": torch.ones(2, 5, dtype=torch.bool)}
+    paper, tiny = EmoFaceWeights.paper(), EmoFaceWeights()
+    assert (paper.lambda_self, paper.lambda_cross, paper.lambda_vel, paper.lambda_cls) == (1000, 1000, 500, 1e-4)
+    t_paper, _ = emoface_loss(out, batch, paper)
+    t_tiny, _ = emoface_loss(out, batch, tiny)
+    assert float(t_paper) == pytest.approx(float(t_tiny), rel=1e-5)
+
+
+# ---- the model ------------------------------------------------------------------------------------------
+def _cfg(**kw):
+    kw = {"motion_scale": 1.0, "fusion": "sum", **kw}
+    return EmoFaceConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, n_emotions=NE, d_model=32, d_ff=64,
+                              audio_hidden=32, **kw)
+
+
+def _grid_faces(rows=4, cols=5):
+    """A flat (rows x cols) grid, two triangles per square, consistently oriented: V = 20 vertices."""
+    faces = []
+    for i in range(rows - 1):
+        for j in range(cols - 1):
+            a, b, c, d = i * cols + j, i * cols + j + 1, (i + 1) * cols + j, (i + 1) * cols + j + 1
+            faces += [(a, b, d), (a, d, c)]
+    return torch.tensor(faces).numpy()
+
+
+def _model(seed=0, **kw):
+    torch.manual_seed(seed)
+    cfg = _cfg(**kw)
+    model = EmoFace(cfg, faces=_grid_faces() if cfg.fusion == "mesh_attention" else None).eval()
+    for dec in (model.emotion_decoder, model.content_decoder):  # zero decoders: every frame = template
+        torch.nn.init.normal_(dec.motion_decoder.weight, std=0.05)
+    return model
+
+
+def _batch(b=2, t=12, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    template = torch.randn(b, V * 3, generator=g) * 0.1
+    motion = torch.cumsum(torch.randn(b, t, V * 3, generator=g) * 0.01, dim=1)
+    motion2 = torch.cumsum(torch.randn(b, t, V * 3, generator=g) * 0.01, dim=1)
+    mask = torch.ones(b, t, dtype=torch.bool)
+    return {"audio": torch.randn(b, t, DA, generator=g), "vertices": template[:, None] + motion,
+            "template": template, "speaker": torch.arange(b) % NS, "mask": mask,
+            "emotion": torch.arange(b) % NE, "level": torch.arange(b) % 3,
+            "pair_audio": torch.randn(b, t, DA, generator=g), "pair_vertices": template[:, None] + motion2,
+            "pair_mask": mask.clone(), "pair_emotion": (torch.arange(b) + 1) % NE, "pair_level": torch.ones(b).long(),
+            "pair_valid": torch.ones(b, dtype=torch.bool)}
+
+
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_forward_shapes(fusion):
+    out = _model(fusion=fusion)(_batch(b=2, t=12))
+    for key in ("vertices", "emotion", "content", "motion", "cross_vertices", "cross_emotion", "cross_content"):
+        assert out[key].shape == (2, 12, V * 3), key
+    assert out["attention"].shape == (2, 12, V)
+    assert out["emotion_logits"].shape == out["pair_emotion_logits"].shape == (2, NE)
+    assert out["content_features"].shape == out["emotion_features"].shape == (2, 12, 32)
+    no_cross = _model(cross_reconstruction=False)(_batch())
+    assert "cross_vertices" not in no_cross
+
+
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+@pytest.mark.parametrize("emotion,level", [(None, None), (3, 2), (torch.tensor([1, 4]), torch.tensor([1, 2]))])
+def test_cached_generation_equals_uncached(emotion, level, fusion):
+    batch = _batch(t=30)
+    model = _model(fusion=fusion)
+    args = (batch["audio"], batch["template"], batch["speaker"])
+    fast = model.generate(*args, emotion=emotion, level=level, use_cache=True)
+    slow = model.generate(*args, emotion=emotion, level=level, use_cache=False)
+    torch.testing.assert_close(fast, slow, atol=1e-5, rtol=0)
+    assert (fast - batch["template"][:, None]).abs().amax() > 1e-3  # not vacuous
+
+
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_generate_equals_teacher_forcing_on_own_predictions(fusion):
+    batch = _batch(t=20)
+    model = _model(fusion=fusion)
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"], emotion=batch["emotion"],
+                          level=batch["level"])
+    with torch.no_grad():
+        out = model({**batch, "vertices": pred})
+    torch.testing.assert_close(out["vertices"], pred, atol=1e-5, rtol=0)
+
+
+def test_emotion_condition_changes_the_output():
+    batch = _batch(t=15)
+    model = _model()
+    for p in (model.emotion_type.weight, model.emotion_level.weight):
+        torch.nn.init.normal_(p, std=1.0)
+    args = (batch["audio"], batch["template"], batch["speaker"])
+    happy, sad = model.generate(*args, emotion=1), model.generate(*args, emotion=2)
+    assert (happy - sad).abs().amax() > 1e-4
+    strong = model.generate(*args, emotion=1, level=2)
+    assert (happy - strong).abs().amax() > 1e-4
+
+
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_cross_reconstruction_uses_the_partners_emotion_features(fusion):
+    """Eqs. 15-16: M^e_{c1,e2} = D_e(F_e2) depends on clip 2's audio only, M^c_{c1,e2} = D_c(F_c1) on clip 1's."""
+    model, batch = _model(fusion=fusion), _batch(t=14)
+    with torch.no_grad():
+        out = model(batch)
+        other_own = model({**batch, "audio": torch.randn_like(batch["audio"])})  # clip 1's audio changed
+        other_pair = model({**batch, "pair_audio": torch.randn_like(batch["pair_audio"])})  # clip 2's changed
+        # clip 2 seen as the main clip: its emotion branch is exactly the cross pass's emotion branch
+        as_main = model({**batch, "audio": batch["pair_audio"], "vertices": batch["pair_vertices"],
+                         "emotion": batch["pair_emotion"], "level": batch["pair_level"]})
+    torch.testing.assert_close(other_own["cross_emotion"], out["cross_emotion"], atol=0, rtol=0)
+    assert (other_own["cross_content"] - out["cross_content"]).abs().amax() > 1e-4
+    torch.testing.assert_close(other_pair["cross_content"], out["cross_content"], atol=0, rtol=0)
+    assert (other_pair["cross_emotion"] - out["cross_emotion"]).abs().amax() > 1e-4
+    torch.testing.assert_close(as_main["emotion"], out["cross_emotion"], atol=1e-6, rtol=0)
+    assert (as_main["content"] - out["cross_content"]).abs().amax() > 1e-4  # content still from clip 1
+
+
+def test_self_growing_stage_two_feeds_stage_one_predictions():
+    model, batch = _model(), _batch(t=10)
+    with torch.no_grad():
+        reference = model(batch)  # eval: teacher forcing
+        model.train()
+        model.set_epoch(0, 10)  # n < θ: ground truth only
+        assert model.ground_truth_share == 1.0
+        torch.testing.assert_close(model(batch)["vertices"], reference["vertices"], atol=0, rtol=0)
+        model.set_epoch(9, 10)  # phase 3: stage one's predictions only
+        assert model.ground_truth_share == 0.0
+        grown = model(batch)["vertices"]
+        model.eval()
+        fed_own = model({**batch, "vertices": reference["vertices"]})  # stage two = TF on stage one's output
+    torch.testing.assert_close(grown, fed_own["vertices"], atol=1e-6, rtol=0)
+    assert (grown - reference["vertices"]).abs().amax() > 1e-4
+
+
+def test_teacher_forcing_option_ignores_the_schedule():
+    model, batch = _model(past_motion="teacher_forcing"), _batch(t=10)
+    with torch.no_grad():
+        reference = model(batch)["vertices"]
+        model.train()
+        model.set_epoch(9, 10)
+        torch.testing.assert_close(model(batch)["vertices"], reference, atol=0, rtol=0)
+
+
+def test_the_other_past_motion_schemes():
+    batch = _batch(t=10)
+    sampled = _model(past_motion="scheduled_sampling", sampling_p=0.3)
+    sampled.set_epoch(0, 10)  # constant share, whatever the epoch
+    assert sampled.ground_truth_share == pytest.approx(0.7)
+    sampled.set_epoch(9, 10)
+    assert sampled.ground_truth_share == pytest.approx(0.7)
+    dropped = _model(past_motion="dropout", sampling_p=1.0)  # every past frame hidden: the template is fed back
+    with torch.no_grad():
+        still = dropped({**batch, "vertices": batch["template"][:, None].expand_as(batch["vertices"])})["vertices"]
+        dropped.train()
+        hidden = dropped(batch)["vertices"]
+    torch.testing.assert_close(hidden, still, atol=1e-6, rtol=0)
+
+
+def test_train_calls_set_epoch_each_epoch():
+    calls = []
+    model = _model()
+    model.set_epoch = lambda epoch, n: calls.append((epoch, n))
+    train(model, [_batch(t=8)], TrainConfig(epochs=3, lr=1e-3, progress=False, max_frames=None))
+    assert calls == [(0, 3), (1, 3), (2, 3)]
+
+
+@pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
+def test_loss_falls_when_overfitting_one_pair_batch(fusion):
+    model = _model(fusion=fusion).train()
+    batch = _batch(b=2, t=16)
+    weights = EmoFaceWeights(vertex_scale=100.0)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(60):
+        total, terms = model.loss(model(batch), batch, weights)
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+        losses.append(float(total.detach()))
+    assert losses[-1] < 0.5 * losses[0], losses[::10]
+    assert float(terms["cls"]) < 2 * math.log(NE)  # both clips classified better than chance
+
+
+def test_same_seed_same_training():
+    results = []
+    for _ in range(2):
+        torch.manual_seed(3)
+        model = EmoFace(_cfg(dropout=0.1))
+        hist = train(model, [_batch(t=10), _batch(t=10, seed=1)],
+                     TrainConfig(epochs=3, lr=1e-3, seed=5, progress=False, max_frames=None))
+        results.append((hist.terms, [p.detach().clone() for p in model.parameters()]))
+    assert results[0][0] == results[1][0]
+    for a, b in zip(results[0][1], results[1][1]):
+        torch.testing.assert_close(a, b, atol=0, rtol=0)
+
+
+def test_init_output_bias_sets_the_mean_face():
+    model, batch = _model(), _batch(t=6)
+    for dec in (model.emotion_decoder, model.content_decoder):
+        torch.nn.init.zeros_(dec.motion_decoder.weight)
+    mean = torch.linspace(-1e-3, 1e-3, V * 3)
+    model.init_output_bias(mean)
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    torch.testing.assert_close(pred, (batch["template"][:, None] + mean).expand_as(pred), atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"audio": torch.zeros(2, 12, DA + 1)}, r"audio: expected \(B, T, 12\)"),
+    ({"template": torch.zeros(2, 7)}, r"template: expected \(B, V\*3\)"),
+    ({"level": torch.tensor([3, 1])}, r"emotion level \[3, 1\] outside"),
+    ({"emotion": torch.tensor([0, 5])}, r"emotion index \[0, 5\] outside"),
+    ({"pair_audio": torch.zeros(2, 9, DA)}, r"pair_audio: expected the clip's \(B, T\)"),
+])
+def test_bad_inputs_fail_with_one_clear_line(change, message):
+    with pytest.raises(ValueError, match=message):
+        _model()({**_batch(), **change})
+
+
+def test_bad_config_fails():
+    with pytest.raises(ValueError, match="fusion must be one of"):
+        _cfg(fusion="concat")
+    with pytest.raises(ValueError, match="past_motion must be one of"):
+        _cfg(past_motion="oracle")
+    with pytest.raises(ValueError, match=r"growing_warmup must lie in \[0, 1\]"):
+        _cfg(growing_warmup=1.5)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint
+
+    model, batch = _model(fusion="mesh_attention"), _batch(t=9)
+    path = save_checkpoint(tmp_path / "emoface.pt", model, model.cfg, speakers=["A", "B", "C"])
+    loaded, info = load_checkpoint(path)
+    assert type(loaded) is EmoFace and info["model_class"] == "EmoFace" and loaded.cfg == model.cfg
+    args = (batch["audio"], batch["template"], batch["speaker"])
+    torch.testing.assert_close(loaded.generate(*args, emotion=2), model.generate(*args, emotion=2), atol=0, rtol=0)
+
+
+def test_build_model_emoface():
+    from dualtalker_lite.experiments import RunSpec, build_model
+
+    model, cfg = build_model(RunSpec(row="EmoFace", model="emoface"), n_vertices=V, audio_dim=DA, n_speakers=NS,
+                             faces=_grid_faces())
+    assert isinstance(model, EmoFace) and cfg.n_vertices == V and cfg.d_model == 64
+    assert cfg.fusion == "mesh_attention" and model.mesh_attention is not None
+    spirals = model.mesh_attention.convs[0].spirals
+    # vertex 6 (row 1, column 1): itself, then its one-ring on the grid (edges + the two diagonals of _grid_faces)
+    assert spirals.shape == (V, 9) and spirals[6, 0] == 6 and set(spirals[6, 1:7].tolist()) == {0, 1, 5, 7, 11, 12}
+
+
+def test_mesh_attention_without_a_mesh_refuses_to_run():
+    torch.manual_seed(0)
+    model = EmoFace(_cfg(fusion="mesh_attention"))
+    with pytest.raises(ValueError, match="Mesh Attention has no spirals yet"):
+        model(_batch(t=4))
+
+
+def test_bad_generation_conditions_fail_before_any_block():
+    model, batch = _model(), _batch(t=5)
+    args = (batch["audio"], batch["template"], batch["speaker"])
+    with pytest.raises(ValueError, match=r"emotion \[5\]: expected an index in 0..4"):
+        model.generate_chunks(*args, emotion=5)  # raised at the call, not at the first next()
+    with pytest.raises(ValueError, match=r"level \[3\]: expected 1..2"):
+        model.generate(*args, level=3)
+
+
+# ---- pseudo-pairs on the shipped corpus ------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def pairs():
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.pairs import PairDataset
+
+    return PairDataset(sample_path())
+
+
+def test_resample_time_by_hand():
+    from dualtalker_lite.data.pairs import resample_time
+
+    x = torch.tensor([[0.0, 10.0], [2.0, 10.0], [4.0, 30.0]])  # (T=3, D=2)
+    torch.testing.assert_close(resample_time(x, 5), torch.tensor([[0.0, 10.0], [1.0, 10.0], [2.0, 10.0],
+                                                                  [3.0, 20.0], [4.0, 30.0]]))
+    torch.testing.assert_close(resample_time(x, 2), torch.tensor([[0.0, 10.0], [4.0, 30.0]]))
+    assert resample_time(x, 3) is x
+    with pytest.raises(ValueError, match="expected a"):
+        resample_time(x[0], 4)
+
+
+def test_pair_dataset_partners(pairs):
+    import json
+
+    meta = json.loads((pairs.corpus.root / "metadata.json").read_text())
+    wanted = set(meta["splits"]["train"]) | set(meta["splits"]["train_emo"])
+    grouped = {c for g in meta["pairs"].values() for c in g.values() if c in wanted}
+    assert len(pairs) == len(wanted) and pairs.n_paired == len(grouped)
+    for i in range(0, len(pairs), 7):
+        item = pairs[i]
+        a, b = meta["clips"][item["name"]], meta["clips"][item["pair_name"]]
+        if item["pair_valid"]:
+            assert item["pair_name"] != item["name"]
+            assert (a["subject"], a["sentence_id"]) == (b["subject"], b["sentence_id"])
+            assert (a["emotion"], a["level"]) != (b["emotion"], b["level"])
+            assert item["pair_emotion"] == meta["emotions"].index(b["emotion"])
+        else:
+            assert item["pair_name"] == item["name"] and item["name"] not in grouped
+        n = item["audio"].shape[0]
+        assert item["pair_audio"].shape == (n, item["audio"].shape[1])
+        assert item["pair_vertices"].shape == item["vertices"].shape
+        other = pairs.items[pairs.names.index(item["pair_name"])]
+        torch.testing.assert_close(item["pair_vertices"][[0, -1]], other["vertices"][[0, -1]])  # ends kept
+
+
+def test_pair_collate_and_one_training_step(pairs):
+    from dualtalker_lite.data.pairs import make_pair_loader
+
+    batch = next(iter(make_pair_loader(pairs, batch_size=4, seed=1)))
+    assert torch.equal(batch["pair_mask"], batch["mask"]) and batch["pair_valid"].dtype == torch.bool
+    assert batch["pair_audio"].shape == batch["audio"].shape and len(batch["pair_name"]) == 4
+    c = pairs.corpus
+    torch.manual_seed(0)
+    model = EmoFace(EmoFaceConfig.tiny(n_vertices=c.metadata["n_vertices"], n_speakers=len(c.train_speakers),
+                                       n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32),
+                    faces=c.faces).train()
+    total, terms = model.loss(model(batch), batch)
+    total.backward()
+    assert torch.isfinite(total) and float(terms["cross"]) > 0 and float(terms["cls"]) > 0
+
+
+def test_pair_groups_refuse_a_group_mixing_speakers(pairs):
+    from dualtalker_lite.data.pairs import pair_groups
+
+    corpus = pairs.corpus
+    saved = corpus.metadata["pairs"]
+    try:
+        corpus.metadata["pairs"] = {"bad": {"neutral": "SPK01_s00", "happy1": "SPK02_s00-happy1"}}
+        with pytest.raises(ValueError, match=r"metadata.json: pairs\['bad'\] mixes subjects"):
+            pair_groups(corpus, ["SPK01_s00", "SPK02_s00-happy1"])
+        corpus.metadata["pairs"] = {"bad": ["SPK01_s00"]}
+        with pytest.raises(ValueError, match=r"pairs\['bad'\] must be an object"):
+            pair_groups(corpus, ["SPK01_s00"])
+    finally:
+        corpus.metadata["pairs"] = saved
+
+
+# ---- inference CLI: --emotion / --level -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def emoface_ckpt(pairs, tmp_path_factory):
+    from dualtalker_lite.checkpoints import save_checkpoint
+
+    c = pairs.corpus
+    torch.manual_seed(0)
+    cfg = EmoFaceConfig.tiny(n_vertices=c.metadata["n_vertices"], n_speakers=len(c.train_speakers),
+                             n_emotions=len(c.emotions), d_model=32, d_ff=64, audio_hidden=32)
+    model = EmoFace(cfg, faces=c.faces).eval()
+    for dec in (model.emotion_decoder, model.content_decoder):
+        torch.nn.init.normal_(dec.motion_decoder.weight, std=1e-2)
+    torch.nn.init.normal_(model.emotion_type.weight, std=1.0)
+    path = tmp_path_factory.mktemp("emo") / "emoface.pt"
+    save_checkpoint(path, model, cfg, speakers=c.train_speakers, faces=c.faces)
+    return path
+
+
+def _wav(tmp_path):
+    import numpy as np
+    import soundfile as sf
+
+    t = np.arange(16000) / 16000
+    path = tmp_path / "me.wav"
+    sf.write(path, (0.3 * np.sin(2 * np.pi * 220 * t) * (1 + np.sin(2 * np.pi * 3 * t)) / 2).astype("float32"), 16000)
+    return path
+
+
+def test_cli_emotion_and_level(emoface_ckpt, tmp_path):
+    import numpy as np
+
+    from dualtalker_lite.inference import main
+
+    wav, outs = _wav(tmp_path), {}
+    for emotion in ("happy", "sad"):
+        main(["--checkpoint", str(emoface_ckpt), "--wav", str(wav), "--speaker", "SPK01", "--emotion", emotion,
+              "--level", "2", "--format", "npy", "--out", str(tmp_path / emotion)])
+        outs[emotion] = np.load(tmp_path / emotion / "vertices.npy")
+    n_vertices = torch.load(emoface_ckpt, weights_only=True)["n_vertices"]
+    assert outs["happy"].shape == outs["sad"].shape == (30, 3 * n_vertices)  # 1 s at 30 fps
+    assert np.abs(outs["happy"] - outs["sad"]).max() > 1e-6  # the condition reaches the face
+
+
+def test_cli_emotion_errors(emoface_ckpt, tmp_path, capsys):
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.inference import main
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    wav = _wav(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main(["--checkpoint", str(emoface_ckpt), "--wav", str(wav), "--emotion", "furious", "--format", "npy",
+              "--out", str(tmp_path / "a")])
+    assert e.value.code == 2 and "unknown emotion 'furious'" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
+    dual = tmp_path / "dual.pt"
+    cfg = DualTalkerConfig.tiny(n_vertices=torch.load(emoface_ckpt, weights_only=True)["n_vertices"])
+    save_checkpoint(dual, DualTalker(cfg), cfg)
+    with pytest.raises(SystemExit) as e:
+        main(["--checkpoint", str(dual), "--wav", str(wav), "--emotion", "happy", "--format", "npy",
+              "--out", str(tmp_path / "b")])
+    assert e.value.code == 2 and "DualTalker model takes no emotion condition" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
