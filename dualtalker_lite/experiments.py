@@ -1,11 +1,12 @@
-"""Experiment runner: the analogues of DualTalker's Table I (main comparison), Table IV (ablations) and a CCRL sweep.
+"""Experiment runner: the analogues of DualTalker's Table I (main comparison), Table IV (ablations), a CCRL sweep,
+CorrTalk's Table III and EmoFace's Tables 2/3 and ablations.
 
 Every run follows one protocol ("same features, same data, same training budget"):
 
 1. build the model with ``set_seed(seed)`` (tiny sizes: ``DualTalkerConfig.tiny``, ``VocaConfig.tiny``);
-2. train on the ``train`` split of the corpus (``data_samples/`` by default) for a FIXED number of epochs,
-   the same for every model; no early stopping and no model selection (so no test-set peeking);
-3. generate test-A autoregressively (``train.predict``, as at inference time) and measure:
+2. train on the row's clips (``RunSpec.data``; default the ``train`` split of ``data_samples/``) for a FIXED
+   number of epochs, the same for every model; no early stopping and no model selection (no test-set peeking);
+3. generate the test split (test-A; the emotional tables: test_emo_a) autoregressively (``train.predict``) and measure:
 
    ========================  ======  =================================================================
    key                       unit    meaning (``metrics`` module docstring has the formulas)
@@ -37,9 +38,19 @@ Identical configurations that appear in several requested tables (e.g. the full 
 Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker, CorrTalk), ``ablation``
 (w/o CCRL, w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared
 encoder/decoder weights), ``sweep`` (λ4, the CCRL kernel bandwidth σ, and the kernel-weighted vs InfoNCE reading of
-eq. 9) and ``corrtalk`` (CorrTalk's Table III: w/o hierarchical encoder, single branch, random mask, feature swap).
+eq. 9), ``corrtalk`` (CorrTalk's Table III: w/o hierarchical encoder, single branch, random mask, feature swap),
+``emotion`` (EmoFace's Table 2/3: FaceFormer-style, DualTalker, CorrTalk, EmoFace) and ``emoface`` (EmoFace's
+ablations: w/o Mesh Attention, w/o SpiralConv3D, w/o self-growing, w/o cross-reconstruction).
+
+What a row trains on is part of its :class:`RunSpec` (``data``: the neutral ``train`` split, ``train`` +
+``train_emo``, or the same as pseudo-pairs for cross-reconstruction); which split a table is evaluated on is the
+table's (``TABLE_SPLITS``: the two emotional tables use ``test_emo_a`` and add the columns of ``EMOTION_METRICS``:
+emotion classification accuracy for models with a classifier, brow-raise and smile errors per emotion). The runner
+has no per-paper branch: a model with extra generation inputs names them (``generation_conditions``, EmoFace: the
+level), a model with a classifier supplies ``emotion_logits``.
 
     python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
+    python -m dualtalker_lite.experiments --table emotion emoface --seeds 0 1 2 3 4 --processes 2 --out results/
     python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
 
 Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact command) and ``<out>/<table>.md``
