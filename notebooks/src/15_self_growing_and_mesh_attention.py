@@ -218,9 +218,11 @@ print(f"L_self on the 8 training clips: {start:.3f} -> {trained:.3f} mm in 20 st
 T_clip = A.shape[0]
 frames = [T_clip // 4, T_clip // 2, 3 * T_clip // 4]
 verts = test_batch["vertices"][clip, frames].reshape(len(frames), V, 3).numpy()
-fig = plot_frames(verts, corpus.faces, colors=A[frames].numpy(), cmap="coolwarm", vmin=0.3, vmax=0.7,
+lo, hi = float(A.min()), float(A.max())  # the map's own range: its small contrasts made visible
+fig = plot_frames(verts, corpus.faces, colors=A[frames].numpy(), cmap="coolwarm", vmin=lo, vmax=hi,
                   titles=[f"t = {f / corpus.fps:.2f} s" for f in frames], color_label="A, emotion share",
-                  color_units="0-1", suptitle=f"Mesh Attention map on {name} (after 20 steps)")
+                  color_units="0-1", suptitle=f"Mesh Attention map on {name} (after 20 steps; colours span "
+                                              f"{lo:.3f}-{hi:.3f})")
 fig
 
 # %%
@@ -235,7 +237,9 @@ plt.show()
 
 # %% [markdown]
 # After 20 steps the map has barely left its initial 0.5 (a sigmoid of small numbers, notebook 13): the regions'
-# means above differ in the third decimal, so this run cannot say where the emotion branch wins. The map that the
+# means above differ in the third decimal, and the map (colours stretched to its own narrow range) changes over
+# time, with the speech features, far more than across the face. So this run cannot say where the emotion branch
+# wins. The map that the
 # paper's Fig. 4 shows (emotion on the brows, eyes and mouth corners) needs the full training; rerun this section
 # with `fit(300)` (about 2 CPU minutes) to watch it form, or load a model trained by the runner
 # (`experiments.run_one(table_specs("emoface")[0], 0, epochs=37, checkpoint=...)`).
