@@ -50,7 +50,8 @@ has no per-paper branch: a model with extra generation inputs names them (``gene
 level), a model with a classifier supplies ``emotion_logits``.
 
     python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
-    python -m dualtalker_lite.experiments --table emotion emoface --seeds 0 1 2 3 4 --processes 2 --out results/
+    python -m dualtalker_lite.experiments --table emotion emoface --seeds 0 1 2 3 4 --epochs 12 --processes 2 \
+        --out results/    # 560 training clips: 12 epochs ~ the neutral tables' 814 steps
     python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
 
 Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact command) and ``<out>/<table>.md``
