@@ -121,3 +121,35 @@ def test_predict_passes_the_conditions_the_model_names():
     plain.generation_conditions = ()
     predict(plain, batch)
     assert plain.seen == {}
+
+
+def _toy_clip(name, emotion, brow_mm, template):
+    """A 3-frame clip of a 5-vertex face (vertex 2, 3 = brows, 0, 1 = mouth corners) with brows up by brow_mm."""
+    v = template.reshape(1, 5, 3).repeat(3, 1, 1).clone()
+    v[:, 2:4, 1] += brow_mm / 1000
+    return {"name": name, "audio": torch.full((3, 2), float(emotion)), "vertices": v.reshape(3, 15),
+            "template": template, "phonemes": torch.zeros(3, dtype=torch.long),
+            "visemes": torch.zeros(3, dtype=torch.long), "speaker": 0, "emotion": emotion, "level": 1}
+
+
+def test_emotion_split_metrics_hand_computed():
+    """Accuracy through the model's emotion_logits hook; brow/smile errors from the predictions (hand values)."""
+    template = torch.tensor([[0.02, 0, 0], [-0.02, 0, 0], [0.01, 0.03, 0], [-0.01, 0.03, 0], [0, 0.01, 0.01]])
+    template = template.reshape(-1)  # (V*3,)
+    data = [_toy_clip("a", 1, 2.0, template), _toy_clip("b", 1, 4.0, template), _toy_clip("c", 3, -1.0, template)]
+
+    class Classifier(torch.nn.Module):  # names emotion 1 for every clip: right for a and b, wrong for c
+        def emotion_logits(self, audio, mask):
+            return torch.nn.functional.one_hot(torch.ones(audio.shape[0], dtype=torch.long), 5).float()
+
+    flat = [template.reshape(1, -1).repeat(3, 1).numpy()] * 3  # predictions: the still template
+    out = {"preds": flat, "gts": [d["vertices"].numpy() for d in data], "templates": [template.numpy()] * 3}
+    regions = {"brows": [2, 3], "mouth_corners": [0, 1]}
+    emotions = ["neutral", "happy", "sad", "angry", "surprised"]
+    res, per = ex.emotion_split_metrics(Classifier(), data, out, emotions, regions)
+    assert res["emotion_accuracy"] == pytest.approx(2 / 3)
+    # brow raise GT: happy mean 3 mm, angry -1 mm; prediction 0 -> errors 3 and 1 -> 2 mm; no smile anywhere
+    assert res["brow_raise_error_mm"] == pytest.approx(2.0, abs=1e-5) and res["smile_error_mm"] == pytest.approx(0.0)
+    assert list(per) == ["happy", "angry"] and per["happy"]["n_clips"] == 2
+    res_plain, _ = ex.emotion_split_metrics(torch.nn.Module(), data, out, emotions, regions)
+    assert "emotion_accuracy" not in res_plain  # no classifier: no accuracy (the table shows "—")
