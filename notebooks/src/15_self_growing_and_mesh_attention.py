@@ -42,6 +42,8 @@ from dualtalker_lite.viz.widgets import TrainingPanel, progress_loader
 torch.set_num_threads(1)  # tiny tensors: a second thread only waits on a shared machine
 set_seed(0)
 t_start, c_start = time.perf_counter(), time.process_time()
+
+# %%
 pairs = PairDataset(sample_path())  # "train" + "train_emo", each clip with a pseudo-pair partner (notebook 14)
 corpus, EMOTIONS = pairs.corpus, pairs.corpus.emotions
 V, regions = corpus.metadata["n_vertices"], corpus.regions
