@@ -1,11 +1,12 @@
-"""Experiment runner: the analogues of DualTalker's Table I (main comparison), Table IV (ablations) and a CCRL sweep.
+"""Experiment runner: the analogues of DualTalker's Table I (main comparison), Table IV (ablations), a CCRL sweep,
+CorrTalk's Table III and EmoFace's Tables 2/3 and ablations.
 
 Every run follows one protocol ("same features, same data, same training budget"):
 
 1. build the model with ``set_seed(seed)`` (tiny sizes: ``DualTalkerConfig.tiny``, ``VocaConfig.tiny``);
-2. train on the ``train`` split of the corpus (``data_samples/`` by default) for a FIXED number of epochs,
-   the same for every model; no early stopping and no model selection (so no test-set peeking);
-3. generate test-A autoregressively (``train.predict``, as at inference time) and measure:
+2. train on the row's clips (``RunSpec.data``; default the ``train`` split of ``data_samples/``) for a FIXED
+   number of epochs, the same for every model; no early stopping and no model selection (no test-set peeking);
+3. generate the test split (test-A; the emotional tables: test_emo_a) autoregressively (``train.predict``) and measure:
 
    ========================  ======  =================================================================
    key                       unit    meaning (``metrics`` module docstring has the formulas)
@@ -37,9 +38,20 @@ Identical configurations that appear in several requested tables (e.g. the full 
 Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker, CorrTalk), ``ablation``
 (w/o CCRL, w/o dual training, phoneme one-hot features as the analogue of the paper's DeepSpeech row, shared
 encoder/decoder weights), ``sweep`` (λ4, the CCRL kernel bandwidth σ, and the kernel-weighted vs InfoNCE reading of
-eq. 9) and ``corrtalk`` (CorrTalk's Table III: w/o hierarchical encoder, single branch, random mask, feature swap).
+eq. 9), ``corrtalk`` (CorrTalk's Table III: w/o hierarchical encoder, single branch, random mask, feature swap),
+``emotion`` (EmoFace's Table 2/3: FaceFormer-style, DualTalker, CorrTalk, EmoFace) and ``emoface`` (EmoFace's
+ablations: w/o Mesh Attention, w/o SpiralConv3D, w/o self-growing, w/o cross-reconstruction).
+
+What a row trains on is part of its :class:`RunSpec` (``data``: the neutral ``train`` split, ``train`` +
+``train_emo``, or the same as pseudo-pairs for cross-reconstruction); which split a table is evaluated on is the
+table's (``TABLE_SPLITS``: the two emotional tables use ``test_emo_a`` and add the columns of ``EMOTION_METRICS``:
+emotion classification accuracy for models with a classifier, brow-raise and smile errors per emotion). The runner
+has no per-paper branch: a model with extra generation inputs names them (``generation_conditions``, EmoFace: the
+level), a model with a classifier supplies ``emotion_logits``.
 
     python -m dualtalker_lite.experiments --table main --seeds 0 1 2 --epochs 15 --processes 2 --out results/
+    python -m dualtalker_lite.experiments --table emotion emoface --seeds 0 1 2 3 4 --epochs 12 --processes 2 \
+        --out results/    # 560 training clips: 12 epochs ~ the neutral tables' 814 steps
     python -m dualtalker_lite.experiments --table all --quick --out /tmp/smoke      # 1 epoch, 1 seed, few clips
 
 Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact command) and ``<out>/<table>.md``
@@ -74,9 +86,12 @@ __all__ = ["TABLES", "METRICS", "RunSpec", "table_specs", "phoneme_onehot", "Pho
            "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
            "write_table", "load_table", "table_markdown", "main"]
 
-TABLES = ("main", "ablation", "sweep", "corrtalk")
-TEST_SPLIT = "test_a"
-QUICK_CLIPS = {"train": 16, TEST_SPLIT: 4}  # --quick: the first clips of each split
+TABLES = ("main", "ablation", "sweep", "corrtalk", "emotion", "emoface")
+TEST_SPLIT = "test_a"  # the default test split (neutral speech, seen speakers)
+TABLE_SPLITS = {"emotion": "test_emo_a", "emoface": "test_emo_a"}  # tables evaluated on another split
+EMOTIONAL_TRAIN = ("train", "train_emo")  # what RunSpec.data "emotional" and "pairs" train on
+DATA = ("neutral", "emotional", "pairs")
+QUICK_CLIPS = {"train": 16, TEST_SPLIT: 4, "train_emo": 16, "test_emo_a": 4}  # --quick: the first clips of each split
 # (key, column header, digits) of the Markdown tables, in order.
 METRICS = (
     ("lve_published", "LVE_pub (mm²) ↓", 2),
@@ -92,6 +107,12 @@ METRICS = (
     ("open_vowel_max_mm", "max lip dist. at open vowels (mm, →GT)", 2),
     ("lip_distance_corr", "lip-distance corr. ↑", 3),
 )
+# the emotional tables' extra columns (``emotion_metrics`` module docstring has the definitions)
+EMOTION_METRICS = (
+    ("emotion_accuracy", "emotion acc. ↑", 3),
+    ("brow_raise_error_mm", "brow-raise error (mm) ↓", 2),
+    ("smile_error_mm", "smile error (mm) ↓", 2),
+)
 LIP_SYNC_KEYS = ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "open_vowel_max_mm",
                  "lip_distance_corr", "lip_motion_ratio", "bilabial_closure_2mm_gt", "bilabial_closure_1mm_gt",
                  "bilabial_min_mm_gt", "open_vowel_max_mm_gt")
@@ -100,7 +121,19 @@ TITLES = {
     "ablation": "Table IV analogue: ablations of DualTalker on test-A",
     "sweep": "CCRL sweep: weight λ4 and kernel bandwidth σ on test-A",
     "corrtalk": "Table III analogue (CorrTalk): ablations of CorrTalk on test-A",
+    "emotion": "Table 2/3 analogue (EmoFace): comparison on the emotional test split test_emo_a",
+    "emoface": "EmoFace ablations (Mesh Attention, SpiralConv3D, self-growing, cross-reconstruction) on test_emo_a",
 }
+
+
+def table_split(table: str) -> str:
+    """The test split a table is evaluated on (``TABLE_SPLITS``, else ``TEST_SPLIT``)."""
+    return TABLE_SPLITS.get(table, TEST_SPLIT)
+
+
+def table_metrics(table: str) -> tuple:
+    """The (key, header, digits) columns of ``table``: ``METRICS``, plus ``EMOTION_METRICS`` on emotional splits."""
+    return METRICS + EMOTION_METRICS if table in TABLE_SPLITS else METRICS
 
 
 # ------------------------------------------------------------------------------------------- configurations
@@ -114,18 +147,37 @@ class RunSpec:
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
     features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
+    data: str = "neutral"                               # training clips: "neutral" (train) | "emotional" (train +
+                                                        # train_emo) | "pairs" (the same, each with its pseudo-pair
+                                                        # partner: data.pairs.PairDataset, for cross-reconstruction)
     note: str = ""                                      # fixed part of the Markdown note column
     reference: bool = False                             # the row every other row of the table is compared with
     expect: str = ""                                    # the paper's claim vs the reference: "worse" | "better" | ""
 
-    def key(self) -> str:
-        """Identity of the computation (everything but the label and the notes): equal keys = equal runs."""
-        return json.dumps({"model": self.model, "model_overrides": self.model_overrides, "loss": self.loss,
-                           "features": self.features}, sort_keys=True)
+    def __post_init__(self):
+        if self.data not in DATA:
+            raise ValueError(f"RunSpec {self.row!r}: data must be one of {DATA}, got {self.data!r}")
+        if self.data == "pairs" and self.features != "logmel":
+            raise ValueError(f"RunSpec {self.row!r}: data 'pairs' needs features 'logmel' (the partner's audio is "
+                             f"log-mel), got {self.features!r}")
+
+    def key(self, test_split: str = TEST_SPLIT) -> str:
+        """Identity of the computation (everything but the label and the notes): equal keys = equal runs.
+        Fields at their defaults (``data`` "neutral", the test split ``TEST_SPLIT``) are left out, so the keys of
+        rows written before those fields existed are unchanged and their committed results stay reusable."""
+        ident = {"model": self.model, "model_overrides": self.model_overrides, "loss": self.loss,
+                 "features": self.features}
+        if self.data != "neutral":
+            ident["data"] = self.data
+        if test_split != TEST_SPLIT:
+            ident["test_split"] = test_split
+        return json.dumps(ident, sort_keys=True)
 
 
 PRIMAL_ONLY = {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}  # baselines: the reconstruction loss alone
 CORRTALK_NOTE = "rec. + velocity loss (eqs. 9-11, λ=1, 1), FAI-initialised mask, 4 levels"
+EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9, δ=3), self-growing (θ=0.2 N), "
+                "cross-reconstruction on pseudo-pairs; emotion type recognised from the speech, level given")
 
 
 def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
@@ -184,6 +236,29 @@ def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
                                 loss={"lambda4": 0.1, "bandwidth": sigma},
                                 note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
         return rows
+    if table == "emotion":
+        emo = dict(data="emotional")  # every row trains on the same clips: train + train_emo
+        return [
+            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
+                    "input (the emotion must come from the audio)", expect="worse"),
+            RunSpec("DualTalker", **full, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input", expect="worse"),
+            RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input", expect="worse"),
+            RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
+        ]
+    if table == "emoface":
+        ef = dict(model="emoface", data="pairs")
+        return [
+            RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
+            RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
+                    note="plain sum: the mean of the two branches (the map held at 0.5)", expect="worse"),
+            RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
+                    note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame)",
+                    expect="worse"),
+            RunSpec("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
+                    note="plain teacher forcing (ground-truth past motion at every epoch)", expect="worse"),
+            RunSpec("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
+                    note="same pair loader, no cross pass (λ_cross term 0)", expect="worse"),
+        ]
     raise ValueError(f"unknown table {table!r}; choose from {TABLES}")
 
 
@@ -248,8 +323,17 @@ COLLAPSE_MOTION_RATIO = 0.1       # lip motion ratio below this: the output bare
 COLLAPSE_AUDIO_SENSITIVITY = 0.1  # audio sensitivity below this: the output ignores the audio
 
 
-def swap_partners(sentence_ids: Sequence) -> list[int]:
-    """For each clip i, the next clip (cyclically) that speaks a different sentence (else simply the next one)."""
+def swap_partners(sentence_ids: Sequence, source_ids: Sequence | None = None) -> list[int]:
+    """For each clip i, the next clip (cyclically) that speaks a different sentence (else simply the next one).
+
+    ``source_ids``: take the partners from another set of clips instead (e.g. test-A for ``test_emo_a``, whose clips
+    all read one sentence): for clip i, the first source clip from index i (cyclically) with a different sentence."""
+    if source_ids is not None:
+        m = len(source_ids)
+        if not m:
+            raise ValueError("swap_partners: the source set is empty")
+        return [next((j % m for j in range(i, i + m) if source_ids[j % m] != s), i % m)
+                for i, s in enumerate(sentence_ids)]
     n = len(sentence_ids)
     out = []
     for i in range(n):
@@ -260,19 +344,21 @@ def swap_partners(sentence_ids: Sequence) -> list[int]:
 
 class AudioSwapped(Dataset):
     """Every clip keeps its template, speaker and ground truth but gets the audio features of clip
-    ``partners[i]`` (tiled or cropped to its own length): the input of the audio-independence check."""
+    ``partners[i]`` (tiled or cropped to its own length): the input of the audio-independence check. ``source``: the
+    dataset the partners index (default ``base`` itself)."""
 
-    def __init__(self, base: Dataset, partners: Sequence[int]):
+    def __init__(self, base: Dataset, partners: Sequence[int], source: Dataset | None = None):
         if len(partners) != len(base):
             raise ValueError(f"AudioSwapped: {len(partners)} partners for {len(base)} clips")
         self.base, self.partners = base, list(partners)
+        self.source = base if source is None else source
 
     def __len__(self) -> int:
         return len(self.base)
 
     def __getitem__(self, index: int) -> dict:
         item = dict(self.base[index])
-        other = self.base[self.partners[index]]["audio"]              # (T_j, D_a)
+        other = self.source[self.partners[index]]["audio"]            # (T_j, D_a)
         T = item["audio"].shape[0]
         item["audio"] = other.repeat(-(-T // other.shape[0]), 1)[:T]  # (T, D_a)
         return item
@@ -337,7 +423,8 @@ def _trimmed(corpus, counts: dict):
 
 
 def load_data(corpus_path: str | Path | None = None, quick: bool = False) -> dict:
-    """Corpus, train and test-A datasets (log-mel), regions, sizes; cached per process."""
+    """Corpus, train and test-A datasets (log-mel), regions, sizes; cached per process. Other splits:
+    :func:`data_split` (loaded on first use, cached in the same dict)."""
     from .data import sample_path
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset
@@ -348,10 +435,33 @@ def load_data(corpus_path: str | Path | None = None, quick: bool = False) -> dic
         corpus = Corpus(path)
         view = _trimmed(corpus, QUICK_CLIPS) if quick else corpus
         train_set, test_set = TalkingFaceDataset(view, "train"), TalkingFaceDataset(view, TEST_SPLIT)
-        _DATA[key] = {"corpus": corpus, "path": path, "train": train_set, "test": test_set,
+        _DATA[key] = {"corpus": corpus, "view": view, "path": path, "train": train_set, "test": test_set,
+                      "splits": {"train": train_set, TEST_SPLIT: test_set},
                       "n_vertices": int(train_set[0]["template"].numel() // 3),
                       "n_speakers": len(corpus.train_speakers), "n_phonemes": len(corpus.phoneme_inventory)}
     return _DATA[key]
+
+
+def data_split(data: dict, split: str) -> Dataset:
+    """The log-mel dataset of ``split`` (of the --quick view when ``data`` is quick), cached in ``data``."""
+    from .data.dataset import TalkingFaceDataset
+
+    if split not in data["splits"]:
+        data["splits"][split] = TalkingFaceDataset(data["view"], split, data["train"].extractor)
+    return data["splits"][split]
+
+
+def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
+    """The clips a row trains on (``spec.data``) -> (dataset, whether it needs the pair loader)."""
+    from torch.utils.data import ConcatDataset
+
+    if spec.data == "neutral":
+        return data["train"], False
+    if spec.data == "emotional":
+        return ConcatDataset([data_split(data, s) for s in EMOTIONAL_TRAIN]), False
+    from .data.pairs import PairDataset
+
+    return PairDataset(data["view"], EMOTIONAL_TRAIN, extractor=data["train"].extractor, seed=seed), True
 
 
 def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset, int]:
@@ -433,14 +543,43 @@ def split_metrics(out: dict, regions: dict, segments: list | None = None) -> dic
     return res
 
 
+def emotion_split_metrics(model: torch.nn.Module, dataset: Dataset, out: dict, emotions: Sequence[str],
+                          regions: dict) -> tuple[dict, dict]:
+    """The emotional tables' metrics (``emotion_metrics``) -> (scalars for the run's metrics, per-emotion detail).
+
+    ``emotions``: the names of the emotion indices (``corpus.emotions``). Brow-raise and smile errors for every model;
+    ``emotion_accuracy`` only for models with a classifier (``model.emotion_logits(audio, mask) -> (B, N_e)``)."""
+    from .data.dataset import make_loader
+    from .emotion_metrics import emotion_accuracy, emotion_expression_metrics
+
+    labels = [int(dataset[i]["emotion"]) for i in range(len(dataset))]
+    expr = emotion_expression_metrics(out["preds"], out["gts"], out["templates"], [emotions[i] for i in labels],
+                                      regions)
+    res = {k: expr[k] for k in ("brow_raise_error_mm", "smile_error_mm")}
+    classify = getattr(model, "emotion_logits", None)
+    if callable(classify):
+        model.eval()
+        with torch.no_grad():
+            guess = [classify(b["audio"], b["mask"]).argmax(-1) for b in make_loader(dataset, 16, shuffle=False)]
+        res["emotion_accuracy"] = emotion_accuracy(torch.cat(guess).numpy(), labels)
+    return res, expr["per_emotion"]
+
+
 def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,
-            checkpoint: str | Path | None = None, time_budget_s: float | None = None) -> dict:
-    """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on test-A -> a result dict.
+            checkpoint: str | Path | None = None, time_budget_s: float | None = None,
+            test_split: str = TEST_SPLIT) -> dict:
+    """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on ``test_split`` -> a result.
+
+    The training clips come from ``spec.data`` (:func:`training_set`; "pairs" uses ``data.pairs.make_pair_loader``,
+    so EmoFace's cross-reconstruction happens). On a split with more than one emotion the emotional metrics are
+    added (:func:`emotion_split_metrics`). The collapse check swaps in the audio of another sentence; on a split
+    whose clips all read one sentence (``test_emo_a``) that audio comes from ``TEST_SPLIT``.
 
     ``checkpoint``: also save the trained model there. ``time_budget_s`` (the demo only; the tables never use it):
     stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
     """
     from .data.dataset import make_loader
+    from .data.pairs import make_pair_loader
     from .train import TrainConfig, loss_weights, save_checkpoint, train
     from .utils import set_seed
 
@@ -448,8 +587,9 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
     threads = torch.get_num_threads()
     try:
         data = load_data(corpus_path, quick)
-        train_set, audio_dim = _features(data["train"], spec.features, data["n_phonemes"])
-        test_set, _ = _features(data["test"], spec.features, data["n_phonemes"])
+        base_train, paired = training_set(data, spec, seed)
+        train_set, audio_dim = _features(base_train, spec.features, data["n_phonemes"])
+        test_set, _ = _features(data_split(data, test_split), spec.features, data["n_phonemes"])
         set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
         model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"],
                                        faces=data["corpus"].faces)
@@ -458,7 +598,9 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         t0 = time.perf_counter()
         history = None
         if any(p.requires_grad for p in model.parameters()):
-            history = train(model, make_loader(train_set, train_cfg.batch_size, shuffle=True, seed=seed), train_cfg)
+            loader = (make_pair_loader if paired else make_loader)(train_set, train_cfg.batch_size, shuffle=True,
+                                                                   seed=seed)
+            history = train(model, loader, train_cfg)
         train_seconds = time.perf_counter() - t0
         if checkpoint is not None and model_cfg is not None:
             from .checkpoints import extractor_settings
@@ -470,21 +612,37 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         out = predict_split(model, test_set)
         corpus = data["corpus"]
         metrics = split_metrics(out, corpus.regions, [corpus.meta(n)["phonemes"] for n in out["names"]])
+        per_emotion = None
+        if len({corpus.meta(n).get("emotion", "neutral") for n in out["names"]}) > 1:
+            extra, per_emotion = emotion_split_metrics(model, test_set, out, corpus.emotions, corpus.regions)
+            metrics.update(extra)
         reasons, metrics["audio_sensitivity"] = [], 0.0  # the static template ignores the audio by design
         if spec.model != "template":  # collapse check: the same faces driven by another sentence's audio
-            partners = swap_partners([corpus.meta(n).get("sentence_id", n) for n in out["names"]])
-            swapped = predict_split(model, AudioSwapped(test_set, partners))
+            sentences = [corpus.meta(n).get("sentence_id", n) for n in out["names"]]
+            source = None
+            if len(set(sentences)) == 1 and test_split != TEST_SPLIT:  # one sentence: borrow test-A's audio
+                source, _ = _features(data["test"], spec.features, data["n_phonemes"])
+            ids = None if source is None else [corpus.meta(source[i]["name"]).get("sentence_id")
+                                               for i in range(len(source))]
+            partners = swap_partners(sentences, ids)
+            swapped = predict_split(model, AudioSwapped(test_set, partners, source))
             metrics["audio_sensitivity"] = audio_sensitivity(out["preds"], swapped["preds"], out["gts"],
                                                              corpus.regions["lips"])
             reasons = collapse_reasons(metrics)
-        return {"row": spec.row, "key": spec.key(), "seed": seed, "epochs": len(history.terms) if history else 0,
-                "metrics": metrics, "collapsed": bool(reasons), "collapse_reasons": reasons,
-                "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
-                "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
-                "model_config": asdict(model_cfg) if model_cfg is not None else None,
-                "train_config": {k: v for k, v in asdict(train_cfg).items()},
-                "loss_history": history.terms if history else [],
-                "test_clips": out["names"], "n_train_clips": len(train_set), "pid": os.getpid()}
+        result = {"row": spec.row, "key": spec.key(test_split), "seed": seed,
+                  "epochs": len(history.terms) if history else 0,
+                  "metrics": metrics, "collapsed": bool(reasons), "collapse_reasons": reasons,
+                  "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
+                  "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
+                  "model_config": asdict(model_cfg) if model_cfg is not None else None,
+                  "train_config": {k: v for k, v in asdict(train_cfg).items()},
+                  "loss_history": history.terms if history else [],
+                  "test_clips": out["names"], "n_train_clips": len(train_set), "pid": os.getpid()}
+        if test_split != TEST_SPLIT:
+            result["test_split"] = test_split
+        if per_emotion is not None:
+            result["emotion_expression"] = per_emotion
+        return result
     finally:
         torch.set_num_threads(threads)
 
@@ -500,21 +658,22 @@ def _worker_init(parent_pid: int | None = None) -> None:
 
 
 def _job(args: tuple) -> tuple[int, dict]:
-    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget = args
-    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget)
+    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split = args
+    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split)
 
 
-def run_specs(jobs: list[tuple[RunSpec, int]], epochs: int, processes: int = 1, corpus_path: str | None = None,
+def run_specs(jobs: list[tuple], epochs: int, processes: int = 1, corpus_path: str | None = None,
               quick: bool = False, checkpoints: list | None = None, progress: bool = True,
               time_budget_s: float | None = None) -> list[dict]:
-    """Run (spec, seed) jobs, in this process (``processes=1``) or in a spawn pool; results in job order.
+    """Run (spec, seed) or (spec, seed, test split) jobs, in this process (``processes=1``) or in a spawn pool;
+    results in job order.
 
     ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``."""
     from tqdm.auto import tqdm
 
     checkpoints = checkpoints or [None] * len(jobs)
-    args = [(i, asdict(spec), seed, epochs, corpus_path, quick, ckpt, time_budget_s)
-            for i, ((spec, seed), ckpt) in enumerate(zip(jobs, checkpoints))]
+    args = [(i, asdict(job[0]), job[1], epochs, corpus_path, quick, ckpt, time_budget_s,
+             job[2] if len(job) > 2 else TEST_SPLIT) for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
     results: list = [None] * len(jobs)
     bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)
     if processes <= 1:
@@ -550,6 +709,7 @@ def summarize(runs: list[dict]) -> dict:
     are over all of them and ``out["all_collapsed"]`` is True (the table says so)."""
     keys = [k for k, _, _ in METRICS] + ["lve_euclidean", "eve_euclidean", "audio_sensitivity",
                                          "bilabial_closure_2mm_gt", "bilabial_min_mm_gt", "open_vowel_max_mm_gt"]
+    keys += [k for k, _, _ in EMOTION_METRICS if any(k in r["metrics"] for r in runs)]  # emotional splits only
     bad = [r for r in runs if is_collapsed(r)]
     kept = [r for r in runs if not is_collapsed(r)] or runs
     out = {"collapsed": [r["seed"] for r in bad], "n_runs": len(runs),
@@ -612,7 +772,9 @@ def write_table(table: str, specs: list[RunSpec], runs: list[dict], meta: dict, 
                                 "smoothing_lips": "ratio", "smoothing_upper": "ratio", "train_seconds": "s",
                                 "bilabial_closure_2mm": "fraction", "bilabial_closure_1mm": "fraction",
                                 "bilabial_min_mm": "mm", "open_vowel_max_mm": "mm", "lip_distance_corr": "r",
-                                "lip_motion_ratio": "ratio", "audio_sensitivity": "ratio"},
+                                "lip_motion_ratio": "ratio", "audio_sensitivity": "ratio",
+                                **({"emotion_accuracy": "fraction", "brow_raise_error_mm": "mm",
+                                    "smile_error_mm": "mm"} if table in TABLE_SPLITS else {})},
                "definitions": DEFINITIONS}
     json_path = out / f"{table}.json"
     json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
@@ -635,17 +797,17 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
     summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
     ref = next((s for s in specs if s.reference), None)
     params = {s.row: next(r["n_parameters"] for r in runs if r["row"] == s.row) for s in specs}
-    seeds = meta["seeds"]
+    seeds, columns, split = meta["seeds"], table_metrics(table), meta.get("test_split", TEST_SPLIT)
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
     lines = [f"# {TITLES[table]}", "",
              f"Command: `{meta['command']}`", "",
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
-             f"{TEST_SPLIT} clips: {meta['n_test_clips']}{quick}; "
+             f"{split} clips: {meta['n_test_clips']}{quick}; "
              f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
              f"commit {meta['git']}; {meta['created']}.", "",
-             "| model | " + " | ".join(h for _, h, _ in METRICS) + " | collapsed | train (s) | params | note |",
-             "|---" * (len(METRICS) + 5) + "|"]
+             "| model | " + " | ".join(h for _, h, _ in columns) + " | collapsed | train (s) | params | note |",
+             "|---" * (len(columns) + 5) + "|"]
     for s in specs:
         sm = summary[s.row]
         note = s.note
@@ -655,12 +817,12 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
         collapsed = _collapse_note(s, runs, sm)
         if collapsed:
             note = f"{collapsed}; {note}" if note else collapsed
-        cells = [_fmt(sm[k], d) for k, _, d in METRICS]
+        cells = [_fmt(sm.get(k, {"mean": math.nan}), d) for k, _, d in columns]
         flag = "n/a" if s.model == "template" else f"{len(sm['collapsed'])}/{sm['n_runs']}"
         cells += [f"**{flag}**" if sm["collapsed"] else flag, f"{sm['train_seconds']['mean']:.0f}",
                   f"{params[s.row]:,}", note]
         lines.append(f"| {s.row} | " + " | ".join(cells) + " |")
-    lines += ["", *(f"- {d}" for d in DEFINITIONS), ""]
+    lines += ["", *(f"- {d}" for d in DEFINITIONS + (EMOTION_DEFINITIONS if table in TABLE_SPLITS else ())), ""]
     return "\n".join(lines)
 
 
@@ -695,6 +857,20 @@ DEFINITIONS = (
     "a 2-standard-error rule over seeds (\"within seed noise\" = no measurable effect), and \"not reproduced\" "
     "when that contradicts the paper's claim for the row (Table I: DualTalker beats the baselines; Table IV: "
     "every ablated component helps).",
+)
+
+
+EMOTION_DEFINITIONS = (
+    "Emotional tables: every row trains on the same clips, `train` + `train_emo` (176 neutral + 384 emotional on the "
+    "shipped corpus; EmoFace's rows draw each clip's pseudo-pair partner for cross-reconstruction), and is evaluated "
+    "on `test_emo_a` (seen speakers, an unseen sentence, 4 emotions × 2 levels). The collapse check swaps in test-A "
+    "audio (all `test_emo_a` clips read one sentence). EmoFace gets the clip's emotion level (an input of the "
+    "paper's model); the emotion type is recognised from the speech by its classifier.",
+    "emotion acc.: fraction of test clips whose emotion the model's classifier (EmoFace eq. 10, from the speech alone) "
+    "names correctly; — for models without one. brow-raise / smile error: per clip, the mean vertical displacement "
+    "of the brow vertices and the mean change of the mouth-corner distance from the template (mm), averaged per "
+    "emotion for the prediction and the ground truth; the error is the mean over emotions of |pred − GT| "
+    "(`emotion_metrics`): does the face show the right emotion, whatever the timing.",
 )
 
 
@@ -781,14 +957,14 @@ def main(argv: Sequence[str] | None = None) -> dict:
     data = load_data(args.corpus, args.quick)
     bandwidth = typical_bandwidth(data["train"]) if "sweep" in tables else None
     specs = {t: table_specs(t, bandwidth) for t in tables}
-    unique: dict[tuple, tuple[RunSpec, int]] = {}
+    unique: dict[tuple, tuple[RunSpec, int, str]] = {}
     for t in tables:
         for s in specs[t]:
             for seed in seeds:
-                unique.setdefault((s.key(), seed), (s, seed))
+                unique.setdefault((s.key(table_split(t)), seed), (s, seed, table_split(t)))
     old, reused = reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick) if args.reuse else ({}, [])
     taken = {k: old[k] for k in unique if k in old}
-    cost = {"template": 0, "voca": 1, "corrtalk": 4}  # longest jobs first: the pool finishes together
+    cost = {"template": 0, "voca": 1, "corrtalk": 4, "emoface": 5}  # longest jobs first: the pool finishes together
     jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
     print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused ({', '.join(tables)}; seeds {seeds}; "
           f"{epochs} epochs; {args.processes} process(es))", flush=True)
@@ -796,14 +972,17 @@ def main(argv: Sequence[str] | None = None) -> dict:
     by_key = {**taken, **{(r["key"], r["seed"]): r for r in results}}
     meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
             "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
-            "corpus": _display_path(data["path"]), "test_split": TEST_SPLIT, "n_train_clips": len(data["train"]),
-            "n_test_clips": len(data["test"]), "typical_bandwidth_m": bandwidth, "git": _git(),
+            "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": _git(),
             "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
             "torch_threads_per_process": 1, "reused_from": reused, "n_runs_reused": len(taken)}
     written = {}
     for t in tables:
-        runs = [{**by_key[(s.key(), seed)], "row": s.row} for s in specs[t] for seed in seeds]
-        written[t] = write_table(t, specs[t], runs, meta, Path(args.out))
+        split = table_split(t)
+        runs = [{**by_key[(s.key(split), seed)], "row": s.row} for s in specs[t] for seed in seeds]
+        n_train = sorted({r.get("n_train_clips", 0) for r in runs})
+        table_meta = {**meta, "test_split": split, "n_test_clips": len(data_split(data, split)),
+                      "n_train_clips": n_train[0] if len(n_train) == 1 else n_train}
+        written[t] = write_table(t, specs[t], runs, table_meta, Path(args.out))
         print(Path(written[t][1]).read_text(), flush=True)
     return written
 

@@ -206,7 +206,10 @@ def predict(model: torch.nn.Module, batch: dict, use_cache: bool = True) -> torc
     device = next(model.parameters(), torch.empty(0)).device
     batch = _to_device(batch, device)
     speaker = batch["speaker"].clamp(min=0)  # unseen speakers (-1) are conditioned on training speaker 0
-    return model.generate(batch["audio"], batch["template"], speaker, use_cache=use_cache, mask=batch.get("mask"))
+    # extra conditions a model takes from the batch (EmoFace: the emotion level), named by the model itself
+    conditions = {k: batch[k] for k in getattr(model, "generation_conditions", ()) if k in batch}
+    return model.generate(batch["audio"], batch["template"], speaker, use_cache=use_cache, mask=batch.get("mask"),
+                          **conditions)
 
 
 @torch.no_grad()

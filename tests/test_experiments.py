@@ -324,3 +324,18 @@ def test_markdown_names_the_stored_corpus_whatever_the_working_directory(quick_t
     monkeypatch.chdir(Path(ex.__file__).resolve().parents[1] / "notebooks")
     md = ex.table_markdown("main", specs, runs, payload)
     assert "Corpus `data_samples`" in md and "notebooks/data_samples" not in md
+
+
+def test_emotional_tables_columns(quick_tables):
+    """The emotional tables are evaluated on test_emo_a and add the emotion columns; only EmoFace has a classifier."""
+    data = json.loads((quick_tables / "emotion.json").read_text())
+    md = (quick_tables / "emotion.md").read_text()
+    assert data["test_split"] == "test_emo_a" and "test_emo_a clips: 4" in md
+    assert "| emotion acc. ↑ | brow-raise error (mm) ↓ | smile error (mm) ↓ |" in md
+    runs = {r["row"]: r for r in data["runs"]}
+    assert set(runs["EmoFace"]["metrics"]) >= {"emotion_accuracy", "brow_raise_error_mm", "smile_error_mm"}
+    dualtalker = runs["DualTalker"]["metrics"]
+    assert "emotion_accuracy" not in dualtalker and "brow_raise_error_mm" in dualtalker
+    assert all(r["test_split"] == "test_emo_a" and r["n_train_clips"] == 32 for r in data["runs"])  # 16 + 16 (quick)
+    assert all(c.startswith("SPK01_s02-") for r in data["runs"] for c in r["test_clips"])
+    assert "emotion acc." not in (quick_tables / "main.md").read_text()

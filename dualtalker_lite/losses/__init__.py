@@ -2,8 +2,11 @@
 ``from dualtalker_lite.losses import joint_loss`` keeps working), ``common`` (masked reductions shared by all).
 CorrTalk's and EmoFace's losses sit beside them in their own modules."""
 from .common import masked_mean
+from .corrtalk import CorrTalkWeights
 from .dualtalker import (READINGS, LossWeights, ccrl_anchor_losses, ccrl_loss, dual_loss, duality_loss, joint_loss,
                          primal_loss, rbf_kernel_weights)
+from .emoface import EmoFaceWeights, emoface_loss
 
 __all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights", "READINGS",
-           "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss"]
+           "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss", "CorrTalkWeights", "EmoFaceWeights",
+           "emoface_loss"]

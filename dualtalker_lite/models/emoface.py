@@ -165,6 +165,9 @@ class EmoFace(nn.Module):
     """Emotion and content branches, emotion classifier, level/type/style conditions and the offset fusion (Fig. 1)."""
 
     loss_weights_cls = EmoFaceWeights
+    # batch keys that ``train.predict`` passes to :meth:`generate` as keywords: the level is an input of the paper's
+    # model (speech, level, style, template); the emotion type is recognised from the speech (emotion=None)
+    generation_conditions = ("level",)
 
     def __init__(self, cfg: EmoFaceConfig, faces=None, vertices=None):
         """``faces`` (F, 3) of the mesh (and optionally a template's ``vertices`` (V, 3), for label-free spirals) are
@@ -271,7 +274,9 @@ class EmoFace(nn.Module):
             alpha = oe.new_full((oe.shape[0], oe.shape[1], self.cfg.n_vertices), 0.5)
             return 0.5 * (oe + oc), alpha
         spirals = self.mesh_attention.convs[0].spirals
-        if bool((spirals == torch.arange(spirals.shape[0], device=spirals.device)[:, None]).all()):
+        # (length-1 spirals, the "w/o SpiralConv3D" ablation, are the centre alone: the placeholder is the real thing)
+        centre = torch.arange(spirals.shape[0], device=spirals.device)[:, None]  # (V, 1)
+        if spirals.shape[1] > 1 and bool((spirals == centre).all()):
             raise ValueError("EmoFace: Mesh Attention has no spirals yet; build it with EmoFace(cfg, faces=...) "
                              "or load a checkpoint (fusion='sum' needs no mesh)")
         return self.mesh_attention(fe, fc, oe, oc)
@@ -351,6 +356,13 @@ class EmoFace(nn.Module):
         self.content_decoder.init_output_bias(mean_motion)
 
     # ---- inference ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def emotion_logits(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
+        """Eq. 10's classifier on the speech alone: A (B, T, D_a) -> logits (B, N_e) (the runner's accuracy)."""
+        if mask is not None:
+            audio = audio.masked_fill(~mask[..., None], 0.0)
+        return self.classify(self.encode(audio, mask)[1], mask)
+
     def _conditions(self, audio: Tensor, mask: Tensor | None, emotion, level) -> tuple[Tensor, Tensor]:
         """Encode and condition for generation: emotion None -> classifier probabilities; int/(B,) -> one-hot."""
         b = audio.shape[0]
