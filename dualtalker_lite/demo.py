@@ -73,7 +73,7 @@ def metrics_markdown(results: dict, command: str, epochs: dict, n_test: int) -> 
         cells = [f"{r['metrics'][k]:.{d}f}" for k, _, d in METRICS]
         cells += [str(epochs[label]), f"{r['train_seconds']:.0f}", f"{r['n_parameters']:,}"]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", "Units and definitions: see `dualtalker_lite/experiments.py` (LVE_pub and FDD_pub are squared "
+    lines += ["", "Units and definitions: see `dualtalker_lite/experiments/` (LVE_pub and FDD_pub are squared "
               "lengths, mm²; FDD is signed, ground truth minus prediction; motion ratio < 1 = over-smoothed).", ""]
     return "\n".join(lines)
 

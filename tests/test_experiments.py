@@ -147,7 +147,7 @@ def test_reuse_takes_over_matching_runs_and_computes_none(quick_tables, tmp_path
     def no_training(*a, **k):
         raise AssertionError("a reused run was recomputed")
 
-    monkeypatch.setattr(ex, "run_one", no_training)
+    monkeypatch.setattr(ex.runner, "run_one", no_training)  # looked up by runner._job
     ex.main(["--table", "main", "--quick", "--out", str(tmp_path), "--no-progress",
              "--reuse", str(quick_tables / "main.json")])
     n = len(ex.table_specs("main"))  # one seed: one run per row
@@ -321,7 +321,7 @@ def test_markdown_names_the_stored_corpus_whatever_the_working_directory(quick_t
     """The table text quotes the corpus path stored in the JSON; rendering from notebooks/ must not re-resolve it."""
     specs, runs, payload = ex.load_table(quick_tables / "main.json")
     assert payload["corpus"] == "data_samples"
-    monkeypatch.chdir(Path(ex.__file__).resolve().parents[1] / "notebooks")
+    monkeypatch.chdir(Path(ex.__file__).resolve().parents[2] / "notebooks")
     md = ex.table_markdown("main", specs, runs, payload)
     assert "Corpus `data_samples`" in md and "notebooks/data_samples" not in md
 

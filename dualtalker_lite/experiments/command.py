@@ -1,0 +1,133 @@
+"""Command line of the experiment runner (``python -m dualtalker_lite.experiments``): arguments, reuse of runs of
+earlier tables, provenance (git commit, corpus as a repository-relative path) and :func:`main`.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import torch
+
+from .evaluation import typical_bandwidth
+from .report import write_table
+from .runner import data_split, load_data, run_specs
+from .specs import TABLES, RunSpec, table_specs, table_split
+
+# ------------------------------------------------------------------------------------------- command line
+def _git() -> str:
+    from ..utils import repo_root
+
+    try:
+        run = lambda *a: subprocess.run(["git", "-C", str(repo_root()), *a], capture_output=True,  # noqa: E731
+                                        text=True, timeout=10).stdout.strip()
+        head = run("rev-parse", "--short", "HEAD")
+        return f"{head}{'+dirty' if run('status', '--porcelain', '--untracked-files=no') else ''}" or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _display_path(path: str | Path) -> str:
+    """The corpus folder as written into results: relative to the repository (or the working directory) when
+    inside it, else its name only, so committed tables carry no machine-specific paths."""
+    from ..utils import repo_root
+
+    path = Path(path).resolve()
+    for base in (repo_root(), Path.cwd()):
+        try:
+            return path.relative_to(Path(base).resolve()).as_posix() or "."
+        except ValueError:
+            continue
+    return path.name
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m dualtalker_lite.experiments",
+                                description=sys.modules[__package__].__doc__.split("\n")[0])
+    p.add_argument("--table", nargs="+", default=["main"], choices=[*TABLES, "all"],
+                   help="one or more tables (identical runs shared between them), or 'all'")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    p.add_argument("--epochs", type=int, default=None,
+                   help="fixed training budget of every trained model (default: the recipe's, TrainConfig.tiny())")
+    p.add_argument("--processes", type=int, default=1, help="worker processes, one torch thread each")
+    p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
+    p.add_argument("--quick", action="store_true", help="smoke test: 1 epoch, first seed only, few clips")
+    p.add_argument("--reuse", nargs="+", type=Path, default=[], metavar="TABLE_JSON",
+                   help="tables written earlier (e.g. results/main.json): their runs with the same row computation, "
+                        "seed, epochs and corpus are taken over instead of recomputed (their git commit is recorded)")
+    p.add_argument("--no-progress", action="store_true")
+    return p.parse_args(argv)
+
+
+def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False
+                  ) -> tuple[dict, list[dict]]:
+    """Runs of earlier tables that a new invocation may take over: {(key, seed): run}, plus one provenance entry
+    per table (file name, git commit, runs taken). Only tables with the same epoch budget, the same corpus and
+    the same ``--quick`` setting qualify; a table that does not is refused with one line naming it and the mismatch."""
+    found: dict = {}
+    provenance = []
+    for path in paths:
+        path = Path(path)
+        try:
+            payload = json.loads(path.read_text())
+            runs = payload["runs"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ValueError(f"{path}: not a table written by this runner ({type(e).__name__}: {e})") from None
+        for field_, want in (("epochs", epochs), ("corpus", corpus), ("quick", quick)):
+            if payload.get(field_) != want:
+                raise ValueError(f"{path}: cannot reuse its runs: {field_} is {payload.get(field_)!r}, "
+                                 f"this invocation has {want!r}")
+        for run in runs:
+            found.setdefault((run["key"], run["seed"]), run)
+        provenance.append({"table": path.name, "git": payload.get("git", ""), "n_runs": len(runs)})
+    return found, provenance
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Run the requested tables and write them; returns {table: (json path, md path)}."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parse_args(argv)
+    tables = list(TABLES) if "all" in args.table else list(dict.fromkeys(args.table))
+    if args.epochs is None:
+        from ..train import TrainConfig
+
+        args.epochs = TrainConfig.tiny().epochs
+    epochs, seeds = (1, args.seeds[:1]) if args.quick else (args.epochs, args.seeds)
+    torch.set_num_threads(1)
+    data = load_data(args.corpus, args.quick)
+    bandwidth = typical_bandwidth(data["train"]) if "sweep" in tables else None
+    specs = {t: table_specs(t, bandwidth) for t in tables}
+    unique: dict[tuple, tuple[RunSpec, int, str]] = {}
+    for t in tables:
+        for s in specs[t]:
+            for seed in seeds:
+                unique.setdefault((s.key(table_split(t)), seed), (s, seed, table_split(t)))
+    old, reused = reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick) if args.reuse else ({}, [])
+    taken = {k: old[k] for k in unique if k in old}
+    cost = {"template": 0, "voca": 1, "corrtalk": 4, "emoface": 5}  # longest jobs first: the pool finishes together
+    jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
+    print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused ({', '.join(tables)}; seeds {seeds}; "
+          f"{epochs} epochs; {args.processes} process(es))", flush=True)
+    results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, progress=not args.no_progress)
+    by_key = {**taken, **{(r["key"], r["seed"]): r for r in results}}
+    meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
+            "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
+            "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": _git(),
+            "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
+            "torch_threads_per_process": 1, "reused_from": reused, "n_runs_reused": len(taken)}
+    written = {}
+    for t in tables:
+        split = table_split(t)
+        runs = [{**by_key[(s.key(split), seed)], "row": s.row} for s in specs[t] for seed in seeds]
+        n_train = sorted({r.get("n_train_clips", 0) for r in runs})
+        table_meta = {**meta, "test_split": split, "n_test_clips": len(data_split(data, split)),
+                      "n_train_clips": n_train[0] if len(n_train) == 1 else n_train}
+        written[t] = write_table(t, specs[t], runs, table_meta, Path(args.out))
+        print(Path(written[t][1]).read_text(), flush=True)
+    return written

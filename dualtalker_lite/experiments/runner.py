@@ -1,0 +1,252 @@
+"""Run machinery of the experiment runner: data (cached per process), training sets, features and models of a row,
+:func:`run_one` (train one row with one seed, evaluate, check for collapse) and :func:`run_specs` (jobs in this
+process or in a spawn pool of workers with one torch thread each; ``_job``/``_worker_init`` live here so that
+spawned workers import them by this module's path).
+"""
+from __future__ import annotations
+
+import copy
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict
+from multiprocessing import get_context
+from pathlib import Path
+
+import torch
+from torch.utils.data import Dataset
+
+from .evaluation import (AudioSwapped, PhonemeOneHot, audio_sensitivity, collapse_reasons, emotion_split_metrics,
+                         predict_split, split_metrics, swap_partners)
+from .specs import EMOTIONAL_TRAIN, QUICK_CLIPS, TEST_SPLIT, RunSpec
+
+# ------------------------------------------------------------------------------------------- data and models
+_DATA: dict = {}  # per process: (corpus path, quick) -> data dict (features are computed once per process)
+
+
+def _trimmed(corpus, counts: dict):
+    """A shallow view of ``corpus`` whose splits keep only their first ``counts[split]`` clips (--quick)."""
+    view = copy.copy(corpus)
+    splits = dict(corpus.metadata["splits"])
+    for split, n in counts.items():
+        splits[split] = list(splits[split])[:n]
+    view.metadata = {**corpus.metadata, "splits": splits}
+    return view
+
+
+def load_data(corpus_path: str | Path | None = None, quick: bool = False) -> dict:
+    """Corpus, train and test-A datasets (log-mel), regions, sizes; cached per process. Other splits:
+    :func:`data_split` (loaded on first use, cached in the same dict)."""
+    from ..data import sample_path
+    from ..data.corpus import Corpus
+    from ..data.dataset import TalkingFaceDataset
+
+    path = str(Path(corpus_path or sample_path()).resolve())
+    key = (path, quick)
+    if key not in _DATA:
+        corpus = Corpus(path)
+        view = _trimmed(corpus, QUICK_CLIPS) if quick else corpus
+        train_set, test_set = TalkingFaceDataset(view, "train"), TalkingFaceDataset(view, TEST_SPLIT)
+        _DATA[key] = {"corpus": corpus, "view": view, "path": path, "train": train_set, "test": test_set,
+                      "splits": {"train": train_set, TEST_SPLIT: test_set},
+                      "n_vertices": int(train_set[0]["template"].numel() // 3),
+                      "n_speakers": len(corpus.train_speakers), "n_phonemes": len(corpus.phoneme_inventory)}
+    return _DATA[key]
+
+
+def data_split(data: dict, split: str) -> Dataset:
+    """The log-mel dataset of ``split`` (of the --quick view when ``data`` is quick), cached in ``data``."""
+    from ..data.dataset import TalkingFaceDataset
+
+    if split not in data["splits"]:
+        data["splits"][split] = TalkingFaceDataset(data["view"], split, data["train"].extractor)
+    return data["splits"][split]
+
+
+def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
+    """The clips a row trains on (``spec.data``) -> (dataset, whether it needs the pair loader)."""
+    from torch.utils.data import ConcatDataset
+
+    if spec.data == "neutral":
+        return data["train"], False
+    if spec.data == "emotional":
+        return ConcatDataset([data_split(data, s) for s in EMOTIONAL_TRAIN]), False
+    from ..data.pairs import PairDataset
+
+    return PairDataset(data["view"], EMOTIONAL_TRAIN, extractor=data["train"].extractor, seed=seed), True
+
+
+def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset, int]:
+    if features == "logmel":
+        return dataset, int(dataset[0]["audio"].shape[-1])
+    if features == "phonemes":
+        return PhonemeOneHot(dataset, n_phonemes), n_phonemes
+    raise ValueError(f"unknown features {features!r}; expected 'logmel' or 'phonemes'")
+
+
+def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
+                vertices=None) -> tuple[torch.nn.Module, object]:
+    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template.
+    ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention)."""
+    from ..models.baselines import StaticTemplate, VocaConfig, VocaStyle
+    from ..models.corrtalk import CorrTalk, CorrTalkConfig
+    from ..models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+
+    sizes = dict(n_vertices=n_vertices, audio_dim=audio_dim, n_speakers=n_speakers)
+    if spec.model == "template":
+        return StaticTemplate(n_vertices), None
+    if spec.model == "voca":
+        cfg = VocaConfig.tiny(**sizes, **spec.model_overrides)
+        return VocaStyle(cfg), cfg
+    if spec.model == "faceformer":
+        cfg = faceformer_config(DualTalkerConfig.tiny(**sizes), **spec.model_overrides)
+        return DualTalker(cfg), cfg
+    if spec.model == "dualtalker":
+        cfg = DualTalkerConfig.tiny(**sizes, **spec.model_overrides)
+        return DualTalker(cfg), cfg
+    if spec.model == "corrtalk":
+        cfg = CorrTalkConfig.tiny(**sizes, **spec.model_overrides)
+        return CorrTalk(cfg), cfg
+    if spec.model == "emoface":
+        from ..models.emoface import EmoFace, EmoFaceConfig
+
+        cfg = EmoFaceConfig.tiny(**sizes, **spec.model_overrides)
+        return EmoFace(cfg, faces=faces, vertices=vertices), cfg
+    raise ValueError(f"unknown model {spec.model!r}")
+
+
+def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,
+            checkpoint: str | Path | None = None, time_budget_s: float | None = None,
+            test_split: str = TEST_SPLIT) -> dict:
+    """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on ``test_split`` -> a result.
+
+    The training clips come from ``spec.data`` (:func:`training_set`; "pairs" uses ``data.pairs.make_pair_loader``,
+    so EmoFace's cross-reconstruction happens). On a split with more than one emotion the emotional metrics are
+    added (:func:`emotion_split_metrics`). The collapse check swaps in the audio of another sentence; on a split
+    whose clips all read one sentence (``test_emo_a``) that audio comes from ``TEST_SPLIT``.
+
+    ``checkpoint``: also save the trained model there. ``time_budget_s`` (the demo only; the tables never use it):
+    stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
+    """
+    from ..data.dataset import make_loader
+    from ..data.pairs import make_pair_loader
+    from ..train import TrainConfig, loss_weights, save_checkpoint, train
+    from ..utils import set_seed
+
+    spec = RunSpec(**spec) if isinstance(spec, dict) else spec
+    threads = torch.get_num_threads()
+    try:
+        data = load_data(corpus_path, quick)
+        base_train, paired = training_set(data, spec, seed)
+        train_set, audio_dim = _features(base_train, spec.features, data["n_phonemes"])
+        test_set, _ = _features(data_split(data, test_split), spec.features, data["n_phonemes"])
+        set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
+        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"],
+                                       faces=data["corpus"].faces)
+        train_cfg = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, progress=False,
+                                     weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
+        t0 = time.perf_counter()
+        history = None
+        if any(p.requires_grad for p in model.parameters()):
+            loader = (make_pair_loader if paired else make_loader)(train_set, train_cfg.batch_size, shuffle=True,
+                                                                   seed=seed)
+            history = train(model, loader, train_cfg)
+        train_seconds = time.perf_counter() - t0
+        if checkpoint is not None and model_cfg is not None:
+            from ..checkpoints import extractor_settings
+
+            save_checkpoint(checkpoint, model, model_cfg, train_cfg, history, speakers=data["corpus"].train_speakers,
+                            faces=data["corpus"].faces, features=extractor_settings(
+                                data["train"].extractor if spec.features == "logmel" else None, name=spec.features))
+        t1 = time.perf_counter()
+        out = predict_split(model, test_set)
+        corpus = data["corpus"]
+        metrics = split_metrics(out, corpus.regions, [corpus.meta(n)["phonemes"] for n in out["names"]])
+        per_emotion = None
+        if len({corpus.meta(n).get("emotion", "neutral") for n in out["names"]}) > 1:
+            extra, per_emotion = emotion_split_metrics(model, test_set, out, corpus.emotions, corpus.regions)
+            metrics.update(extra)
+        reasons, metrics["audio_sensitivity"] = [], 0.0  # the static template ignores the audio by design
+        if spec.model != "template":  # collapse check: the same faces driven by another sentence's audio
+            sentences = [corpus.meta(n).get("sentence_id", n) for n in out["names"]]
+            source = None
+            if len(set(sentences)) == 1 and test_split != TEST_SPLIT:  # one sentence: borrow test-A's audio
+                source, _ = _features(data["test"], spec.features, data["n_phonemes"])
+            ids = None if source is None else [corpus.meta(source[i]["name"]).get("sentence_id")
+                                               for i in range(len(source))]
+            partners = swap_partners(sentences, ids)
+            swapped = predict_split(model, AudioSwapped(test_set, partners, source))
+            metrics["audio_sensitivity"] = audio_sensitivity(out["preds"], swapped["preds"], out["gts"],
+                                                             corpus.regions["lips"])
+            reasons = collapse_reasons(metrics)
+        result = {"row": spec.row, "key": spec.key(test_split), "seed": seed,
+                  "epochs": len(history.terms) if history else 0,
+                  "metrics": metrics, "collapsed": bool(reasons), "collapse_reasons": reasons,
+                  "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
+                  "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
+                  "model_config": asdict(model_cfg) if model_cfg is not None else None,
+                  "train_config": {k: v for k, v in asdict(train_cfg).items()},
+                  "loss_history": history.terms if history else [],
+                  "test_clips": out["names"], "n_train_clips": len(train_set), "pid": os.getpid()}
+        if test_split != TEST_SPLIT:
+            result["test_split"] = test_split
+        if per_emotion is not None:
+            result["emotion_expression"] = per_emotion
+        return result
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _worker_init(parent_pid: int | None = None) -> None:
+    import signal
+
+    from ..utils import watch_parent
+
+    torch.set_num_threads(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is handled once, by the parent (run_specs)
+    watch_parent(parent=parent_pid)  # exit when the parent dies instead of training on and hanging on the pipe
+
+
+def _job(args: tuple) -> tuple[int, dict]:
+    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split = args
+    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split)
+
+
+def run_specs(jobs: list[tuple], epochs: int, processes: int = 1, corpus_path: str | None = None,
+              quick: bool = False, checkpoints: list | None = None, progress: bool = True,
+              time_budget_s: float | None = None) -> list[dict]:
+    """Run (spec, seed) or (spec, seed, test split) jobs, in this process (``processes=1``) or in a spawn pool;
+    results in job order.
+
+    ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``."""
+    from tqdm.auto import tqdm
+
+    checkpoints = checkpoints or [None] * len(jobs)
+    args = [(i, asdict(job[0]), job[1], epochs, corpus_path, quick, ckpt, time_budget_s,
+             job[2] if len(job) > 2 else TEST_SPLIT) for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
+    results: list = [None] * len(jobs)
+    bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)
+    if processes <= 1:
+        for a in args:
+            i, res = _job(a)
+            results[i] = res
+            bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
+            bar.update()
+    else:
+        pool = ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=_worker_init,
+                                   initargs=(os.getpid(),))
+        try:
+            futures = [pool.submit(_job, a) for a in args]
+            for fut in as_completed(futures):
+                i, res = fut.result()
+                results[i] = res
+                bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
+                bar.update()
+        except BaseException:  # Ctrl-C, SIGTERM or a failed run: stop every worker now, not after its run
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+    bar.close()
+    return results

@@ -1,0 +1,185 @@
+"""Table specifications of the experiment runner: the tables, their test splits and columns, and their rows
+(:class:`RunSpec`, one per model configuration; a run is a (RunSpec, seed) pair, identified by ``RunSpec.key``).
+
+Committed results are reused by key: ``RunSpec.key`` must stay stable (fields at their defaults are left out).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+TABLES = ("main", "ablation", "sweep", "corrtalk", "emotion", "emoface")
+TEST_SPLIT = "test_a"  # the default test split (neutral speech, seen speakers)
+TABLE_SPLITS = {"emotion": "test_emo_a", "emoface": "test_emo_a"}  # tables evaluated on another split
+EMOTIONAL_TRAIN = ("train", "train_emo")  # what RunSpec.data "emotional" and "pairs" train on
+DATA = ("neutral", "emotional", "pairs")
+QUICK_CLIPS = {"train": 16, TEST_SPLIT: 4, "train_emo": 16, "test_emo_a": 4}  # --quick: the first clips of each split
+# (key, column header, digits) of the Markdown tables, in order.
+METRICS = (
+    ("lve_published", "LVE_pub (mm²) ↓", 2),
+    ("lve_euclidean", "LVE (mm) ↓", 3),
+    ("fdd_published", "FDD_pub (mm², →0)", 3),
+    ("fdd_paper", "FDD (mm, →0)", 4),
+    ("eve_published", "EVE_pub (mm²) ↓", 3),
+    ("smoothing_lips", "lip motion ratio (→1)", 3),
+    ("smoothing_upper", "upper-face motion ratio (→1)", 3),
+    ("bilabial_closure_2mm", "closed <2 mm at /p b m/ ↑", 3),
+    ("bilabial_closure_1mm", "closed <1 mm at /p b m/ ↑", 3),
+    ("bilabial_min_mm", "min lip dist. at /p b m/ (mm) ↓", 2),
+    ("open_vowel_max_mm", "max lip dist. at open vowels (mm, →GT)", 2),
+    ("lip_distance_corr", "lip-distance corr. ↑", 3),
+)
+# the emotional tables' extra columns (``emotion_metrics`` module docstring has the definitions)
+EMOTION_METRICS = (
+    ("emotion_accuracy", "emotion acc. ↑", 3),
+    ("brow_raise_error_mm", "brow-raise error (mm) ↓", 2),
+    ("smile_error_mm", "smile error (mm) ↓", 2),
+)
+LIP_SYNC_KEYS = ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "open_vowel_max_mm",
+                 "lip_distance_corr", "lip_motion_ratio", "bilabial_closure_2mm_gt", "bilabial_closure_1mm_gt",
+                 "bilabial_min_mm_gt", "open_vowel_max_mm_gt")
+TITLES = {
+    "main": "Table I analogue: comparison with the baselines on test-A",
+    "ablation": "Table IV analogue: ablations of DualTalker on test-A",
+    "sweep": "CCRL sweep: weight λ4 and kernel bandwidth σ on test-A",
+    "corrtalk": "Table III analogue (CorrTalk): ablations of CorrTalk on test-A",
+    "emotion": "Table 2/3 analogue (EmoFace): comparison on the emotional test split test_emo_a",
+    "emoface": "EmoFace ablations (Mesh Attention, SpiralConv3D, self-growing, cross-reconstruction) on test_emo_a",
+}
+
+
+def table_split(table: str) -> str:
+    """The test split a table is evaluated on (``TABLE_SPLITS``, else ``TEST_SPLIT``)."""
+    return TABLE_SPLITS.get(table, TEST_SPLIT)
+
+
+def table_metrics(table: str) -> tuple:
+    """The (key, header, digits) columns of ``table``: ``METRICS``, plus ``EMOTION_METRICS`` on emotional splits."""
+    return METRICS + EMOTION_METRICS if table in TABLE_SPLITS else METRICS
+
+
+# ------------------------------------------------------------------------------------------- configurations
+@dataclass
+class RunSpec:
+    """One row of a table: which model, which overrides, which features. A run is a (RunSpec, seed) pair."""
+
+    row: str                                            # label in the table
+    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker" |
+                                                        # "corrtalk" | "emoface"
+    model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
+    loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
+    features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
+    data: str = "neutral"                               # training clips: "neutral" (train) | "emotional" (train +
+                                                        # train_emo) | "pairs" (the same, each with its pseudo-pair
+                                                        # partner: data.pairs.PairDataset, for cross-reconstruction)
+    note: str = ""                                      # fixed part of the Markdown note column
+    reference: bool = False                             # the row every other row of the table is compared with
+    expect: str = ""                                    # the paper's claim vs the reference: "worse" | "better" | ""
+
+    def __post_init__(self):
+        if self.data not in DATA:
+            raise ValueError(f"RunSpec {self.row!r}: data must be one of {DATA}, got {self.data!r}")
+        if self.data == "pairs" and self.features != "logmel":
+            raise ValueError(f"RunSpec {self.row!r}: data 'pairs' needs features 'logmel' (the partner's audio is "
+                             f"log-mel), got {self.features!r}")
+
+    def key(self, test_split: str = TEST_SPLIT) -> str:
+        """Identity of the computation (everything but the label and the notes): equal keys = equal runs.
+        Fields at their defaults (``data`` "neutral", the test split ``TEST_SPLIT``) are left out, so the keys of
+        rows written before those fields existed are unchanged and their committed results stay reusable."""
+        ident = {"model": self.model, "model_overrides": self.model_overrides, "loss": self.loss,
+                 "features": self.features}
+        if self.data != "neutral":
+            ident["data"] = self.data
+        if test_split != TEST_SPLIT:
+            ident["test_split"] = test_split
+        return json.dumps(ident, sort_keys=True)
+
+
+PRIMAL_ONLY = {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}  # baselines: the reconstruction loss alone
+CORRTALK_NOTE = "rec. + velocity loss (eqs. 9-11, λ=1, 1), FAI-initialised mask, 4 levels"
+EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9, δ=3), self-growing (θ=0.2 N), "
+                "cross-reconstruction on pseudo-pairs; emotion type recognised from the speech, level given")
+
+
+def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
+    """The rows of ``table``. ``bandwidth`` (metres, the typical median-heuristic σ) sets the sweep's fixed σ's."""
+    full = dict(model="dualtalker")
+    if table == "main":
+        return [
+            RunSpec("Static template", "template", note="zero motion: the floor to beat"),
+            RunSpec("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
+            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
+                    expect="worse"),
+            RunSpec("DualTalker", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+            RunSpec("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
+        ]
+    if table == "corrtalk":
+        ct = dict(model="corrtalk")
+        return [
+            RunSpec("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
+            RunSpec("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
+                    note="frame level only (softmax over one level = 1)", expect="worse"),
+            RunSpec("single branch", **ct, model_overrides={"dual_branch": False},
+                    note="one FaceFormer-style branch decodes the whole face, no mask", expect="worse"),
+            RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
+                    note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
+            RunSpec("phoneme one-hot features", **ct, features="phonemes",
+                    note="acoustic-feature swap (paper: wavLM -> wav2vec 2.0); here log-mel -> one-hot phoneme ids, "
+                         "the only other front-end usable offline (the rig's own driving signal: an easier input)",
+                    expect="worse"),
+        ]
+    if table == "ablation":
+        return [
+            RunSpec("DualTalker (full)", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+            RunSpec("w/o CCRL", **full, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
+            RunSpec("w/o dual training", **full, model_overrides={"dual": False},
+                    loss={"lambda2": 0.0, "lambda3": 0.0},
+                    note="no lip reading, λ2=λ3=0; CCRL kept (λ4=0.01 on X, Y)", expect="worse"),
+            RunSpec("phoneme one-hot features", **full, features="phonemes",
+                    note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
+                         "driving signal, so an easier input than in the paper)", expect="worse"),
+            RunSpec("shared enc/dec weights", **full, model_overrides={"share_enc_dec": True},
+                    note="decoders = transposed encoders", expect="worse"),
+        ]
+    if table == "sweep":
+        if bandwidth is None:
+            raise ValueError("the sweep needs the typical bandwidth (see typical_bandwidth)")
+        rows = [
+            RunSpec("λ4=0", **full, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
+            RunSpec("λ4=0.01, σ=median", **full, note="the default", reference=True),
+            RunSpec("λ4=0.1, σ=median", **full, loss={"lambda4": 0.1}),
+            RunSpec("λ4=0.1, σ=median, InfoNCE reading", **full, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
+                    note="CCRL with one positive in the denominator (the reading before issue 8)"),
+        ]
+        for factor in (0.5, 2.0):
+            sigma = factor * bandwidth
+            rows.append(RunSpec(f"λ4=0.1, σ={factor:g}×typ = {sigma * 1e3:.3g} mm", **full,
+                                loss={"lambda4": 0.1, "bandwidth": sigma},
+                                note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
+        return rows
+    if table == "emotion":
+        emo = dict(data="emotional")  # every row trains on the same clips: train + train_emo
+        return [
+            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
+                    "input (the emotion must come from the audio)", expect="worse"),
+            RunSpec("DualTalker", **full, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input", expect="worse"),
+            RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input", expect="worse"),
+            RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
+        ]
+    if table == "emoface":
+        ef = dict(model="emoface", data="pairs")
+        return [
+            RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
+            RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
+                    note="plain sum: the mean of the two branches (the map held at 0.5)", expect="worse"),
+            RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
+                    note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame)",
+                    expect="worse"),
+            RunSpec("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
+                    note="plain teacher forcing (ground-truth past motion at every epoch)", expect="worse"),
+            RunSpec("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
+                    note="same pair loader, no cross pass (λ_cross term 0)", expect="worse"),
+        ]
+    raise ValueError(f"unknown table {table!r}; choose from {TABLES}")
+
