@@ -72,8 +72,8 @@ class EmoFaceWeights:
     main cause was the front-end's per-frame normalisation, not λ4: encoder + classifier trained with the
     cross-entropy alone reached 0.19 on that front-end, 0.52 with the statistics. Jointly at λ4 = 0.01, 140 steps
     (``benchmarks/emoface_classifier.py``, seeds 0/1/2): 0.31 / 0.25 / 0.21 with the statistics (sad and angry
-    mostly right; happy and surprised still called neutral, the most frequent training label), against 0.00 for
-    seed 0 without. λ4 and class balance remain open tuning questions.
+    mostly right; happy and surprised still called neutral, the most frequent training label), against
+    0.00 / 0.00 / 0.04 without (same script on the code before). λ4 and class balance remain open tuning questions.
     """
 
     lambda_self: float = 1.0    # λ1, eq. 7
