@@ -6,7 +6,7 @@ import torch
 
 from dualtalker_lite.losses.emoface import (EmoFaceWeights, classification_loss, emoface_loss, l1_loss,
                                             reconstruction_loss, velocity_loss)
-from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
+from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig, frame_level_stats
 from dualtalker_lite.train import TrainConfig, self_growing_share, train
 
 V, DA, NS, NE = 20, 12, 3, 5  # tiny sizes keep the tests fast
@@ -187,6 +187,41 @@ def test_emotion_condition_changes_the_output():
     assert (happy - sad).abs().amax() > 1e-4
     strong = model.generate(*args, emotion=1, level=2)
     assert (happy - strong).abs().amax() > 1e-4
+
+
+def test_frame_level_stats_by_hand():
+    audio = torch.tensor([[[1.0, 3.0, 5.0], [-2.0, -2.0, -2.0]]])  # (1, 2, 3)
+    expected = torch.tensor([[[3.0, math.sqrt(8 / 3)], [-2.0, 0.0]]])  # mean, population std over the bins
+    torch.testing.assert_close(frame_level_stats(audio), expected)
+
+
+def test_emotion_branch_hears_the_loudness_the_front_end_normalises_away():
+    # a louder reading shifts every log-mel bin of a frame by the same amount: the front-end's per-frame LayerNorm
+    # (and so the content features) cannot see it, the emotion features must (the classifier's volume cue)
+    model, batch = _model(), _batch(t=10)
+    torch.nn.init.normal_(model.emotion_level_stats.weight, std=1.0)
+    quiet, loud = batch["audio"], batch["audio"] + 2.0
+    fc_q, fe_q = model.encode(quiet)
+    fc_l, fe_l = model.encode(loud)
+    torch.testing.assert_close(model.extractor(loud), model.extractor(quiet), atol=1e-4, rtol=0)
+    torch.testing.assert_close(fc_l, fc_q, atol=1e-4, rtol=0)
+    assert (fe_l - fe_q).abs().amax() > 0.1
+    assert (model.emotion_logits(loud) - model.emotion_logits(quiet)).abs().amax() > 1e-3
+
+
+def test_init_from_data_standardises_the_level_stats_over_valid_frames():
+    g = torch.Generator().manual_seed(3)
+    audio = torch.randn(2, 6, DA, generator=g) * 3 - 8  # log-mel-like values
+    mask = torch.tensor([[True] * 6, [True] * 4 + [False] * 2])
+    audio[1, 4:] = 1e3  # padding must not count
+    model = _model()
+    model.init_from_data([{"audio": audio, "mask": mask}])
+    frames = torch.cat([audio[0], audio[1, :4]]).double()  # (10, DA) the valid frames
+    ref = torch.stack([frames.mean(1), frames.std(1, unbiased=False)], 1)  # (10, 2), written out independently
+    torch.testing.assert_close(model.level_stats_mean, ref.mean(0).float())
+    torch.testing.assert_close(model.level_stats_std, ref.std(0).float())
+    with pytest.raises(ValueError, match="need >= 2 finite audio frames"):
+        model.init_from_data([{"audio": audio[:1, :1], "mask": None}])
 
 
 @pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
