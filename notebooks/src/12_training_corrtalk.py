@@ -425,20 +425,22 @@ fig_a
 # same budget), several seeds and all 48 test-A clips: far more than a notebook's minute. The experiment runner
 # computes them and writes `results/corrtalk.json` (the ablations of CorrTalk's Table III: without the
 # hierarchical encoder, a single branch, the mask initialised at random, and an acoustic-feature swap) and
-# `results/main.json` (CorrTalk next to the static template, VOCA-style, FaceFormer-style and DualTalker). The main
-# table has 5 seeds; the Table III analogue has 3 (seeds 0-2: a CorrTalk run costs about 220 s of CPU, twice
-# DualTalker's), and its CorrTalk row is taken over from the main table's runs by `--reuse`. This section reads them; the cell below checks that the files are the ones the commands quoted in it wrote.
+# `results/main.json` (CorrTalk next to the static template, VOCA-style, FaceFormer-style and DualTalker), both with
+# 5 seeds. A CorrTalk run costs about 220 s of CPU, twice DualTalker's, so `--reuse` takes over every run that was
+# already computed: the Table III analogue's CorrTalk row from the main table, and seeds 0-2 of its other rows from an
+# earlier 3-seed version of the table. This section reads them; the cell below checks that the files are the ones
+# the commands quoted in it wrote.
 
 # %%
 RESULTS = repo_root() / "results"
 RUN = "python -m dualtalker_lite.experiments --table {} --seeds {} --processes 2 --out results/ --reuse results/main.json"
-CT_COMMAND = RUN.format("corrtalk", "0 1 2") + " --no-progress"                # 3 seeds: CPU time was short
+CT_COMMAND = RUN.format("corrtalk", "0 1 2 3 4") + " results/corrtalk.json --no-progress"  # + earlier seeds 0-2
 MAIN_COMMAND = RUN.format("main", "0 1 2 3 4") + " --no-progress"              # 5 seeds
 ct_specs, ct_runs, ct_meta = experiments.load_table(RESULTS / "corrtalk.json")
 main_specs, main_runs, main_meta = experiments.load_table(RESULTS / "main.json")
 for meta, command, table in ((ct_meta, CT_COMMAND, "corrtalk"), (main_meta, MAIN_COMMAND, "main")):
     assert meta["table"] == table and meta["command"] == command, f"results/{table}.json was regenerated: update"
-    assert not meta["quick"] and meta["test_split"] == "test_a" and meta["seeds"][:3] == [0, 1, 2]
+    assert not meta["quick"] and meta["test_split"] == "test_a" and meta["seeds"] == [0, 1, 2, 3, 4]
     assert (meta["n_train_clips"], meta["n_test_clips"]) == (len(corpus.split("train")), len(corpus.split("test_a")))
     assert meta["epochs"] == TrainConfig.tiny().epochs                   # the recipe's budget, every trained row
 assert [s.row for s in ct_specs] == [s.row for s in experiments.table_specs("corrtalk")]
