@@ -284,17 +284,9 @@ class EmoFace(nn.Module):
         return fe + cond[:, None, :]  # (B, T, d)
 
     def _check(self, audio: Tensor, template: Tensor, speaker: Tensor, vertices: Tensor | None = None) -> None:
-        """Raise a ValueError naming expected vs got for inputs of the wrong shape."""
-        v3, da = 3 * self.cfg.n_vertices, self.cfg.audio_dim
-        if audio.dim() != 3 or audio.shape[-1] != da:
-            raise ValueError(f"audio: expected (B, T, {da}) features, got {tuple(audio.shape)}")
-        b, t = audio.shape[:2]
-        if template.shape != (b, v3):
-            raise ValueError(f"template: expected (B, V*3) = ({b}, {v3}), got {tuple(template.shape)}")
-        if vertices is not None and vertices.shape != (b, t, v3):
-            raise ValueError(f"vertices: expected (B, T, V*3) = ({b}, {t}, {v3}), got {tuple(vertices.shape)}")
-        if speaker.shape != (b,):
-            raise ValueError(f"speaker: expected shape ({b},), got {tuple(speaker.shape)}")
+        """Raise a ValueError naming expected vs got for inputs of the wrong shape (DualTalker's checks: they read
+        only ``cfg.n_vertices`` and ``cfg.audio_dim``, which EmoFaceConfig has too)."""
+        DualTalker._check(self, audio, template, speaker, vertices)
 
     # ---- fusion (eqs. 17-18) ------------------------------------------------------------------------
     def fuse(self, fe: Tensor, fc: Tensor, oe: Tensor, oc: Tensor) -> tuple[Tensor, Tensor]:
