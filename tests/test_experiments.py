@@ -172,6 +172,19 @@ def test_reuse_refuses_a_table_with_another_budget(quick_tables, tmp_path):
         ex.reusable_runs([bad], 1, "data_samples")
 
 
+def test_save_models_writes_one_loadable_checkpoint_per_trained_run(tmp_path):
+    """--save-models DIR: each trained run's model as <row>_seed<seed>.pt, loadable; the static template has none."""
+    from dualtalker_lite.checkpoints import load_checkpoint
+
+    out, models = tmp_path / "t", tmp_path / "models"
+    ex.main(["--table", "main", "--quick", "--out", str(out), "--no-progress", "--save-models", str(models)])
+    assert sorted(p.name for p in models.iterdir()) == ["CorrTalk_seed0.pt", "DualTalker_seed0.pt",
+                                                       "FaceFormer-style_seed0.pt", "VOCA-style_seed0.pt"]
+    model, ckpt = load_checkpoint(models / "DualTalker_seed0.pt")
+    assert type(model).__name__ == "DualTalker" and ckpt["train_config"]["epochs"] == 1
+    assert ex.command._slug("w/o Mesh Attention") == "w-o_Mesh_Attention"
+
+
 # ------------------------------------------------------------------------------ the demo
 def test_demo_quick_writes_every_file(tmp_path):
     from dualtalker_lite import demo

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
+import re
 import shlex
 import subprocess
 import sys
@@ -61,6 +62,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--reuse", nargs="+", type=Path, default=[], metavar="TABLE_JSON",
                    help="tables written earlier (e.g. results/main.json): their runs with the same row computation, "
                         "seed, epochs and corpus are taken over instead of recomputed (their git commit is recorded)")
+    p.add_argument("--save-models", type=Path, default=None, metavar="DIR",
+                   help="also save each computed run's trained model there as a checkpoint, <row>_seed<seed>.pt "
+                        "(for `python -m dualtalker_lite.animate --checkpoint ...`; reused runs have none)")
     p.add_argument("--no-progress", action="store_true")
     return p.parse_args(argv)
 
@@ -89,6 +93,11 @@ def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: 
     return found, provenance
 
 
+def _slug(row: str) -> str:
+    """A row label as a file name: 'w/o Mesh Attention' -> 'w-o_Mesh_Attention'."""
+    return re.sub(r"[^A-Za-z0-9.-]+", "_", row.replace("/", "-")).strip("_")
+
+
 def main(argv: Sequence[str] | None = None) -> dict:
     """Run the requested tables and write them; returns {table: (json path, md path)}."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -114,7 +123,12 @@ def main(argv: Sequence[str] | None = None) -> dict:
     jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
     print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused ({', '.join(tables)}; seeds {seeds}; "
           f"{epochs} epochs; {args.processes} process(es))", flush=True)
-    results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, progress=not args.no_progress)
+    checkpoints = None
+    if args.save_models is not None:
+        args.save_models.mkdir(parents=True, exist_ok=True)
+        checkpoints = [args.save_models / f"{_slug(spec.row)}_seed{seed}.pt" for spec, seed, _ in jobs]
+    results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, checkpoints=checkpoints,
+                        progress=not args.no_progress)
     by_key = {**taken, **{(r["key"], r["seed"]): r for r in results}}
     meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
             "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
