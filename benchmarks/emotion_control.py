@@ -12,7 +12,9 @@ the same sentence (test_emo_a; neutral: the neutral reading itself). Printed per
 (generated vs ground truth), then per measure the Pearson correlation across the 9 conditions and the mean absolute
 error; finally the mean of those over the models. A model whose condition does nothing scores correlation ~0 (or
 undefined: a constant row) and an error equal to the targets' spread; a range over the conditions under 10 % of
-the ground truth's is flagged "NO CONTROL" (its r is then read off noise).
+the ground truth's is flagged "NO CONTROL" (its r is then read off noise). Also printed: Mesh Attention's map α
+(the emotion branch's share, teacher-forced on the 48 test_emo_a clips) averaged per face region: where the emotion
+branch wins.
 """
 import argparse
 import time
@@ -55,6 +57,22 @@ def control_table(model, corpus: Corpus, neutral: TalkingFaceDataset, emotional:
     return conds, gen, gt
 
 
+ATTENTION_REGIONS = ("brows", "forehead", "eyes", "nose", "cheeks", "mouth_corners", "lips", "jaw")
+
+
+def attention_by_region(model, corpus: Corpus, emotional: TalkingFaceDataset) -> dict:
+    """Mesh Attention's map α (the emotion branch's share) on the test_emo_a clips, teacher-forced, averaged over
+    valid frames, clips and the vertices of each region -> {region: mean α} (empty for "sum" fusion)."""
+    if model.mesh_attention is None:
+        return {}
+    batch = collate([emotional[i] for i in range(len(emotional))])
+    with torch.no_grad():
+        alpha = model(batch)["attention"]  # (B, T, V)
+    m = batch["mask"][..., None].to(alpha.dtype)  # (B, T, 1)
+    per_vertex = (alpha * m).sum((0, 1)) / m.sum((0, 1))  # (V,)
+    return {r: float(per_vertex[corpus.regions[r]].mean()) for r in ATTENTION_REGIONS}
+
+
 def agreement(gen: np.ndarray, gt: np.ndarray) -> dict:
     """Per measure (columns): Pearson r across the conditions (nan for a constant column) and mean |gen - gt|."""
     out = {}
@@ -74,7 +92,7 @@ def main() -> None:
     torch.set_num_threads(1)
     corpus = Corpus(sample_path())
     speakers = corpus.train_speakers[:args.speakers]
-    summary = []
+    summary, maps = [], []
     for path in args.checkpoints:
         model, ckpt = load_checkpoint(path)
         if type(model).__name__ != "EmoFace":
@@ -86,6 +104,7 @@ def main() -> None:
         conds, gen, gt = control_table(model, corpus, neutral, emotional, speakers)
         agree = agreement(gen, gt)
         summary.append(agree)
+        regions = attention_by_region(model, corpus, emotional)
         print(f"\n{path}: neutral s02 audio of {', '.join(speakers)}, {time.process_time() - c0:.0f} CPU s")
         print(f"  {'condition':14s} {'brow gen':>9s} {'brow gt':>8s} {'smile gen':>10s} {'smile gt':>9s}  (mm)")
         for (emo, level), g, t in zip(conds, gen, gt):
@@ -94,6 +113,13 @@ def main() -> None:
             weak = "  NO CONTROL: the range is under 10 % of the truth's" if a["range_mm"] < 0.1 * a["range_gt_mm"] else ""
             print(f"  {name}: r = {a['r']:+.2f}, mean |gen - gt| = {a['mae_mm']:.2f} mm, "
                   f"range over conditions {a['range_mm']:.2f} mm (ground truth {a['range_gt_mm']:.2f} mm){weak}")
+        if regions:
+            print("  Mesh Attention α (emotion-branch share) on test_emo_a, by region: "
+                  + ", ".join(f"{r} {a:.2f}" for r, a in regions.items()))
+            maps.append(list(regions.values()))
+    if maps:
+        print("mean α over the models: " + ", ".join(f"{r} {a:.2f}" for r, a in zip(ATTENTION_REGIONS,
+                                                                                   np.mean(maps, 0))))
     for name in ("brow", "smile"):
         rs = np.array([s[name]["r"] for s in summary])
         print(f"mean over {len(summary)} model(s), {name}: r = {np.nanmean(rs):+.2f} (min {np.nanmin(rs):+.2f}), "
