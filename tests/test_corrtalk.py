@@ -13,12 +13,7 @@ from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
 V, DA, NS = 12, 8, 3
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 def _cfg(**kw):

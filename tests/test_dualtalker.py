@@ -7,13 +7,7 @@ from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig, face
 V, DA, NS = 20, 12, 3  # tiny sizes keep the tests fast
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny tensors: a second intra-op thread only adds synchronisation, and thrashes on a busy CI box."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 def _cfg(**kw):

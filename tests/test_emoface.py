@@ -12,12 +12,7 @@ from dualtalker_lite.train import TrainConfig, self_growing_share, train
 V, DA, NS, NE = 20, 12, 3, 5  # tiny sizes keep the tests fast
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 # ---- eq. 6: the ground-truth share -------------------------------------------------------------------
