@@ -134,6 +134,7 @@ within = g_spk.std(dim=1).mean().item()  # how much a speaker's gate moves over 
 assert not torch.allclose(profile[0], profile[1], atol=1e-3)
 print(f"spread of the gate across speakers: {between:.3f}; across the frames of one speaker: {within:.3f}")
 
+# %%
 fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(13, 3.6), layout="constrained", width_ratios=[1.6, 1])
 im = ax0.imshow(profile, aspect="auto", cmap="viridis")
 ax0.set_xlabel("channel k of the features")
@@ -242,6 +243,10 @@ def train(model_fn, params, c, styles, seed=0, n_steps=steps, lr=1e-2):
     return np.array(losses)
 
 
+# %% [markdown]
+# Train the gate + head and the head-only control on the same batches (same seed), and compare their final losses.
+
+# %%
 torch.manual_seed(5)
 gate5, head5 = SpeakerAwareGate(d5, reduction=4), nn.Linear(d5, d5)
 loss_gate = train(lambda f, s: head5(gate5(f, s)), [*gate5.parameters(), *head5.parameters()], c_target, style5)
