@@ -250,8 +250,7 @@ np.testing.assert_allclose(s_on["dr"], s_on["dr_x"] + s_on["dr_y"], rtol=1e-5)  
 
 # %%
 fig, axes = plt.subplots(2, 3, figsize=(15, 7.4), constrained_layout=True)
-step = np.arange(1, n_steps + 1)
-colors = {0.0: "tab:gray", 1.0: "tab:red"}
+step, colors = np.arange(1, n_steps + 1), {0.0: "tab:gray", 1.0: "tab:red"}
 for lam, r in runs.items():
     s, c, lab = r["steps"], colors[lam], f"$\\lambda_3$ = {lam:g}"
     axes[0, 0].plot(step, s["dr"], color=c, label=lab)
@@ -308,6 +307,10 @@ def evaluate(model: DualTalker, batch: dict) -> tuple[dict, dict[str, float]]:
                  "roundtrip_audio": dual_loss(model.audio_decoder(out["x"]), batch["audio"], m).item()}
 
 
+# %% [markdown]
+# Evaluate both models and print the table (the template row is the zero-motion baseline).
+
+# %%
 outs, results = {}, {}
 for lam, r in runs.items():
     outs[lam], results[lam] = evaluate(r["model"], val_batch)
