@@ -113,6 +113,7 @@ for label, curves in (("lip distance", lips), ("eye displacement", blinks)):
 assert len(clips) == 8
 assert ratios["lip distance"] > 0.8 and ratios["eye displacement"] < 0.6   # blinks average out, lips do not
 
+# %%
 fig, axes = plt.subplots(1, 2, figsize=(10, 3.2), layout="constrained")
 for ax, curves, what in ((axes[0], lips, "lip distance (mm)"), (axes[1], blinks, "eye displacement (mm)")):
     for c, curve in zip(clips, curves):
