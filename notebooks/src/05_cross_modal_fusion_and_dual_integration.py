@@ -448,7 +448,6 @@ plt.show()
 # query/key projections of section 4 are counted once.
 
 # %%
-# NBVAL_CHECK_OUTPUT
 integ_names = {"proj_audio": "both (shared W_Q_X = W_K_X̄)", "proj_motion": "both (shared W_Q_Y = W_K_Ȳ)",
                "value_primal": "primal", "out_primal": "primal", "value_dual": "dual", "out_dual": "dual"}
 per_frame = ("input_norm", "feature_projection")  # embed_frames: also embeds the dual task's past audio
@@ -470,6 +469,8 @@ def count(part) -> int:
     return sum(p.numel() for p in (part.parameters() if hasattr(part, "parameters") else part))
 
 
+# %%
+# NBVAL_CHECK_OUTPUT
 total = 0
 print(f"{'component':<46} {'parameters':>10}  used by")
 for name, part, used in rows:
