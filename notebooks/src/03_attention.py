@@ -109,6 +109,7 @@ print("\n".join(table))
 assert rows[-1][3] > 0.8 and rows[-1][4] < 0.2  # unscaled d_k=256: nearly one-hot; scaled: spread out
 assert all(a[3] < b[3] for a, b in zip(rows, rows[1:]))  # saturation grows with the width
 
+# %%
 fig, ax = plt.subplots(figsize=(6, 3.5))
 ax.plot(widths, [r[3] for r in rows], "o-", label=r"softmax($QK^\top$)")
 ax.plot(widths, [r[4] for r in rows], "s-", label=r"softmax($QK^\top/\sqrt{d_k}$) (eq. 3)")
@@ -287,6 +288,7 @@ torch.testing.assert_close(pe[period:2 * period], pe[:period])  # periodic with 
 torch.testing.assert_close(ppe(y_long) - y_long, pe[:T_long][None])  # the module adds it to the stream
 assert not torch.allclose(pe[1], pe[0])  # but distinct within a period
 
+# %%
 fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 3.6), layout="constrained")
 im = ax0.imshow(pe.T, aspect="auto", cmap="RdBu_r", vmin=-1, vmax=1)
 for s in range(1, 4):
@@ -400,6 +402,7 @@ for window in (1, 2):
         assert (att.q_proj.bias.grad == 0).all() and (att.k_proj.bias.grad == 0).all()
 assert all(g > 0 for g in grad_norm[2].values()) and grad_norm[1]["v_proj"] > 0
 
+# %%
 # The same with the model's own integration module (shared projections of Fig. 3), primal direction (eq. 6).
 for window in (1, 2):
     torch.manual_seed(2)
