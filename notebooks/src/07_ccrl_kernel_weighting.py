@@ -37,6 +37,8 @@ from torch.utils.data import Subset
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loader
+
+# %%
 from dualtalker_lite.losses import (READINGS, LossWeights, ccrl_anchor_losses, ccrl_loss, joint_loss,
                                     rbf_kernel_weights)
 from dualtalker_lite.metrics import lip_distance, lve_euclidean
@@ -282,6 +284,7 @@ by_hand = {"kernel": log_s_prime - pos_kernel,                                  
            "infonce": torch.logsumexp(torch.cat([negatives, pos[..., None]], -1), -1) - pos,
            "decoupled": log_s_prime - pos}
 
+# %%
 for reading, ours in by_hand.items():
     pkg, is_anchor = ccrl_anchor_losses(x, y, w_small, small_mask, reading=reading)
     check_shape(pkg, (1, n), "anchor losses")
@@ -328,7 +331,6 @@ plt.show()
 # sequence in the batch adds its anchors to the pool and nothing else.
 
 # %%
-# NBVAL_CHECK_OUTPUT
 l_xy, _ = ccrl_anchor_losses(x, y, w_small, small_mask)
 l_yx, _ = ccrl_anchor_losses(y, x, w_small, small_mask)
 kw = dict(kernel_weights=w_small)
@@ -344,6 +346,8 @@ torch.testing.assert_close(ccrl_loss(x, y, None, small_mask, second_term="fused"
 torch.testing.assert_close(ccrl_loss(x, y, motion[:, frames], small_mask, bandwidth=sigma_median),
                            ccrl_loss(x, y, None, small_mask, **kw))      # kernel from the motion = given kernel
 
+# %%
+# NBVAL_CHECK_OUTPUT
 # padding: a second sequence of 4 valid frames, padded to n with NaN garbage
 x2, y2 = torch.randn(2, 1, n, d, generator=g)
 x2[:, 4:], y2[:, 4:] = float("nan"), float("nan")
@@ -419,6 +423,7 @@ for reading in READINGS:
 force = {r: np.array(v) for r, v in force.items()}
 grad_x = {r: np.array(v) for r, v in grad_x.items()}
 
+# %%
 assert force["kernel"][0] > 0 > force["kernel"][-1]                      # w = 0 repelled, w = 1 attracted
 for reading in ("infonce", "decoupled"):
     assert force[reading][-1] == 0 and np.all(force[reading] >= 0)       # never attracted; w = 1: no force
@@ -603,6 +608,7 @@ def grad_norm(loss: torch.Tensor) -> float:
     return torch.sqrt(sum(g.square().sum() for g in grads if g is not None)).item()
 
 
+# %%
 norms = {}
 TERMS = (("lambda1", "λ1 L_primal"), ("lambda2", "λ2 L_dual"), ("lambda3", "λ3 L_DR"), ("lambda4", "λ4 L_CCRL"))
 for key, label in TERMS:
