@@ -56,6 +56,8 @@ from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.probe import (event_locked_brows, onset_lift, pause_blink_ratio, stress_onset_precision,
                                         upper_face_probe)
 from dualtalker_lite.data.speech import emotional_prosody, speaker_voices, synthesize
+
+# %%
 from dualtalker_lite.face import (CONTROL_INDEX, CONTROL_NAMES, CONTROL_RANGES, CONTROL_REGIONS, EMOTIONS, VISEMES,
                                   FaceRig, build_template, clip_controls, coarticulate, control_vector,
                                   emotion_controls, make_speakers, phoneme_to_viseme, phonemes_to_visemes)
@@ -282,6 +284,7 @@ print(f"lip_pucker at the /t/ (t = {t_frame / FPS:.2f} s): 'two' {tracks['two'][
       f"'tea' {tracks['tea'][t_frame]:.2f}")
 assert tracks["two"][t_frame] > 0.3 and tracks["tea"][t_frame] < 0.05
 
+# %%
 t_fine = np.linspace(0.0, 0.9, 400)
 fig, axes = plt.subplots(1, 2, figsize=(10, 3.2), layout="constrained")
 for viseme, start, end in phonemes_to_visemes(word("u:")):
@@ -461,6 +464,8 @@ blink = corpus._all_controls()[clip][:, CONTROL_INDEX["blink"]]
 stressed = [s for (p, s, e), st in zip(meta["phonemes"], meta["stress"]) if st == 2]
 pauses = [(s, e) for p, s, e in meta["phonemes"][1:] if p == "_" and e - s >= 0.08]
 check_shape(semitones, (T_l,), "semitones")
+
+# %%
 t_l = np.arange(T_l) / FPS
 fig, axes = plt.subplots(3, 1, figsize=(10, 5.5), sharex=True, layout="constrained")
 axes[0].plot(t_l[voiced], semitones[voiced], ".", ms=3, label="F0 (voiced frames)")
@@ -529,6 +534,7 @@ assert not np.array_equal(by_seed[0][:, idle], by_seed[1][:, idle])
 r_brow = np.corrcoef(by_seed[0][:, CONTROL_INDEX["brow_raise"]], by_seed[1][:, CONTROL_INDEX["brow_raise"]])[0, 1]
 print(f"brow_raise of the two seeds correlates at r = {r_brow:.2f}: the part that follows the speech")
 
+# %%
 fig, axes = plt.subplots(3, 1, figsize=(9, 5), sharex=True, layout="constrained")
 for ax, name in zip(axes, ("jaw_open", "blink", "brow_raise")):
     for seed, track in by_seed.items():
