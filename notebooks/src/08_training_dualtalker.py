@@ -31,6 +31,8 @@ from torch.utils.data import Subset
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loader
+
+# %%
 from dualtalker_lite.losses import LossWeights, joint_loss
 from dualtalker_lite.metrics import lip_distance, lip_sync_metrics, lve_euclidean
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
@@ -279,17 +281,8 @@ animate_clip({"ground truth": test_batch["vertices"][b, :n_b].reshape(n_b, V, 3)
 tiny_set = Subset(train_ds, mine(train_ds)[:8])
 
 
-def retrain(lambdas: tuple[float, float, float, float], bandwidth_mm: float | None, epochs: int = 10,
-            on_step=lambda: None):
-    """Train a fresh tiny DualTalker on ``tiny_set`` with these weights -> (history, lip distance, figure).
-    ``on_step()`` runs before every training step (the panel's progress bar)."""
-    w = LossWeights(**{f"lambda{i + 1}": lam for i, lam in enumerate(lambdas)},
-                    bandwidth=None if bandwidth_mm is None else bandwidth_mm * 1e-3)
-    cfg_tiny = TrainConfig.tiny(epochs=epochs, lr=6e-3, max_frames=40, validate_every=0, progress=False, weights=w)
-    set_seed(0)
-    net = DualTalker(cfg)
-    hist = train(net, progress_loader(make_loader(tiny_set, batch_size=8, seed=0), on_step), cfg_tiny)
-    lips = lip_distance(predict(net, test_batch)[b, :n_b], upper_mid, lower_mid)
+def retrain_figure(hist, lips: np.ndarray, epochs: int, title: str):
+    """Loss terms per step (left) and the retrained model's lip distance against the ground truth (right)."""
     fig, axes = plt.subplots(1, 2, figsize=(14, 3.6), constrained_layout=True)
     for key in ("primal", "dual", "dr", "ccrl", "total"):
         if any(hist.term(key)):
@@ -301,10 +294,26 @@ def retrain(lambdas: tuple[float, float, float, float], bandwidth_mm: float | No
     axes[1].set(title=f"lip distance, {CLIP}", xlabel="time (s)", ylabel="lip distance (mm)")
     for ax in axes:
         ax.legend(fontsize=8)
-    sigma = "median" if bandwidth_mm is None else f"{bandwidth_mm:.2f} mm"
-    fig.suptitle(f"λ = {tuple(round(x, 4) for x in lambdas)}, σ = {sigma}, {epochs} steps")
+    fig.suptitle(title)
     plt.close(fig)
-    return hist, lips, fig
+    return fig
+
+
+# %%
+def retrain(lambdas: tuple[float, float, float, float], bandwidth_mm: float | None, epochs: int = 10,
+            on_step=lambda: None):
+    """Train a fresh tiny DualTalker on ``tiny_set`` with these weights -> (history, lip distance, figure).
+    ``on_step()`` runs before every training step (the panel's progress bar)."""
+    w = LossWeights(**{f"lambda{i + 1}": lam for i, lam in enumerate(lambdas)},
+                    bandwidth=None if bandwidth_mm is None else bandwidth_mm * 1e-3)
+    cfg_tiny = TrainConfig.tiny(epochs=epochs, lr=6e-3, max_frames=40, validate_every=0, progress=False, weights=w)
+    set_seed(0)
+    net = DualTalker(cfg)
+    hist = train(net, progress_loader(make_loader(tiny_set, batch_size=8, seed=0), on_step), cfg_tiny)
+    lips = lip_distance(predict(net, test_batch)[b, :n_b], upper_mid, lower_mid)
+    sigma = "median" if bandwidth_mm is None else f"{bandwidth_mm:.2f} mm"
+    title = f"λ = {tuple(round(x, 4) for x in lambdas)}, σ = {sigma}, {epochs} steps"
+    return hist, lips, retrain_figure(hist, lips, epochs, title)
 
 
 # %% [markdown]
