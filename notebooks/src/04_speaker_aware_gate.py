@@ -225,6 +225,7 @@ def batch(g: torch.Generator, c: torch.Tensor, styles: torch.Tensor):
     return feats, styles[spk], c[spk][:, None, :] * feats, spk
 
 
+# %%
 def train(model_fn, params, c, styles, seed=0, n_steps=steps, lr=1e-2):
     """Adam on the mean squared error; returns the loss of every step."""
     g, opt, losses = torch.Generator().manual_seed(seed), torch.optim.Adam(params, lr=lr), []
