@@ -39,6 +39,8 @@ from torch.utils.data import Subset
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loader
+
+# %%
 from dualtalker_lite.losses import LossWeights
 from dualtalker_lite import experiments
 from dualtalker_lite.metrics import (eve, evaluate, fdd_paper, fdd_published, lip_distance, lip_sync_metrics,
@@ -134,6 +136,7 @@ for label, (model_cfg, weights) in MODELS.items():
     train(models[label], make_loader(train_set, batch_size=tc.batch_size, seed=0), tc)
     seconds[label] = time.perf_counter() - t0
 
+# %%
 # autoregressive generation of the 12 test clips, then one (T_i, V*3) float64 array per clip (padding removed)
 lengths = test_batch["lengths"].tolist()
 unpad = lambda x: [x[i, :n].double() for i, n in enumerate(lengths)]  # noqa: E731
@@ -179,6 +182,7 @@ err = ((p_b[:, lip_idx] - g_b[:, lip_idx]) * 1e3).norm(dim=-1)  # (T, |S_L|) Euc
 check_shape(err, (T_b, len(lip_idx)), "lip errors")
 worst = err.max(dim=1)                                           # values (T,), indices (T,)
 
+# %%
 fig, axes = plt.subplots(1, 2, figsize=(15, 4), constrained_layout=True)
 im = axes[0].imshow(err.T.numpy(), aspect="auto", origin="lower", cmap="magma",
                     extent=(-0.5 / FPS, (T_b - 0.5) / FPS, -0.5, len(lip_idx) - 0.5))
@@ -356,6 +360,7 @@ for label, r in [("ground truth", gt_row), *results.items()]:
     rows.append(f"| {label} | " + " | ".join(f"{r[k]:.2f}" for k, _ in SYNC) + " |")
 display(Markdown("\n".join(rows)))
 
+# %%
 static = results["Static template"]
 for label in MODELS:
     r = results[label]
