@@ -17,7 +17,10 @@ the ground truth's is flagged "NO CONTROL" (its r is then read off noise). Also 
 branch wins.
 """
 import argparse
+import json
+import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -27,6 +30,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
 from dualtalker_lite.emotion_metrics import expression_measures
+from dualtalker_lite.utils import atomic_write_text
 
 SENTENCE = "s02"  # the sentence of test_emo_a
 
@@ -88,11 +92,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("checkpoints", nargs="+")
     ap.add_argument("--speakers", type=int, default=6)
+    ap.add_argument("--out", type=Path, default=None,
+                    help="also write the figures to OUT (JSON; e.g. results/emotion_control.json, read by notebook 15)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     corpus = Corpus(sample_path())
     speakers = corpus.train_speakers[:args.speakers]
-    summary, maps = [], []
+    summary, maps, per_model = [], [], []
     for path in args.checkpoints:
         model, ckpt = load_checkpoint(path)
         if type(model).__name__ != "EmoFace":
@@ -113,6 +119,9 @@ def main() -> None:
             weak = "  NO CONTROL: the range is under 10 % of the truth's" if a["range_mm"] < 0.1 * a["range_gt_mm"] else ""
             print(f"  {name}: r = {a['r']:+.2f}, mean |gen - gt| = {a['mae_mm']:.2f} mm, "
                   f"range over conditions {a['range_mm']:.2f} mm (ground truth {a['range_gt_mm']:.2f} mm){weak}")
+        per_model.append({"checkpoint": Path(path).name, "conditions": [f"{e}{lvl}" for e, lvl in conds],
+                          "generated_mm": gen.round(4).tolist(), "ground_truth_mm": gt.round(4).tolist(),
+                          "agreement": agree, "attention_by_region": regions})
         if regions:
             print("  Mesh Attention α (emotion-branch share) on test_emo_a, by region: "
                   + ", ".join(f"{r} {a:.2f}" for r, a in regions.items()))
@@ -124,6 +133,16 @@ def main() -> None:
         rs = np.array([s[name]["r"] for s in summary])
         print(f"mean over {len(summary)} model(s), {name}: r = {np.nanmean(rs):+.2f} (min {np.nanmin(rs):+.2f}), "
               f"mean |gen - gt| = {np.mean([s[name]['mae_mm'] for s in summary]):.2f} mm")
+
+
+    if args.out is not None:
+        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+        payload = {"command": "python benchmarks/emotion_control.py " + " ".join(
+                       f"{Path(p).parent.name}/{Path(p).name}" if Path(p).is_absolute() else str(p)
+                       for p in args.checkpoints), "git": git, "speakers": speakers, "sentence": SENTENCE,
+                   "columns": ["brow_raise_mm", "smile_mm"], "models": per_model}
+        atomic_write_text(args.out, json.dumps(payload, indent=1) + "\n")
+        print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
