@@ -13,7 +13,9 @@ classifier stuck at the training prior (neutral, 31 % of the training clips) sco
 With ``--checkpoints`` (trained models, e.g. the emotional tables' ``--save-models``) nothing is trained: each
 model's confusion matrix, and a linear probe of what its emotion features F_e know (ridge regression, λ = 10, on
 one-hot labels from the standardised [mean_t F_e, std_t F_e] of each clip, fitted on train_emo, scored on
-test_emo_a): a probe well above the classifier means the head, not the features, is what falls short.
+test_emo_a): a probe well above the classifier means the head, not the features, is what falls short. And what
+the classifier's mistakes cost: test_emo_a LVE and EVE (mm, Euclidean) of autoregressive generation with the emotion
+recognised from the speech (as in the tables) and with the true emotion given as the condition (an oracle).
 """
 import argparse
 import time
@@ -62,6 +64,25 @@ def ridge_probe(x_train, y_train, x_test, y_test, n_classes: int, ridge: float =
     return float(((b @ w).argmax(1) == y_test).mean())
 
 
+def oracle_errors(model: EmoFace, dataset, regions) -> dict:
+    """LVE and EVE (mm) of generation on ``dataset`` with the emotion recognised ("recognised") or given ("true")."""
+    from dualtalker_lite.metrics import eve, lve_euclidean
+
+    out = {}
+    for how in ("recognised", "true"):
+        preds, gts = [], []
+        for b in make_loader(dataset, 16, shuffle=False):
+            emotion = None if how == "recognised" else b["emotion"]
+            x = model.generate(b["audio"], b["template"], b["speaker"], emotion=emotion, level=b["level"],
+                               mask=b["mask"])  # (B, T, V*3)
+            for i, n in enumerate(b["lengths"].tolist()):
+                preds.append(x[i, :n])
+                gts.append(b["vertices"][i, :n])
+        out[how] = (lve_euclidean(preds, gts, regions["lips"]),
+                    eve(preds, gts, regions["eyes_forehead"], convention="euclidean"))
+    return out
+
+
 def trained(paths: list[str]) -> None:
     """The --checkpoints mode: confusion matrix, accuracy and the F_e probe of each trained model."""
     from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
@@ -69,7 +90,7 @@ def trained(paths: list[str]) -> None:
 
     corpus = Corpus(sample_path())
     n = len(corpus.emotions)
-    accs, probes = [], []
+    accs, probes, errors = [], [], []
     for path in paths:
         model, ckpt = load_checkpoint(path)
         extractor = extractor_from_settings(ckpt["features"], source=str(path))
@@ -79,12 +100,18 @@ def trained(paths: list[str]) -> None:
         x_tr, y_tr = pooled_emotion_features(model, TalkingFaceDataset(corpus, "train_emo", extractor))
         x_te, y_te = pooled_emotion_features(model, test)
         probes.append(ridge_probe(x_tr, y_tr, x_te, y_te, n))
-        print(f"{path}: classifier accuracy {accs[-1]:.3f}, linear probe on F_e {probes[-1]:.3f}")
+        errors.append(oracle_errors(model, test, corpus.regions))
+        (lr, er), (lt, et) = errors[-1]["recognised"], errors[-1]["true"]
+        print(f"{path}: classifier accuracy {accs[-1]:.3f}, linear probe on F_e {probes[-1]:.3f}; LVE / EVE "
+              f"{lr:.3f} / {er:.3f} mm with the recognised emotion, {lt:.3f} / {et:.3f} mm with the true one")
         print("  rows true / columns predicted:", " ".join(corpus.emotions))
         for name, row in zip(corpus.emotions, m):
             print(f"  {name:>10s} " + " ".join(f"{v:3d}" for v in row))
     print(f"mean over {len(paths)} model(s): classifier {np.mean(accs):.3f}, probe on F_e {np.mean(probes):.3f} "
           f"(chance on test_emo_a: 0.25)")
+    for how in ("recognised", "true"):
+        lve, ev = np.mean([e[how] for e in errors], axis=0)
+        print(f"  emotion {how}: mean LVE {lve:.3f} mm, EVE {ev:.3f} mm")
 
 
 def main() -> None:
