@@ -15,7 +15,8 @@
 # 4. a short training of the full EmoFace, and its Mesh Attention map on the face over an emotional clip;
 # 5. a training panel for the emotion and level condition and the loss weights;
 # 6. emotion control: one audio, every emotion condition, side by side with the sound;
-# 7. where the results tables (Table 2/3 analogue, ablations) come from.
+# 7. the results tables (Table 2/3 analogue, ablations) and the emotion control of the trained models, from
+#    `results/`.
 
 # %%
 %matplotlib inline
@@ -360,6 +361,7 @@ animate_clip(rendered, corpus.faces, wave=wave, sample_rate=corpus.sample_rate, 
 # are the ones these commands wrote.
 
 # %%
+import json
 import math
 
 from IPython.display import Markdown
@@ -373,6 +375,8 @@ RUN = ("python -m dualtalker_lite.experiments --table {} --seeds {} --epochs 12 
 COMMANDS = {"emotion": RUN.format("emotion", "0 1 2 3 4", ""),
             "emoface": RUN.format("emoface", EMOFACE_SEEDS, " --reuse " + EMOFACE_REUSE)}
 tables = {t: experiments.load_table(RESULTS / f"{t}.json") for t in COMMANDS}
+
+# %%
 for t, (specs_t, runs_t, meta_t) in tables.items():
     assert meta_t["command"] == COMMANDS[t], f"results/{t}.json was regenerated: update this cell"
     assert not meta_t["quick"] and meta_t["test_split"] == "test_emo_a" and meta_t["epochs"] == 12
@@ -392,7 +396,15 @@ print(f"{steps} steps per trained model ({neutral_steps} in the neutral tables);
 display(Markdown(experiments.table_markdown("emotion", *tables["emotion"])))
 
 # %% [markdown]
-# TABLE_EMOTION_PROSE
+# How to read it (the definitions under the table): every row trains on the same clips with the same recipe and
+# budget, and the note column compares its LVE with EmoFace's (2-standard-error rule over the seeds). EmoFace has the
+# lowest LVE, beyond seed noise, as the paper claims, and its lips follow the true lip-distance curve best. Two
+# advantages are built in: it is *given* the emotion level, and it has about twice FaceFormer-style's parameters.
+# The "right emotion" columns are closer: EmoFace's brow and smile errors are the lowest, but not by much, because
+# its classifier names the emotion of only about half the clips (the accuracy column; chance is 0.25), and a wrong
+# emotion condition draws a wrong brow. Conditioned on the *true* emotion instead, the same five models reach
+# LVE 2.94 mm and EVE 0.82 mm instead of 3.41 and 2.27 (`python benchmarks/emoface_classifier.py --checkpoints
+# runs/emotional_tables/EmoFace_seed*.pt`): recognising the emotion from the speech is the weak link here.
 #
 # ### EmoFace's ablations
 
@@ -414,7 +426,11 @@ brow, smile = row_means("emotion", "brow_raise_error_mm"), row_means("emotion", 
 for row in lve:
     print(f"{row:17s} LVE {lve[row]:.2f} mm, brow error {brow[row]:.2f} mm, smile error {smile[row]:.2f} mm"
           + (f", emotion accuracy {acc[row]:.2f}" if math.isfinite(acc[row]) else ""))
-TABLE_ASSERTS
+per_seed = {s.row: [r["metrics"]["lve_euclidean"] for r in tables["emotion"][1] if r["row"] == s.row]
+            for s in tables["emotion"][0]}
+assert max(per_seed["EmoFace"]) < min(min(v) for row, v in per_seed.items() if row != "EmoFace")  # every seed
+assert min(brow, key=brow.get) == "EmoFace" and min(smile, key=smile.get) == "EmoFace"
+assert 0.25 < acc["EmoFace"] < 0.75  # above chance, far from perfect
 
 # %% [markdown]
 # ### Emotion control of the trained models
@@ -425,6 +441,8 @@ TABLE_ASSERTS
 # of that sentence (`test_emo_a`). It wrote `results/emotion_control.json`; one dot per condition and model:
 
 # %%
+CONTROL_COMMAND = "python benchmarks/emotion_control.py " + " ".join(
+    f"runs/emotional_tables/EmoFace_seed{k}.pt" for k in range(5))
 control = json.loads((RESULTS / "emotion_control.json").read_text())
 assert control["command"] == CONTROL_COMMAND and len(control["models"]) == 5
 fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
@@ -436,7 +454,7 @@ for j, (ax, what) in enumerate(zip(axes, ("brow raise", "smile width"))):
         ax.annotate(c, (x, x), fontsize=7, alpha=0.7)
     lim = ax.get_xlim()
     ax.plot(lim, lim, color="grey", lw=0.8, ls=":")
-    ax.set(xlabel=f"real emotional reading: {what} (mm)", ylabel=f"neutral audio + condition (mm)", title=what)
+    ax.set(xlabel=f"real emotional reading: {what} (mm)", ylabel="neutral audio + condition (mm)", title=what)
 plt.show()
 
 # %%
@@ -445,12 +463,19 @@ agree = {k: [m["agreement"][k] for m in control["models"]] for k in ("brow", "sm
 for k, a in agree.items():
     print(f"{k}: r over the 9 conditions {min(x['r'] for x in a):.2f}-{max(x['r'] for x in a):.2f}, mean |gen - gt| "
           f"{np.mean([x['mae_mm'] for x in a]):.2f} mm")
-alpha = {r: np.mean([m["attention_by_region"][r] for m in control["models"]]) for r in control["models"][0]["attention_by_region"]}
+alpha = {r: np.mean([m["attention_by_region"][r] for m in control["models"]])
+         for r in control["models"][0]["attention_by_region"]}
 print("mean A (emotion-branch share) by region:", {r: round(float(v), 2) for r, v in alpha.items()})
-CONTROL_ASSERTS
+assert all(x["r"] > 0.95 for a in agree.values() for x in a)  # every model, both measures
+assert min(alpha.values()) > 0.5 and min(alpha, key=alpha.get) == "lips"
 
 # %% [markdown]
-# CONTROL_PROSE
+# The condition steers the trained models the way the paper means it to: with neutral speech, "surprised 2" raises
+# the brows by about 4 mm, "angry 2" lowers them, "happy 2" widens the mouth by about 5 mm, each within a few tenths
+# of a millimetre of what the same speakers do when they really speak that way. Mesh Attention, however, does not
+# split the face into an emotion part and a content part: the emotion branch gets most of every region, the most on
+# the brows, eyes and mouth corners, the least on the lips, where the content branch has the most say. Section 4's
+# 20-step map (near 0.5 everywhere) was the untrained start of this.
 
 # %%
 # NBVAL_IGNORE_OUTPUT
@@ -467,7 +492,10 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 #   tiny run shows the mechanism, the ablation table the effect.
 # - Mesh Attention's map $A$ weighs the emotion branch per vertex and frame; after a short training it is still
 #   near 0.5 everywhere, which this notebook states rather than reads into.
-# - The emotion condition steers the emotion branch: one audio, five faces.
+# - The emotion condition steers the emotion branch: one audio, five faces. Trained for the tables' budget, it
+#   reproduces each emotion's brow raise and smile from neutral speech within a few tenths of a millimetre.
+# - On the emotional test split EmoFace has the lowest LVE of the four models; recognising the emotion from the
+#   speech (about half right) is what holds its "right emotion" errors back.
 #
 # ## Exercises
 #
