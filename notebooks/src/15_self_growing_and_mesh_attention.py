@@ -373,7 +373,7 @@ RESULTS = repo_root() / "results"
 RUN = ("python -m dualtalker_lite.experiments --table {} --seeds {} --epochs 12 --processes 2 --out results/{} "
        "--no-progress --save-models runs/emotional_tables")
 COMMANDS = {"emotion": RUN.format("emotion", "0 1 2 3 4", ""),
-            "emoface": RUN.format("emoface", EMOFACE_SEEDS, " --reuse " + EMOFACE_REUSE)}
+            "emoface": RUN.format("emoface", "0 1 2", " --reuse results/emotion.json")}
 tables = {t: experiments.load_table(RESULTS / f"{t}.json") for t in COMMANDS}
 
 # %%
@@ -384,7 +384,8 @@ for t, (specs_t, runs_t, meta_t) in tables.items():
     assert [s.row for s in specs_t] == [s.row for s in experiments.table_specs(t)]
     assert len(runs_t) == len(specs_t) * len(meta_t["seeds"])  # one run per row and seed
 batch_size = TrainConfig.tiny().batch_size
-steps, neutral_steps = 12 * math.ceil(len(pairs) / batch_size), 37 * math.ceil(len(corpus.split("train")) / batch_size)
+steps = 12 * math.ceil(len(pairs) / batch_size)                            # the emotional tables
+neutral_steps = 37 * math.ceil(len(corpus.split("train")) / batch_size)    # notebooks 09 and 12
 assert abs(steps - neutral_steps) / neutral_steps < 0.05
 print(f"{steps} steps per trained model ({neutral_steps} in the neutral tables); seeds:",
       {t: v[2]["seeds"] for t, v in tables.items()})
@@ -394,6 +395,26 @@ print(f"{steps} steps per trained model ({neutral_steps} in the neutral tables);
 
 # %%
 display(Markdown(experiments.table_markdown("emotion", *tables["emotion"])))
+
+# %%
+# NBVAL_CHECK_OUTPUT
+def row_means(table, key):
+    """{row: mean of metric ``key`` over the table's non-collapsed runs}."""
+    specs_t, runs_t, _ = tables[table]
+    nan = {"mean": math.nan}  # rows without the metric (no classifier: no emotion accuracy)
+    return {s.row: experiments.summarize([r for r in runs_t if r["row"] == s.row]).get(key, nan)["mean"]
+            for s in specs_t}
+
+lve, acc = row_means("emotion", "lve_euclidean"), row_means("emotion", "emotion_accuracy")
+brow, smile = row_means("emotion", "brow_raise_error_mm"), row_means("emotion", "smile_error_mm")
+for row in lve:
+    print(f"{row:17s} LVE {lve[row]:.2f} mm, brow error {brow[row]:.2f} mm, smile error {smile[row]:.2f} mm"
+          + (f", emotion accuracy {acc[row]:.2f}" if math.isfinite(acc[row]) else ""))
+per_seed = {s.row: [r["metrics"]["lve_euclidean"] for r in tables["emotion"][1] if r["row"] == s.row]
+            for s in tables["emotion"][0]}
+assert max(per_seed["EmoFace"]) < min(min(v) for row, v in per_seed.items() if row != "EmoFace")  # every seed
+assert min(brow, key=brow.get) == "EmoFace" and min(smile, key=smile.get) == "EmoFace"
+assert 0.25 < acc["EmoFace"] < 0.75  # above chance, far from perfect
 
 # %% [markdown]
 # How to read it (the definitions under the table): every row trains on the same clips with the same recipe and
@@ -411,26 +432,31 @@ display(Markdown(experiments.table_markdown("emotion", *tables["emotion"])))
 # %%
 display(Markdown(experiments.table_markdown("emoface", *tables["emoface"])))
 
-# %% [markdown]
-# TABLE_EMOFACE_PROSE
-
 # %%
 # NBVAL_CHECK_OUTPUT
-def row_means(table, key):
-    """{row: mean of metric ``key`` over the table's non-collapsed runs}."""
-    specs_t, runs_t, _ = tables[table]
-    return {s.row: experiments.summarize([r for r in runs_t if r["row"] == s.row])[key]["mean"] for s in specs_t}
+ab_lve, ab_brow = row_means("emoface", "lve_euclidean"), row_means("emoface", "brow_raise_error_mm")
+ab_acc = row_means("emoface", "emotion_accuracy")
+for row in ab_lve:
+    print(f"{row:25s} LVE {ab_lve[row]:.2f} mm, brow error {ab_brow[row]:.2f} mm, emotion accuracy {ab_acc[row]:.2f}")
+full = experiments.summarize([r for r in tables["emoface"][1] if r["row"] == "EmoFace (full)"])["lve_euclidean"]
+verdicts = {}
+for row in list(ab_lve)[1:]:  # the table's note: 2-standard-error rule on LVE against the full model
+    a = experiments.summarize([r for r in tables["emoface"][1] if r["row"] == row])["lve_euclidean"]
+    se = math.sqrt(a["std"] ** 2 / a["n"] + full["std"] ** 2 / full["n"])
+    diff = a["mean"] - full["mean"]
+    verdicts[row] = "within seed noise" if abs(diff) <= 2 * se else ("worse" if diff > 0 else "better")
+print(verdicts)
+assert verdicts == {"w/o Mesh Attention": "within seed noise", "w/o SpiralConv3D": "within seed noise",
+                    "w/o self-growing": "worse", "w/o cross-reconstruction": "within seed noise"}
 
-lve, acc = row_means("emotion", "lve_euclidean"), row_means("emotion", "emotion_accuracy")
-brow, smile = row_means("emotion", "brow_raise_error_mm"), row_means("emotion", "smile_error_mm")
-for row in lve:
-    print(f"{row:17s} LVE {lve[row]:.2f} mm, brow error {brow[row]:.2f} mm, smile error {smile[row]:.2f} mm"
-          + (f", emotion accuracy {acc[row]:.2f}" if math.isfinite(acc[row]) else ""))
-per_seed = {s.row: [r["metrics"]["lve_euclidean"] for r in tables["emotion"][1] if r["row"] == s.row]
-            for s in tables["emotion"][0]}
-assert max(per_seed["EmoFace"]) < min(min(v) for row, v in per_seed.items() if row != "EmoFace")  # every seed
-assert min(brow, key=brow.get) == "EmoFace" and min(smile, key=smile.get) == "EmoFace"
-assert 0.25 < acc["EmoFace"] < 0.75  # above chance, far from perfect
+# %% [markdown]
+# Only self-growing measurably helps at this scale: without it (plain teacher forcing) LVE is 0.13 mm higher, just past
+# the 2-standard-error line. Without Mesh Attention (the plain mean of the branches), without SpiralConv3D (a per-vertex
+# linear map) or without cross-reconstruction, LVE stays within seed noise of the full model, and so do the brow and
+# smile errors: those three claims of the paper are not reproduced here. Mesh Attention also costs about 2.3 times
+# the plain mean's training time (the `train (s)` column). This table has 3 seeds where the others have 5 (a trained
+# EmoFace costs about 14 CPU minutes); adding seeds 3 and 4 is the same command with `--seeds 0 1 2 3 4 --reuse
+# results/emotion.json results/emoface.json`, which computes only the 8 missing runs.
 
 # %% [markdown]
 # ### Emotion control of the trained models
