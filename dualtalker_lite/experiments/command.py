@@ -64,7 +64,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "seed, epochs and corpus are taken over instead of recomputed (their git commit is recorded)")
     p.add_argument("--save-models", type=Path, default=None, metavar="DIR",
                    help="also save each computed run's trained model there as a checkpoint, <row>_seed<seed>.pt "
-                        "(for `dualtalker-lite animate --checkpoint ...`; reused runs and the static template have none)")
+                        "(for `dualtalker-lite animate --checkpoint ...`; reused runs and the static template "
+                        "have none)")
     p.add_argument("--no-progress", action="store_true")
     return p.parse_args(argv)
 
