@@ -79,7 +79,7 @@ def one(minutes: float, out_dir: Path, video_seconds: float, threads: int) -> di
     cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
                                 n_speakers=len(corpus.train_speakers))
     model = DualTalker(cfg).eval()
-    torch.nn.init.normal_(model.motion_decoder.weight, std=0.01)  # untrained, but not a constant template
+    torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.01)  # untrained, but not a constant template
     template = corpus.template(corpus.train_speakers[0]).reshape(-1)
     faces = corpus.faces
     rss_ready = peak_rss_mb()
@@ -168,7 +168,7 @@ def make_checkpoint(path: Path) -> None:
     cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
                                 n_speakers=len(corpus.train_speakers))
     model = DualTalker(cfg).eval()
-    torch.nn.init.normal_(model.motion_decoder.weight, std=0.01)
+    torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.01)
     save_checkpoint(path, model, cfg, speakers=corpus.train_speakers, faces=corpus.faces)
 
 

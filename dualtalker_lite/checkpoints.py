@@ -3,7 +3,7 @@
 A checkpoint (format 2) is a plain dict, loadable with ``torch.load(weights_only=True)``:
 
 ====================  ==========================================================================================
-``format_version``    2 (checkpoints of format 1, written before this module, have no such key)
+``format_version``    3 (format 1 has no such key; formats 1-2 are upgraded on load, :func:`upgrade_checkpoint`)
 ``package_version``   ``dualtalker_lite.__version__`` that wrote it
 ``model_class``       ``"DualTalker"``, ``"VocaStyle"``, ... (see :func:`model_registry`)
 ``model_config``      the config dataclass as a dict
@@ -21,6 +21,11 @@ to whatever corpus happens to be passed, and refuses a template or corpus whose 
 differs. Format-1 checkpoints still load: :func:`load_checkpoint` fills ``speakers``/``topology`` with None
 and inference then takes speaker names from the corpus, saying so.
 
+Format 3 (issue 18) moved the decoder of DualTalker and of the FaceFormer-style baseline into
+``blocks.decoder.MotionDecoder``: their weights ``motion_encoder.*``, ``style.*``, ``layers.*``, ``motion_decoder.*``
+are now ``decoder.*``, and a FaceFormer-style baseline, saved before as a ``DualTalker`` with FaceFormer's switches, is
+a ``FaceFormer``. :func:`upgrade_checkpoint` renames both on load (one note on stderr); the numbers are unchanged.
+
 Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
 refused both when saving and when loading.
 """
@@ -28,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import sys
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -35,12 +41,23 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
+from .models.corrtalk import CorrTalk, CorrTalkConfig
+from .models.dualtalker import DualTalker, DualTalkerConfig
+from .models.emoface import EmoFace, EmoFaceConfig
+from .models.faceformer import FaceFormer, FaceFormerConfig
 from .utils import NonFiniteError, atomic_torch_save
 
 __all__ = ["FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
-           "extractor_settings", "extractor_from_settings", "describe"]
+           "extractor_settings", "extractor_from_settings", "describe", "upgrade_checkpoint",
+           "upgrade_state_dict"]
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+# format <= 2: the decoder's parts sat on the model itself (DualTalker, and the baseline saved as a DualTalker)
+_DECODER_PARTS = ("motion_encoder.", "style.", "ppe.", "layers.", "motion_decoder.")
+# the switches that made a format <= 2 DualTalker the FaceFormer-style baseline (old faceformer_config)
+_FACEFORMER_SWITCHES = {"dual": False, "speaker_gate": False, "query_from": "decoder", "align_window": 1,
+                        "add_style_to_motion": True, "share_enc_dec": False, "scheduled_sampling": 0.0}
 REQUIRED_KEYS = ("model_class", "model_config", "state_dict")
 
 
@@ -122,14 +139,38 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
 
 def model_registry() -> dict[str, tuple[type, type | None]]:
     """``model_class`` name -> (class, config class or None)."""
-    from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
-    from .models.corrtalk import CorrTalk, CorrTalkConfig
-    from .models.dualtalker import DualTalker, DualTalkerConfig
-    from .models.emoface import EmoFace, EmoFaceConfig
+    return {"DualTalker": (DualTalker, DualTalkerConfig), "FaceFormer": (FaceFormer, FaceFormerConfig),
+            "VocaStyle": (VocaStyle, VocaConfig), "CorrTalk": (CorrTalk, CorrTalkConfig),
+            "EmoFace": (EmoFace, EmoFaceConfig), "StaticTemplate": (StaticTemplate, None)}
 
-    return {"DualTalker": (DualTalker, DualTalkerConfig), "VocaStyle": (VocaStyle, VocaConfig),
-            "CorrTalk": (CorrTalk, CorrTalkConfig), "EmoFace": (EmoFace, EmoFaceConfig),
-            "StaticTemplate": (StaticTemplate, None)}
+
+def upgrade_state_dict(model_class: str, state: dict) -> dict:
+    """Weights of a format <= 2 DualTalker / FaceFormer-style model -> format 3 names (``decoder.`` prefix on the
+    decoder's parts); other models and format-3 weights come back unchanged."""
+    if model_class not in ("DualTalker", "FaceFormer") or not any(k.startswith(_DECODER_PARTS) for k in state):
+        return state
+    return {("decoder." + k if k.startswith(_DECODER_PARTS) else k): v for k, v in state.items()}
+
+
+def upgrade_checkpoint(ckpt: dict) -> tuple[dict, str | None]:
+    """A checkpoint dict of format 1 or 2 -> (the same in format 3, a one-line note), or (ckpt, None) if current.
+
+    Renames the decoder's weights (:func:`upgrade_state_dict`) and turns a DualTalker saved with FaceFormer's
+    switches (the baseline before format 3) into a ``FaceFormer`` with the same sizes."""
+    if ckpt.get("format_version", 1) >= FORMAT_VERSION or not isinstance(ckpt.get("state_dict"), dict):
+        return ckpt, None
+    name, cfg = ckpt.get("model_class"), ckpt.get("model_config")
+    state = upgrade_state_dict(name, ckpt["state_dict"])
+    if state is ckpt["state_dict"]:  # nothing of this model moved
+        return ckpt, None
+    out = {**ckpt, "state_dict": state}
+    note = f"upgraded a format-{ckpt.get('format_version', 1)} checkpoint ({name}) to format {FORMAT_VERSION}"
+    if name == "DualTalker" and isinstance(cfg, dict) and all(cfg.get(k, v) == v for k, v in
+                                                              _FACEFORMER_SWITCHES.items()):
+        keep = {f.name for f in dataclasses.fields(FaceFormerConfig)}
+        out["model_class"], out["model_config"] = "FaceFormer", {k: v for k, v in cfg.items() if k in keep}
+        note += " (the FaceFormer-style baseline is now the FaceFormer class)"
+    return out, note + "; save it again to skip this step"
 
 
 def _first_line(e: BaseException) -> str:
@@ -159,6 +200,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     missing = [k for k in REQUIRED_KEYS if k not in ckpt]
     if missing:
         raise ValueError(f"{path}: checkpoint is missing key(s) {missing} (has {sorted(map(str, ckpt))[:8]})")
+    ckpt, note = upgrade_checkpoint(ckpt)
     registry = model_registry()
     name = ckpt["model_class"]
     if name not in registry:
@@ -190,6 +232,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise ValueError(f"{path}: weights do not fit a {name} built from its model_config "
                          f"(edited or mixed-up checkpoint?): {msg[:300]}") from e
     model.eval()
+    if note:
+        print(f"note: {path}: {note}", file=sys.stderr)
     info = {"format_version": 1, "package_version": None, "speakers": None, "topology": None, "features": None,
             "n_vertices": getattr(getattr(model, "cfg", None), "n_vertices", None), "train_config": None,
             "history": None}

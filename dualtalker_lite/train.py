@@ -7,7 +7,7 @@ step at the learning rate of the schedule (:func:`lr_factor`). The loop has no p
 plugs in by supplying ``forward(batch)``, ``loss(...)``, ``generate(...)`` and, optionally,
 ``init_output_bias(mean_motion)`` and ``init_from_data(dataset)`` (CorrTalk: the FAI-initialised mask), both
 called before the first step when ``mean_init`` is on, and ``set_epoch(epoch, n_epochs)`` (called at each epoch start;
-EmoFace's self-growing schedule, :func:`self_growing_share`). Training stops after ``epochs`` epochs or when a budget
+EmoFace's self-growing schedule, ``models.emoface.self_growing_share``). Training stops after ``epochs`` epochs or when a budget
 (optimiser steps, process CPU seconds, wall seconds) is used up; validation LVE (autoregressive, as at test time)
 is measured only when a validation loader is given. Checkpoints hold only tensors and plain Python values, so they
 load with ``torch.load(weights_only=True)``; they are written atomically.
@@ -77,7 +77,7 @@ from tqdm.auto import tqdm
 
 from .utils import atomic_torch_save, set_seed
 
-__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "self_growing_share", "mean_motion", "loss_weights",
+__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights",
            "model_loss", "train", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
@@ -139,29 +139,6 @@ def lr_factor(step: int, warmup_steps: int, decay: str, progress: float, min_lr_
         return 1.0
     p = min(max(progress, 0.0), 1.0)
     return min_lr_ratio + (1.0 - min_lr_ratio) * 0.5 * (1.0 + math.cos(math.pi * p))
-
-
-def self_growing_share(epoch: int, n_epochs: int, warmup: int) -> float:
-    r"""Ground-truth share of the past-motion inputs at epoch ``epoch`` (0-based n) of N = ``n_epochs``: EmoFace's
-    self-growing scheme (section 3.3.1, eq. 6), with θ = ``warmup`` epochs of pure ground truth.
-
-    Eq. 6 keeps GT_t when n < θ or rand() < cos(π(n-θ)/(N-θ)), and takes the stage-one prediction P_t when
-    n > (N+θ)/2 or rand() >= cos(...). Its expected ground-truth share is therefore
-
-        1                              for n < θ               (phase 1, warm-up)
-        cos(π (n - θ) / (N - θ))       for θ <= n <= (N+θ)/2   (phase 2, cosine decay from 1 to 0)
-        0                              for n > (N+θ)/2         (phase 3, predictions only)
-
-    (the cosine reaches 0 exactly at (N+θ)/2, where phases 2 and 3 meet; it is clipped at 0, never negative).
-    """
-    if n_epochs < 1 or not 0 <= warmup <= n_epochs:
-        raise ValueError(f"self_growing_share: need n_epochs >= 1 and 0 <= warmup <= n_epochs, "
-                         f"got n_epochs={n_epochs}, warmup={warmup}")
-    if epoch < warmup:
-        return 1.0
-    if warmup == n_epochs or epoch >= (n_epochs + warmup) / 2:  # cos(π/2) = 0: exact 0 from the midpoint
-        return 0.0
-    return max(0.0, math.cos(math.pi * (epoch - warmup) / (n_epochs - warmup)))
 
 
 @dataclass

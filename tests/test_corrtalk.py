@@ -270,7 +270,7 @@ def _oscillating_batches(t=64, fps=30.0):
 
 
 def test_fai_mask_initialisation_through_train():
-    from dualtalker_lite.fai import fai_from_dataset, normalised_fai
+    from dualtalker_lite.blocks.fai import fai_from_dataset, normalised_fai
     from dualtalker_lite.train import TrainConfig, train
 
     batches = _oscillating_batches()

@@ -2,7 +2,8 @@
 import pytest
 import torch
 
-from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
 
 V, DA, NS = 20, 12, 3  # tiny sizes keep the tests fast
 
@@ -29,7 +30,7 @@ def _model(seed=0, perturb=True, **kw):
     torch.manual_seed(seed)
     model = DualTalker(_cfg(**kw)).eval()
     if perturb:  # a zero motion decoder would make every frame the template: make feedback matter
-        torch.nn.init.normal_(model.motion_decoder.weight, std=0.05)
+        torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.05)
     return model
 
 
@@ -131,7 +132,7 @@ def test_input_errors_are_clear():
 
 def test_shared_encoder_decoder_ablation_ties_weights():
     model = _model(perturb=False, share_enc_dec=True)
-    assert model.motion_decoder.encoder_weight is model.motion_encoder.weight
+    assert model.decoder.motion_decoder.encoder_weight is model.decoder.motion_encoder.weight
     assert model.audio_decoder[0].encoder_weight is model.audio_encoder.weight
     assert model.audio_decoder[2].encoder_weight is model.extractor.feature_projection.weight
     out = model(_batch())
@@ -139,14 +140,17 @@ def test_shared_encoder_decoder_ablation_ties_weights():
     assert model.num_parameters() < _model(perturb=False).num_parameters()
 
 
-def test_faceformer_config_is_the_same_class():
-    cfg = faceformer_config(_cfg())
-    assert (cfg.dual, cfg.speaker_gate, cfg.query_from, cfg.align_window, cfg.add_style_to_motion) == \
-        (False, False, "decoder", 1, True)
-    model = DualTalker(cfg).eval()
+def test_faceformer_baseline_is_the_decoder_block_with_faceformers_switches():
+    model = FaceFormer(FaceFormerConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=4)).eval()
+    layer = model.decoder.layers[0]
+    assert layer.dual is None and layer.primal.gate is None  # primal only, no speaker-aware gate
+    assert (layer.integration.query_is_given, layer.integration.window, model.decoder.add_style_to_motion) == \
+        (False, 1, True)  # queries from the motion stream, diagonal alignment, S_n on every token
     batch = _batch()
-    assert model(batch)["audio"] is None
+    out = model(batch)
+    assert out["audio"] is None and out["motion"].shape == (2, 12, V * 3)
     assert model.generate(batch["audio"], batch["template"], batch["speaker"]).shape == (2, 12, V * 3)
+    assert not any(isinstance(m, DualTalker) for m in model.modules())
 
 
 def test_scheduled_sampling():
@@ -268,9 +272,9 @@ def test_scale_folded_into_the_weights_equals_scaling_the_motion():
     model = _model(motion_scale=1000.0)
     m = torch.randn(2, 5, V * 3) * 1e-3
     h = torch.randn(2, 5, model.cfg.d_model)
-    enc, dec = model.motion_encoder, model.motion_decoder
-    torch.testing.assert_close(model.encode_motion(m), enc(m * 1000.0), rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(model.decode_motion(h), dec(h) / 1000.0, rtol=1e-5, atol=1e-8)
+    enc, dec = model.decoder.motion_encoder, model.decoder.motion_decoder
+    torch.testing.assert_close(model.decoder.encode_motion(m), enc(m * 1000.0), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(model.decoder.decode_motion(h), dec(h) / 1000.0, rtol=1e-5, atol=1e-8)
 
 
 def test_loss_method_is_the_joint_loss_and_the_output_bias_init_gives_the_mean():

@@ -7,7 +7,8 @@ import torch
 from dualtalker_lite.losses.emoface import (EmoFaceWeights, classification_loss, emoface_loss, l1_loss,
                                             reconstruction_loss, velocity_loss)
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig, frame_level_stats
-from dualtalker_lite.train import TrainConfig, self_growing_share, train
+from dualtalker_lite.models.emoface import self_growing_share
+from dualtalker_lite.train import TrainConfig, train
 
 V, DA, NS, NE = 20, 12, 3, 5  # tiny sizes keep the tests fast
 

@@ -1,4 +1,4 @@
-"""CorrTalk's facial activity intensity (dualtalker_lite.fai): STFT amplitudes on signals of known frequency and
+"""CorrTalk's facial activity intensity (dualtalker_lite.blocks.fai): STFT amplitudes on signals of known frequency and
 amplitude, computed by hand from the Hann-window DFT, the three band readings, the corpus invariant, bad inputs."""
 import math
 
@@ -8,7 +8,7 @@ import torch
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.fai import (BANDS, displacement_stft, fai_from_corpus, fai_from_dataset,
+from dualtalker_lite.blocks.fai import (BANDS, displacement_stft, fai_from_corpus, fai_from_dataset,
                                  facial_activity_intensity, mean_amplitude_spectrum, normalised_fai, select_band,
                                  vertex_displacements)
 

@@ -208,7 +208,7 @@ def test_checkpoint_is_0644_under_default_umask(setup, tmp_path):
     assert (path.stat().st_mode & 0o777) == 0o644
     assert [p.name for p in tmp_path.iterdir()] == ["m.pt"]
     _, info = load_checkpoint(path)
-    assert info["format_version"] == 2 and info["n_vertices"] == cfg.n_vertices
+    assert info["format_version"] == 3 and info["n_vertices"] == cfg.n_vertices
     assert info["features"]["name"] == "logmel" and info["features"]["settings"]["n_mels"] == 80
 
 
@@ -414,7 +414,7 @@ def moving_ckpt(setup, tmp_path_factory):
     corpus, _, cfg = setup
     torch.manual_seed(3)
     model = DualTalker(cfg).eval()
-    torch.nn.init.normal_(model.motion_decoder.weight, std=0.02)
+    torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.02)
     path = tmp_path_factory.mktemp("moving") / "model.pt"
     save_checkpoint(path, model, cfg, speakers=corpus.train_speakers, faces=corpus.faces)
     return path

@@ -70,7 +70,7 @@ def _model(n_vertices=5, **kw):
     cfg = DualTalkerConfig.tiny(n_vertices=n_vertices, audio_dim=160, n_speakers=2, d_model=16, d_ff=32,
                                 audio_hidden=16, motion_scale=1.0, **kw)
     model = DualTalker(cfg).eval()
-    torch.nn.init.normal_(model.motion_decoder.weight, std=0.05)
+    torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.05)
     return model
 
 

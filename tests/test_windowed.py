@@ -9,7 +9,7 @@ from dualtalker_lite.blocks.attention import MultiHeadAttention
 from dualtalker_lite.blocks.positional import alibi_causal_bias, alibi_slopes
 from dualtalker_lite.blocks.windowed import (SlidingKVCache, alibi_bias_sum, alibi_lag_bias, banded_attention,
                                              banded_multi_head_attention, dropped_mass_bound)
-from dualtalker_lite.models.audio_encoder import AudioFeatureExtractor
+from dualtalker_lite.blocks.audio_encoder import AudioFeatureExtractor
 
 
 @pytest.fixture(autouse=True)

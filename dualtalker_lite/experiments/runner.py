@@ -90,7 +90,8 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int,
     ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention)."""
     from ..models.baselines import StaticTemplate, VocaConfig, VocaStyle
     from ..models.corrtalk import CorrTalk, CorrTalkConfig
-    from ..models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+    from ..models.dualtalker import DualTalker, DualTalkerConfig
+    from ..models.faceformer import FaceFormer, FaceFormerConfig
 
     sizes = dict(n_vertices=n_vertices, audio_dim=audio_dim, n_speakers=n_speakers)
     if spec.model == "template":
@@ -99,8 +100,8 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int,
         cfg = VocaConfig.tiny(**sizes, **spec.model_overrides)
         return VocaStyle(cfg), cfg
     if spec.model == "faceformer":
-        cfg = faceformer_config(DualTalkerConfig.tiny(**sizes), **spec.model_overrides)
-        return DualTalker(cfg), cfg
+        cfg = FaceFormerConfig.tiny(**sizes, **spec.model_overrides)
+        return FaceFormer(cfg), cfg
     if spec.model == "dualtalker":
         cfg = DualTalkerConfig.tiny(**sizes, **spec.model_overrides)
         return DualTalker(cfg), cfg

@@ -1,11 +1,18 @@
-"""One module per paper, plus baselines: ``dualtalker`` (DualTalker and its FaceFormer-style baseline config),
-``corrtalk`` (CorrTalk: hierarchical speech features, strong/weak branches), ``emoface`` (EmoFace: emotion and
-content branches, Mesh Attention, self-growing training),
-``audio_encoder`` (the small wav2vec 2.0 stand-in shared by the models), ``baselines`` (static template, VOCA-style)."""
-from .audio_encoder import AudioFeatureExtractor
-from .corrtalk import CorrTalk, CorrTalkConfig
-from .dualtalker import DualTalker, DualTalkerConfig, faceformer_config
-from .emoface import EmoFace, EmoFaceConfig
+"""One module per paper, plus the baselines. Each model composes ``blocks/`` (the shared FaceFormer-style
+``blocks.decoder.MotionDecoder``, the audio front-end ``blocks.audio_encoder``, the paper's own blocks) and its
+paper's ``losses`` module; no model imports another model.
 
-__all__ = ["AudioFeatureExtractor", "DualTalker", "DualTalkerConfig", "faceformer_config", "CorrTalk",
-           "CorrTalkConfig", "EmoFace", "EmoFaceConfig"]
+- ``faceformer``  the FaceFormer-style baseline: audio front-end + one MotionDecoder
+- ``dualtalker``  DualTalker: primal task (a MotionDecoder with DualTalker's fusion) + dual task (lip reading)
+- ``corrtalk``    CorrTalk: hierarchical speech features, strong and weak MotionDecoders joined by an FAI mask
+- ``emoface``     EmoFace: emotion and content branches (two MotionDecoders), Mesh Attention, self-growing training
+- ``baselines``   static template and a VOCA-style sliding-window regressor
+"""
+from .baselines import StaticTemplate, VocaConfig, VocaStyle
+from .corrtalk import CorrTalk, CorrTalkConfig
+from .dualtalker import DualTalker, DualTalkerConfig
+from .emoface import EmoFace, EmoFaceConfig
+from .faceformer import FaceFormer, FaceFormerConfig
+
+__all__ = ["FaceFormer", "FaceFormerConfig", "DualTalker", "DualTalkerConfig", "CorrTalk", "CorrTalkConfig",
+           "EmoFace", "EmoFaceConfig", "StaticTemplate", "VocaConfig", "VocaStyle"]

@@ -14,7 +14,7 @@ Pipeline (Fig. 3), shapes for a batch of B clips of T mesh frames, V vertices::
     (F^w without a tilde is the word level; F̃^s, F̃^w are the two branches' weighted features)
     M̂ = mask ⊙ M^s + (1 - mask) ⊙ M^w,  vertices = template + M̂                                   (eqs. 7-8)
 
-Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.fai`,
+Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.blocks.fai`,
 :mod:`dualtalker_lite.blocks.hierarchical` and :mod:`dualtalker_lite.losses.corrtalk`):
 
 .. math::
@@ -41,9 +41,8 @@ Readings taken:
   talking-style vector S_n (start token S_n), periodic positional encoding, a transformer decoder layer with the
   ALiBi-biased causal self-attention and cross-attention to the branch's features under the diagonal alignment,
   and a linear motion decoder (zero-initialised: an untrained model outputs the template). These pieces *are*
-  :class:`~dualtalker_lite.blocks.fusion.DualFusionLayer` (primal only, no gate, queries from the decoder) and
-  :class:`~dualtalker_lite.models.dualtalker.DualTalker`'s motion encoder/decoder, stream, teacher-forced fusion
-  and bounded-cache decoding step, reused (the methods are DualTalker's own functions, not copies).
+  :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (primal only, no gate, queries from the decoder), the
+  block the FaceFormer-style baseline is made of; CorrTalk composes two of them.
 - One style embedding shared by both branches (one "talking style vector" per speaker in the text).
 - Past-motion dropout (``motion_dropout``, the project's exposure-bias remedy, 0.5 in ``tiny()`` as for every
   autoregressive model of the recipe): a fed-back frame is hidden (zero motion) for both branches at once.
@@ -53,7 +52,7 @@ Readings taken:
 
 Mask initialisation from data: :meth:`CorrTalk.init_from_data` (called by ``train`` beside ``init_output_bias``
 when the recipe's ``mean_init`` is on) sets the mask to the normalised FAI of the training set
-(:func:`dualtalker_lite.fai.fai_from_dataset`, :func:`dualtalker_lite.fai.normalised_fai`); :meth:`init_mask`
+(:func:`dualtalker_lite.blocks.fai.fai_from_dataset`, :func:`dualtalker_lite.blocks.fai.normalised_fai`); :meth:`init_mask`
 takes any (V,) vector.
 """
 from __future__ import annotations
@@ -64,14 +63,14 @@ import torch
 import torch.nn as nn
 from torch import Tensor
 
-from ..blocks.fusion import DualFusionLayer
+from ..blocks.audio_encoder import AudioFeatureExtractor
+from ..blocks.fai import fai_from_dataset, normalised_fai
+from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
+                              check_window, lookup_style)
 from ..blocks.hierarchical import HierarchicalFeatureExtractor, WeightGenerator, window_radius
-from ..blocks.positional import PeriodicPositionalEncoding
 from ..losses.corrtalk import CorrTalkWeights, corrtalk_loss
-from .audio_encoder import AudioFeatureExtractor
-from .dualtalker import DualTalker
 
-__all__ = ["CorrTalkConfig", "MotionBranch", "CorrTalk", "MASK_INITS"]
+__all__ = ["CorrTalkConfig", "CorrTalk", "MASK_INITS"]
 
 MASK_INITS = ("fai", "random", "uniform")
 
@@ -143,64 +142,11 @@ class CorrTalkConfig:
         return window_radius(self.phoneme_s, self.fps), window_radius(self.word_s, self.fps), self.utterance_radius
 
 
-class MotionBranch(nn.Module):
-    """One FaceFormer-style decoding branch (Fig. 3 right): embedding layer E_b (V*3 -> d), PPE, transformer
-    decoder layer(s) (biased causal self-attention, diagonal cross-attention to the branch's features), linear
-    motion decoder (d -> V*3, zero-initialised). Its methods are DualTalker's, reused as they are."""
-
-    # DualTalker's own functions (same code path as the FaceFormer-style baseline), not copies:
-    encode_motion = DualTalker.encode_motion  # (..., V*3) metres -> (..., d)
-    decode_motion = DualTalker.decode_motion  # (..., d) -> (..., V*3) metres
-    _stream = DualTalker._stream  # [S_n, E(m_1) (+S_n), ..., E(m_{T-1}) (+S_n)]
-    _fuse = DualTalker._fuse  # PPE + decoder layers over a whole stream (teacher forcing)
-    _feedback = DualTalker._feedback  # next stream token from the frame just predicted
-    _decoder_state = DualTalker._decoder_state  # bounded caches of one layer
-    _lag_bias = DualTalker._lag_bias
-    _decode_step = DualTalker._decode_step  # one frame of one layer with bounded caches
-
-    def __init__(self, cfg: CorrTalkConfig):
-        super().__init__()
-        self.cfg = cfg
-        d, v3 = cfg.d_model, 3 * cfg.n_vertices
-        self.motion_encoder = nn.Linear(v3, d)  # embedding layer of the branch
-        self.ppe = PeriodicPositionalEncoding(d, cfg.period, cfg.dropout)
-        self.layers = nn.ModuleList(
-            DualFusionLayer(d, cfg.n_heads, cfg.d_ff, window=1, query_from="decoder", period=cfg.period,
-                            speaker_gate=False, dual=False, dropout=cfg.dropout) for _ in range(cfg.n_layers))
-        self.motion_decoder = nn.Linear(d, v3)  # zero: first prediction = template
-        nn.init.zeros_(self.motion_decoder.weight)
-        nn.init.zeros_(self.motion_decoder.bias)
-
-    def teacher_forced(self, fed_motion: Tensor, features: Tensor, style: Tensor, mask: Tensor | None) -> Tensor:
-        """Branch output for every frame from the (true) past motion: fed (B, T, V*3), F (B, T, d) -> (B, T, V*3)."""
-        h = self._fuse(self._stream(self.encode_motion(fed_motion), style), features, style, "primal", mask)
-        return self.decode_motion(h)  # (B, T, V*3)
-
-    def prefix_step(self, tokens: list[Tensor], features: Tensor, style: Tensor, mask: Tensor | None) -> Tensor:
-        """Uncached reference: re-run the decoder on the whole prefix, return the last frame (B, 1, V*3)."""
-        h = self.ppe(torch.cat(tokens, dim=1))  # (B, t+1, d)
-        for layer in self.layers:
-            h, _ = layer(h, features, style, "primal", key_mask=mask)
-        return self.decode_motion(h[:, -1:])  # (B, 1, V*3)
-
-    def cached_step(self, states: list[dict], token: Tensor, features: Tensor, style: Tensor, t: int,
-                    mask: Tensor | None) -> Tensor:
-        """Frame t with bounded caches (DualTalker._decode_step per layer): token (B, 1, d) -> (B, 1, V*3)."""
-        ppe = self.ppe.encoding(1, offset=t).to(token.dtype)  # (1, d) PPE of frame t (eval: no dropout)
-        h = token + ppe
-        for layer, state in zip(self.layers, states):
-            h = self._decode_step(layer, state, h, features, style, t, mask)
-        return self.decode_motion(h)  # (B, 1, V*3)
-
-
 class CorrTalk(nn.Module):
     """Shared audio front-end, weighted hierarchical encoder (one weight generator per branch), strong and weak
     FaceFormer-style branches combined by a learnable FAI-initialised mask (eqs. 1-8, reconstructed)."""
 
     loss_weights_cls = CorrTalkWeights  # train.loss_weights builds it
-
-    speaker_style = DualTalker.speaker_style  # S_n with a clear error for unknown speakers
-    _check = DualTalker._check  # shapes of audio / template / speaker / vertices
 
     def __init__(self, cfg: CorrTalkConfig):
         super().__init__()
@@ -214,17 +160,33 @@ class CorrTalk(nn.Module):
                                                       cfg.dropout, n_levels)
         self.style = nn.Embedding(cfg.n_speakers, d)  # the talking-style vectors S_n
         self.weights_strong = WeightGenerator(d, n_levels, cfg.weight_hidden)
-        self.strong = MotionBranch(cfg)
+        self.strong = self._branch()
         self.weights_weak = self.weak = None
         mask = torch.full((cfg.n_vertices,), 0.5)
         if cfg.dual_branch:
             self.weights_weak = WeightGenerator(d, n_levels, cfg.weight_hidden)
-            self.weak = MotionBranch(cfg)
+            self.weak = self._branch()
             if cfg.mask_init == "random":
                 mask = torch.rand(cfg.n_vertices)  # Table III "initialised at random" (global seed)
         self.mask = nn.Parameter(mask)  # (V,) learnable; replaced by the normalised FAI in init_from_data
         if not cfg.dual_branch:
             self.mask.requires_grad_(False)  # unused by a single branch
+
+    def _branch(self) -> MotionDecoder:
+        """One FaceFormer-style decoding branch (Fig. 3 right): embedding E_b, PPE, ALiBi causal self-attention,
+        diagonal cross-attention to the branch's features, zero-initialised motion head; styles come from the
+        shared table (``n_speakers=None``)."""
+        cfg = self.cfg
+        return MotionDecoder(cfg.n_vertices, cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
+                             query_from="decoder", align_window=1, add_style_to_motion=cfg.add_style_to_motion,
+                             dropout=cfg.dropout, motion_scale=cfg.motion_scale)
+
+    def speaker_style(self, speaker: Tensor) -> Tensor:
+        """The talking-style vector S_n shared by both branches: speaker (B,) -> (B, d)."""
+        return lookup_style(self.style, speaker)
+
+    def _check(self, audio: Tensor, template: Tensor, speaker: Tensor, vertices: Tensor | None = None) -> None:
+        check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker, vertices)
 
     def num_parameters(self) -> int:
         """Number of trainable scalars."""
@@ -271,8 +233,6 @@ class CorrTalk(nn.Module):
         or a list of padded batches, as ``train`` accepts. The frame rate is the corpus's, else ``cfg.fps``."""
         if self.weak is None or self.cfg.mask_init != "fai":
             return
-        from ..fai import fai_from_dataset, normalised_fai
-
         base = getattr(data, "base", data)  # the clips behind a feature wrapper
         fps = getattr(getattr(base, "corpus", None), "fps", None) or self.cfg.fps
         if isinstance(base, (list, tuple)):  # padded batches -> whole clips
@@ -284,13 +244,10 @@ class CorrTalk(nn.Module):
     @torch.no_grad()
     def init_output_bias(self, mean_motion: Tensor) -> None:
         """Both motion decoders' biases = the training mean motion (V*3,) in metres: the untrained model outputs
-        template + mean motion whatever the mask (mask ⊙ b + (1 - mask) ⊙ b = b); see DualTalker's docstring."""
-        v3 = 3 * self.cfg.n_vertices
-        if tuple(mean_motion.shape) != (v3,):
-            raise ValueError(f"mean_motion: expected shape ({v3},), got {tuple(mean_motion.shape)}")
+        template + mean motion whatever the mask (mask ⊙ b + (1 - mask) ⊙ b = b); see docs/design-notes.md."""
         for branch in (self.strong, self.weak):
             if branch is not None:
-                branch.motion_decoder.bias.copy_(mean_motion.to(branch.motion_decoder.bias) * self.cfg.motion_scale)
+                branch.init_output_bias(mean_motion)
 
     # ---- training: teacher forcing -----------------------------------------------------------------
     def forward(self, batch: dict) -> dict:
@@ -324,6 +281,14 @@ class CorrTalk(nn.Module):
         return corrtalk_loss(out, batch, weights)
 
     # ---- inference -------------------------------------------------------------------------------
+    def _decoding(self, audio: Tensor, mask: Tensor | None, speaker: Tensor):
+        """Branches, their features and styles for the generation loops, and eq. 8 as their ``combine``."""
+        style = self.speaker_style(speaker)  # (B, d)
+        enc = self.encode_audio(audio, mask)
+        branches = [(b, enc[k]) for b, k in ((self.strong, "strong"), (self.weak, "weak")) if b is not None]
+        combine = lambda t, raw: self.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # noqa: E731 eq. 8
+        return [b for b, _ in branches], [f for _, f in branches], [style] * len(branches), combine
+
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
                  mask: Tensor | None = None, window: int | None | str = "config") -> Tensor:
@@ -331,54 +296,24 @@ class CorrTalk(nn.Module):
 
         ``use_cache=True``: bounded caches (:meth:`generate_chunks`, exact for clips up to ``window`` frames);
         False: both branches re-run on the whole prefix at every frame (O(T^2), the reference). Call ``eval()``."""
-        self._check(audio, template, speaker)
         if use_cache:
-            out = template.new_empty(audio.shape[0], audio.shape[1], template.shape[1])  # (B, T, V*3)
-            start = 0
-            for chunk in self.generate_chunks(audio, template, speaker, mask=mask, window=window):
-                out[:, start:start + chunk.shape[1]] = chunk
-                start += chunk.shape[1]
-            return out
+            return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, window=window)), dim=1)
+        self._check(audio, template, speaker)
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
-        style = self.speaker_style(speaker)  # (B, d)
-        enc = self.encode_audio(audio, mask)
-        branches = [(b, enc[k]) for b, k in ((self.strong, "strong"), (self.weak, "weak")) if b is not None]
-        tokens = [[style[:, None, :]] for _ in branches]  # start token S_n per branch
-        motions = []
-        for _ in range(audio.shape[1]):
-            raw = [b.prefix_step(tok, f, style, mask) for (b, f), tok in zip(branches, tokens)]  # (B, 1, V*3) each
-            m_t = self.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # (B, 1, V*3) eq. 8
-            motions.append(m_t)
-            for (b, _), tok in zip(branches, tokens):
-                tok.append(b._feedback(m_t, style))
-        return template[:, None, :] + torch.cat(motions, dim=1)  # (B, T, V*3)
+        decoders, feats, styles, combine = self._decoding(audio, mask, speaker)
+        return autoregressive_reference(decoders, feats, styles, template, combine, mask)
 
-    @torch.no_grad()
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
                         window: int | None | str = "config", chunk: int = 900):
-        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (as DualTalker's:
-        each branch's self-attention keeps the last ``window`` tokens, its cross-attention the diagonal)."""
+        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (each branch's
+        self-attention keeps the last ``window`` tokens, its cross-attention the diagonal); the summed motion of
+        eq. 8 is fed back to both branches."""
         self._check(audio, template, speaker)
         window = self.cfg.decoder_window if window == "config" else window
-        if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
-            raise ValueError(f"window must be a positive number of frames, None or 'config', got {window!r}")
+        check_window(window)
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
-        b, t_total = audio.shape[:2]
-        style = self.speaker_style(speaker)  # (B, d)
-        enc = self.encode_audio(audio, mask)
-        branches = [(br, enc[k]) for br, k in ((self.strong, "strong"), (self.weak, "weak")) if br is not None]
-        states = [[br._decoder_state(layer, f, window) for layer in br.layers] for br, f in branches]
-        tokens = [style[:, None, :] for _ in branches]  # (B, 1, d) start token S_n
-        for start in range(0, t_total, chunk):
-            n = min(chunk, t_total - start)
-            block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
-            for r in range(n):
-                t = start + r
-                raw = [br.cached_step(st, tok, f, style, t, mask)
-                       for (br, f), st, tok in zip(branches, states, tokens)]  # (B, 1, V*3) each
-                m_t = self.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # (B, 1, V*3)
-                block[:, r] = template + m_t[:, 0]
-                tokens = [br._feedback(m_t, style) for br, _ in branches]
-            yield block
+        with torch.no_grad():
+            decoders, feats, styles, combine = self._decoding(audio, mask, speaker)
+        return autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)

@@ -24,8 +24,8 @@ Readings taken (the paper leaves these open):
   not (prosody). We resample clip 2 (its features and vertices) *linearly in time* to clip 1's length before
   anything else (``data.pairs``), so M_{c1,e2} is literally a length-T sequence: start and end are aligned,
   the middle only approximately (no DTW). The cross targets are therefore the time-warped partner frames.
-- The branch decoders are DualTalker's primal task in its FaceFormer configuration (queries from the motion
-  stream, diagonal alignment, ALiBi, PPE, style added to every token), reused as :class:`BranchDecoder`: the
+- The branch decoders are FaceFormer-style ``blocks.decoder.MotionDecoder``s (queries from the motion
+  stream, diagonal alignment, ALiBi, PPE, style added to every token), the block of the baseline: the
   "audio" they attend to is the branch's features F_c or F_e. Both decoders are fed back the *fused* motion
   (teacher forcing: the ground truth; generation: the fused prediction), because the paper predicts one mesh
   sequence M_t "conditioned on ... the prior sequence of face motions M_<=t" (section 3.3.1).
@@ -64,18 +64,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..losses.emoface import EmoFaceWeights, emoface_loss
+from ..blocks.audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
+from ..blocks.decoder import MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs, check_window
 from ..blocks.mesh_attention import MeshAttention
 from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
-from .audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
-from .dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+from ..losses.emoface import EmoFaceWeights, emoface_loss
 
-__all__ = ["EmoFaceConfig", "frame_level_stats", "BranchDecoder", "EmoFace", "PAST_MOTION", "FUSIONS"]
+__all__ = ["EmoFaceConfig", "frame_level_stats", "self_growing_share", "EmoFace", "PAST_MOTION", "FUSIONS"]
 
 PAST_MOTION = ("self_growing", "teacher_forcing", "scheduled_sampling", "dropout")
 FUSIONS = ("mesh_attention", "sum")
@@ -140,16 +142,6 @@ class EmoFaceConfig:
         """FaceFormer's VOCASET decoder sizes (the paper builds on FaceFormer and gives no other sizes)."""
         return cls(**overrides)
 
-    def branch_config(self) -> DualTalkerConfig:
-        """The FaceFormer-style decoder of one branch, reading d-channel branch features as its 'audio'."""
-        base = DualTalkerConfig(n_vertices=self.n_vertices, audio_dim=self.d_model, n_speakers=self.n_speakers,
-                                d_model=self.d_model, n_heads=self.n_heads, d_ff=self.d_ff, n_layers=self.n_layers,
-                                period=self.period, audio_hidden=self.d_model, audio_heads=self.n_heads,
-                                audio_conv_layers=0, audio_layers=0, dropout=self.dropout,
-                                motion_scale=self.motion_scale, audio_radius=self.audio_radius,
-                                decoder_window=self.decoder_window)
-        return faceformer_config(base)
-
 
 def frame_level_stats(audio: Tensor) -> Tensor:
     """Per-frame mean and standard deviation of the log-mel over its bins: A (B, T, D_a) -> (B, T, 2).
@@ -160,25 +152,27 @@ def frame_level_stats(audio: Tensor) -> Tensor:
     return torch.stack([audio.mean(-1), audio.std(-1, unbiased=False)], dim=-1)  # (B, T, 2)
 
 
-class BranchDecoder(DualTalker):
-    """D_c or D_e (eqs. 15-16): DualTalker's primal task in FaceFormer's configuration, attending to branch features.
+def self_growing_share(epoch: int, n_epochs: int, warmup: int) -> float:
+    r"""Ground-truth share of the past-motion inputs at epoch ``epoch`` (0-based n) of N = ``n_epochs``: EmoFace's
+    self-growing scheme (section 3.3.1, eq. 6), with θ = ``warmup`` epochs of pure ground truth.
 
-    Everything (motion encoder, style embeddings S_n, PPE, ALiBi self-attention, diagonal alignment, zero-initialised
-    motion decoder, cached decoding steps) is DualTalker's; only the audio path is replaced by the identity."""
+    Eq. 6 keeps GT_t when n < θ or rand() < cos(π(n-θ)/(N-θ)), and takes the stage-one prediction P_t when
+    n > (N+θ)/2 or rand() >= cos(...). Its expected ground-truth share is therefore
 
-    def __init__(self, cfg: DualTalkerConfig):
-        super().__init__(cfg)
-        self.extractor = None  # the branch reads features, not audio
-        self.audio_encoder = nn.Identity()
+        1                              for n < θ               (phase 1, warm-up)
+        cos(π (n - θ) / (N - θ))       for θ <= n <= (N+θ)/2   (phase 2, cosine decay from 1 to 0)
+        0                              for n > (N+θ)/2         (phase 3, predictions only)
 
-    def encode_audio(self, features: Tensor, mask: Tensor | None = None) -> Tensor:
-        """The branch features F (B, T, d) are the decoder's 'audio' X as they are."""
-        return features
-
-    def teacher_forced(self, features: Tensor, past_motion: Tensor, style: Tensor, mask: Tensor | None) -> Tensor:
-        """Offsets ΔM_{1:T} (B, T, V*3) from features (B, T, d) and the motion M_{0:T-1} fed back (B, T, V*3)."""
-        stream = self._stream(self.encode_motion(past_motion), style)  # (B, T, d) [S_n, Me(m_1), ...]
-        return self.decode_motion(self._fuse(stream, features, style, "primal", mask))  # (B, T, V*3)
+    (the cosine reaches 0 exactly at (N+θ)/2, where phases 2 and 3 meet; it is clipped at 0, never negative).
+    """
+    if n_epochs < 1 or not 0 <= warmup <= n_epochs:
+        raise ValueError(f"self_growing_share: need n_epochs >= 1 and 0 <= warmup <= n_epochs, "
+                         f"got n_epochs={n_epochs}, warmup={warmup}")
+    if epoch < warmup:
+        return 1.0
+    if warmup == n_epochs or epoch >= (n_epochs + warmup) / 2:  # cos(π/2) = 0: exact 0 from the midpoint
+        return 0.0
+    return max(0.0, math.cos(math.pi * (epoch - warmup) / (n_epochs - warmup)))
 
 
 class EmoFace(nn.Module):
@@ -212,8 +206,8 @@ class EmoFace(nn.Module):
         self.classifier = nn.Linear(2 * d, cfg.n_emotions)  # p_{iφ} of eq. 10, from [mean_t F_e, std_t F_e]
         self.emotion_type = nn.Linear(cfg.n_emotions, d, bias=False)  # type condition (label or p)
         self.emotion_level = nn.Linear(cfg.n_levels, d, bias=False)  # level one-hot l
-        self.emotion_decoder = BranchDecoder(cfg.branch_config())  # D_e
-        self.content_decoder = BranchDecoder(cfg.branch_config())  # D_c
+        self.emotion_decoder = self._branch_decoder()  # D_e
+        self.content_decoder = self._branch_decoder()  # D_c
         self.mesh_attention = None
         if cfg.fusion == "mesh_attention":
             if faces is None:  # placeholder: every slot repeats the centre (masked); filled by load_state_dict
@@ -225,11 +219,17 @@ class EmoFace(nn.Module):
                                                 n_layers=cfg.mesh_layers)  # ε of eqs. 17-18
         self._share = 1.0  # ground-truth share of the past motion (set_epoch); 1 = teacher forcing
 
+    def _branch_decoder(self) -> MotionDecoder:
+        """D_c or D_e (eqs. 15-16): a FaceFormer-style decoder (style table S_n, PPE, ALiBi self-attention, diagonal
+        alignment, S_n on every token, zero-initialised head) attending to its branch's features."""
+        cfg = self.cfg
+        return MotionDecoder(cfg.n_vertices, cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
+                             n_speakers=cfg.n_speakers, query_from="decoder", align_window=1,
+                             add_style_to_motion=True, dropout=cfg.dropout, motion_scale=cfg.motion_scale)
+
     # ---- schedule ---------------------------------------------------------------------------------
     def set_epoch(self, epoch: int, n_epochs: int) -> None:
         """Called by ``train`` at each epoch start: the ground-truth share of stage two (eq. 6) for this epoch."""
-        from ..train import self_growing_share
-
         cfg = self.cfg
         if cfg.past_motion == "self_growing":
             self._share = self_growing_share(epoch, n_epochs, int(round(cfg.growing_warmup * n_epochs)))
@@ -284,9 +284,8 @@ class EmoFace(nn.Module):
         return fe + cond[:, None, :]  # (B, T, d)
 
     def _check(self, audio: Tensor, template: Tensor, speaker: Tensor, vertices: Tensor | None = None) -> None:
-        """Raise a ValueError naming expected vs got for inputs of the wrong shape (DualTalker's checks: they read
-        only ``cfg.n_vertices`` and ``cfg.audio_dim``, which EmoFaceConfig has too)."""
-        DualTalker._check(self, audio, template, speaker, vertices)
+        """Raise a ValueError naming expected vs got for inputs of the wrong shape."""
+        check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker, vertices)
 
     # ---- fusion (eqs. 17-18) ------------------------------------------------------------------------
     def fuse(self, fe: Tensor, fc: Tensor, oe: Tensor, oc: Tensor) -> tuple[Tensor, Tensor]:
@@ -305,8 +304,8 @@ class EmoFace(nn.Module):
     def _decode(self, fe: Tensor, fc: Tensor, past: Tensor, speaker: Tensor, mask: Tensor | None):
         """Both decoders teacher-forced on ``past`` (B, T, V*3), then fused -> (ΔM^e, ΔM^c, ΔM, α)."""
         de, dc = self.emotion_decoder, self.content_decoder
-        oe = de.teacher_forced(fe, past, de.speaker_style(speaker), mask)  # (B, T, V*3)
-        oc = dc.teacher_forced(fc, past, dc.speaker_style(speaker), mask)  # (B, T, V*3)
+        oe = de.teacher_forced(past, fe, de.speaker_style(speaker), mask)  # (B, T, V*3)
+        oc = dc.teacher_forced(past, fc, dc.speaker_style(speaker), mask)  # (B, T, V*3)
         fused, alpha = self.fuse(fe, fc, oe, oc)
         return oe, oc, fused, alpha
 
@@ -373,7 +372,7 @@ class EmoFace(nn.Module):
     @torch.no_grad()
     def init_output_bias(self, mean_motion: Tensor) -> None:
         """Both decoder biases = the training mean motion (V*3,), metres: the untrained model outputs it."""
-        self.emotion_decoder.init_output_bias(mean_motion)
+        self.emotion_decoder.init_output_bias(mean_motion)  # (one shape check each)
         self.content_decoder.init_output_bias(mean_motion)
 
     @torch.no_grad()
@@ -429,23 +428,14 @@ class EmoFace(nn.Module):
                                                        level=level)), dim=1)
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
-        fc, fe = self._conditions(audio, mask, emotion, level)
-        de, dc = self.emotion_decoder, self.content_decoder
-        se, sc = de.speaker_style(speaker), dc.speaker_style(speaker)
-        past = template.new_zeros(audio.shape[0], 0, template.shape[1])  # (B, t, V*3) fused motion so far
-        for t in range(audio.shape[1]):
-            feed = torch.cat([past, past.new_zeros(past.shape[0], 1, past.shape[2])], dim=1)  # last one unused
-            oe = de.teacher_forced(fe[:, :t + 1], feed, se, None if mask is None else mask[:, :t + 1])
-            oc = dc.teacher_forced(fc[:, :t + 1], feed, sc, None if mask is None else mask[:, :t + 1])
-            fused, _ = self.fuse(fe[:, :t + 1], fc[:, :t + 1], oe, oc)  # (B, t+1, V*3)
-            past = torch.cat([past, fused[:, -1:]], dim=1)
-        return template[:, None, :] + past  # (B, T, V*3)
+        decoders, feats, styles, combine = self._decoding(audio, mask, speaker, emotion, level, context=None)
+        return autoregressive_reference(decoders, feats, styles, template, combine, mask)
 
     @torch.no_grad()
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
                         emotion=None, level=None, window: int | None | str = "config", chunk: int = 900):
-        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks, both decoders with DualTalker's bounded
-        caches (:meth:`DualTalker.generate_chunks`), fused frame by frame, the fused motion fed back to both.
+        """Yield the vertices in consecutive (B, <= chunk, V*3) blocks, both decoders with bounded caches
+        (``blocks.decoder.autoregressive_chunks``), fused frame by frame, the fused motion fed back to both.
 
         Inputs and conditions are checked here, before the first block is asked for (not a generator itself)."""
         self._check(audio, template, speaker)
@@ -463,41 +453,33 @@ class EmoFace(nn.Module):
             if lv.dtype.is_floating_point or bool(((lv < 0) | (lv > self.cfg.n_levels)).any()):
                 raise ValueError(f"level {lv.tolist()}: expected 1..{self.cfg.n_levels} (0 = neutral counts as 1)")
 
+    def _decoding(self, audio: Tensor, mask: Tensor | None, speaker: Tensor, emotion, level, context: int | None):
+        """Decoders D_e, D_c, their features and styles for the generation loops, and the fusion ε as ``combine``:
+        it keeps the last ``context`` raw offsets of each branch (None: all) and fuses them frame by frame."""
+        fc, fe = self._conditions(audio, mask, emotion, level)
+        decoders = [self.emotion_decoder, self.content_decoder]
+        history: list[list[Tensor]] = [[], []]  # raw ΔM^e_t, ΔM^c_t (B, 1, V*3) so far
+
+        def combine(t: int, raw: list[Tensor]) -> Tensor:
+            for past, r in zip(history, raw):
+                past.append(r)
+                if context is not None and len(past) > context:
+                    past.pop(0)
+            lo = t + 1 - len(history[0])
+            fused, _ = self.fuse(fe[:, lo:t + 1], fc[:, lo:t + 1], torch.cat(history[0], 1), torch.cat(history[1], 1))
+            return fused[:, -1:]  # (B, 1, V*3) ΔM_t
+
+        return decoders, [fe, fc], [dec.speaker_style(speaker) for dec in decoders], combine
+
     @torch.no_grad()
     def _chunks(self, audio, template, speaker, mask, emotion, level, window, chunk):
         window = self.cfg.decoder_window if window == "config" else window
+        check_window(window)
         if mask is not None:
             audio = audio.masked_fill(~mask[..., None], 0.0)
-        b, t_total = audio.shape[:2]
-        fc, fe = self._conditions(audio, mask, emotion, level)
-        branches = []
-        for dec, feats in ((self.emotion_decoder, fe), (self.content_decoder, fc)):
-            style = dec.speaker_style(speaker)
-            states = [dec._decoder_state(layer, feats, window) for layer in dec.layers]
-            ppe = dec.ppe.encoding(dec.ppe.period).to(feats.dtype)  # (p, d)
-            branches.append({"dec": dec, "x": feats, "style": style, "states": states, "ppe": ppe,
-                             "token": style[:, None, :], "out": []})
-        context = self._fusion_context()
-        for start in range(0, t_total, chunk):
-            n = min(chunk, t_total - start)
-            block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
-            for r in range(n):
-                t = start + r
-                for br in branches:
-                    dec, h = br["dec"], br["token"] + br["ppe"][t % br["ppe"].shape[0]]  # (B, 1, d)
-                    for layer, state in zip(dec.layers, br["states"]):
-                        h = dec._decode_step(layer, state, h, br["x"], br["style"], t, mask)
-                    br["out"].append(dec.decode_motion(h))  # (B, 1, V*3)
-                    if context is not None and len(br["out"]) > context:
-                        br["out"].pop(0)
-                lo = t + 1 - len(branches[0]["out"])
-                fused, _ = self.fuse(fe[:, lo:t + 1], fc[:, lo:t + 1], torch.cat(branches[0]["out"], 1),
-                                     torch.cat(branches[1]["out"], 1))
-                m_t = fused[:, -1:]  # (B, 1, V*3)
-                block[:, r] = template + m_t[:, 0]
-                for br in branches:
-                    br["token"] = br["dec"]._feedback(m_t, br["style"])
-            yield block
+        decoders, feats, styles, combine = self._decoding(audio, mask, speaker, emotion, level,
+                                                          context=self._fusion_context())
+        yield from autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)
 
     def _fusion_context(self) -> int | None:
         """Frames of past branch offsets the fusion needs at frame t (1 for "sum"; Mesh Attention: its causal

@@ -5,7 +5,7 @@
   error maps of CorrTalk's Fig. 9) or one scale per map (each map's own range, as the FAI map of Fig. 1(b)).
 - ``plot_vertex_spectrograms``: for a few named vertices of one clip, the displacement from the template over time
   next to its amplitude spectrogram (CorrTalk Fig. 1(a, c): a mouth vertex against a forehead vertex), computed with
-  :func:`dualtalker_lite.fai.displacement_stft`, on one colour scale.
+  :func:`dualtalker_lite.blocks.fai.displacement_stft`, on one colour scale.
 - ``plot_branch_error_maps``: the Fig. 9 analogue, per-vertex errors of the strong branch, the weak branch and
   their sum on one colour scale; ``branch_mean_errors`` computes those errors from the branch outputs.
 
@@ -137,14 +137,14 @@ def plot_vertex_spectrograms(disp: np.ndarray, fps: float, vertices: Mapping[str
                              figsize=(9.0, None)) -> Figure:
     """CorrTalk Fig. 1(a, c): per named vertex, its displacement d_{t,v} (left) and amplitude spectrogram (right).
 
-    ``disp`` (T, V) in metres (:func:`dualtalker_lite.fai.vertex_displacements`); ``vertices`` ``{name: index}``;
+    ``disp`` (T, V) in metres (:func:`dualtalker_lite.blocks.fai.vertex_displacements`); ``vertices`` ``{name: index}``;
     displacement and amplitude are shown in ``units``. ``shared_scale=True``: all spectrograms on one colour scale
     (honest comparison; a weak vertex may look black); ``False``: one scale per vertex (its pattern is visible).
     A small ``hop`` gives a smooth picture; the FAI itself uses the package's default STFT.
     """
     import torch
 
-    from ..fai import displacement_stft
+    from ..blocks.fai import displacement_stft
 
     disp = np.asarray(disp, dtype=np.float64)
     if disp.ndim != 2:

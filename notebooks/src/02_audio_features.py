@@ -260,7 +260,7 @@ plt.show()
 #
 # Pre-trained weights cannot be downloaded here, so this project keeps the *shape* of that pipeline and learns
 # it from scratch: the fixed log-mel $A_{1:T}$ of this notebook is the input of a small stand-in inside the model,
-# `dualtalker_lite.models.audio_encoder.AudioFeatureExtractor` (per-frame projection, a few temporal convolutions,
+# `dualtalker_lite.blocks.audio_encoder.AudioFeatureExtractor` (per-frame projection, a few temporal convolutions,
 # periodic positional encoding and one or two transformer encoder layers; notebook 08 trains it).
 #
 # **Plugging wav2vec 2.0 in.** Every extractor follows the `FeatureExtractor` protocol: attributes `sample_rate`

@@ -95,17 +95,17 @@ print(f"batch: {batch['name']}, T = {T} frames; d = {d}, H = {H}, window = {cfg.
 with torch.no_grad():
     motion = batch["vertices"] - batch["template"][:, None, :]  # M_{1:T}
     x = model.encode_audio(batch["audio"], batch["mask"])  # X_{1:T}
-    y = model.encode_motion(motion)  # Y_{1:T} = Me(M), with M in mm inside the network
-    style = model.speaker_style(batch["speaker"])  # S_n
-    stream = model.ppe(torch.cat([style[:, None, :], y[:, :-1]], dim=1))  # Ŷ: [S_n, Y_1..Y_{T-1}] + PPE
+    y = model.decoder.encode_motion(motion)  # Y_{1:T} = Me(M), with M in mm inside the network
+    style = model.decoder.speaker_style(batch["speaker"])  # S_n
+    stream = model.decoder.ppe(torch.cat([style[:, None, :], y[:, :-1]], dim=1))  # Ŷ: [S_n, Y_1..Y_{T-1}] + PPE
 
 check_shape(motion, (B, T, V3), "M")
 check_shape(x, (B, T, d), "X")
 check_shape(y, (B, T, d), "Y")
 check_shape(style, (B, d), "S_n")
 check_shape(stream, (B, T, d), "Ŷ")
-torch.testing.assert_close(stream, model.ppe(model._stream(y, style)))  # the model's own shift
-torch.testing.assert_close(stream[:, 0], style + model.ppe.encoding(1)[0])  # frame 0 = S_n (+ PPE of t=0)
+torch.testing.assert_close(stream, model.decoder.ppe(model.decoder.stream(y, style)))  # the model's own shift
+torch.testing.assert_close(stream[:, 0], style + model.decoder.ppe.encoding(1)[0])  # frame 0 = S_n (+ PPE of t=0)
 
 # %% [markdown]
 # ## 2. Fig. 2, the primal task's fusion, piece by piece
@@ -125,7 +125,7 @@ torch.testing.assert_close(stream[:, 0], style + model.ppe.encoding(1)[0])  # fr
 # $B_h(i, j) = -m_h \lfloor (i-j)/p \rfloor$ for $j \le i$ and $-\infty$ for $j > i$ (period $p$ = 30 frames).
 
 # %%
-layer = model.layers[0]
+layer = model.decoder.layers[0]
 fusion, integ = layer.primal, layer.integration
 with torch.no_grad():
     bias = alibi_causal_bias(H, T, T, cfg.period)  # (1, H, T, T)
@@ -272,7 +272,7 @@ print("Fig. 2 rebuilt from its pieces = DualFusionLayer = DualTalker.forward")
 fusion_d = layer.dual
 with torch.no_grad():
     past_audio = model.audio_encoder(model.extractor.embed_frames(batch["audio"]))  # Ae(a_t), per frame
-    stream_a = model.ppe(torch.cat([style[:, None, :], past_audio[:, :-1]], dim=1))  # X̂
+    stream_a = model.decoder.ppe(torch.cat([style[:, None, :], past_audio[:, :-1]], dim=1))  # X̂
     attended_a = fusion_d.norm1(stream_a + fusion_d.self_attn(stream_a, bias=bias)[0])  # X̌ (audio-attentive)
     gated_a = fusion_d.gate(attended_a, style)  # X̄ (eq. 5, the dual task's own gate)
     query_d, key_value_d = integ.route(y, gated_a)  # queries from Y, keys/values from X̄
@@ -456,12 +456,12 @@ rows = [("audio extractor: input LN + frame projection",
         ("audio extractor: TCN + transformer",
          [p for n, p in model.extractor.named_parameters() if not n.startswith(per_frame)], "primal"),
         ("audio encoder (C -> d)", model.audio_encoder, "both"),
-        ("motion encoder Me (V*3 -> d)", model.motion_encoder, "both"),
-        ("style embeddings S_n", model.style, "both"),
+        ("motion encoder Me (V*3 -> d)", model.decoder.motion_encoder, "both"),
+        ("style embeddings S_n", model.decoder.style, "both"),
         ("primal fusion: self-attn + gate + FF + LNs", layer.primal, "primal"),
         ("dual fusion: self-attn + gate + FF + LNs", layer.dual, "dual")]
 rows += [(f"integration: {n}", getattr(integ, n), u) for n, u in integ_names.items()]
-rows += [("motion decoder (d -> V*3)", model.motion_decoder, "primal"),
+rows += [("motion decoder (d -> V*3)", model.decoder.motion_decoder, "primal"),
          ("audio decoder (d -> C -> D_a)", model.audio_decoder, "dual")]
 
 

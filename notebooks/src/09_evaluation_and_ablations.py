@@ -46,7 +46,8 @@ from dualtalker_lite import experiments
 from dualtalker_lite.metrics import (eve, evaluate, fdd_paper, fdd_published, lip_distance, lip_sync_metrics,
                                      lve_euclidean, lve_published, mean_vertex_error)
 from dualtalker_lite.models.baselines import StaticTemplate
-from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig, faceformer_config
+from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
 from dualtalker_lite.train import TrainConfig, predict, train
 from dualtalker_lite.utils import check_shape, repo_root, set_seed
 from dualtalker_lite.viz import animate_clip, plot_frames, plot_lip_distance
@@ -107,7 +108,7 @@ plot_frames(np.stack([template0] * 3), corpus.faces, colors=member, cmap="Blues"
 # The live part of this notebook trains two small models the way notebook 08 did (`TrainConfig.tiny` with learning
 # rate 6e-3 and 40-frame crops; the recipe's warm-up, cosine decay and mean-motion output initialisation), both
 # with the same features, data and number of epochs and no model selection: the tiny **DualTalker**
-# (joint loss, default $\lambda$'s) and the **FaceFormer-style** baseline (`faceformer_config`: primal task only,
+# (joint loss, default $\lambda$'s) and the **FaceFormer-style** baseline (`models.faceformer.FaceFormer`: primal task only,
 # no speaker gate, FaceFormer's diagonal alignment; reconstruction loss alone). To fit in the time budget they see
 # only the 44 training clips of speakers SPK03 and SPK04, for 12 epochs, and are evaluated on the
 # 12 test-A clips of the same two speakers (unseen sentences). The **static template** (zero motion, the package's
@@ -121,16 +122,17 @@ train_set = Subset(train_ds, mine(train_ds))
 test_batch = collate([test_ds[i] for i in mine(test_ds)])
 assert (len(train_set), len(test_batch["name"])) == (44, 12)
 
-cfg = DualTalkerConfig.tiny(n_vertices=V, n_speakers=len(corpus.train_speakers))
-MODELS = {  # label -> (model config, loss weights); the baseline trains on the reconstruction loss alone
-    "FaceFormer-style": (faceformer_config(cfg), LossWeights(lambda2=0.0, lambda3=0.0, lambda4=0.0)),
-    "DualTalker": (cfg, LossWeights()),
+sizes = dict(n_vertices=V, n_speakers=len(corpus.train_speakers))
+MODELS = {  # label -> (model builder, loss weights); the baseline trains on the reconstruction loss alone
+    "FaceFormer-style": (lambda: FaceFormer(FaceFormerConfig.tiny(**sizes)),
+                         LossWeights(lambda2=0.0, lambda3=0.0, lambda4=0.0)),
+    "DualTalker": (lambda: DualTalker(DualTalkerConfig.tiny(**sizes)), LossWeights()),
 }
 EPOCHS = 12
 models, seconds = {"Static template": StaticTemplate(V)}, {}
-for label, (model_cfg, weights) in MODELS.items():
+for label, (build, weights) in MODELS.items():
     set_seed(0)
-    models[label] = DualTalker(model_cfg)
+    models[label] = build()
     tc = TrainConfig.tiny(epochs=EPOCHS, lr=6e-3, max_frames=40, validate_every=0, progress=False, weights=weights)
     t0 = time.perf_counter()
     train(models[label], make_loader(train_set, batch_size=tc.batch_size, seed=0), tc)

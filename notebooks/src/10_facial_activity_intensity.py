@@ -15,7 +15,7 @@
 # **We will cover**
 #
 # 1. vertex displacements $d_{t,v}$ on a real clip;
-# 2. eq. 3, the STFT of $d$, re-derived from scratch with NumPy and checked against SciPy and `dualtalker_lite.fai`;
+# 2. eq. 3, the STFT of $d$, re-derived from scratch with NumPy and checked against SciPy and `dualtalker_lite.blocks.fai`;
 # 3. CorrTalk's Fig. 1: the spectrogram of a mouth vertex next to a forehead vertex;
 # 4. the FAI over the training clips, as a map on the face (front and side);
 # 5. strong and weak regions (a threshold), and the mask the FAI initialises (its complement for the weak branch);
@@ -43,7 +43,7 @@ import torch
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.fai import (BANDS, HOP, N_FFT, displacement_stft, fai_from_corpus, mean_amplitude_spectrum,
+from dualtalker_lite.blocks.fai import (BANDS, HOP, N_FFT, displacement_stft, fai_from_corpus, mean_amplitude_spectrum,
                                  normalised_fai, select_band, vertex_displacements)
 from dualtalker_lite.utils import check_shape, set_seed
 from dualtalker_lite.viz import plot_vertex_maps, plot_vertex_spectrograms

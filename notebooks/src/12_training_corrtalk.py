@@ -39,7 +39,7 @@ from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loader
 
 # %%
-from dualtalker_lite.fai import fai_from_dataset, normalised_fai
+from dualtalker_lite.blocks.fai import fai_from_dataset, normalised_fai
 from dualtalker_lite.losses.corrtalk import CorrTalkWeights
 from dualtalker_lite.metrics import lip_distance, lip_sync_metrics, lve_euclidean
 from dualtalker_lite.models.corrtalk import MASK_INITS, CorrTalk, CorrTalkConfig

@@ -129,8 +129,8 @@ print(f"d = {cfg.d_model}, {model.num_parameters():,} parameters; batch {B} x {T
 # $$M_{c1,e1} = \epsilon(M^e_{c1,e1}, M^c_{c1,e1}) \tag{17} \qquad M_{c1,e2} = \epsilon(M^e_{c1,e2}, M^c_{c1,e2}) \tag{18}$$
 #
 # The content decoder $D_c$ only ever sees clip 1's content; to rebuild clip 2 the emotion decoder $D_e$ must
-# bring everything emotion adds, from clip 2's emotion features. Both decoders are DualTalker's FaceFormer-style
-# decoder (teacher-forced here; in the cross pass on the partner's past motion). $\epsilon$ is Mesh Attention; this
+# bring everything emotion adds, from clip 2's emotion features. Both decoders are the package's FaceFormer-style
+# decoder block (`blocks.decoder.MotionDecoder`) (teacher-forced here; in the cross pass on the partner's past motion). $\epsilon$ is Mesh Attention; this
 # notebook uses the "sum" ablation (the equal-weight mean) to stay fast. The check below is the definition: the
 # cross pass's emotion branch equals the emotion branch run on clip 2 itself, and its content branch does not.
 # (An untrained decoder is zero, so every output is the template whatever it reads: we nudge both decoders first.)

@@ -35,7 +35,8 @@ from dualtalker_lite.emotion_metrics import brow_raise, smile_width
 from dualtalker_lite.losses.emoface import EmoFaceWeights
 from dualtalker_lite.metrics import lve_euclidean
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
-from dualtalker_lite.train import TrainConfig, predict, self_growing_share, train
+from dualtalker_lite.models.emoface import self_growing_share
+from dualtalker_lite.train import TrainConfig, predict, train
 from dualtalker_lite.utils import check_shape, set_seed
 from dualtalker_lite.viz import animate_clip, plot_frames
 from dualtalker_lite.viz.widgets import TrainingPanel, progress_loader
@@ -72,7 +73,7 @@ V, regions = corpus.metadata["n_vertices"], corpus.regions
 # $$I_{n,t} = \begin{cases} GT_t & n < \theta \;\text{ or }\; \mathrm{rand}() < \cos\!\big(\pi \tfrac{n-\theta}{N-\theta}\big) \\ P_t & n > \tfrac{N+\theta}{2} \;\text{ or }\; \mathrm{rand}() \ge \cos\!\big(\pi \tfrac{n-\theta}{N-\theta}\big) \end{cases} \tag{6}$$
 #
 # Three phases: $\theta$ warm-up epochs of pure ground truth, a cosine decay of the share from 1 to 0, and from the
-# midpoint $(N+\theta)/2$ on, where the cosine reaches 0, predictions only. `train.self_growing_share` is its expected
+# midpoint $(N+\theta)/2$ on, where the cosine reaches 0, predictions only. `models.emoface.self_growing_share` is its expected
 # ground-truth share; the training loop tells the model the epoch (`set_epoch`) at every epoch start.
 
 # %%
@@ -511,7 +512,7 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 # ## Summary
 #
 # - Eq. 6 keeps the ground truth for $\theta$ epochs, then decays its share along a cosine to 0 at $(N+\theta)/2$,
-#   then trains on the model's own predictions only; `train.self_growing_share` is checked at those boundaries.
+#   then trains on the model's own predictions only; `models.emoface.self_growing_share` is checked at those boundaries.
 # - A self-growing step runs the model twice: stage one teacher-forced without gradient, stage two on a per-frame
 #   mix of ground truth and stage one's prediction; every past frame comes from exactly one of the two.
 # - Teacher forcing, past-motion dropout, scheduled sampling and self-growing are one switch (`past_motion`); a

@@ -274,7 +274,7 @@ def fai_from_corpus(corpus, split: str = "train", band: Band = DEFAULT_BAND, n_f
                     hop: int = HOP) -> torch.Tensor:
     """FAI (V,) float32 over one split of a :class:`~dualtalker_lite.data.corpus.Corpus` (or its path), reading
     only vertices and templates (no audio features: faster than building a dataset)."""
-    from .data.corpus import Corpus
+    from ..data.corpus import Corpus
 
     corpus = corpus if isinstance(corpus, Corpus) else Corpus(corpus)
     names = corpus.split(split)

@@ -33,9 +33,9 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..blocks.attention import FeedForward, MultiHeadAttention
-from ..blocks.positional import PeriodicPositionalEncoding
-from ..blocks.windowed import banded_multi_head_attention
+from .attention import FeedForward, MultiHeadAttention
+from .positional import PeriodicPositionalEncoding
+from .windowed import banded_multi_head_attention
 
 __all__ = ["TransformerEncoderLayer", "AudioFeatureExtractor"]
 

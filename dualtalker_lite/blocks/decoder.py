@@ -1,0 +1,311 @@
+"""The FaceFormer-style autoregressive motion decoder that every model of the package composes.
+
+FaceFormer (Fan et al., CVPR 2022) predicts mesh frame t from the speech features and the frames before t. All three
+papers build on it: DualTalker's primal task is one such decoder (with its own fusion layer), CorrTalk runs two of
+them (strong and weak branch), EmoFace two (emotion and content branch). :class:`MotionDecoder` is that decoder:
+
+    past motion M_{<t} (B, T, V*3) -> motion encoder Me (mm scale folded in)      (B, T, d)
+    stream [S_n, Me(m_1), ..., Me(m_{T-1})] (+ S_n on every token, FaceFormer)     (B, T, d)   :meth:`stream`
+    + periodic positional encoding -> fusion layer(s) attending to features X      (B, T, d)   :meth:`fuse`
+    -> motion head (d -> V*3, zero-initialised: the untrained model outputs the template) (B, T, V*3)
+
+One fusion layer is :class:`~dualtalker_lite.blocks.fusion.DualFusionLayer`: ALiBi-biased causal self-attention,
+an optional speaker-aware gate (DualTalker eq. 5), the audio-visual integration (queries from the motion stream
+with FaceFormer's diagonal alignment, or from the audio, DualTalker eq. 6) and a feed-forward layer.
+
+Three ways to run it, all computing the same numbers (the tests pin that):
+
+- :meth:`MotionDecoder.teacher_forced`: the whole clip at once from the true past (training);
+- :meth:`MotionDecoder.prefix_step`: the reference autoregressive step, re-running the layers on the whole prefix;
+- :meth:`MotionDecoder.cached_step`: one frame with bounded key/value caches (``blocks.windowed``): the self-attention
+  keeps the last ``window`` tokens, the integration only the frames its alignment mask admits, so an hour of audio
+  decodes in constant memory per frame.
+
+:func:`autoregressive_chunks` and :func:`autoregressive_reference` are the generation loops for one or several
+decoders whose outputs are combined into one motion (CorrTalk's mask, EmoFace's Mesh Attention) and fed back to all.
+
+Motion enters and leaves the decoder in mm (``motion_scale`` = 1000): in metres the encoder/decoder weights would
+have to reach ~1e3 / ~1e-3, far from Adam's step size. The scale is folded into the weights (no extra pass over the
+(B, T, V*3) tensors). See docs/design-notes.md ("Mean-face collapse") for why models start the motion head's bias at
+the training set's mean motion (:meth:`MotionDecoder.init_output_bias`).
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Iterator, Sequence
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from torch import Tensor
+
+from .attention import merge_heads, scaled_dot_product_attention, split_heads
+from .fusion import DualFusionLayer, QueryFrom
+from .positional import PeriodicPositionalEncoding
+from .windowed import SlidingKVCache, alibi_lag_bias
+
+__all__ = ["TransposedLinear", "MotionDecoder", "check_inputs", "check_window", "lookup_style",
+           "autoregressive_chunks", "autoregressive_reference"]
+
+
+class TransposedLinear(nn.Module):
+    """A decoder tied to an encoder ``nn.Linear`` (W_enc: (out, in)): y = x W_enc + b (DualTalker section IV-F)."""
+
+    def __init__(self, encoder: nn.Linear):
+        super().__init__()
+        self.encoder_weight = encoder.weight  # the same Parameter object: one tensor, two uses
+        self.bias = nn.Parameter(torch.zeros(encoder.in_features))
+
+    def forward(self, x: Tensor) -> Tensor:
+        """(..., out_features) -> (..., in_features) with the transposed encoder weight."""
+        return F.linear(x, self.encoder_weight.t(), self.bias)  # (..., in_features)
+
+
+def check_inputs(n_vertices: int, audio_dim: int, audio: Tensor, template: Tensor, speaker: Tensor,
+                 vertices: Tensor | None = None) -> None:
+    """Raise one ValueError line naming expected vs got for inputs of the wrong shape: A (B, T, D_a), template
+    h (B, V*3), speaker (B,), ground-truth vertices (B, T, V*3)."""
+    v3 = 3 * n_vertices
+    if audio.dim() != 3 or audio.shape[-1] != audio_dim:
+        raise ValueError(f"audio: expected (B, T, {audio_dim}) features, got {tuple(audio.shape)}")
+    b, t = audio.shape[:2]
+    if template.shape != (b, v3):
+        raise ValueError(f"template: expected (B, V*3) = ({b}, {v3}) for n_vertices={n_vertices}, "
+                         f"got {tuple(template.shape)}")
+    if vertices is not None and vertices.shape != (b, t, v3):
+        raise ValueError(f"vertices: expected (B, T, V*3) = ({b}, {t}, {v3}) for n_vertices={n_vertices} "
+                         f"and the audio's T, got {tuple(vertices.shape)}")
+    if speaker.shape != (b,):
+        raise ValueError(f"speaker: expected shape ({b},), got {tuple(speaker.shape)}")
+
+
+def check_window(window) -> None:
+    """``window`` of the bounded decoding caches: a positive number of frames or None (unbounded)."""
+    if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
+        raise ValueError(f"window must be a positive number of frames, None or 'config', got {window!r}")
+
+
+def lookup_style(table: nn.Embedding, speaker: Tensor) -> Tensor:
+    """Style S_n of each clip: speaker (B,) integer in [0, n_speakers) -> (B, d); one clear line otherwise."""
+    n = table.num_embeddings
+    if speaker.dim() != 1 or speaker.dtype not in (torch.int32, torch.int64):
+        raise ValueError(f"speaker: expected a (B,) integer tensor, got {tuple(speaker.shape)} {speaker.dtype}")
+    bad = (speaker < 0) | (speaker >= n)
+    if bad.any():
+        raise ValueError(f"unknown speaker index {speaker[bad].tolist()}: the model has {n} training speakers "
+                         f"(0..{n - 1}); condition unseen speakers (-1) on a training speaker's style")
+    return table(speaker)  # (B, d)
+
+
+class MotionDecoder(nn.Module):
+    """FaceFormer-style autoregressive decoder: motion encoder, style table, PPE, fusion layers, motion head.
+
+    ``n_speakers``: rows of the style table S_1..S_n (None: the caller owns the styles, as CorrTalk's two branches
+    share one table). ``query_from``/``align_window``: the reading of the integration (``blocks.fusion``);
+    ``speaker_gate``: DualTalker's eq. 5; ``dual``: build the dual-task fusion too (DualTalker's lip reading uses
+    :meth:`fuse` with ``direction="dual"``); ``add_style_to_motion``: FaceFormer's S_n on every stream token;
+    ``tie_output``: the motion head is the transposed motion encoder (DualTalker's shared enc/dec ablation; the
+    zero initialisation is then impossible).
+    """
+
+    def __init__(self, n_vertices: int, d_model: int, n_heads: int, d_ff: int, n_layers: int = 1,
+                 period: int = 30, *, n_speakers: int | None = None, query_from: QueryFrom = "decoder",
+                 align_window: int = 1, speaker_gate: bool = False, gate_reduction: int = 16, dual: bool = False,
+                 add_style_to_motion: bool = True, tie_output: bool = False, dropout: float = 0.0,
+                 motion_scale: float = 1000.0):
+        super().__init__()
+        d, v3 = d_model, 3 * n_vertices
+        self.n_vertices, self.motion_scale, self.add_style_to_motion = n_vertices, motion_scale, add_style_to_motion
+        # creation order = parameter initialisation order (kept as it was: same seed, same weights)
+        self.motion_encoder = nn.Linear(v3, d)  # Me: V*3 -> d
+        self.style = nn.Embedding(n_speakers, d) if n_speakers else None  # S_1..S_n
+        self.ppe = PeriodicPositionalEncoding(d, period, dropout)
+        self.layers = nn.ModuleList(
+            DualFusionLayer(d, n_heads, d_ff, gate_reduction, align_window, query_from, period, speaker_gate, dual,
+                            dropout) for _ in range(n_layers))
+        if tie_output:
+            self.motion_decoder = TransposedLinear(self.motion_encoder)  # d -> V*3
+        else:
+            self.motion_decoder = nn.Linear(d, v3)  # d -> V*3, zero: first prediction = template
+            nn.init.zeros_(self.motion_decoder.weight)
+            nn.init.zeros_(self.motion_decoder.bias)
+
+    # ---- pieces ---------------------------------------------------------------------------------------------
+    def speaker_style(self, speaker: Tensor) -> Tensor:
+        """Style S_n of each clip from this decoder's table: speaker (B,) -> (B, d) (:func:`lookup_style`)."""
+        if self.style is None:
+            raise ValueError("this decoder has no style table (its model passes the styles in)")
+        return lookup_style(self.style, speaker)
+
+    def encode_motion(self, motion: Tensor) -> Tensor:
+        """Me on displacements in metres, scaled to mm: (..., V*3) -> (..., d). Me(s m) = (s W) m + b: the scale
+        goes on the (d, V*3) weight instead of the larger motion tensor (same values and gradients)."""
+        enc = self.motion_encoder
+        return F.linear(motion, enc.weight * self.motion_scale, enc.bias)
+
+    def decode_motion(self, h: Tensor) -> Tensor:
+        """Motion head back to displacements in metres: (..., d) -> (..., V*3) (scale folded into the weights)."""
+        dec, s = self.motion_decoder, self.motion_scale
+        if isinstance(dec, nn.Linear):
+            return F.linear(h, dec.weight / s, dec.bias / s)
+        return dec(h) / s
+
+    def stream(self, features: Tensor, style: Tensor) -> Tensor:
+        """The past of eq. 1, shifted right: [S_n, f_1, ..., f_{T-1}] (+ S_n on every f_t for FaceFormer) -> (B, T, d)."""
+        if self.add_style_to_motion:
+            features = features + style[:, None, :]
+        return torch.cat([style[:, None, :], features[:, :-1]], dim=1)  # (B, T, d)
+
+    def feedback(self, m_t: Tensor, style: Tensor) -> Tensor:
+        """The next stream token from the frame just predicted: Me(m̂_t) (+ S_n for FaceFormer) -> (B, 1, d)."""
+        token = self.encode_motion(m_t)  # (B, 1, d)
+        return token + style[:, None, :] if self.add_style_to_motion else token
+
+    def fuse(self, stream: Tensor, given: Tensor, style: Tensor, direction: str = "primal",
+             key_mask: Tensor | None = None, weights: list | None = None) -> Tensor:
+        """PPE, then the fusion layers over a whole shifted stream (teacher forcing) -> (B, T, d).
+        ``weights``: a list that receives each layer's attention weights."""
+        h = self.ppe(stream)  # (B, T, d)
+        for layer in self.layers:
+            h, w = layer(h, given, style, direction, key_mask=key_mask, need_weights=weights is not None)
+            if weights is not None:
+                weights.append(w)
+        return h  # (B, T, d)
+
+    @torch.no_grad()
+    def init_output_bias(self, mean_motion: Tensor) -> None:
+        """Motion head bias = the training set's mean motion (V*3,) in metres: the untrained decoder then outputs
+        template + mean motion and only the time-varying, audio-driven part remains to learn."""
+        v3 = 3 * self.n_vertices
+        if tuple(mean_motion.shape) != (v3,):
+            raise ValueError(f"mean_motion: expected shape ({v3},), got {tuple(mean_motion.shape)}")
+        self.motion_decoder.bias.copy_(mean_motion.to(self.motion_decoder.bias) * self.motion_scale)
+
+    # ---- the three ways to run it ---------------------------------------------------------------------------
+    def teacher_forced(self, past_motion: Tensor, features: Tensor, style: Tensor, mask: Tensor | None = None,
+                       weights: list | None = None) -> Tensor:
+        """Every frame from the motion fed back: past (B, T, V*3) (frame t-1 feeds t), features (B, T, d) -> (B, T, V*3)."""
+        return self.decode_motion(self.fuse(self.stream(self.encode_motion(past_motion), style), features, style,
+                                            "primal", mask, weights))
+
+    def prefix_step(self, tokens: Sequence[Tensor], features: Tensor, style: Tensor,
+                    mask: Tensor | None = None) -> Tensor:
+        """Reference step: re-run the layers on the whole prefix of stream tokens [(B, 1, d), ...] -> m̂_t (B, 1, V*3)."""
+        h = self.ppe(torch.cat(list(tokens), dim=1))  # (B, t+1, d)
+        for layer in self.layers:
+            h, _ = layer(h, features, style, "primal", key_mask=mask)
+        return self.decode_motion(h[:, -1:])  # (B, 1, V*3)
+
+    def new_state(self, features: Tensor, window: int | None) -> list[dict]:
+        """Bounded caches of every layer for :meth:`cached_step` (features X (B, T, d) of the whole clip)."""
+        states = []
+        for layer in self.layers:
+            integ = layer.integration
+            state = {"self": SlidingKVCache(window), "bias": None}
+            if integ.query_is_given:
+                state["integration"] = SlidingKVCache(integ.window)  # Ȳ_{t-w+1..t}: all the alignment admits
+            else:
+                _, k_proj, v_proj, _ = integ.projections("primal")
+                state["k"] = split_heads(k_proj(features), layer.n_heads)  # (B, H, T, d_h)
+                state["v"] = split_heads(v_proj(features), layer.n_heads)
+            states.append(state)
+        return states
+
+    def cached_step(self, states: list[dict], token: Tensor, features: Tensor, style: Tensor, t: int,
+                    mask: Tensor | None = None) -> Tensor:
+        """Frame t from its stream token (B, 1, d) with bounded caches -> m̂_t (B, 1, V*3) (eval-mode computation)."""
+        h = token + self.ppe.encoding(1, offset=t).to(token.dtype)  # (B, 1, d) PPE of frame t, no dropout
+        for layer, state in zip(self.layers, states):
+            h = self._layer_step(layer, state, h, features, style, t, mask)
+        return self.decode_motion(h)  # (B, 1, V*3)
+
+    @staticmethod
+    def _lag_bias(state: dict, n_heads: int, period: int, n: int, device) -> Tensor:
+        """ALiBi bias of one query over its n most recent keys (lags n-1..0) -> (1, H, 1, n), cached."""
+        bias = state["bias"]
+        if bias is None or bias.shape[-1] < n:
+            size = max(n, state["self"].window or 2 * n)
+            lags = torch.arange(size - 1, -1, -1, device=device)  # oldest key first
+            bias = state["bias"] = alibi_lag_bias(n_heads, lags, period)[None, :, None, :]  # (1, H, 1, size)
+        return bias[..., bias.shape[-1] - n:]
+
+    def _layer_step(self, layer: DualFusionLayer, state: dict, h: Tensor, x: Tensor, style: Tensor, t: int,
+                    mask: Tensor | None) -> Tensor:
+        """One frame of one fusion layer (primal): the computation of ``layer(h, x, style, offset=t)`` in eval mode,
+        with the self-attention keys limited to the sliding window and the integration keys to the alignment."""
+        fusion, integ, n_heads = layer.primal, layer.integration, layer.n_heads
+        mha = fusion.self_attn
+        q = split_heads(mha.q_proj(h), n_heads)  # (B, H, 1, d_h)
+        k, v = state["self"].append(split_heads(mha.k_proj(h), n_heads), split_heads(mha.v_proj(h), n_heads))
+        bias = self._lag_bias(state, n_heads, layer.period, k.shape[2], h.device)  # (1, H, 1, n)
+        scores = q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]) + bias  # (B, H, 1, n), never masked
+        sa = mha.out_proj(merge_heads(torch.softmax(scores, dim=-1) @ v))  # (B, 1, d)
+        attended = fusion.norm1(h + sa)  # (B, 1, d) Y̌
+        gated = attended if fusion.gate is None else fusion.gate(attended, style)  # (B, 1, d) Ȳ
+        q_proj, k_proj, v_proj, out_proj = integ.projections("primal")
+        key_mask = None
+        if integ.query_is_given:  # DualTalker eq. 6: query X_t, keys Ȳ_{t-w+1..t}
+            query = x[:, t:t + 1]  # (B, 1, d)
+            k, v = state["integration"].append(split_heads(k_proj(gated), n_heads),
+                                               split_heads(v_proj(gated), n_heads))
+        else:  # FaceFormer: query Ȳ_t, keys X_j in the centred window
+            query = gated
+            lo = max(0, t - (integ.window - 1) // 2)
+            hi = min(x.shape[1], t + integ.window // 2 + 1)
+            k, v = state["k"][:, :, lo:hi], state["v"][:, :, lo:hi]  # (B, H, <= w, d_h)
+            key_mask = None if mask is None else mask[:, None, None, lo:hi]
+        q = split_heads(q_proj(query), n_heads)  # (B, H, 1, d_h)
+        if key_mask is None:  # every key admissible: the plain softmax
+            out = torch.softmax(q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]), dim=-1) @ v  # (B, H, 1, d_h)
+        else:  # padded keys: a query with none left gets zeros (blocks.attention convention)
+            out = scaled_dot_product_attention(q, k, v, mask=key_mask)[0]
+        z = fusion.norm2(query + out_proj(merge_heads(out)))  # (B, 1, d)
+        return fusion.norm3(z + fusion.ff(z))  # (B, 1, d) Y̆_t
+
+
+Combine = Callable[[int, list[Tensor]], Tensor]  # (t, raw outputs (B, 1, V*3) per decoder) -> m̂_t (B, 1, V*3)
+
+
+def _only(t: int, raw: list[Tensor]) -> Tensor:
+    return raw[0]
+
+
+@torch.no_grad()
+def autoregressive_chunks(decoders: Sequence[MotionDecoder], features: Sequence[Tensor], styles: Sequence[Tensor],
+                          template: Tensor, combine: Combine = _only, mask: Tensor | None = None,
+                          window: int | None = None, chunk: int = 900) -> Iterator[Tensor]:
+    """Eq. 1 frame by frame with bounded caches, yielding vertices in consecutive (B, <= chunk, V*3) blocks.
+
+    Each decoder reads its own features (B, T, d) and style (B, d); at frame t their outputs are combined into one
+    motion m̂_t (``combine``; one decoder: its output), and m̂_t is fed back to every decoder."""
+    b, t_total = features[0].shape[:2]
+    states = [dec.new_state(f, window) for dec, f in zip(decoders, features)]
+    tokens = [s[:, None, :] for s in styles]  # (B, 1, d) start token S_n
+    for start in range(0, t_total, chunk):
+        n = min(chunk, t_total - start)
+        block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
+        for r in range(n):
+            t = start + r
+            raw = [dec.cached_step(st, tok, f, s, t, mask)
+                   for dec, st, tok, f, s in zip(decoders, states, tokens, features, styles)]  # (B, 1, V*3) each
+            m_t = combine(t, raw)  # (B, 1, V*3)
+            block[:, r] = template + m_t[:, 0]
+            tokens = [dec.feedback(m_t, s) for dec, s in zip(decoders, styles)]
+        yield block
+
+
+@torch.no_grad()
+def autoregressive_reference(decoders: Sequence[MotionDecoder], features: Sequence[Tensor],
+                             styles: Sequence[Tensor], template: Tensor, combine: Combine = _only,
+                             mask: Tensor | None = None) -> Tensor:
+    """The same loop without caches: every decoder re-runs on its whole prefix at every frame (O(T^2), the
+    reference the cached loop is tested against) -> vertices (B, T, V*3)."""
+    tokens = [[s[:, None, :]] for s in styles]  # start token S_n per decoder
+    motions = []
+    for t in range(features[0].shape[1]):
+        raw = [dec.prefix_step(tok, f, s, mask) for dec, tok, f, s in zip(decoders, tokens, features, styles)]
+        m_t = combine(t, raw)  # (B, 1, V*3)
+        motions.append(m_t)
+        for dec, tok, s in zip(decoders, tokens, styles):
+            tok.append(dec.feedback(m_t, s))
+    return template[:, None, :] + torch.cat(motions, dim=1)  # (B, T, V*3)
