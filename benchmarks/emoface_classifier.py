@@ -28,7 +28,7 @@ from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
 from dualtalker_lite.data.pairs import PairDataset, make_pair_loader
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
 from dualtalker_lite.train import TrainConfig, train
-from dualtalker_lite.utils import set_seed
+from dualtalker_lite.seeding import set_seed
 
 
 def confusion(model: EmoFace, dataset, n: int) -> np.ndarray:

@@ -6,7 +6,7 @@ The checkpoints are the emotional tables' EmoFace runs (``python -m dualtalker_l
 ... --save-models runs/emotional_tables``). For each model, the *neutral* test-A reading of sentence s02 by each of
 the first ``--speakers`` speakers (SPK01-06: the speakers of test_emo_a) is rendered with every emotion at both
 levels (and "neutral" at level 1), the condition chosen by the caller (``generate(..., emotion=k, level=l)``), and
-measured with the "right emotion" measures of ``dualtalker_lite.emotion_metrics`` (brow raise and smile width,
+measured with the "right emotion" measures of ``dualtalker_lite.metrics.emotion`` (brow raise and smile width,
 mm, mean over frames and speakers). The target of each condition is the same speakers' real emotional reading of
 the same sentence (test_emo_a; neutral: the neutral reading itself). Printed per model: the table of conditions
 (generated vs ground truth), then per measure the Pearson correlation across the 9 conditions and the mean absolute
@@ -29,8 +29,8 @@ from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
-from dualtalker_lite.emotion_metrics import expression_measures
-from dualtalker_lite.utils import atomic_write_text
+from dualtalker_lite.metrics.emotion import expression_measures
+from dualtalker_lite.files import atomic_write_text
 
 SENTENCE = "s02"  # the sentence of test_emo_a
 

@@ -28,7 +28,7 @@ from dualtalker_lite.experiments import _features, build_model, load_data, predi
 from dualtalker_lite.losses import LossWeights
 from dualtalker_lite.metrics import lip_sync_metrics, lve_euclidean
 from dualtalker_lite.train import TrainConfig, train
-from dualtalker_lite.utils import set_seed
+from dualtalker_lite.seeding import set_seed
 
 ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style"}
 

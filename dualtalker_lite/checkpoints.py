@@ -46,7 +46,8 @@ from .models.corrtalk import CorrTalk, CorrTalkConfig
 from .models.dualtalker import DualTalker, DualTalkerConfig
 from .models.emoface import EmoFace, EmoFaceConfig
 from .models.faceformer import FaceFormer, FaceFormerConfig
-from .utils import NonFiniteError, atomic_torch_save
+from .checks import NonFiniteError
+from .files import atomic_torch_save
 
 __all__ = ["FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
            "extractor_settings", "extractor_from_settings", "describe", "upgrade_checkpoint",

@@ -155,7 +155,7 @@ def _evaluate(argv: list[str]) -> dict:
     dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor), features["name"],
                            len(corpus.phoneme_inventory))
     out = predict_split(model, dataset)
-    from .utils import check_finite
+    from .checks import check_finite
 
     for clip, pred in zip(out["names"], out["preds"]):
         check_finite(pred, f"{args.checkpoint}: prediction for clip {clip!r}")
@@ -165,7 +165,7 @@ def _evaluate(argv: list[str]) -> dict:
         if key in metrics:
             print(f"  {header:32s} {metrics[key]:.{digits}f}")
     if args.json:
-        from .utils import atomic_write_text
+        from .files import atomic_write_text
 
         atomic_write_text(args.json, json.dumps({"checkpoint": str(args.checkpoint), "split": args.split,
                                                  "metrics": metrics}, indent=1))

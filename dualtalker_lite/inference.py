@@ -42,7 +42,8 @@ from .audio import load_audio
 from .checkpoints import describe, extractor_from_settings, load_checkpoint, topology_fingerprint
 from .data.corpus import Corpus
 from .streaming import predict_chunks, write_npy_stream
-from .utils import AtomicOutputDir, check_finite
+from .checks import check_finite
+from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
            "resolve_emotion",
@@ -69,7 +70,7 @@ def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray,
     The blocks of :func:`~dualtalker_lite.streaming.predict_chunks` joined in memory (fine for minutes of speech;
     for longer recordings stream them to disk with :func:`~dualtalker_lite.streaming.animate_wave_to_npy`, as the
     ``animate`` command does). ``device="cuda"`` runs on the GPU; ``amp=True`` adds mixed precision there
-    (float16 autocast). Raises :class:`~dualtalker_lite.utils.NonFiniteError` if the template or the model's
+    (float16 autocast). Raises :class:`~dualtalker_lite.checks.NonFiniteError` if the template or the model's
     output is not finite.
     """
     if device is not None:

@@ -107,12 +107,12 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     before the first block (bad wave, non-finite template, wrong vertex count, speaker outside the style
     table, missing CUDA); memory beyond the model is the wave, its features (T x D_a) and one block.
     ``device="cuda"`` runs on the GPU, ``amp=True`` adds float16 autocast there. A block with a NaN/inf raises
-    :class:`~dualtalker_lite.utils.NonFiniteError` naming its first bad frame.
+    :class:`~dualtalker_lite.checks.NonFiniteError` naming its first bad frame.
     """
     from contextlib import nullcontext
 
     from .audio import LogMelExtractor, validate_wave
-    from .utils import NonFiniteError, check_finite
+    from .checks import check_finite, NonFiniteError
 
     validate_wave(wave, sample_rate)
     conditions = {k: v for k, v in (conditions or {}).items() if v is not None}

@@ -1,4 +1,4 @@
-"""A plain, readable training loop for every model in the package (DualTalker, its ablations, baselines).
+"""A plain, readable training loop for every model in the package (the three papers' models and the baselines).
 
 One epoch = one pass over the training clips in seeded random order. Each step asks the model for its own
 loss, ``model.loss(out, batch, weights) -> (total, terms)`` (DualTalker: the joint loss of section III-F,
@@ -6,76 +6,28 @@ loss, ``model.loss(out, batch, weights) -> (total, terms)`` (DualTalker: the joi
 step at the learning rate of the schedule (:func:`lr_factor`). The loop has no per-model branches: a new model
 plugs in by supplying ``forward(batch)``, ``loss(...)``, ``generate(...)`` and, optionally,
 ``init_output_bias(mean_motion)`` and ``init_from_data(dataset)`` (CorrTalk: the FAI-initialised mask), both
-called before the first step when ``mean_init`` is on, and ``set_epoch(epoch, n_epochs)`` (called at each epoch start;
-EmoFace's self-growing schedule, ``models.emoface.self_growing_share``). Training stops after ``epochs`` epochs or when a budget
-(optimiser steps, process CPU seconds, wall seconds) is used up; validation LVE (autoregressive, as at test time)
-is measured only when a validation loader is given. Checkpoints hold only tensors and plain Python values, so they
-load with ``torch.load(weights_only=True)``; they are written atomically.
+called before the first step when ``mean_init`` is on, and ``set_epoch(epoch, n_epochs)`` (called at each epoch
+start; EmoFace's self-growing schedule, ``models.emoface.self_growing_share``). Training stops after ``epochs``
+epochs or when a budget (optimiser steps, process CPU seconds, wall seconds) is used up; validation LVE
+(autoregressive, as at test time) is measured only when a validation loader is given. Checkpoints hold only tensors
+and plain Python values, so they load with ``torch.load(weights_only=True)``; they are written atomically.
 
-The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``; issue 8). What changed and why:
-
-Everything below was measured on the shipped sample (corpus v2: 176 neutral training clips of 32-77 frames, test-A
-48 clips) with ONE torch thread, budgets in process CPU seconds (``time.process_time``): the machine is shared by
-several jobs, and its wall-clock time ran 2-7x the CPU time. ``epochs=37`` is that 120 s budget as a step count
-(37 x 22 = 814 steps; 795-820 were made in 120 CPU s), which is what the experiments runner and ``make demo`` use.
-
-- Step profile (``benchmarks/profile_step.py``, quiet moment; batch 8, the sample's clips are all shorter than the
-  90-frame crop). Before: 156 ms CPU per step = forward 41 ms (26%), loss 44 ms (28%), backward 60 ms (38%),
-  gradient clipping + Adam 10 ms (7%). CCRL's kernel alone took 18-28 ms: a dense (T x T) Gram matrix over all
-  V*3 ground-truth coordinates, rebuilt at every step although it depends on the data only. DualTalker now
-  caches it per clip (:meth:`DualTalker.kernel_weights`, filled in 0.26 s), and the step is 128 ms = forward
-  38 ms (30%), loss 24 ms (18%), backward 56 ms (44%), clip + Adam 10 ms (8%); collating a batch takes 4 ms in
-  the loader. A step is 2.4 GFLOP (matmul/conv, forward + backward), and the 1-thread GEMM measured 60-71 GFLOP
-  per CPU second, so the arithmetic lower bound is 35 ms: the step is 3.7x the bound (4.4x before the cache).
-  The matmuls run close to the GEMM rate. The rest is memory-bound element-wise passes over (B, T, V*3) tensors
-  (padding masks, the vertex MSE and its gradient) plus Adam. Also removed: a pass over (B, T, V*3) each way, by
-  folding the mm scale into the motion encoder/decoder weights, and per-epoch validation (now only when a
-  validation loader is passed; the runner passes none). Threads: two threads give 46-49 GFLOP per CPU second
-  on GEMM (0.64-0.70x per core), so at most 1.3-1.4x on two idle cores and less on a shared machine; the recipe
-  pins one thread (``threads=1``).
-- Output-bias initialisation at the training set's mean motion (``mean_init``; ``models.dualtalker`` docstring,
-  "Mean-face collapse"): the largest gain. Old sample, seed 0, lr 3e-3 constant, clip 1: test-A LVE / template
-  0.566 at 63 CPU s without it against 0.420 with it, bilabial closure 0.00 against 0.35; 0.367, closure 0.65,
-  lip motion ratio 0.94 at 120 s. It also removes the FaceFormer-style mean-face collapse
-  (``benchmarks/collapse.py``, 6 epochs: without it seed 0 collapses, training loss 1.74 mm^2 = the mean
-  motion's 1.73, lip motion 0.000, audio sensitivity 0.000; with it seeds 0, 1, 2 reach 0.37, 0.33, 0.33 mm^2
-  and audio sensitivity 0.72, 1.53, 1.17).
-- Gradient clipping at 1 stays: without it (warm-up + cosine, seed 0) LVE / template was 0.617 at 41 s against
-  0.465 with it, and 0.363 / closure 0.21 at 120 s against 0.358 / 0.27.
-- Warm-up (30 steps) and cosine decay to 0 over the budget (the schedule follows whichever budget binds: steps,
-  CPU or wall seconds): the usual remedy for the noisy end of a constant-lr run (old sample: the constant-lr run
-  went from 0.358 to 0.367 between 95 and 120 s). Not isolated on the new sample with clipping on.
-- Batch 8 and whole clips: batch 4 was worse at equal CPU time (0.714 against 0.617 at 42 s, both unclipped);
-  40-frame crops with lr 6e-3 made 48% more steps but ended at 0.373 / 0.24 / 0.80.
-- Results of the recipe at 120 CPU s, seeds 0 / 1 / 2 (``benchmarks/time_to_quality.py``, with the kernel
-  cache): LVE / template 0.342 / 0.318 / 0.352 (target <= 0.35: seeds 0 and 1), bilabial closure < 2 mm
-  0.39 / 0.53 / 0.55 (target >= 0.8: not met; the static template scores 0.50 because its rest gap is 1.94 mm),
-  lip motion ratio 0.88 / 0.87 / 0.84 (target 0.8-1.2: met). Before the cache (681-737 steps):
-  0.358 / 0.335 / 0.361, closure 0.27 / 0.44 / 0.51, lip motion 0.86 / 0.85 / 0.85. The closures are what is
-  missing: the mean minimum lip distance at /p b m/ is 2.5-3.0 mm, against 0.3 mm in the ground truth.
-- What limits the closures at this budget (seed 0, 120 CPU s, measured, not adopted): the same model trained on the
-  reconstruction term alone (lambda2 = lambda3 = lambda4 = 0) made 999 steps instead of 681 and reached 0.349 /
-  closure 0.62 / 0.91 (both before the kernel cache). So, before the cache, the dual, DR and CCRL terms cost about
-  30% of the step time, and they cost closures as well. The lambdas are the paper's and live in
-  ``losses.LossWeights``, so tuning them (or computing CCRL every k steps) comes next. Past-motion dropout 0.3
-  instead of 0.5 gave 0.362 / 0.34 / 0.86, within seed noise, so 0.5 stays.
-- The FaceFormer-style baseline, trained with the same recipe and budget (120 CPU s, before the kernel cache, which
-  it does not use), reached LVE / template 0.366 / 0.369 / 0.372, closure 0.61 / 0.48 / 0.59 and lip motion
-  0.88 / 0.90 / 0.90 (seeds 0 / 1 / 2; 972-1138 steps). None collapsed.
+The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``): Adam, warm-up and cosine decay over the budget, gradient
+clipping at 1, batch 8 of whole clips, one torch thread, output-bias initialisation at the training set's mean
+motion (``mean_init``), 37 epochs = 814 steps on the sample (about 120 CPU s for DualTalker). How each of these was
+chosen, with the measurements, is in docs/design-notes.md ("The CPU training recipe").
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import torch
 from tqdm.auto import tqdm
 
-from .utils import atomic_torch_save, set_seed
+from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights",
            "model_loss", "train", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
@@ -206,7 +158,7 @@ def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
 def _guard_finite(value: torch.Tensor, what: str, epoch: int, step: int, batch: dict) -> None:
     """Stop training with one clear line (step, epoch, the batch's clips) on a NaN/inf loss or gradient."""
     if not bool(torch.isfinite(value).all()):
-        from .utils import NonFiniteError
+        from .checks import NonFiniteError
 
         names = list(batch.get("name", []))
         raise NonFiniteError(f"training stopped: non-finite {what} ({float(value.detach())}) at epoch {epoch + 1}, "
@@ -294,7 +246,7 @@ def mean_motion(data) -> torch.Tensor:
         if b.get("mask") is not None:
             motion = motion[b["mask"]]  # (N valid frames, V*3)
         if not bool(torch.isfinite(motion).all()):
-            from .utils import NonFiniteError
+            from .checks import NonFiniteError
 
             raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
                                  "nothing was trained")

@@ -49,7 +49,7 @@ def test_console_script_is_declared():
     import importlib
     import tomllib
 
-    from dualtalker_lite.utils import repo_root
+    from dualtalker_lite.files import repo_root
 
     scripts = tomllib.loads((repo_root() / "pyproject.toml").read_text())["project"]["scripts"]
     module, func = scripts["dualtalker-lite"].split(":")

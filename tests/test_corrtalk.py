@@ -204,7 +204,7 @@ def test_bad_inputs_name_the_problem():
 
 # ---------------------------------------------------------------- training
 def _train(seed, steps=25, **kw):
-    from dualtalker_lite.utils import set_seed
+    from dualtalker_lite.seeding import set_seed
 
     set_seed(seed, threads=1)
     model = CorrTalk(_cfg(**kw))

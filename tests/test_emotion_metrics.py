@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from dualtalker_lite import emotion_metrics as em
+from dualtalker_lite.metrics import emotion as em
 
 # a 5-vertex toy face (metres): 0, 1 = mouth corners 40 mm apart along x; 2, 3 = brows; 4 = nose tip
 TEMPLATE = np.array([[0.02, 0.0, 0.0], [-0.02, 0.0, 0.0], [0.01, 0.03, 0.0], [-0.01, 0.03, 0.0], [0.0, 0.01, 0.01]])

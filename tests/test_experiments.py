@@ -317,7 +317,7 @@ def test_tables_exclude_and_name_collapsed_runs(tmp_path):
 
 
 def test_results_carry_no_machine_paths(quick_tables, tmp_path):
-    from dualtalker_lite.utils import repo_root
+    from dualtalker_lite.files import repo_root
 
     data = json.loads((quick_tables / "main.json").read_text())
     assert data["corpus"] == "data_samples"

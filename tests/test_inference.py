@@ -18,7 +18,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.inference import animate_wav, animate_wave, main, write_obj
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.utils import NonFiniteError
+from dualtalker_lite.checks import NonFiniteError
 
 
 @pytest.fixture(scope="module")
@@ -384,7 +384,7 @@ def test_debug_shows_the_traceback(ckpt, tmp_path):
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
     """SIGTERM/Ctrl-C during the video: no --out, no hidden temporary folder, no dualtalker-video-* folder."""
-    from dualtalker_lite.utils import repo_root
+    from dualtalker_lite.files import repo_root
 
     sf.write(tmp_path / "long.wav", _tone(40.0, 16000), 16000)  # 1,200 frames: rendering takes seconds
     tmpdir = tmp_path / "tmpdir"

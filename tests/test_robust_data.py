@@ -17,7 +17,8 @@ import soundfile as sf
 import torch
 
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.utils import AtomicOutputDir, NonFiniteError, load_npy, repo_root
+from dualtalker_lite.checks import load_npy, NonFiniteError
+from dualtalker_lite.files import AtomicOutputDir, repo_root
 
 ENV = {**os.environ, "PYTHONPATH": str(repo_root())}  # subprocesses import this checkout's package
 
@@ -216,7 +217,7 @@ def test_atomic_output_dir_cleans_up_on_exception(tmp_path):
 def test_atomic_output_dir_cleans_up_on_signal(tmp_path, sig):
     code = textwrap.dedent(f"""
         import sys, time
-        from dualtalker_lite.utils import AtomicOutputDir
+        from dualtalker_lite.files import AtomicOutputDir
         with AtomicOutputDir({str(tmp_path / "out")!r}) as tmp:
             (tmp / "part.npy").write_bytes(b"x")
             print("ready", flush=True)
@@ -243,7 +244,7 @@ def _alive(pid):
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_worker_exits_when_its_parent_is_killed(tmp_path):
     pidfile = tmp_path / "worker.pid"
-    worker = (f"import os, time; from dualtalker_lite.utils import watch_parent; watch_parent(0.2); "
+    worker = (f"import os, time; from dualtalker_lite.processes import watch_parent; watch_parent(0.2); "
               f"open({str(pidfile)!r}, 'w').write(str(os.getpid())); time.sleep(120)")
     parent = (f"import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', {worker!r}]); "
               f"time.sleep(120)")
@@ -267,7 +268,7 @@ def test_worker_exits_when_its_parent_is_killed(tmp_path):
 def test_interrupted_checkpoint_save_leaves_no_tmp_file(tmp_path, sig):
     code = textwrap.dedent(f"""
         import time, torch
-        from dualtalker_lite.utils import atomic_torch_save
+        from dualtalker_lite.files import atomic_torch_save
         real_save = torch.save
         def slow_save(obj, f):  # the file is half-way: written but not yet renamed
             real_save(obj, f)

@@ -151,7 +151,7 @@ class MotionDecoder(nn.Module):
         return dec(h) / s
 
     def stream(self, features: Tensor, style: Tensor) -> Tensor:
-        """The past of eq. 1, shifted right: [S_n, f_1, ..., f_{T-1}] (+ S_n on every f_t for FaceFormer) -> (B, T, d)."""
+        """The past of eq. 1, shifted right: [S_n, f_1, ..., f_{T-1}] (+ S_n on every f_t, FaceFormer) -> (B, T, d)."""
         if self.add_style_to_motion:
             features = features + style[:, None, :]
         return torch.cat([style[:, None, :], features[:, :-1]], dim=1)  # (B, T, d)
@@ -184,13 +184,16 @@ class MotionDecoder(nn.Module):
     # ---- the three ways to run it ---------------------------------------------------------------------------
     def teacher_forced(self, past_motion: Tensor, features: Tensor, style: Tensor, mask: Tensor | None = None,
                        weights: list | None = None) -> Tensor:
-        """Every frame from the motion fed back: past (B, T, V*3) (frame t-1 feeds t), features (B, T, d) -> (B, T, V*3)."""
+        """Every frame from the motion fed back: past (B, T, V*3) (frame t-1 feeds t), features (B, T, d) -> (B, T, V*3).
+
+        ``weights``: a list that receives each layer's attention weights."""
         return self.decode_motion(self.fuse(self.stream(self.encode_motion(past_motion), style), features, style,
                                             "primal", mask, weights))
 
     def prefix_step(self, tokens: Sequence[Tensor], features: Tensor, style: Tensor,
                     mask: Tensor | None = None) -> Tensor:
-        """Reference step: re-run the layers on the whole prefix of stream tokens [(B, 1, d), ...] -> m̂_t (B, 1, V*3)."""
+        """Reference step: re-run the layers on the whole prefix of stream tokens [(B, 1, d), ...] -> m̂_t (B, 1, V*3).
+        """
         h = self.ppe(torch.cat(list(tokens), dim=1))  # (B, t+1, d)
         for layer in self.layers:
             h, _ = layer(h, features, style, "primal", key_mask=mask)

@@ -28,8 +28,8 @@ frames and hop H:
 with bin k at frequency :math:`k f_s / N` (f_s the mesh frame rate), :math:`\mathcal{C}` the training clips and
 :math:`M_c` the STFT frames of clip c. Readings that were possible, and the one taken:
 
-- *Displacement*: the Euclidean distance (a scalar per vertex and frame), as the prose says "distance"; not the
-  3-D offset vector (three spectra per vertex) -- taken: the distance.
+- *Displacement*: the Euclidean distance (a scalar per vertex and frame), as the prose says "distance", not the
+  3-D offset vector.
 - *Amplitude*: magnitude :math:`|X|`, not power :math:`|X|^2` (the text says "amplitude") -- taken: magnitude.
   Normalisation :math:`c_k` (one-sided amplitude spectrum): a constant c reads c in bin 0 and a cosine of
   amplitude a centred on bin k reads a in bin k, so FAI is in metres, like the displacement. Any positive
@@ -42,18 +42,9 @@ with bin k at frequency :math:`k f_s / N` (f_s the mesh frame rate), :math:`\mat
   ``"first"``         bin 1, the lowest non-zero frequency (:math:`f_s / N`);
   ``"dominant"``      per vertex, the non-DC bin with the largest mean amplitude (over clips and frames).
 
-  Why ``"dc"``: the text contrasts "the fundamental frequency band" with "the higher frequency bands" of the
-  spectrogram, which reads most plainly as its lowest band, i.e. its bottom row, bin 0; it is also the most
-  robust estimate (it depends neither on the speech rate nor on N) and it ranks regions by how far they move on
-  average, which is what the mask is meant to encode ("values close to 1 indicate strong facial movements").
-  The other two readings are less distinct than they look (the notebook shows it): d is a distance, so it is
-  non-negative with a large mean, and a Hann window's spectrum has side lobes at bins +-1 of exactly half its
-  peak, so with :math:`c_k` above a constant offset c reads c in bin 1 as well. ``"first"`` therefore mixes the
-  mean displacement with the slowest oscillation, and ``"dominant"`` (it searches the non-DC bins; bin 0 seldom
-  exceeds bin 1 anyway, because of that leakage) lands on bin 1 for nearly every vertex.
-  ``detrend=True`` subtracts each vertex's clip mean before the STFT, so that ``"first"`` and ``"dominant"``
-  measure oscillation only. On the shipped corpus the dominant bin is still bin 1 for every moving vertex after
-  detrending: the motion spectrum falls with frequency, so the strongest oscillation is the slowest resolved one.
+  ``"dc"`` is taken: the text contrasts "the fundamental frequency band" with "the higher frequency bands", which
+  reads most plainly as the spectrogram's lowest row; why, and how the other readings compare on the corpus, is in
+  docs/design-notes.md ("CorrTalk: which band is the fundamental") and notebook 10.
 - *Averaging*: over each clip's STFT frames, then over clips with equal weight per clip (a long clip does not
   count more). Mean over frames commutes with band selection, so :func:`mean_amplitude_spectrum` averages the
   whole spectrum once and :func:`select_band` picks the band.

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..utils import check_finite, load_npy
+from ..checks import check_finite, load_npy
 
 __all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH"]
 

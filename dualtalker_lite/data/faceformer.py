@@ -132,7 +132,8 @@ def safe_load_pickle(path: str | os.PathLike):
 
 def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
     """FaceFormer's ``templates.pkl`` ({subject: (V, 3)}) -> ``templates.npz`` (float32 (V*3,) per subject)."""
-    from ..utils import check_finite, default_file_mode
+    from ..checks import check_finite
+    from ..files import default_file_mode
 
     pkl = Path(pkl)
     out = Path(out) if out is not None else pkl.with_suffix(".npz")
@@ -250,7 +251,8 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
 
     Afterwards ``Corpus(root)`` reads it (vertices subsampled by ``mesh_stride``). Returns the metadata.
     """
-    from ..utils import atomic_write_text, load_npy
+    from ..checks import load_npy
+    from ..files import atomic_write_text
 
     root = Path(root)
     if preset not in PRESETS:

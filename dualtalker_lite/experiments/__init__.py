@@ -6,26 +6,10 @@ Every run follows one protocol ("same features, same data, same training budget"
 1. build the model with ``set_seed(seed)`` (tiny sizes: ``DualTalkerConfig.tiny``, ``VocaConfig.tiny``);
 2. train on the row's clips (``RunSpec.data``; default the ``train`` split of ``data_samples/``) for a FIXED
    number of epochs, the same for every model; no early stopping and no model selection (no test-set peeking);
-3. generate the test split (test-A; the emotional tables: test_emo_a) autoregressively (``train.predict``) and measure:
-
-   ========================  ======  =================================================================
-   key                       unit    meaning (``metrics`` module docstring has the formulas)
-   ========================  ======  =================================================================
-   ``lve_published``         mm^2    mean over frames of max over lip vertices of the squared error
-   ``lve_euclidean``         mm      the same with the Euclidean error (the papers' text)
-   ``fdd_published``         mm^2    upper-face dynamics deviation, squared-norm reading; signed
-   ``fdd_paper``             mm      the same on the displacement norm (eq. 12's text); signed
-   ``eve_published``         mm^2    the LVE computation on the ``eyes_forehead`` region
-   ``smoothing_lips``        ratio   over-smoothing ratio on the lips (:func:`over_smoothing_ratio`)
-   ``smoothing_upper``       ratio   the same on the upper face
-   ``bilabial_closure_2mm``  ratio   lip sync (``metrics.lip_sync_metrics``, from the phoneme timing):
-   ``bilabial_closure_1mm``          fraction of /p b m/ segments whose min lip distance is < 2 / < 1 mm,
-   ``bilabial_min_mm``       mm      the mean of those minima, the mean max lip distance at open vowels
-   ``open_vowel_max_mm``     mm      (``*_gt``: the same on the ground truth), the mean per-clip correlation
-   ``lip_distance_corr``     r       of predicted and true lip-distance curves
-   ========================  ======  =================================================================
-
-   plus training seconds and the number of trainable parameters;
+3. generate the test split (test-A; the emotional tables: test_emo_a) autoregressively (``train.predict``) and measure
+   the columns of ``specs.METRICS`` (LVE and FDD in the published squared convention and the text's Euclidean one,
+   EVE, over-smoothing ratios, bilabial closures < 2 / < 1 mm, vowel opening and lip-distance correlation; the
+   ``metrics`` module docstring has the formulas), plus training seconds and the number of trainable parameters;
 4. check for collapse: generate test-A again with every clip's audio replaced by that of a clip of another
    sentence (same template and speaker) -> ``audio_sensitivity``; a trained run is flagged ``collapsed`` when
    its lip motion ratio < 0.1 or its audio sensitivity < 0.1 (:func:`collapse_reasons`). The tables show the flag

@@ -22,7 +22,7 @@ from .specs import TABLES, RunSpec, table_specs, table_split
 
 # ------------------------------------------------------------------------------------------- command line
 def _git() -> str:
-    from ..utils import repo_root
+    from ..files import repo_root
 
     try:
         run = lambda *a: subprocess.run(["git", "-C", str(repo_root()), *a], capture_output=True,  # noqa: E731
@@ -36,7 +36,7 @@ def _git() -> str:
 def _display_path(path: str | Path) -> str:
     """The corpus folder as written into results: relative to the repository (or the working directory) when
     inside it, else its name only, so committed tables carry no machine-specific paths."""
-    from ..utils import repo_root
+    from ..files import repo_root
 
     path = Path(path).resolve()
     for base in (repo_root(), Path.cwd()):

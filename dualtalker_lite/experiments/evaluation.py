@@ -1,5 +1,5 @@
 """Evaluation of a trained row: the phoneme one-hot features of the DeepSpeech-ablation analogue, predictions on a
-split, the table's metrics (``metrics``, ``emotion_metrics``), the over-smoothing ratio, the CCRL sweep's typical
+split, the table's metrics (``metrics``, ``metrics.emotion``), the over-smoothing ratio, the CCRL sweep's typical
 bandwidth, and the collapse check (audio swapped for another sentence's -> ``audio_sensitivity``;
 :func:`collapse_reasons`, :func:`is_collapsed`).
 """
@@ -203,12 +203,12 @@ def split_metrics(out: dict, regions: dict, segments: list | None = None) -> dic
 
 def emotion_split_metrics(model: torch.nn.Module, dataset: Dataset, out: dict, emotions: Sequence[str],
                           regions: dict) -> tuple[dict, dict]:
-    """The emotional tables' metrics (``emotion_metrics``) -> (scalars for the run's metrics, per-emotion detail).
+    """The emotional tables' metrics (``metrics.emotion``) -> (scalars for the run's metrics, per-emotion detail).
 
     ``emotions``: the names of the emotion indices (``corpus.emotions``). Brow-raise and smile errors for every model;
     ``emotion_accuracy`` only for models with a classifier (``model.emotion_logits(audio, mask) -> (B, N_e)``)."""
     from ..data.dataset import make_loader
-    from ..emotion_metrics import emotion_accuracy, emotion_expression_metrics
+    from ..metrics.emotion import emotion_accuracy, emotion_expression_metrics
 
     labels = [int(dataset[i]["emotion"]) for i in range(len(dataset))]
     expr = emotion_expression_metrics(out["preds"], out["gts"], out["templates"], [emotions[i] for i in labels],

@@ -182,6 +182,6 @@ EMOTION_DEFINITIONS = (
     "names correctly; — for models without one. brow-raise / smile error: per clip, the mean vertical displacement "
     "of the brow vertices and the mean change of the mouth-corner distance from the template (mm), averaged per "
     "emotion for the prediction and the ground truth; the error is the mean over emotions of |pred − GT| "
-    "(`emotion_metrics`): does the face show the right emotion, whatever the timing.",
+    "(`metrics.emotion`): does the face show the right emotion, whatever the timing.",
 )
 

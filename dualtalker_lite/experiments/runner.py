@@ -132,7 +132,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
     from ..data.dataset import make_loader
     from ..data.pairs import make_pair_loader
     from ..train import TrainConfig, loss_weights, save_checkpoint, train
-    from ..utils import set_seed
+    from ..seeding import set_seed
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
     threads = torch.get_num_threads()
@@ -201,7 +201,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
 def _worker_init(parent_pid: int | None = None) -> None:
     import signal
 
-    from ..utils import watch_parent
+    from ..processes import watch_parent
 
     torch.set_num_threads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is handled once, by the parent (run_specs)

@@ -29,7 +29,7 @@ METRICS = (
     ("open_vowel_max_mm", "max lip dist. at open vowels (mm, →GT)", 2),
     ("lip_distance_corr", "lip-distance corr. ↑", 3),
 )
-# the emotional tables' extra columns (``emotion_metrics`` module docstring has the definitions)
+# the emotional tables' extra columns (``metrics.emotion`` module docstring has the definitions)
 EMOTION_METRICS = (
     ("emotion_accuracy", "emotion acc. ↑", 3),
     ("brow_raise_error_mm", "brow-raise error (mm) ↓", 2),

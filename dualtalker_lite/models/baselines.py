@@ -26,7 +26,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..losses.dualtalker import LossWeights, joint_loss
-from ..utils import check_shape
+from ..checks import check_shape
 
 __all__ = ["StaticTemplate", "VocaConfig", "VocaStyle", "DUAL_ONLY_KEYS"]
 

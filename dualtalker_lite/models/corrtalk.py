@@ -52,7 +52,8 @@ Readings taken:
 
 Mask initialisation from data: :meth:`CorrTalk.init_from_data` (called by ``train`` beside ``init_output_bias``
 when the recipe's ``mean_init`` is on) sets the mask to the normalised FAI of the training set
-(:func:`dualtalker_lite.blocks.fai.fai_from_dataset`, :func:`dualtalker_lite.blocks.fai.normalised_fai`); :meth:`init_mask`
+(:func:`dualtalker_lite.blocks.fai.fai_from_dataset`, :func:`dualtalker_lite.blocks.fai.normalised_fai`);
+:meth:`init_mask`
 takes any (V,) vector.
 """
 from __future__ import annotations

@@ -50,7 +50,8 @@ __all__ = ["DualTalkerConfig", "DualTalker"]
 
 @dataclass
 class DualTalkerConfig:
-    """Sizes and switches of :class:`DualTalker`. Defaults: the paper's VOCASET sizes (supp. A), small audio stand-in."""
+    """Sizes and switches of :class:`DualTalker`. Defaults: the paper's VOCASET sizes (supp. A), small audio stand-in.
+    """
 
     n_vertices: int = 1500  # V: the mesh has V*3 coordinates per frame
     audio_dim: int = 160  # D_a: log-mel 2 x 80 per mesh frame (or n_phonemes for the one-hot ablation)

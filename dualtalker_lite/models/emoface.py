@@ -38,16 +38,10 @@ Readings taken (the paper leaves these open):
   gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
 - The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
   and standard deviation over the valid frames, as emotion is a property of the whole sentence.
-- Loudness for the emotion branch. The shared front-end normalises each log-mel frame (a per-frame LayerNorm over
-  the bins), which divides out the frame's level and spectral spread: the volume and range of emotional prosody.
-  Measured on the shipped corpus (linear probe, mean+std pooled, train + train_emo -> test_emo_a): raw log-mel 0.58,
-  per-frame normalised log-mel 0.21 (below the 0.25 chance; mostly "neutral"), normalised + the two removed
-  statistics 0.58. With that front-end alone the classifier stayed at the class prior (accuracy 0.06 after 280 joint
-  steps, almost every clip called neutral: no label mismatch, the indices are ``corpus.emotions`` throughout).
-  wav2vec 2.0 normalises per utterance, not per frame, so it keeps the frame-to-frame dynamics. So E_e also reads
-  :func:`frame_level_stats` (the two numbers the LayerNorm removes), standardised with the training frames'
-  mean and std (:meth:`EmoFace.init_from_data`, which ``train`` calls when ``mean_init``), through its own linear
-  map added to W_e H. The content branch is unchanged.
+- Loudness for the emotion branch: the shared front-end's per-frame LayerNorm divides out each frame's level and
+  spectral spread, the volume and range of emotional prosody (wav2vec 2.0 normalises per utterance instead). E_e
+  therefore also reads :func:`frame_level_stats`, standardised with the training frames' statistics
+  (:meth:`EmoFace.init_from_data`), through its own linear map added to W_e H (measured: docs/design-notes.md).
 - Self-growing training (section 3.3.1, Fig. 2, eq. 6): stage one is the whole model teacher-forced (no gradient;
   the paper does not supervise it), stage two feeds each past frame from the ground truth with probability
   ``train.self_growing_share(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop

@@ -101,7 +101,7 @@ def _default_path(arrays, settings) -> Path:
             digest.update(np.ascontiguousarray(array, dtype=np.float32).tobytes())
     name = f"clip-{digest.hexdigest()[:12]}.mp4"
     try:
-        from ..utils import runs_dir
+        from ..files import runs_dir
 
         return runs_dir("videos") / name
     except (ImportError, OSError):

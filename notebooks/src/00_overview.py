@@ -35,7 +35,8 @@ import torch
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.metrics import lip_distance
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import animate_clip, plot_frames, plot_lip_distance
 
 torch.set_num_threads(2)
@@ -225,7 +226,7 @@ HTML(video._repr_html_())  # the player only (the object's repr would show a loc
 
 # %%
 from dualtalker_lite.checkpoints import save_checkpoint
-from dualtalker_lite.utils import runs_dir
+from dualtalker_lite.files import runs_dir
 
 
 def stand_in_checkpoint():

@@ -66,7 +66,8 @@ from dualtalker_lite.face.upper import accent_track, pitch_track
 from dualtalker_lite.face.visemes import (DOMINANCE_POWER, PHONEME_TO_VISEME, PLATEAU_MARGIN, REST_DOMINANCE,
                                           VISEME_PARAMS, dominance)
 from dualtalker_lite.metrics import lip_distance
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import MeshViewer, animate_clip, plot_frames, plot_lip_distance, plot_waveform_and_phonemes
 from dualtalker_lite.viz.render import draw_mesh
 

@@ -43,7 +43,8 @@ from dualtalker_lite.audio import (HOP_LENGTH, LOG_EPS, N_FFT, N_MELS, WIN_LENGT
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, segments_to_frames
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import plot_waveform_and_phonemes
 
 torch.set_num_threads(2)

@@ -46,7 +46,8 @@ import torch.nn.functional as F
 from dualtalker_lite.blocks import (DualIntegration, MultiHeadAttention, PeriodicPositionalEncoding,
                                     alibi_causal_bias, alibi_slopes, alignment_mask, scaled_dot_product_attention)
 from dualtalker_lite.data import sample_path  # the shipped corpus (only used in the optional last cell)
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 
 torch.set_num_threads(2)
 gen = set_seed(0)  # seeds Python/NumPy/torch; `gen` draws every random tensor below

@@ -39,7 +39,8 @@ import torch.nn.functional as F
 
 from dualtalker_lite.blocks import SpeakerAwareGate
 from dualtalker_lite.data import sample_path  # the shipped corpus (not needed here: everything is synthetic)
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 
 torch.set_num_threads(2)
 gen = set_seed(0)  # seeds Python/NumPy/torch; `gen` draws every random tensor below

@@ -33,7 +33,8 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 
 torch.set_num_threads(2)
 _ = set_seed(0)  # (it also returns a seeded generator, not needed here)

@@ -29,7 +29,8 @@ from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loade
 from dualtalker_lite.losses import LossWeights, dual_loss, duality_loss, primal_loss
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.train import TrainConfig, train
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 
 torch.set_num_threads(2)
 _ = set_seed(0)  # (it also returns a seeded generator, not needed here)

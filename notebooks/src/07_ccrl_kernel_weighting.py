@@ -44,7 +44,8 @@ from dualtalker_lite.losses import (READINGS, LossWeights, ccrl_anchor_losses, c
 from dualtalker_lite.metrics import lip_distance, lve_euclidean
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.train import TrainConfig, predict, train
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import plot_lip_distance
 from dualtalker_lite.viz.plots import shade_phonemes
 

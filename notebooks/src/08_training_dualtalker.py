@@ -37,7 +37,9 @@ from dualtalker_lite.losses import LossWeights, joint_loss
 from dualtalker_lite.metrics import lip_distance, lip_sync_metrics, lve_euclidean
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.train import TrainConfig, load_checkpoint, predict, save_checkpoint, train
-from dualtalker_lite.utils import check_shape, runs_dir, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.files import runs_dir
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import animate_clip, plot_lip_distance
 from dualtalker_lite.viz.widgets import RetrainPanel, progress_loader
 

@@ -49,7 +49,9 @@ from dualtalker_lite.models.baselines import StaticTemplate
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
 from dualtalker_lite.train import TrainConfig, predict, train
-from dualtalker_lite.utils import check_shape, repo_root, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.files import repo_root
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import animate_clip, plot_frames, plot_lip_distance
 
 # One thread, not two: the tensors here are tiny, and on a busy 2-core machine a second intra-op thread makes

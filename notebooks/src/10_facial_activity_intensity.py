@@ -45,7 +45,8 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.blocks.fai import (BANDS, HOP, N_FFT, displacement_stft, fai_from_corpus, mean_amplitude_spectrum,
                                  normalised_fai, select_band, vertex_displacements)
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import plot_vertex_maps, plot_vertex_spectrograms
 
 torch.set_num_threads(1)

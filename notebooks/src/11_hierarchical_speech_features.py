@@ -50,7 +50,8 @@ from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate, make_loader
 from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
 from dualtalker_lite.train import TrainConfig, train
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 
 torch.set_num_threads(1)  # tiny models: a second thread only adds contention on a shared machine
 gen = set_seed(0)

@@ -45,7 +45,9 @@ from dualtalker_lite.metrics import lip_distance, lip_sync_metrics, lve_euclidea
 from dualtalker_lite.models.corrtalk import MASK_INITS, CorrTalk, CorrTalkConfig
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.train import TrainConfig, mean_motion, predict, train
-from dualtalker_lite.utils import check_shape, repo_root, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.files import repo_root
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import (animate_clip, branch_mean_errors, plot_branch_error_maps, plot_lip_distance,
                                  plot_vertex_maps)
 from dualtalker_lite.viz.widgets import TrainingPanel, progress_loader

@@ -45,7 +45,8 @@ from dualtalker_lite.blocks.spiral import one_ring_order, spiral_ring_index, tem
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.face.mesh import build_template
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import plot_frames, plot_spirals, plot_vertex_map
 
 torch.set_num_threads(1)

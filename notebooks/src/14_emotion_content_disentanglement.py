@@ -29,7 +29,8 @@ from dualtalker_lite.data.pairs import PairDataset, make_pair_loader, pair_colla
 from dualtalker_lite.losses.emoface import EmoFaceWeights, emoface_loss
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
 from dualtalker_lite.train import TrainConfig, train
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 
 torch.set_num_threads(1)  # tiny tensors: a second thread only waits on a shared machine
 set_seed(0)

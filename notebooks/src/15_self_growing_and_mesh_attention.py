@@ -31,13 +31,14 @@ from torch.utils.data import Subset
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
 from dualtalker_lite.data.pairs import PairDataset, make_pair_loader
-from dualtalker_lite.emotion_metrics import brow_raise, smile_width
+from dualtalker_lite.metrics.emotion import brow_raise, smile_width
 from dualtalker_lite.losses.emoface import EmoFaceWeights
 from dualtalker_lite.metrics import lve_euclidean
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
 from dualtalker_lite.models.emoface import self_growing_share
 from dualtalker_lite.train import TrainConfig, predict, train
-from dualtalker_lite.utils import check_shape, set_seed
+from dualtalker_lite.checks import check_shape
+from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import animate_clip, plot_frames
 from dualtalker_lite.viz.widgets import TrainingPanel, progress_loader
 
@@ -325,7 +326,7 @@ fig_p
 # EmoFace's emotion type is recognised from the speech by its classifier (eq. 10), but it is also a condition of
 # the emotion branch, so a caller can choose it (`generate(..., emotion=k, level=l)`, the CLI's `--emotion` and
 # `--level`). The model of section 4 renders the *neutral* reading of a test sentence with each emotion at level 2.
-# The measures of the "right emotion" metric (`emotion_metrics`: brow raise and mouth-corner width, mm, mean over
+# The measures of the "right emotion" metric (`metrics.emotion`: brow raise and mouth-corner width, mm, mean over
 # frames) say what each condition changes; after 20 steps expect small differences.
 
 # %%
@@ -368,7 +369,7 @@ import math
 from IPython.display import Markdown
 
 from dualtalker_lite import experiments
-from dualtalker_lite.utils import repo_root
+from dualtalker_lite.files import repo_root
 
 RESULTS = repo_root() / "results"
 RUN = ("python -m dualtalker_lite.experiments --table {} --seeds {} --epochs 12 --processes 2 --out results/{} "

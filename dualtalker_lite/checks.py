@@ -1,0 +1,59 @@
+"""Checks on the way in: shapes (d2l's ``check_shape``), finite values, and ``.npy`` files loaded safely.
+
+Every error names the array or file and the problem in one line (a ``ValueError``, which the command line shows
+as ``error: ...`` with exit status 2).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+__all__ = ["check_shape", "NonFiniteError", "check_finite", "load_npy"]
+
+
+def check_shape(x: torch.Tensor | np.ndarray, shape: Sequence[int | None], name: str = "tensor") -> None:
+    """Raise ValueError unless ``x.shape`` matches ``shape`` (``None`` matches any size), d2l style."""
+    got = tuple(x.shape)
+    if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got)):
+        want = tuple("*" if s is None else s for s in shape)
+        raise ValueError(f"{name}: expected shape {want}, got {got}")
+
+
+class NonFiniteError(ValueError):
+    """NaN or infinite values where finite numbers are required (data, weights, losses, outputs)."""
+
+
+def check_finite(x: np.ndarray | torch.Tensor, what: str) -> None:
+    """Raise :class:`NonFiniteError` naming ``what``, the count and the first bad index unless ``x`` is finite."""
+    bad = ~torch.isfinite(x) if isinstance(x, torch.Tensor) else ~np.isfinite(np.asarray(x))
+    n_bad = int(bad.sum())
+    if n_bad:
+        first = tuple(int(i) for i in (bad.nonzero()[0] if isinstance(bad, torch.Tensor) else np.argwhere(bad)[0]))
+        raise NonFiniteError(f"{what} contains {n_bad} NaN/infinite value(s) (first at index {first})")
+
+
+def load_npy(path: str | os.PathLike, what: str = "array") -> np.ndarray:
+    """``np.load(path, allow_pickle=False)`` with one-line errors that name the file (never unpickles)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} file not found: {path}")
+    with open(path, "rb") as f:
+        magic = f.read(6)
+    if magic != b"\x93NUMPY":
+        raise ValueError(f"{path}: not a valid .npy file (no NumPy header: corrupt, or another format)")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except ValueError as e:
+        if "pickle" in str(e):
+            raise ValueError(f"{path}: holds pickled Python objects, not a plain numeric array; refused "
+                             f"(loading pickles can run code). Re-save it with np.save(arr.astype(np.float32))") from e
+        raise ValueError(f"{path}: not a valid .npy file (corrupt or not written by np.save)") from e
+    except (OSError, EOFError) as e:
+        raise ValueError(f"{path}: not a valid .npy file (truncated or corrupt)") from e
+    if arr.dtype.kind not in "fiub":
+        raise ValueError(f"{path}: has dtype {arr.dtype}, expected numbers")
+    return arr

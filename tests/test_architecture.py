@@ -1,0 +1,162 @@
+"""The package's layering (docs/architecture.md): imports point one way, no import circles, no paper model imports
+another paper's model. Every import counts, also the late ones inside functions (an ``ast`` walk over each file).
+
+Each module belongs to the layer of its longest matching prefix in ``LAYERS``; a module may import its own layer
+(without circles) and the layers below, never a layer above.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
+
+LAYERS = [  # lowest first
+    ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "recogniser",
+                     "export")),
+    ("data and blocks", ("data", "blocks")),
+    ("models and losses", ("models", "losses")),
+    ("training and evaluation", ("train", "checkpoints", "metrics")),
+    ("applications", ("experiments", "inference", "streaming", "viz")),
+    ("front ends", ("cli", "demo", "viz.widgets", "experiments.__main__")),
+]
+PAPERS = ("models.dualtalker", "models.corrtalk", "models.emoface", "models.faceformer")
+
+
+def modules(root: Path) -> dict[str, Path]:
+    """Dotted name relative to the package (``models.corrtalk``; ``""`` for the package itself) -> file."""
+    out = {}
+    for f in sorted(root.rglob("*.py")):
+        parts = f.relative_to(root).with_suffix("").parts
+        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = f
+    return out
+
+
+def imports(root: Path) -> dict[str, set[str]]:
+    """Module -> the package modules it imports (module level or inside functions)."""
+    mods, pkg = modules(root), root.name
+    edges: dict[str, set[str]] = {m: set() for m in mods}
+    for name, f in mods.items():
+        here = name.split(".") if f.name == "__init__.py" else name.split(".")[:-1]
+        here = [p for p in here if p]
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = here[: len(here) - node.level + 1]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                elif (node.module or "").split(".")[0] == pkg:
+                    target = node.module.partition(".")[2]
+                else:
+                    continue
+                cands = [f"{target}.{a.name}".strip(".") for a in node.names] or [target]
+                targets = [c if c in mods else target for c in cands]
+            elif isinstance(node, ast.Import):
+                targets = [a.name.partition(".")[2] for a in node.names if a.name.split(".")[0] == pkg]
+            else:
+                continue
+            for t in targets:
+                while t not in mods and "." in t:
+                    t = t.rsplit(".", 1)[0]
+                if t in mods and t != name and t != "" and not name.startswith(t + "."):
+                    edges[name].add(t)
+    return edges
+
+
+def layer_of(module: str) -> int:
+    """Index in ``LAYERS`` of the longest prefix naming ``module``; the package's __init__ is a foundation."""
+    best, depth = None, -1
+    for i, (_, prefixes) in enumerate(LAYERS):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and p.count(".") > depth:
+                best, depth = i, p.count(".")
+    if module == "":
+        return 0
+    if best is None:
+        raise KeyError(f"module {module!r} is in no layer: add it to LAYERS and docs/architecture.md")
+    return best
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def violations(root: Path) -> list[str]:
+    """Every upward import, import circle and import between two paper models of the package at ``root``."""
+    edges = imports(root)
+    found = []
+    for a, targets in sorted(edges.items()):
+        for b in sorted(targets):
+            if layer_of(b) > layer_of(a):
+                found.append(f"upward import: {a} ({LAYERS[layer_of(a)][0]}) imports {b} ({LAYERS[layer_of(b)][0]})")
+            if a.startswith(PAPERS) and b.startswith(PAPERS) and a.split(".")[:2] != b.split(".")[:2]:
+                found.append(f"paper model imports another paper's model: {a} imports {b}")
+    found += [f"import circle: {' <-> '.join(c)}" for c in cycles(edges)]
+    return found
+
+
+def test_the_package_keeps_its_layers():
+    assert violations(PACKAGE) == []
+
+
+def test_every_module_has_a_layer():
+    for name in modules(PACKAGE):
+        layer_of(name)
+
+
+def _fake_package(tmp_path: Path, files: dict[str, str]) -> Path:
+    root = tmp_path / "dualtalker_lite"
+    for rel, text in {"__init__.py": "", "models/__init__.py": "", "blocks/__init__.py": "", **files}.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_text(text)
+    return root
+
+
+def test_the_check_catches_an_upward_late_import(tmp_path):
+    root = _fake_package(tmp_path, {"blocks/decoder.py": "def f():\n    from ..train import train\n",
+                                    "train.py": "from .blocks.decoder import f\n"})
+    found = violations(root)
+    assert "upward import: blocks.decoder (data and blocks) imports train (training and evaluation)" in found
+    assert "import circle: blocks.decoder <-> train" in found
+
+
+def test_the_check_catches_one_paper_importing_another(tmp_path):
+    root = _fake_package(tmp_path, {"models/corrtalk.py": "from .dualtalker import DualTalker\n",
+                                    "models/dualtalker.py": "import dualtalker_lite.blocks\n"})
+    assert violations(root) == ["paper model imports another paper's model: models.corrtalk imports "
+                                "models.dualtalker"]
+
+
+def test_a_module_outside_the_layers_is_named(tmp_path):
+    root = _fake_package(tmp_path, {"misc.py": ""})
+    with pytest.raises(KeyError, match="module 'misc' is in no layer"):
+        [layer_of(m) for m in modules(root)]
