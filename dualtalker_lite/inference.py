@@ -311,7 +311,8 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
     ap.add_argument("--chunk", type=int, default=900,
                     help="frames decoded and written per block (memory vs. overhead; the result is the same)")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bar while rendering the video")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar while rendering the video (it is "
+                    "shown only when stderr is a terminal anyway)")
     ap.add_argument("--debug", action="store_true", help="show full tracebacks")
     return ap
 
@@ -361,7 +362,7 @@ def run(args: argparse.Namespace) -> list[Path]:
     with target as tmp:
         npy = write_npy_stream(tmp / "vertices.npy", blocks, n_frames, template.size)
         written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate,
-                                progress=not args.no_progress)
+                                progress=not args.no_progress and sys.stderr.isatty())
     out = Path(args.out)
     names = [out / p.relative_to(tmp) for p in written]
     print(f"{n_frames} frames ({n_frames / FPS:.1f} s) -> " + ", ".join(map(str, names)))
@@ -370,7 +371,7 @@ def run(args: argparse.Namespace) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     """Command line: one-line errors with exit status 2 (``--debug``: tracebacks), Ctrl-C exits 130."""
-    from .cli import run_main
+    from .console import run_main
 
     return run_main(lambda a: run(parser().parse_args(a)), argv)
 
