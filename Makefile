@@ -14,8 +14,9 @@ export MPLBACKEND ?= Agg
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	# CPU wheel first: with torch 2.13.0 present, nothing else pulls CUDA packages.
-	$(PY) -m pip install --quiet torch==2.13.0
+	# torch first, the CPU build where it can be had (tools/install_torch.py says which and how much it
+	# downloads): with torch 2.13.0 present, nothing else pulls CUDA packages.
+	$(PY) tools/install_torch.py
 	$(PY) -m pip install --quiet -e ".[notebooks,speech,dev]"
 	touch $(STAMP)
 
