@@ -9,14 +9,15 @@ STAMP  := $(VENV)/.installed
 export OMP_NUM_THREADS ?= 2
 export MPLBACKEND ?= Agg
 
-.PHONY: lab demo test unit nbval env sample bench clean
+.PHONY: lab demo test unit nbval env sample bench clean katex
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	# CPU wheel first: with torch 2.13.0 present, nothing else pulls CUDA packages.
-	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[notebooks,speech,dev]"
+	# torch first, the CPU build where it can be had (tools/install_torch.py says which and how much it
+	# downloads): with torch 2.13.0 present, nothing else pulls CUDA packages.
+	$(PY) tools/install_torch.py
+	$(PY) -m pip install --quiet -e ".[notebooks,speech,phonetic,dev]"
 	touch $(STAMP)
 
 env: $(STAMP)
@@ -38,6 +39,11 @@ unit: $(STAMP)
 
 nbval: $(STAMP)
 	$(PY) -m pytest notebooks --nbval-lax
+
+# KaTeX (pinned by tools/katex/package-lock.json, ~1 MB) for tests/test_notebook_math.py, which renders every
+# formula of the notebooks as JupyterLab's KaTeX would; without it that test is skipped (CI requires it).
+katex:
+	npm ci --prefix tools/katex --no-audit --no-fund --loglevel=error
 
 # Regenerate the shipped sample bit for bit (needs the [speech] extra, installed by default). Built in a
 # temporary folder and swapped in when complete, so no stale clip survives and a failure leaves the old sample.

@@ -7,102 +7,108 @@
     dualtalker-lite convert-templates vocaset/templates.pkl                                  # safe pickle -> npz
     dualtalker-lite prepare-dataset vocaset --preset vocaset                                 # -> a loadable corpus
 
-Every command prints user errors (bad files, wrong arguments, existing outputs) as one line naming the file
-and the problem and exits with status 2; ``--debug`` (anywhere on the line) shows the traceback instead.
-Ctrl-C or SIGTERM stops the command (and its worker processes), removes temporary files and exits 130.
+Every command exits with status 0 on success (nothing on stderr), prints user errors (bad files, wrong
+arguments, existing outputs) as one line naming the file and the problem and exits with status 2; ``--debug``
+(anywhere on the line) shows the traceback instead. Ctrl-C or SIGTERM stops the command (and its worker
+processes), removes temporary files and exits 130; status 1 means a bug (with Python's traceback). The rules live
+in :mod:`dualtalker_lite.console`, which the other command modules import too (none imports this module).
 """
 from __future__ import annotations
 
 import argparse
 import json
-import signal
+import math
 import sys
-import traceback
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
-__all__ = ["USER_ERRORS", "run_main", "main"]
+from .console import USER_ERRORS, exit_status, run_main
 
-# Exceptions that mean "your input is wrong", not "the package has a bug": shown as one line.
-USER_ERRORS = (ValueError, KeyError, OSError, ImportError)
-
-
-def _message(e: BaseException) -> str:
-    text = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-    return str(text).strip().splitlines()[0] if str(text).strip() else type(e).__name__
-
-
-def run_main(func: Callable, argv: Sequence[str] | None = None):
-    """Call ``func(argv)`` as a command: user errors -> ``error: ...`` on stderr + exit 2; Ctrl-C -> exit 130."""
-    argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]  # Path objects welcome
-    debug = "--debug" in argv
-    argv = [a for a in argv if a != "--debug"]
-    old_term = None
-    try:
-        old_term = signal.signal(signal.SIGTERM, _raise_interrupt)  # SIGTERM unwinds like Ctrl-C (cleanup runs)
-    except ValueError:  # not in the main thread
-        pass
-    try:
-        return func(argv)
-    except KeyboardInterrupt:
-        if debug:
-            raise
-        print("interrupted; temporary files removed", file=sys.stderr)
-        sys.exit(130)
-    except USER_ERRORS as e:
-        if debug:
-            raise
-        print(f"error: {_message(e)}", file=sys.stderr)
-        print("(run with --debug for the full traceback)", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if old_term is not None:
-            signal.signal(signal.SIGTERM, old_term)
-
-
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt(f"signal {signum}")
+__all__ = ["USER_ERRORS", "run_main", "main"]  # the first two re-exported from .console (their home)
 
 
 # ------------------------------------------------------------------------------------- train / evaluate
-TRAIN_EXAMPLE = """example:
+TRAIN_EXAMPLE = """examples:
   dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt
+  dualtalker-lite train --model emoface --epochs 12 --out runs/my_emoface.pt     # on the emotional pseudo-pairs
+  dualtalker-lite train --model voca --epochs 1 --clips 16 --out runs/check.pt   # a quick check of the whole path
   dualtalker-lite train --corpus vocaset --model faceformer --device cuda --out runs/vocaset_ff.pt"""
 
 EVAL_EXAMPLE = """example:
   dualtalker-lite evaluate --checkpoint runs/my_model.pt --split test_a --json runs/my_model_metrics.json"""
 
+NO_TIMING = "the split's clips have no phoneme timing (metadata 'phonemes'), which the lip-sync metrics need"
+
+
+def _model_specs() -> dict:
+    """``--model`` name -> the RunSpec the experiment tables train it with (EmoFace: the emotional table's)."""
+    from .experiments import table_specs
+
+    specs = {s.model: s for s in table_specs("main") if s.model != "template"}
+    specs.update({s.model: s for s in table_specs("emotion") if s.model == "emoface"})
+    return specs
+
+
+def _pair_dataset(corpus, seed: int):
+    """EmoFace's training clips: ``train`` + ``train_emo``, each with its pseudo-pair partner (data.pairs)."""
+    from .data.pairs import PairDataset
+    from .experiments.specs import EMOTIONAL_TRAIN
+
+    splits = corpus.metadata.get("splits", {})
+    missing = [s for s in EMOTIONAL_TRAIN if not splits.get(s)]
+    if missing or not corpus.metadata.get("pairs"):
+        what = f"split(s) {', '.join(missing)}" if missing else "the 'pairs' table"
+        raise ValueError(f"{corpus.root / 'metadata.json'}: no {what}; --model emoface trains on emotional "
+                         f"pseudo-pairs (the same speaker and sentence read with two emotions), as written by "
+                         f"dualtalker-lite generate (e.g. the shipped data_samples/)")
+    return PairDataset(corpus, EMOTIONAL_TRAIN, seed=seed)
+
 
 def _train(argv: list[str]) -> Path:
+    import dataclasses
+    import os
+
+    import numpy as np
     import torch
+    from torch.utils.data import Subset
 
     from .checkpoints import extractor_settings, save_checkpoint
     from .data import sample_path
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset, make_loader
-    from .experiments import _features, build_model, table_specs
+    from .data.pairs import make_pair_loader
+    from .experiments import _features, build_model
     from .train import TrainConfig, loss_weights, train
 
-    specs = {s.model: s for s in table_specs("main") if s.model != "template"}
+    specs = _model_specs()
     ap = argparse.ArgumentParser(prog="dualtalker-lite train", epilog=TRAIN_EXAMPLE,
-                                 description="Train one model of the main table on a corpus and save a "
-                                             "self-describing checkpoint.",
+                                 description="Train one model of the experiment tables on a corpus (the recipe "
+                                             "of TrainConfig.tiny) and save a self-describing checkpoint. EmoFace "
+                                             "trains on train + train_emo with each clip's pseudo-pair partner, "
+                                             "the other models on train.",
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--model", choices=sorted(specs), default="dualtalker")
     ap.add_argument("--epochs", type=int, default=45)
+    ap.add_argument("--clips", type=int, default=None,
+                    help="train on N training clips only, spread evenly over the training set (a quick check; "
+                         "default: all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="checkpoint file to write (.pt)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    ap.add_argument("--no-progress", action="store_true",
+                    help="no progress bar (it is shown only when stderr is a terminal anyway)")
     args = ap.parse_args(argv)
+    if args.epochs < 1:
+        raise ValueError(f"--epochs {args.epochs}: must be at least 1")
+    if args.clips is not None and args.clips < 1:
+        raise ValueError(f"--clips {args.clips}: must be at least 1")
     out = Path(args.out)
     if out.exists() and not args.overwrite:
         raise FileExistsError(f"checkpoint {out} already exists; pass --overwrite to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
-    import os
-
     if not os.access(out.parent, os.W_OK):
         raise PermissionError(f"output folder {out.parent} is not writable")
     from .inference import resolve_device
@@ -111,14 +117,23 @@ def _train(argv: list[str]) -> Path:
     torch.set_num_threads(args.threads)
     corpus = Corpus(args.corpus or sample_path())
     spec = specs[args.model]
-    dataset = TalkingFaceDataset(corpus, "train")
-    train_set, audio_dim = _features(dataset, spec.features, len(corpus.phoneme_inventory))
+    paired = spec.data == "pairs"
+    dataset = _pair_dataset(corpus, args.seed) if paired else TalkingFaceDataset(corpus, "train")
+    if args.clips is not None and args.clips < len(dataset):
+        dataset_used = Subset(dataset, np.linspace(0, len(dataset) - 1, args.clips).round().astype(int).tolist())
+    else:
+        dataset_used = dataset
+    train_set, audio_dim = _features(dataset_used, spec.features, len(corpus.phoneme_inventory))
+    if spec.model == "emoface":  # as many emotion classes as the corpus has
+        spec = dataclasses.replace(spec, model_overrides={**spec.model_overrides, "n_emotions": len(corpus.emotions)})
     torch.manual_seed(args.seed)
     n_vertices = int(train_set[0]["template"].numel() // 3)
     model, model_cfg = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers), faces=corpus.faces)
     cfg = TrainConfig.tiny(epochs=args.epochs, seed=args.seed, validate_every=0, device=str(device),
-                           weights=loss_weights(model, spec.loss))
-    history = train(model, make_loader(train_set, cfg.batch_size, shuffle=True, seed=args.seed), cfg)
+                           weights=loss_weights(model, spec.loss),
+                           progress=not args.no_progress and sys.stderr.isatty())
+    loader = (make_pair_loader if paired else make_loader)(train_set, cfg.batch_size, shuffle=True, seed=args.seed)
+    history = train(model, loader, cfg)
     model.cpu()
     save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,
                     features=extractor_settings(dataset.extractor if spec.features == "logmel" else None,
@@ -127,23 +142,39 @@ def _train(argv: list[str]) -> Path:
     return out
 
 
+def _finite_metrics(metrics: dict, timing: bool) -> tuple[dict, dict]:
+    """Split metrics -> (the finite ones, {left-out key: reason}): nothing reaches the table or JSON as nan."""
+    kept, left_out = {}, {}
+    for key, value in metrics.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            left_out[key] = NO_TIMING if not timing else "undefined on this split (e.g. no /p b m/ segment)"
+        else:
+            kept[key] = value
+    return kept, left_out
+
+
 def _evaluate(argv: list[str]) -> dict:
     from .checkpoints import describe, extractor_from_settings, load_checkpoint
     from .data import sample_path
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset
     from .experiments import METRICS, _features, predict_split, split_metrics
+    from .experiments.evaluation import emotion_split_metrics
     from .inference import _check_corpus
 
     ap = argparse.ArgumentParser(prog="dualtalker-lite evaluate", epilog=EVAL_EXAMPLE,
                                  description="Autoregressive predictions of a checkpoint on a corpus split, "
-                                             "with the metrics of the experiment tables.",
+                                             "with the metrics of the experiment tables (on a split with several "
+                                             "emotions also the emotional tables' brow, smile and, for EmoFace, "
+                                             "emotion-recognition metrics).",
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", required=True)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--split", default="test_a")
-    ap.add_argument("--json", default=None, help="also write the metrics to this JSON file")
+    ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
     args = ap.parse_args(argv)
+    if args.json and Path(args.json).is_dir():
+        raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
     model, ckpt = load_checkpoint(args.checkpoint)
     corpus = Corpus(args.corpus or sample_path())
     _check_corpus(corpus, ckpt)
@@ -159,25 +190,37 @@ def _evaluate(argv: list[str]) -> dict:
 
     for clip, pred in zip(out["names"], out["preds"]):
         check_finite(pred, f"{args.checkpoint}: prediction for clip {clip!r}")
-    metrics = split_metrics(out, corpus.regions)
+    segments = [corpus.meta(n).get("phonemes") for n in out["names"]]
+    timing = all(segments)
+    metrics = split_metrics(out, corpus.regions, segments if timing else None)
+    headers = list(METRICS)
+    if len({corpus.meta(n).get("emotion", "neutral") for n in out["names"]}) > 1:
+        extra, _ = emotion_split_metrics(model, dataset, out, corpus.emotions, corpus.regions)
+        metrics.update(extra)
+        headers += [("emotion_accuracy", "emotion accuracy ↑", 3), ("brow_raise_error_mm", "brow-raise error (mm) ↓", 3),
+                    ("smile_error_mm", "smile error (mm) ↓", 3)]
+    metrics, left_out = _finite_metrics(metrics, timing)
     print(describe(ckpt))
-    for key, header, digits in METRICS:
+    print(f"  {args.split}: {len(out['names'])} clips of {corpus.root}")
+    for key, header, digits in headers:
         if key in metrics:
-            print(f"  {header:32s} {metrics[key]:.{digits}f}")
+            print(f"  {header:38s} {metrics[key]:.{digits}f}")
+    if left_out:
+        reasons = sorted(set(left_out.values()))
+        print(f"  left out: {', '.join(sorted(left_out))} ({'; '.join(reasons)})")
     if args.json:
         from .files import atomic_write_text
 
         atomic_write_text(args.json, json.dumps({"checkpoint": str(args.checkpoint), "split": args.split,
-                                                 "metrics": metrics}, indent=1))
+                                                 "metrics": metrics, "left_out": left_out},
+                                                indent=1, allow_nan=False))
     return metrics
 
 
 def _generate(argv: list[str]):
     from .data.generate import main as generate_main
 
-    if "-h" in argv or "--help" in argv:
-        print("example:\n  dualtalker-lite generate --out runs/corpus --speakers 6 --sentences 20 --processes 2\n")
-    return generate_main(argv)
+    return generate_main(argv, prog="dualtalker-lite generate")
 
 
 def _animate(argv: list[str]):
@@ -209,7 +252,10 @@ COMMANDS = {"animate": (_animate, "animate a face from your own speech recording
 def _dispatch(argv: list[str]):
     usage = "dualtalker-lite COMMAND [options]   (dualtalker-lite COMMAND --help for an example)\n\ncommands:\n" + \
         "\n".join(f"  {name:18s} {text}" for name, (_, text) in COMMANDS.items())
-    if not argv or argv[0] in ("-h", "--help"):
+    if not argv:  # no command: a usage error
+        print(usage, file=sys.stderr)
+        raise ValueError("no command given; choose one of: " + ", ".join(COMMANDS))
+    if argv[0] in ("-h", "--help"):
         print(usage)
         return None
     if argv[0] in ("-V", "--version"):
@@ -222,10 +268,11 @@ def _dispatch(argv: list[str]):
     return COMMANDS[argv[0]][0](argv[1:])
 
 
-def main(argv: Sequence[str] | None = None):
-    """Entry point of the ``dualtalker-lite`` console script."""
-    return run_main(_dispatch, argv)
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``dualtalker-lite`` console script -> 0 (errors exit through ``SystemExit``: 2 for a
+    user error, 130 for Ctrl-C; see :mod:`dualtalker_lite.console`)."""
+    return exit_status(_dispatch, argv)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -184,6 +184,6 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    from .cli import run_main
+    from .console import run_main
 
     run_main(main)  # user errors as one line, Ctrl-C stops the workers and exits 130

@@ -8,7 +8,11 @@ writes into ``--out`` (formats chosen with ``--format``, default ``npy,mp4``):
 ==================  ==============================================================================
 ``npy``             ``vertices.npy`` (T, V*3) float32 in metres at 30 fps, and ``frame0.obj``
 ``obj``             ``obj/frame_00000.obj`` ... one OBJ per frame
-``glb``             ``animation.glb``: one animated glTF 2.0 file (a node per frame, shown in turn)
+``gltf`` (``glb``)  ``animation.glb``: glTF 2.0, the template with morph targets (PCA, max error < 0.1 mm) and
+                    a weights animation at 30 fps, plus ``animation.wav`` (the speech, named in its extras);
+                    see :mod:`dualtalker_lite.export.gltf` (Blender: File > Import > glTF 2.0)
+``html``            ``animation.html``: one self-contained page (three.js, animation and sound inlined) that
+                    plays in any browser: play/pause, scrub bar, orbit controls
 ``mp4``             ``animation.mp4`` with your audio (skip with ``--no-video``)
 ==================  ==============================================================================
 
@@ -30,8 +34,6 @@ path; ``animate_wave`` joins the same blocks in memory for notebooks and scripts
 from __future__ import annotations
 
 import argparse
-import json
-import struct
 import sys
 from pathlib import Path
 
@@ -47,10 +49,11 @@ from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
            "resolve_emotion",
-           "write_obj", "write_glb", "write_outputs", "run", "main"]
+           "write_obj", "write_glb", "write_outputs", "run", "main", "FORMAT_ALIASES"]
 
 FPS = 30
-FORMATS = ("npy", "obj", "glb", "mp4")
+FORMATS = ("npy", "obj", "gltf", "html", "mp4")
+FORMAT_ALIASES = {"glb": "gltf"}  # the .glb's old name: now the morph-target file (the flip-book is gone)
 
 
 def resolve_device(device: str | None) -> torch.device:
@@ -173,87 +176,32 @@ def _frames(clip) -> np.ndarray:
     return clip.reshape(len(clip), -1, 3)
 
 
-def write_glb(path: str | Path, clip, faces: np.ndarray, fps: float = FPS, block: int = 1024) -> None:
-    """Animated glTF 2.0 binary: one mesh node per frame; node k is scaled 1 during frame k, 0 otherwise (STEP).
+def write_glb(path: str | Path, clip, faces: np.ndarray, fps: float = FPS, template: np.ndarray | None = None,
+              wave: np.ndarray | None = None, sample_rate: int = 16000):
+    """Animated glTF 2.0 binary with morph targets: :func:`dualtalker_lite.export.gltf.write_gltf` (its report).
 
-    Plain node-scale animation (not morph targets) keeps the file linear in T and opens in every glTF
-    viewer (Blender, three.js, Windows 3D Viewer). ``clip``: (T, V, 3) or (T, V*3) float32, or a memory-mapped
-    ``.npy`` (path or array): it is read in blocks of ``block`` frames, twice (per-frame bounds, then the
-    positions), so memory stays bounded by the JSON part (~0.6 kB per frame) whatever the length.
+    The earlier writer (one mesh node per frame, flipped by scale keys) is gone: 35 MB per minute of the
+    sample's face, a JSON part of about 0.6 kB per frame held in memory (issue 22: 3 GB for an hour), no sound,
+    and engines played it as a flip-book of nodes if at all. The morph-target file is about 35x smaller within
+    0.1 mm of every frame (``results/exports.md``), and is what Blender (shape keys + an action), three.js and
+    game engines animate.
     """
-    clip = _frames(clip)
-    T, V = clip.shape[:2]
-    idx = np.ascontiguousarray(faces, dtype=np.uint32).reshape(-1)
-    lo, hi = np.empty((T, 3), np.float32), np.empty((T, 3), np.float32)
-    for s in range(0, T, block):  # pass 1: per-frame bounds (the accessors' required min/max)
-        frames = np.asarray(clip[s:s + block], np.float32)  # (n, V, 3)
-        lo[s:s + block], hi[s:s + block] = frames.min(1), frames.max(1)
-    FLOAT, UINT = 5126, 5125
-    frame_bytes = V * 12
-    pad = -idx.nbytes % 4
-    times = [[k / fps, (k + 1) / fps] if k == 0 else [0.0, k / fps, (k + 1) / fps] for k in range(T)]
-    times[-1] = times[-1][:-1]  # the last frame stays visible
-    flat_times = np.asarray([t for ts in times for t in ts], np.float32)
-    patterns = {(1,): [[1, 1, 1]], (1, 0): [[1, 1, 1], [0, 0, 0]], (0, 1): [[0, 0, 0], [1, 1, 1]],
-                (0, 1, 0): [[0, 0, 0], [1, 1, 1], [0, 0, 0]]}
-    scales = np.asarray([v for p in patterns.values() for v in p], np.float32)  # (10, 3) shared by all frames
-    pos_offset = idx.nbytes + pad
-    time_offset = pos_offset + T * frame_bytes
-    scale_offset = time_offset + flat_times.nbytes
-    total_bin = scale_offset + scales.nbytes
-    views = [{"buffer": 0, "byteOffset": 0, "byteLength": idx.nbytes, "target": 34963},
-             {"buffer": 0, "byteOffset": pos_offset, "byteLength": T * frame_bytes, "target": 34962},
-             {"buffer": 0, "byteOffset": time_offset, "byteLength": flat_times.nbytes},
-             {"buffer": 0, "byteOffset": scale_offset, "byteLength": scales.nbytes}]
-    accessors = [{"bufferView": 0, "componentType": UINT, "type": "SCALAR", "count": int(idx.size)}]
-    scale_acc, row = {}, 0
-    for key, values in patterns.items():
-        scale_acc[key] = len(accessors)
-        accessors.append({"bufferView": 3, "byteOffset": row * 12, "componentType": FLOAT, "type": "VEC3",
-                          "count": len(values)})
-        row += len(values)
-    meshes, nodes, channels, samplers = [], [], [], []
-    t_row = 0
-    for k in range(T):
-        accessors.append({"bufferView": 1, "byteOffset": k * frame_bytes, "componentType": FLOAT, "type": "VEC3",
-                          "count": V, "min": lo[k].tolist(), "max": hi[k].tolist()})
-        meshes.append({"primitives": [{"attributes": {"POSITION": len(accessors) - 1}, "indices": 0}]})
-        n_t = len(times[k])
-        accessors.append({"bufferView": 2, "byteOffset": t_row * 4, "componentType": FLOAT, "type": "SCALAR",
-                          "count": n_t, "min": [min(times[k])], "max": [max(times[k])]})
-        t_row += n_t
-        key = ((1,) if T == 1 else (1, 0)) if k == 0 else ((0, 1) if k == T - 1 else (0, 1, 0))
-        samplers.append({"input": len(accessors) - 1, "output": scale_acc[key], "interpolation": "STEP"})
-        channels.append({"sampler": k, "target": {"node": k, "path": "scale"}})
-        nodes.append({"mesh": k, "name": f"frame_{k:05d}", "scale": [1, 1, 1] if k == 0 else [0, 0, 0]})
-    gltf = {"asset": {"version": "2.0", "generator": "dualtalker-lite"}, "scene": 0,
-            "scenes": [{"nodes": list(range(T))}], "nodes": nodes, "meshes": meshes,
-            "animations": [{"name": "speech", "samplers": samplers, "channels": channels}],
-            "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": total_bin}]}
-    js = json.dumps(gltf, separators=(",", ":")).encode()
-    del gltf, nodes, meshes, accessors, samplers, channels
-    js += b" " * (-len(js) % 4)
-    total = 12 + 8 + len(js) + 8 + total_bin
-    if total >= 2 ** 32:
-        raise ValueError(f"{path}: {T} frames make a {total / 1e9:.1f} GB GLB, over the format's 4 GB limit; "
-                         f"use --format npy or obj for recordings this long")
-    with open(path, "wb") as f:
-        f.write(struct.pack("<4sII", b"glTF", 2, total))
-        f.write(struct.pack("<I4s", len(js), b"JSON") + js)
-        f.write(struct.pack("<I4s", total_bin, b"BIN\0") + idx.tobytes() + b"\0" * pad)
-        for s in range(0, T, block):  # pass 2: the positions, block by block
-            f.write(np.ascontiguousarray(clip[s:s + block], dtype="<f4").tobytes())
-        f.write(flat_times.tobytes() + scales.tobytes())
+    from .export.gltf import write_gltf
+
+    return write_gltf(path, clip, faces, template=template, wave=wave, sample_rate=sample_rate, fps=fps)
 
 
 def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | None,
-                  formats: tuple[str, ...], sample_rate: int = 16000, progress: bool = False) -> list[Path]:
+                  formats: tuple[str, ...], sample_rate: int = 16000, progress: bool = False,
+                  template: np.ndarray | None = None) -> list[Path]:
     """Write the chosen formats of a (T, V*3) prediction into ``folder`` -> written paths.
 
     ``verts``: an array or the path of a ``.npy`` (memory-mapped: every format is written frame by frame, so
     an hour-long prediction is never loaded whole). A ``folder/vertices.npy`` given as ``verts`` is kept only
     if ``"npy"`` is among the formats. The mp4 comes from :func:`~dualtalker_lite.viz.animate.render_video`
-    (fast Pillow renderer, the speech muxed in, a progress bar with ``progress=True``).
+    (fast Pillow renderer, the speech muxed in, a progress bar with ``progress=True``). ``gltf`` and ``html``
+    (:mod:`dualtalker_lite.export`) take ``template`` (V*3,) as the rest shape of the morph targets (default:
+    the clip's mean frame) and print the morph targets' count and measured max/mean vertex error.
     """
     folder = Path(folder)
     own = isinstance(verts, (str, Path)) and Path(verts).resolve() == (folder / "vertices.npy").resolve()
@@ -269,9 +217,20 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
         for k in range(len(clip)):
             write_obj(folder / "obj" / f"frame_{k:05d}.obj", clip[k], faces)
         written.append(folder / "obj")
-    if "glb" in formats:
-        write_glb(folder / "animation.glb", clip, faces)
-        written.append(folder / "animation.glb")
+    formats = tuple(FORMAT_ALIASES.get(f, f) for f in formats)
+    if "gltf" in formats or "html" in formats:
+        from .export.html import write_html
+
+        glb = folder / ("animation.glb" if "gltf" in formats else ".viewer.glb")  # html only: a temporary .glb
+        report = write_glb(glb, clip, faces, template=template, wave=wave if "gltf" in formats else None,
+                           sample_rate=sample_rate)
+        print(report.line())
+        if "gltf" in formats:
+            written += [glb] + ([report.audio] if report.audio else [])
+        if "html" in formats:
+            written.append(write_html(folder / "animation.html", glb, wave, sample_rate, title="animation"))
+            if "gltf" not in formats:
+                glb.unlink()
     if "mp4" in formats:
         from .viz.animate import render_video
 
@@ -287,7 +246,7 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
 # -------------------------------------------------------------------------------- CLI
 EXAMPLE = """example:
   dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav --speaker SPK01 \\
-      --out runs/my_animation --format npy,glb,mp4
+      --out runs/my_animation --format npy,gltf,html,mp4
   dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --list-speakers"""
 
 
@@ -306,13 +265,15 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
     ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing, non-empty --out")
-    ap.add_argument("--format", default="npy,mp4", help=f"comma-separated subset of {','.join(FORMATS)}")
+    ap.add_argument("--format", default="npy,mp4",
+                    help=f"comma-separated subset of {','.join(FORMATS)} (glb: same as gltf)")
     ap.add_argument("--no-video", action="store_true", help="skip the mp4 (fast for long recordings)")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
     ap.add_argument("--chunk", type=int, default=900,
                     help="frames decoded and written per block (memory vs. overhead; the result is the same)")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bar while rendering the video")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar while rendering the video (it is "
+                    "shown only when stderr is a terminal anyway)")
     ap.add_argument("--debug", action="store_true", help="show full tracebacks")
     return ap
 
@@ -321,7 +282,8 @@ def run(args: argparse.Namespace) -> list[Path]:
     """The ``animate`` command on parsed arguments; raises on any problem (see :func:`main`)."""
     from .data import sample_path
 
-    formats = tuple(f.strip().lower() for f in args.format.split(",") if f.strip())
+    formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in
+                                  (f.strip().lower() for f in args.format.split(",")) if f))
     unknown = sorted(set(formats) - set(FORMATS))
     if unknown or not formats:
         raise ValueError(f"--format {args.format!r}: unknown format(s) {unknown}; choose from {', '.join(FORMATS)}")
@@ -361,8 +323,8 @@ def run(args: argparse.Namespace) -> list[Path]:
                                       conditions=conditions)
     with target as tmp:
         npy = write_npy_stream(tmp / "vertices.npy", blocks, n_frames, template.size)
-        written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate,
-                                progress=not args.no_progress)
+        written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate, template=template,
+                                progress=not args.no_progress and sys.stderr.isatty())
     out = Path(args.out)
     names = [out / p.relative_to(tmp) for p in written]
     print(f"{n_frames} frames ({n_frames / FPS:.1f} s) -> " + ", ".join(map(str, names)))
@@ -371,7 +333,7 @@ def run(args: argparse.Namespace) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     """Command line: one-line errors with exit status 2 (``--debug``: tracebacks), Ctrl-C exits 130."""
-    from .cli import run_main
+    from .console import run_main
 
     return run_main(lambda a: run(parser().parse_args(a)), argv)
 

@@ -16,6 +16,7 @@ import torch
 from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint, topology_fingerprint
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
+from dualtalker_lite.export.gltf import read_gltf_animation
 from dualtalker_lite.inference import animate_wav, animate_wave, main, write_obj
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.checks import NonFiniteError
@@ -141,7 +142,7 @@ def test_obj_sequence_and_animated_glb(setup, ckpt, wav, tmp_path):
     out = tmp_path / "anim"
     main(["--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--out", out, "--format", "obj,glb,mp4",
           "--no-video"])
-    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "obj"]
+    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "animation.wav", "obj"]
     objs = sorted((out / "obj").iterdir())
     assert len(objs) == 30 and objs[0].name == "frame_00000.obj"
     mesh = trimesh.load(objs[4], process=False, force="mesh")
@@ -152,9 +153,10 @@ def test_obj_sequence_and_animated_glb(setup, ckpt, wav, tmp_path):
     assert (magic, version, total) == (b"glTF", 2, len(raw))
     js_len = struct.unpack("<I", raw[12:16])[0]
     gltf = json.loads(raw[20:20 + js_len])
-    assert len(gltf["nodes"]) == 30 and len(gltf["animations"][0]["channels"]) == 30
+    assert len(gltf["nodes"]) == 1 and gltf["animations"][0]["channels"][0]["target"]["path"] == "weights"
+    assert gltf["scenes"][0]["extras"]["audio"]["uri"] == "animation.wav"  # the speech beside it
     scene = trimesh.load(out / "animation.glb")
-    assert len(scene.geometry) == 30
+    assert len(scene.geometry) == 1  # one mesh with morph targets (tests/test_export.py checks them)
 
 
 def test_overwrite_replaces_the_whole_folder(ckpt, wav, tmp_path, capsys):
@@ -447,17 +449,10 @@ def test_streamed_cli_output_equals_the_uncached_reference(setup, moving_ckpt, w
                                got, atol=1e-6, rtol=0)  # the API joins the same blocks
     obj = trimesh.load(out / "obj" / "frame_00023.obj", process=False, force="mesh")
     np.testing.assert_allclose(obj.vertices.reshape(-1), got[23], atol=1e-6)
-    assert len(trimesh.load(out / "animation.glb").geometry) == 30
-    raw = (out / "animation.glb").read_bytes()  # frame 23's positions, read from the binary chunk
-    js_len = struct.unpack("<I", raw[12:16])[0]
-    gltf = json.loads(raw[20:20 + js_len])
-    binary = raw[20 + js_len + 8:]
-    acc = gltf["accessors"][gltf["meshes"][23]["primitives"][0]["attributes"]["POSITION"]]
-    view = gltf["bufferViews"][acc["bufferView"]]
-    start = view["byteOffset"] + acc["byteOffset"]
-    pos = np.frombuffer(binary[start:start + acc["count"] * 12], "<f4").reshape(-1)
-    np.testing.assert_array_equal(pos, got[23])
-    np.testing.assert_allclose(acc["min"], got[23].reshape(-1, 3).min(0))
+    glb = read_gltf_animation(out / "animation.glb")  # frame 23 = template + its morph weights x targets
+    pos = glb["base"].reshape(-1) + glb["weights"][23] @ glb["targets"].reshape(len(glb["targets"]), -1)
+    np.testing.assert_array_equal(glb["base"].reshape(-1), corpus.template("SPK02"))
+    assert np.linalg.norm((pos - got[23]).reshape(-1, 3), axis=1).max() < 1e-4  # < 0.1 mm at every vertex
     assert "30 frames (1.0 s)" in capsys.readouterr().out
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
@@ -465,7 +460,7 @@ def test_streamed_cli_output_equals_the_uncached_reference(setup, moving_ckpt, w
 def test_vertices_npy_is_not_left_when_not_asked_for(moving_ckpt, wav, tmp_path):
     out = tmp_path / "anim"
     main(["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--format", "glb", "--chunk", "8"])
-    assert sorted(p.name for p in out.iterdir()) == ["animation.glb"]
+    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "animation.wav"]
 
 
 def test_failure_in_a_later_block_leaves_nothing_behind(setup, moving_ckpt, wav, tmp_path, capsys, monkeypatch):

@@ -33,8 +33,9 @@ def test_torch_is_pinned_to_the_cpu_wheel_before_the_package():
     env = yaml.safe_load((ROOT / "environment.yml").read_text())
     pip_block = next(d for d in env["dependencies"] if isinstance(d, dict))["pip"]
     assert pip_block[0] == "torch==2.13.0"
-    makefile = (ROOT / "Makefile").read_text()
-    assert makefile.index("torch==2.13.0") < makefile.index('-e ".[')
+    makefile = (ROOT / "Makefile").read_text()  # torch first (the CPU build where possible), then the package
+    assert makefile.index("tools/install_torch.py") < makefile.index('-e ".[')
+    assert 'VERSION = "2.13.0"' in (ROOT / "tools" / "install_torch.py").read_text()
 
 
 def test_no_torchaudio_or_torchvision_dependency():

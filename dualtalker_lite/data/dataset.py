@@ -30,7 +30,7 @@ from torch.utils.data import DataLoader, Dataset
 from ..audio import FeatureExtractor, LogMelExtractor, resample
 from .corpus import Corpus
 
-__all__ = ["ITEM_KEYS", "TalkingFaceDataset", "collate", "make_loader", "segments_to_frames"]
+__all__ = ["ITEM_KEYS", "TalkingFaceDataset", "VisemeLabels", "collate", "make_loader", "segments_to_frames"]
 
 ITEM_KEYS = ("name", "audio", "vertices", "template", "speaker", "emotion", "level", "phonemes", "visemes")
 _PER_FRAME = ("audio", "vertices", "phonemes", "visemes")  # keys with a time axis (cropped, padded)
@@ -134,6 +134,43 @@ class TalkingFaceDataset(Dataset):
     def __repr__(self) -> str:
         return (f"TalkingFaceDataset(split={self.split!r}, clips={len(self)}, "
                 f"extractor={type(self.extractor).__name__}, max_frames={self.max_frames})")
+
+
+class VisemeLabels(Dataset):
+    """The phonetic route's *training* input: ``audio`` = one-hot of the clip's own viseme labels, (T, 15) float32.
+
+    Wraps a dataset (``.base``) whose items carry ``visemes`` (T,) long, ids into
+    :data:`~dualtalker_lite.face.visemes.VISEMES` (the corpus's ``viseme_inventory``; 0 = sil): the metadata's
+    phoneme timing mapped by ``phoneme_to_viseme`` (diphthongs -> their first part). At test time the same model
+    is fed the recogniser's tracks, ``TalkingFaceDataset(corpus, split,
+    extractor=dualtalker_lite.recogniser.RecogniserExtractor("visemes"))``, which have the same shape and ids, so
+    the decoder never sees the voice itself: a model trained on one synthetic voice runs on anyone's speech
+    (issue 19; ``docs/front-ends.md``). ``dim`` = 15 is the model's ``audio_dim``. Datasets without phoneme timing
+    (real corpora) have all-zero labels: train those on the recogniser's tracks instead.
+    """
+
+    def __init__(self, base: Dataset, n_visemes: int | None = None):
+        from ..face.visemes import VISEMES
+
+        self.base = base
+        self.dim = len(VISEMES) if n_visemes is None else int(n_visemes)
+        inventory = getattr(getattr(base, "corpus", None), "viseme_inventory", None)
+        if inventory is not None and list(inventory) != list(VISEMES)[:len(inventory)]:
+            raise ValueError(f"corpus viseme inventory {inventory} is not the project's {list(VISEMES)}")
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def __getitem__(self, index: int) -> dict:
+        item = dict(self.base[index])
+        ids = torch.as_tensor(item["visemes"], dtype=torch.long)
+        if ids.numel() and (int(ids.min()) < 0 or int(ids.max()) >= self.dim):
+            raise ValueError(f"clip {item.get('name')!r}: viseme ids must lie in [0, {self.dim})")
+        item["audio"] = torch.nn.functional.one_hot(ids, self.dim).float()   # (T, 15)
+        return item
+
+    def __repr__(self) -> str:
+        return f"VisemeLabels({self.base!r})"
 
 
 def collate(items: list[dict]) -> dict:

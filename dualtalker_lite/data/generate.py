@@ -332,8 +332,17 @@ def _emotion_list(text: str) -> tuple[str, ...]:
     return items
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+GENERATE_EXAMPLE = """examples:
+  {prog} --out runs/corpus --speakers 6 --sentences 20 --processes 2
+  {prog} --out runs/mine --sentences-file my_sentences.txt --speakers 4     # one sentence per line"""
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> None:
+    """Command line (``python -m dualtalker_lite.data.generate`` or ``dualtalker-lite generate``, ``prog``)."""
+    prog = prog or "python -m dualtalker_lite.data.generate"
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0],
+                                 epilog=GENERATE_EXAMPLE.format(prog=prog),
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--preset", choices=["sample"], help="the shipped data_samples/ corpus")
     ap.add_argument("--sentences-file", help="text file, one sentence per line (default: the built-in sentences)")
@@ -348,9 +357,14 @@ def main(argv: list[str] | None = None) -> None:
                     "'' for none")
     ap.add_argument("--format", choices=["faceformer", "compact"], default=None)
     ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--no-progress", action="store_true",
+                    help="no progress bars (they are shown only when stderr is a terminal anyway)")
     args = ap.parse_args(argv)
     try:
         texts = read_sentences(args.sentences_file) if args.sentences_file else SENTENCES
+    except ValueError as err:  # names the file and the line: "my.txt:3: empty line"
+        ap.exit(2, f"error: --sentences-file {err}\n")
+    try:
         base = asdict(CorpusSpec.sample() if args.preset == "sample" else CorpusSpec())
         if args.sentences_file and args.sentences is None:
             base["sentences"] = len(texts)
@@ -363,7 +377,8 @@ def main(argv: list[str] | None = None) -> None:
         plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)  # fail before synthesizing anything
     except ValueError as err:
         ap.exit(2, f"error: {err}\n")
-    meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file)
+    meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
+                           progress=not args.no_progress and sys.stderr.isatty())
     sizes = {k: len(v) for k, v in meta["splits"].items()}
     print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: {sizes}")
 

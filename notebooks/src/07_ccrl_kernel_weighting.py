@@ -120,13 +120,13 @@ FPS = corpus.fps
 #
 # and $L_{\rm CCRL}(X, Y)$ is the mean of $l_a$ over anchors. A frame whose motion is like the anchor's
 # ($w \approx 1$) is pulled towards it (it is a positive) and not pushed away ($1 - w \approx 0$); a frame with
-# $w \approx 0$ is only pushed away. Before issue 8 the package read $w_k$ as $K(M_k - M_k) = 1$: one positive, the
+# $w \approx 0$ is only pushed away. The package's first version read $w_k$ as $K(M_k - M_k) = 1$: one positive, the
 # true pair, and added it to the denominator (InfoNCE). That reading is kept as an option, with a third one:
 #
 # | | reading | per-anchor loss $l_a$ (τ = 1) | argument |
 # |---|---|---|---|
 # | (a) what $w_k$ is | **kernel-weighted positives** (ref. [59]) | $\log s'_a - \sum_k w_{a,k} s^{\rm inter}_{a,k} / \sum_k w_{a,k}$ | `reading="kernel"` (default) |
-# | | one positive, InfoNCE (the committed tables before issue 8) | $-\log \frac{e^{s^{\rm inter}_{a,a}}}{e^{s^{\rm inter}_{a,a}} + s'_a}$ | `reading="infonce"` |
+# | | one positive, InfoNCE (the tables first committed) | $-\log \frac{e^{s^{\rm inter}_{a,a}}}{e^{s^{\rm inter}_{a,a}} + s'_a}$ | `reading="infonce"` |
 # | | one positive, $s'$ as printed (DCL form: goes negative, floor depends on $T$) | $\log s'_a - s^{\rm inter}_{a,a}$ | `reading="decoupled"` |
 # | (b) weight of each anchor in the mean | uniform, as in [59] | mean over anchors | `anchor_weighting="uniform"` (default) / `"kernel_mean"`: $a_k = \mathrm{mean}_t\, w_{k,t}$ |
 # | (c) eq. 11 prints $L(X, Y)$ twice | $L(X, Y) + L(Y, X)$, anchors from both modalities | | `second_term="swap"` (default) / `"fused"`: $+ L(\breve X, \breve Y)$ / `"none"` |
@@ -647,7 +647,7 @@ for label, r in runs.items():
 #   growing out of the template (the motion decoder starts at zero): the regime where regression to the mean is
 #   strongest. Both beat the static template on LVE by a wide margin.
 # - Whether $\lambda_4 = 0.1$ makes the lips move more or less than $\lambda_4 = 0$ is **not stable** in runs this
-#   short. With the InfoNCE reading (the default before issue 8), trial runs while this notebook was first written
+#   short. With the InfoNCE reading (the package's first default), trial runs while this notebook was first written
 #   (same data, seed, crops and metric; only the number of epochs or $\lambda_4$ changed) gave variance ratios for
 #   $\lambda_4 = 0$ / $0.1$ of 0.26 / 0.11 after 12 epochs, 0.47 / 0.22 after 14 and 0.39 / 0.53 after 16: the sign
 #   of the difference flipped with the budget, with LVE differences of 0.03-0.2 mm of both signs, and
@@ -667,8 +667,8 @@ for label, r in runs.items():
 #   motion feature is a positive of anchor $X_a$ with weight $w_{a,k}$ (the true pair with weight 1), normalised by
 #   $\sum_k w_{a,k}$, and every other frame's $Y_t$ and $X_t$ are negatives whose logits are scaled by $1 - w_{a,t}$;
 #   $w$ is an RBF kernel on the ground-truth motion.
-# - Kept as options: the single-positive InfoNCE reading used before issue 8 (`"infonce"`) and the single positive
-#   with the printed denominator (`"decoupled"`); the anchor weighting, eq. 11's second term, and a global
+# - Kept as options: the single-positive InfoNCE reading, the package's first default (`"infonce"`), and the
+#   single positive with the printed denominator (`"decoupled"`); the anchor weighting, eq. 11's second term, and a global
 #   temperature. The text's $(\hat X, \hat Y)$ pair is not frame-aligned; `second_term="fused"` uses $\breve X, \breve Y$.
 # - The kernel, with the median heuristic, calls about half of the frame pairs "alike"; it pairs lip closures
 #   across the whole sentence. The bandwidth decides how many frames are attracted and how many repelled.

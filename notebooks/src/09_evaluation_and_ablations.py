@@ -696,7 +696,7 @@ assert abl_sm["phoneme one-hot features"]["bilabial_closure_2mm"]["mean"] > 0.8 
 #
 # Notebook 07 sets out the readings of CCRL's eqs. 9-10. The sweep trains DualTalker with CCRL's weight λ4 at 0,
 # 0.01 (the paper's) and 0.1, the bandwidth σ at the per-clip median heuristic or fixed at 0.5× and 2× its typical
-# value, and, at λ4 = 0.1, the InfoNCE reading (one positive in the denominator, used before issue 8) instead of the
+# value, and, at λ4 = 0.1, the InfoNCE reading (one positive in the denominator, the package's first default) instead of the
 # kernel-weighted default. 5 seeds (the two rows shared with the ablation table, λ4 = 0 and the default, are that
 # table's runs, taken over by `--reuse`, as are the seed 0-2 runs of an earlier 3-seed version of this table):
 #

@@ -229,7 +229,7 @@ assert share["lips"] > 0.5 and share["forehead"] == 0.0
 # \hat{Y}_t = \hat{Y}^{s}_t + \hat{Y}^{w}_t \tag{7-8}$$
 #
 # So at initialisation the lips are decoded almost only by the strong branch, the forehead only by the weak one,
-# and where both branches agree the sum is exactly their common output. The CorrTalk model (issue 9 §3) builds
+# and where both branches agree the sum is exactly their common output. The CorrTalk model (`models.corrtalk`, notebook 12) builds
 # its mask from `normalised_fai`.
 
 # %%

@@ -133,9 +133,9 @@ plt.show()
 # similarly, the process extends to generate word-level and utterance-level features"), each level reads the
 # level below, then a linear projection:
 #
-# $$F^{f} = \mathrm{Lin}_f(A'), \quad F^{p} = \mathrm{Lin}_p(\mathrm{SFB}_{r_p}(F^{f})), \quad
-# F^{w} = \mathrm{Lin}_w(\mathrm{SFB}_{r_w}(F^{p})), \quad F^{u} = \mathrm{Lin}_u(\mathrm{SFB}_{\infty}(F^{w}))
-# \tag{1, reconstructed}$$
+# $$\begin{aligned} F^{f} &= \mathrm{Lin}_f(A'), & F^{p} &= \mathrm{Lin}_p(\mathrm{SFB}_{r_p}(F^{f})), \\
+# F^{w} &= \mathrm{Lin}_w(\mathrm{SFB}_{r_w}(F^{p})), & F^{u} &= \mathrm{Lin}_u(\mathrm{SFB}_{\infty}(F^{w}))
+# \end{aligned} \tag{1, reconstructed}$$
 #
 # A SpeechFormer block (SFB) is windowed attention + feed-forward with residuals and layer norms. Below the
 # cascade is re-run by hand from the package's own sub-modules and compared with the package's output.
@@ -307,8 +307,8 @@ print("Fig. 7's ordering (weak branch gives the frame level the smallest share):
 # level). After this short run, both branches have moved weight away from the word and utterance levels to the
 # frame and phoneme levels (asserted above), and the printout says whether the weak branch gives the frame level
 # the smallest share, as in the paper's Fig. 7. In the run committed with this notebook it did **not** (the weak
-# branch leaned on the frame level even more than the strong one); the printout says which holds for your run. A 48-step run is no test of the paper's claim (the Table III analogue,
-# `results/corrtalk.md` once it has been run, trains for the full recipe), and on this corpus the
+# branch leaned on the frame level even more than the strong one); the printout says which holds for your run. A 48-step run is no test of the paper's claim (the Table III analogue in
+# `results/corrtalk.md`, which notebook 12 reads, trains for the full recipe with 5 seeds), and on this corpus the
 # "weak" face (brows, cheeks, blinks) is partly random and partly driven by prosody at stressed vowels, which is
 # itself a fast, syllable-scale signal. The paper's Fig. 8 says the strong branch's weighted features vary faster
 # than the weak branch's; the roughness of both is printed below for comparison.

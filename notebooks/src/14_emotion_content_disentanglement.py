@@ -98,7 +98,9 @@ plt.show()
 # %% [markdown]
 # ## 2. Two encoders on one front-end (eqs. 12-14)
 #
-# $$F_{c1} = E_c(A_{c1,e1}) \tag{12} \qquad F_{e1} = E_e(A_{c1,e1}) \tag{13} \qquad F_{e2} = E_e(A_{c1,e2}) \tag{14}$$
+# $$F_{c1} = E_c(A_{c1,e1}) \tag{12}$$
+# $$F_{e1} = E_e(A_{c1,e1}) \tag{13}$$
+# $$F_{e2} = E_e(A_{c1,e2}) \tag{14}$$
 #
 # Both encoders read the shared acoustic front-end (our small stand-in for wav2vec 2.0). The content encoder is a
 # per-frame projection (short-term: phonemes); the emotion encoder adds a transformer layer over the whole clip
@@ -126,8 +128,10 @@ print(f"d = {cfg.d_model}, {model.num_parameters():,} parameters; batch {B} x {T
 # %% [markdown]
 # ## 3. Cross-reconstruction (eqs. 15-18)
 #
-# $$M^c_{c1,e1} = M^c_{c1,e2} = D_c(F_{c1}) \tag{15} \qquad M^e_{c1,e1} = D_e(F_{e1}),\; M^e_{c1,e2} = D_e(F_{e2}) \tag{16}$$
-# $$M_{c1,e1} = \epsilon(M^e_{c1,e1}, M^c_{c1,e1}) \tag{17} \qquad M_{c1,e2} = \epsilon(M^e_{c1,e2}, M^c_{c1,e2}) \tag{18}$$
+# $$M^c_{c1,e1} = M^c_{c1,e2} = D_c(F_{c1}) \tag{15}$$
+# $$M^e_{c1,e1} = D_e(F_{e1}),\quad M^e_{c1,e2} = D_e(F_{e2}) \tag{16}$$
+# $$M_{c1,e1} = \epsilon(M^e_{c1,e1}, M^c_{c1,e1}) \tag{17}$$
+# $$M_{c1,e2} = \epsilon(M^e_{c1,e2}, M^c_{c1,e2}) \tag{18}$$
 #
 # The content decoder $D_c$ only ever sees clip 1's content; to rebuild clip 2 the emotion decoder $D_e$ must
 # bring everything emotion adds, from clip 2's emotion features. Both decoders are the package's FaceFormer-style
@@ -154,7 +158,8 @@ for key in ("vertices", "emotion", "content", "cross_vertices", "cross_emotion",
 # $$L_{self} = \|M^e_{c1,e1} - \hat M_{c1,e1}\|_1 + \|M^c_{c1,e1} - \hat M_{c1,e1}\|_1 + \|M_{c1,e1} - \hat M_{c1,e1}\|_1 \tag{7}$$
 # $$L_{cross} = \|M^e_{c1,e2} - \hat M_{c1,e2}\|_1 + \|M^c_{c1,e2} - \hat M_{c1,e2}\|_1 + \|M_{c1,e2} - \hat M_{c1,e2}\|_1 \tag{8}$$
 # $$L_{vel} = \sum_{y \in \{e1, e2\}} \|(M^t_{c1,y} - M^{t-1}_{c1,y}) - (\hat M^t_{c1,y} - \hat M^{t-1}_{c1,y})\|_1 \tag{9}$$
-# $$L_{cls} = -\sum_i \sum_{\phi=1}^{N_e} y_{i\phi} \log p_{i\phi} \tag{10} \qquad L = \lambda_1 L_{self} + \lambda_2 L_{cross} + \lambda_3 L_{vel} + \lambda_4 L_{cls} \tag{11}$$
+# $$L_{cls} = -\sum_i \sum_{\phi=1}^{N_e} y_{i\phi} \log p_{i\phi} \tag{10}$$
+# $$L = \lambda_1 L_{self} + \lambda_2 L_{cross} + \lambda_3 L_{vel} + \lambda_4 L_{cls} \tag{11}$$
 #
 # The first two terms of eqs. 7-8 are the "intermediate supervision" of each branch: each branch alone is pulled
 # towards the whole face. $\|\cdot\|_1$ is read as a mean; eq. 9's comma as a difference of velocities. The paper's

@@ -1,0 +1,251 @@
+"""A self-contained browser viewer: one .html that plays the animation with its sound (issue 22).
+
+    from dualtalker_lite.export.html import write_html
+    write_html("runs/me/animation.html", "runs/me/animation.glb", wave=wave, sample_rate=16000)
+
+The page holds everything it needs, so it can be mailed to anyone and opened in any browser, offline:
+
+- **three.js r170** (MIT; ``vendor/three/``: ``three.module.min.js``, ``GLTFLoader.js``, ``OrbitControls.js`` and
+  ``BufferGeometryUtils.js``, byte-identical to npm ``three@0.170.0``, 0.87 MB), each module inlined as a
+  ``data:`` URL in an import map, so the page makes **no network request** (not even from ``file://``). r170 is
+  the last release whose minified module is one file; later ones import ``three.core.js`` relatively, which a
+  ``data:`` URL cannot resolve. The only edit is GLTFLoader's relative import of BufferGeometryUtils, renamed
+  to the import map's ``three/addons/...`` name when the page is built (the files on disk are untouched).
+- **the .glb of** :func:`~dualtalker_lite.export.gltf.write_gltf` (base64), loaded by three.js's own GLTFLoader:
+  the page plays exactly the file that Blender or an engine would import (morph targets + weights animation).
+- **the audio** as a base64 16-bit WAV (lossless, decoded alike by every browser, no encoder delay to shift the
+  lips: 2.6 MB of page per minute of 16 kHz speech).
+
+The **audio element is the clock**: every animation frame sets the mixer to ``audio.currentTime``, so sound and
+lips cannot drift; play/pause, a scrub bar (seeks both) and orbit controls (drag: rotate, wheel: zoom, right
+drag: pan). For tests, ``window.dtlViewers[id]`` exposes ``{ready, mesh, audio, mixer, error}``.
+
+:func:`viewer_html` returns the page as a string (what notebooks embed: :func:`iframe_html` wraps it in an
+``<iframe srcdoc>``, since an import map must come before any module of its document).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import os
+import uuid
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["THREE_VERSION", "vendor_dir", "viewer_html", "iframe_html", "write_html"]
+
+THREE_VERSION = "0.170.0"
+_MODULES = {  # import-map name -> vendored file
+    "three": "three.module.min.js",
+    "three/addons/loaders/GLTFLoader.js": "GLTFLoader.js",
+    "three/addons/controls/OrbitControls.js": "OrbitControls.js",
+    "three/addons/utils/BufferGeometryUtils.js": "BufferGeometryUtils.js",
+}
+_RELATIVE_IMPORT = ("'../utils/BufferGeometryUtils.js'", "'three/addons/utils/BufferGeometryUtils.js'")
+
+
+def vendor_dir() -> Path:
+    """The folder of the vendored three.js files (and their MIT licence)."""
+    return Path(__file__).with_name("vendor") / "three"
+
+
+@lru_cache(maxsize=1)
+def _import_map() -> str:
+    """The import map's JSON: every vendored module as a base64 ``data:`` URL (about 1.2 MB)."""
+    imports = {}
+    for name, file in _MODULES.items():
+        path = vendor_dir() / file
+        if not path.is_file():
+            raise FileNotFoundError(f"vendored three.js file missing: {path} (restore it with `make vendor-three`)")
+        src = path.read_text(encoding="utf-8")
+        if file == "GLTFLoader.js":
+            if src.count(_RELATIVE_IMPORT[0]) != 1:
+                raise ValueError(f"{path}: expected one import of {_RELATIVE_IMPORT[0]} (another three.js version?)")
+            src = src.replace(*_RELATIVE_IMPORT)
+        imports[name] = "data:text/javascript;base64," + base64.b64encode(src.encode()).decode()
+    return json.dumps({"imports": imports})
+
+
+def _wav_bytes(wave: np.ndarray, sample_rate: int) -> bytes:
+    import soundfile as sf
+
+    buf = io.BytesIO()
+    sf.write(buf, np.clip(np.asarray(wave, np.float32).reshape(-1), -1, 1), int(sample_rate), subtype="PCM_16",
+             format="WAV")
+    return buf.getvalue()
+
+
+_PAGE = """<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<meta name="generator" content="dualtalker-lite (three.js r%(three)s)">
+<title>%(title)s</title>
+<style>
+  html, body { margin: 0; height: 100%%; background: #202124; color: #e8eaed; font: 14px system-ui, sans-serif; }
+  .dtl { display: flex; flex-direction: column; height: 100%%; min-height: 240px; }
+  .dtl .view { flex: 1; position: relative; min-height: 200px; }
+  .dtl canvas { display: block; width: 100%%; height: 100%%; }
+  .dtl .bar { display: flex; gap: 10px; align-items: center; padding: 8px 12px; background: #303134; }
+  .dtl .scrub { flex: 1; }
+  .dtl button { min-width: 72px; padding: 4px 10px; font: inherit; }
+  .dtl .time { font-variant-numeric: tabular-nums; min-width: 120px; text-align: right; }
+  .dtl .msg { position: absolute; left: 12px; top: 10px; opacity: 0.75; pointer-events: none; }
+</style>
+</head>
+<body>
+<div class="dtl" id="%(id)s">
+  <div class="view"><div class="msg">loading…</div></div>
+  <div class="bar">
+    <button class="play" disabled>Play</button>
+    <input class="scrub" type="range" min="0" max="%(duration).3f" step="any" value="0" aria-label="time">
+    <span class="time">0.00 / %(duration).2f s</span>
+  </div>
+  <audio class="audio" preload="auto" src="data:audio/wav;base64,%(audio)s"></audio>
+</div>
+<script type="importmap">%(importmap)s</script>
+<script type="module">
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const GLB = "%(glb)s";
+const root = document.getElementById("%(id)s");
+const view = root.querySelector(".view"), msg = root.querySelector(".msg");
+const button = root.querySelector(".play"), scrub = root.querySelector(".scrub");
+const clock = root.querySelector(".time"), audio = root.querySelector(".audio");
+const state = { ready: false, error: null, audio };
+(window.dtlViewers = window.dtlViewers || {})["%(id)s"] = state;
+
+try {
+  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(window.devicePixelRatio);
+  view.appendChild(renderer.domElement);
+  const scene = new THREE.Scene();
+  scene.background = new THREE.Color(0x202124);
+  scene.add(new THREE.HemisphereLight(0xffffff, 0x303030, 1.2));
+  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+  sun.position.set(0.5, 1, 1.5);
+  scene.add(sun);
+  const camera = new THREE.PerspectiveCamera(30, 1, 0.001, 100);
+  const controls = new OrbitControls(camera, renderer.domElement);
+
+  const bytes = await (await fetch("data:model/gltf-binary;base64," + GLB)).arrayBuffer();
+  const gltf = await new GLTFLoader().parseAsync(bytes, "");
+  scene.add(gltf.scene);
+  let mesh = null;
+  gltf.scene.traverse((o) => { if (o.isMesh && o.morphTargetInfluences) mesh = o; });
+  // the .glb has no normals (GLTFLoader then shades flat): smooth ones from the rest shape look like skin
+  mesh.geometry.computeVertexNormals(); mesh.material.flatShading = false; mesh.material.needsUpdate = true;
+  const box = new THREE.Box3().setFromObject(gltf.scene);
+  const center = box.getCenter(new THREE.Vector3()), size = box.getSize(new THREE.Vector3()).length();
+  camera.position.copy(center).add(new THREE.Vector3(0, 0, 1.5 * size));
+  camera.near = size / 100; camera.far = size * 100; camera.updateProjectionMatrix();
+  controls.target.copy(center); controls.update();
+
+  const mixer = new THREE.AnimationMixer(gltf.scene);
+  const clip = gltf.animations[0];
+  const action = mixer.clipAction(clip);
+  action.setLoop(THREE.LoopOnce, 1); action.clampWhenFinished = true; action.play();
+  mixer.setTime(0);
+
+  const duration = Math.max(clip.duration, %(duration).6f);
+  const show = (t) => { clock.textContent = t.toFixed(2) + " / " + duration.toFixed(2) + " s"; };
+  // The audio element is the clock: the lips follow audio.currentTime, so they cannot drift from the sound.
+  const sync = () => { const t = audio.currentTime; mixer.setTime(t); if (!scrubbing) scrub.value = t; show(t); };
+  let scrubbing = false;
+  button.onclick = () => {
+    if (audio.paused) { if (audio.ended) audio.currentTime = 0; audio.play(); } else audio.pause();
+  };
+  audio.onplay = () => { button.textContent = "Pause"; };
+  audio.onpause = audio.onended = () => { button.textContent = "Play"; sync(); };
+  scrub.oninput = () => {
+    const t = Number(scrub.value);
+    scrubbing = true; audio.currentTime = t; mixer.setTime(t); show(t);
+  };
+  scrub.onchange = () => { scrubbing = false; };
+
+  const resize = () => {
+    const w = view.clientWidth, h = Math.max(view.clientHeight, 200);
+    renderer.setSize(w, h, false); camera.aspect = w / h; camera.updateProjectionMatrix();
+  };
+  new ResizeObserver(resize).observe(view);
+  resize();
+  renderer.setAnimationLoop(() => { if (!audio.paused) sync(); controls.update(); renderer.render(scene, camera); });
+  Object.assign(state, { ready: true, mesh, mixer, clip, renderer, extras: gltf.scene.userData });
+  msg.textContent = %(caption)s;
+  button.disabled = false;
+} catch (e) {
+  state.error = String(e && e.stack || e);
+  msg.textContent = "cannot show the animation: " + e;
+  console.error(e);
+}
+</script>
+</body>
+</html>
+"""
+
+
+def viewer_html(glb: str | os.PathLike | bytes, wave: np.ndarray | None = None, sample_rate: int = 16000,
+                title: str = "dualtalker-lite animation", viewer_id: str | None = None) -> str:
+    """One self-contained HTML page that plays ``glb`` (path or bytes of a .glb) with ``wave`` -> the page (str).
+
+    ``wave``: mono float speech (N,) at ``sample_rate`` (embedded as 16-bit WAV; None: a silent track as long
+    as the animation, so play/pause and the scrub bar still drive it). ``viewer_id``: the element id (default:
+    random, so several viewers can share a notebook). No network request is made by the page.
+    """
+    data = glb if isinstance(glb, bytes) else Path(glb).read_bytes()
+    if data[:4] != b"glTF":
+        raise ValueError("not a binary glTF (.glb): the first bytes are not 'glTF'")
+    info = _glb_extras(data)
+    fps, frames = float(info.get("fps", 30.0)), int(info.get("frames", 1))
+    if wave is None:
+        sample_rate = 8000
+        wave = np.zeros(max(1, int(round(frames / fps * sample_rate))), np.float32)
+    wave = np.asarray(wave, np.float32).reshape(-1)
+    duration = max(len(wave) / sample_rate, (frames - 1) / fps)
+    err = info.get("morph_max_error_m")
+    caption = f"{frames} frames at {fps:g} fps" + (f", morph targets within {err * 1e3:.3f} mm" if err else "")
+    return _PAGE % {
+        "three": THREE_VERSION.split(".")[1], "title": html.escape(title),
+        "id": viewer_id or f"dtl-{uuid.uuid4().hex[:8]}",
+        "duration": duration, "audio": base64.b64encode(_wav_bytes(wave, sample_rate)).decode(),
+        "importmap": _import_map(), "glb": base64.b64encode(data).decode(), "caption": json.dumps(caption)}
+
+
+def _glb_extras(data: bytes) -> dict:
+    """The scene's ``extras`` of a .glb (its JSON chunk only; fps, frames, errors written by ``write_gltf``)."""
+    import struct
+
+    length, kind = struct.unpack_from("<I4s", data, 12)
+    if kind != b"JSON":
+        raise ValueError("malformed .glb: the first chunk is not JSON")
+    doc = json.loads(data[20:20 + length])
+    scenes = doc.get("scenes") or [{}]
+    return scenes[doc.get("scene", 0)].get("extras") or {}
+
+
+def iframe_html(page: str, height: int = 480) -> str:
+    """Wrap a page of :func:`viewer_html` in an ``<iframe srcdoc>`` (for ``IPython.display.HTML`` in notebooks)."""
+    return (f'<iframe srcdoc="{html.escape(page, quote=True)}" style="width:100%;height:{int(height)}px;border:0" '
+            f'allow="autoplay"></iframe>')
+
+
+def write_html(path: str | os.PathLike, glb: str | os.PathLike | bytes, wave: np.ndarray | None = None,
+               sample_rate: int = 16000, title: str | None = None) -> Path:
+    """Write :func:`viewer_html` to ``path`` (atomically: ``<name>.partial`` renamed when complete) -> path."""
+    path = Path(path)
+    page = viewer_html(glb, wave, sample_rate, title or path.stem)
+    partial = path.with_name(path.name + ".partial")
+    try:
+        partial.write_text(page, encoding="utf-8")
+        os.replace(partial, path)
+    finally:
+        if partial.exists():
+            partial.unlink()
+    return path

@@ -1,0 +1,362 @@
+"""A pretrained phoneme recogniser as an audio front-end: voice-independent viseme tracks (issue 19).
+
+Why. Every model here learns from one synthetic voice family (espeak-ng). Log-mel features of that family say
+little about a real person's speech (a linear viseme probe: 72% on espeak, 13% on real voices), so models fed
+log-mel barely articulate on real recordings. A phoneme recogniser trained on many real voices maps any voice to
+the same symbols; mapped to the project's 15 visemes (``face/visemes.py``) they are a representation on which a
+model trained with the corpus's *labels* can run on anyone's speech (the "phonetic route").
+
+The recogniser: ``hama`` 1.7.0 (PyPI, Apache-2.0), a 4.7 MB CTC model that ships inside the wheel and runs on
+its own small CPU engine; nothing is downloaded at run time. It maps 16 kHz mono speech to log-probabilities over
+191 symbols (IPA phones of many languages, tone and diacritic marks, ``<wb>`` word boundaries and the CTC
+``<blank>``) at **50 frames per second**: frame j covers samples around ``320 j`` (t = 20 ms x j), and a wave of
+N samples gives ``1 + N // 320`` frames.
+
+Pieces, bottom up (each usable alone):
+
+* :class:`PhonemeRecogniser` -- ``log_probs(wave) -> (1 + N // 320, 191)``. hama silently stops at 1500 frames
+  (30 s) per call, so the wave is cut into 24 s *cores* with 2 s of context on each side (28 s per call); each
+  call keeps only its core's frames, so the stitched output covers the whole recording, frame for frame. Outputs
+  are rounded to float16 (0.01 nat resolution; always, so cached and fresh results are identical) and cached on
+  disk under a content hash (sha256 of the wave's float32 bytes + the recogniser settings):
+  :func:`default_cache_dir`. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one call at a
+  time, so an hour of audio never holds more than one 28 s call in the model.
+* :data:`SYMBOL_TO_VISEME` -- every one of hama's 191 output symbols mapped to a viseme of
+  :data:`~dualtalker_lite.face.visemes.VISEMES`, or to ``None`` for symbols that are not phones (tones, length
+  and diacritic marks, punctuation, ``<wb>``, ``<blank>``; :data:`NON_PHONES`). Diphthongs map to their first
+  part, as ``face/visemes.py`` does for espeak's.
+* :func:`spike_track` -- CTC output is mostly blanks: each phone shows up as a *spike* of one or two frames.
+  Mesh frame f (t = f / 30 s) takes the viseme of the nearest spike within ``window_s`` (else ``sil``), after
+  moving every spike ``lag_s`` earlier: hama's spikes come late against the phone timing (measured on the
+  shipped corpus: ``docs/front-ends.md``).
+* :class:`RecogniserExtractor` -- the :class:`~dualtalker_lite.audio.FeatureExtractor`: ``(wave, T) -> (T, dim)``
+  at the mesh rate, with ``output``:
+
+  ===================  =====  ==================================================================================
+  ``output``           dim    features per mesh frame
+  ===================  =====  ==================================================================================
+  ``"visemes"``        15     one-hot viseme class from the spikes (the phonetic route; train on
+                              :class:`~dualtalker_lite.data.dataset.VisemeLabels`, the corpus's own labels)
+  ``"logprobs"``       191    the log-probabilities, linearly interpolated to the mesh frame times (end to end)
+  ``"logprobs+logmel"``351    the same plus the 160 log-mel features of :class:`~dualtalker_lite.audio.LogMelExtractor`
+  ===================  =====  ==================================================================================
+
+  :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "hama", "settings": {...}}``)
+  and :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
+
+What it cannot do: it hears phones, not faces. Speaker style, emotion, loudness and everything above the mouth
+are gone from the viseme track; the recogniser misses some phones (more of espeak's than of real voices'), and
+non-speech (music, noise) may produce spurious spikes. See ``docs/front-ends.md`` for the measurements.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import torch
+
+from .audio import SAMPLE_RATE, LogMelExtractor, validate_wave
+from .face.visemes import VISEMES
+
+__all__ = ["NAME", "HAMA_VERSION", "RATE", "FRAME_SAMPLES", "MAX_FRAMES_PER_CALL", "SYMBOL_TO_VISEME",
+           "NON_PHONES", "OUTPUTS", "LAG_S", "WINDOW_S", "default_cache_dir", "wave_hash", "n_recogniser_frames",
+           "PhonemeRecogniser", "symbol_visemes", "spike_track", "RecogniserExtractor"]
+
+NAME = "hama"                   # the front-end's name in checkpoints
+HAMA_VERSION = "1.7.0"          # the version every table and default below was measured with
+RATE = 50                       # recogniser frames per second
+FRAME_SAMPLES = SAMPLE_RATE // RATE   # 320 samples = 20 ms per frame (STFT hop 160, subsampled by 2)
+MAX_FRAMES_PER_CALL = 1500      # hama returns at most this many frames (30 s) per call, silently
+CORE_S, CONTEXT_S = 24.0, 2.0   # per call: 24 s kept + 2 s of context each side = 28 s = 1400 frames < 1500
+# Chosen on the shipped corpus's *training* split (benchmarks/real_voices.py --tune; docs/front-ends.md):
+LAG_S = 0.02                    # spikes are moved this much earlier (hama's spikes trail the phones)
+WINDOW_S = 0.1                  # a mesh frame takes the nearest spike within this distance, else "sil"
+BLANK_BIAS = -0.1               # added to <blank> before the argmax (hama's own greedy decoder does the same)
+OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160}
+
+# ------------------------------------------------------------------------------ symbol -> viseme table
+# hama's 191 output symbols (vocab ``decoder`` + "<wb>", "<blank>"), grouped by viseme. Phones of other languages
+# go to the nearest English mouth shape; diphthongs and glide+vowel units (Korean ja, wa ...) to their first part.
+_GROUPS = {
+    "PP": "b p pʰ p͈ m ɓ ʙ β ɸ",                       # bilabial stops, nasal, implosive, trill, fricatives
+    "FF": "f v ʋ ɱ",                                     # labiodentals
+    "TH": "θ ð",
+    "DD": "d t tʰ t͈ n l ɫ ɾ ɗ ɖ ʈ ɽ ɮ ʎ ɲ ñ",          # tongue tip / blade, jaw slightly open, lips free
+    "KK": "k kʰ k͈ g ɡ c ɟ ç x ɣ ŋ ɴ χ ʁ ʀ h ɦ ħ ʔ ɰ",  # palatal, velar, uvular, pharyngeal, glottal
+    "CH": "t͡ʃ d͡ʒ ʃ ʒ t͡ɕ t͡ɕʰ t͡ɕ͈ ɕ ʑ ʂ ʐ",            # post-alveolar and alveolo-palatal: protruded lips
+    "SS": "s s͈ z ẑ",
+    "RR": "r ɹ ɻ ɚ ɝ ɜ",                                 # r and r-coloured vowels (espeak's 3, 3: -> RR)
+    "WW": "w ɥ wa we wi wʌ",
+    "aa": "a aɪ aʊ à ã ä æ ɐ ɑ ɒ ʌ",                     # open vowels (espeak a, aI, aU, A:, 0, V -> aa)
+    "E": "e eə eɪ ẽ ə ɘ ɛ ɤ ᵊ",
+    "I": "i ì ĩ ǐ ɪ ɪə ɨ ɯ ɯi j ʝ ja je jo ju jʌ",      # close unrounded vowels and the palatal glide
+    "O": "o oʊ õ å ɔ ɔɪ ø œ ɵ",
+    "U": "u ũ y ʉ ʊ ʏ",
+}
+# Not phones: specials, CTC blank, word boundary, punctuation, tones, length and diacritic marks, stray characters.
+NON_PHONES = ("<pad>", "<sos>", "<eos>", "<unk>", " ", "%", ",", "~", "<wb>", "<blank>",
+              "²", "³", "¹", "⁰", "⁴", "⁵", "⁻", "⁽", "⁾", "˥", "˦", "˧", "˨", "˩", "꜔",
+              "ʰ", "ʱ", "ʲ", "ʷ", "ˀ", "ː", "ˑ", "˕", "˞", "ˤ", "ᵝ", "‿",
+              "\u0303", "\u0306", "\u0308", "\u030a", "\u030c", "\u030d", "\u031a", "\u031d", "\u031e", "\u031f",
+              "\u0320", "\u0325", "\u0329", "\u032a", "\u032c", "\u032f", "\u0330", "\u033a", "\u033b", "\u0348",
+              "\u034d", "\u035c", "\u0361", "一", "不")
+SYMBOL_TO_VISEME: dict[str, str | None] = {s: v for v, group in _GROUPS.items() for s in group.split()}
+SYMBOL_TO_VISEME.update({s: None for s in NON_PHONES})
+
+
+def symbol_visemes(symbols) -> np.ndarray:
+    """Viseme index (into ``VISEMES``) per symbol of ``symbols`` (hama's decoder tokens), -1 for non-phones.
+
+    Raises KeyError naming the first symbol the table lacks (a different hama vocabulary)."""
+    missing = [s for s in symbols if s not in SYMBOL_TO_VISEME]
+    if missing:
+        raise KeyError(f"recogniser symbols without a viseme: {missing[:10]} ({len(missing)} in all); "
+                       f"the table in dualtalker_lite/recogniser.py was written for hama {HAMA_VERSION}")
+    return np.array([-1 if SYMBOL_TO_VISEME[s] is None else VISEMES.index(SYMBOL_TO_VISEME[s]) for s in symbols],
+                    dtype=np.int64)
+
+
+# ------------------------------------------------------------------------------ the recogniser
+def default_cache_dir() -> Path:
+    """``$DUALTALKER_CACHE`` if set, else ``$XDG_CACHE_HOME/dualtalker-lite`` (``~/.cache/dualtalker-lite``)."""
+    if os.environ.get("DUALTALKER_CACHE"):
+        return Path(os.environ["DUALTALKER_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dualtalker-lite"
+
+
+def wave_hash(wave: np.ndarray, settings: dict) -> str:
+    """sha256 (hex) of the wave's float32 bytes and the settings (sorted JSON): the cache key."""
+    h = hashlib.sha256(np.ascontiguousarray(wave, dtype=np.float32).tobytes())
+    h.update(json.dumps(settings, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def n_recogniser_frames(n_samples: int) -> int:
+    """Recogniser frames for ``n_samples`` at 16 kHz: ``1 + n_samples // 320`` (measured on hama 1.7.0)."""
+    return 1 + int(n_samples) // FRAME_SAMPLES
+
+
+def _import_hama():
+    try:
+        import hama
+        from hama.asr import ASRModel
+    except ImportError as e:
+        raise ImportError("the phoneme recogniser front-end needs the optional package hama "
+                          "(pip install 'dualtalker-lite[phonetic]' or pip install hama==1.7.0)") from e
+    return getattr(hama, "__version__", None) or _dist_version("hama"), ASRModel
+
+
+def _dist_version(name: str) -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
+
+
+class PhonemeRecogniser:
+    """hama's CTC phoneme recogniser: 16 kHz mono wave (N,) -> log-probs (1 + N // 320, 191) at 50 Hz.
+
+    ``core_s`` / ``context_s``: seconds kept per call / seconds of context on each side (multiples of 20 ms;
+    ``core_s + 2 context_s`` must stay under hama's 30 s). ``cache_dir``: where outputs are cached (None:
+    :func:`default_cache_dir`); ``cache=False`` computes every time. ``threads``: torch is not involved; hama's
+    engine is single-threaded per call.
+    """
+
+    def __init__(self, core_s: float = CORE_S, context_s: float = CONTEXT_S, cache: bool = True,
+                 cache_dir: str | os.PathLike | None = None):
+        version, asr_model = _import_hama()
+        self.version = version
+        self.core = int(round(core_s * RATE)) * FRAME_SAMPLES          # samples kept per call
+        self.context = int(round(context_s * RATE)) * FRAME_SAMPLES    # samples of context on each side
+        if self.core < FRAME_SAMPLES or self.context < 0:
+            raise ValueError(f"core_s must be >= 0.02 and context_s >= 0, got {core_s}, {context_s}")
+        if n_recogniser_frames(self.core + 2 * self.context) > MAX_FRAMES_PER_CALL:
+            raise ValueError(f"core_s + 2 context_s = {core_s + 2 * context_s} s exceeds hama's 30 s per call")
+        self.model = asr_model()
+        self.symbols = list(self.model.decoder_tokens)                 # 191 symbols
+        self.blank_id = self.model.blank_id
+        self.visemes_of_symbol = symbol_visemes(self.symbols)         # (191,) viseme index or -1
+        self.cache = cache
+        self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+
+    def settings(self) -> dict:
+        """What the log-probs depend on (part of the cache key)."""
+        return {"name": NAME, "version": self.version, "core_samples": self.core, "context_samples": self.context,
+                "dtype": "float16"}
+
+    def _run(self, piece: np.ndarray) -> np.ndarray:
+        """One call of hama on at most 28 s: (n,) float32 -> (1 + n // 320, 191) float32."""
+        wav = np.ascontiguousarray(np.clip(piece, -1.0, 1.0), dtype=np.float32)[None]
+        lp, lengths = self.model.session.run(["log_probs", "out_lengths"],
+                                             {"waveform": wav, "waveform_lengths": np.array([wav.shape[1]])})
+        return np.asarray(lp[0, :int(np.asarray(lengths).reshape(-1)[0])], dtype=np.float32)
+
+    def iter_log_probs(self, wave: np.ndarray | torch.Tensor) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(first_frame, block)`` with ``block`` (<= core frames, 191) float16, covering every frame
+        ``0 .. 1 + N // 320 - 1`` in order. Each call sees ``context_s`` of audio before and after its core."""
+        wave = wave.detach().cpu().numpy() if isinstance(wave, torch.Tensor) else np.asarray(wave)
+        validate_wave(wave, SAMPLE_RATE)
+        n = wave.shape[0]
+        total = n_recogniser_frames(n)
+        core_frames = self.core // FRAME_SAMPLES
+        for first in range(0, total, core_frames):
+            last = min(total, first + core_frames)                     # frames [first, last) of this core
+            lo = max(0, first * FRAME_SAMPLES - self.context)          # a multiple of 320: frames line up
+            hi = min(n, last * FRAME_SAMPLES + self.context)
+            out = self._run(wave[lo:hi])
+            offset = (first * FRAME_SAMPLES - lo) // FRAME_SAMPLES
+            block = out[offset:offset + (last - first)]
+            if block.shape[0] < last - first:                          # the wave's last frame: repeat (rare)
+                block = np.concatenate([block, np.repeat(block[-1:], last - first - block.shape[0], 0)])
+            yield first, block.astype(np.float16)
+
+    def log_probs(self, wave: np.ndarray | torch.Tensor) -> np.ndarray:
+        """(1 + N // 320, 191) float16 log-probs of the whole wave, from the cache when there (memory-mapped)."""
+        wave = wave.detach().cpu().numpy() if isinstance(wave, torch.Tensor) else np.asarray(wave)
+        validate_wave(wave, SAMPLE_RATE)
+        path = None
+        if self.cache:
+            key = wave_hash(wave, self.settings())
+            path = self.cache_dir / f"{NAME}-{self.version}" / key[:2] / f"{key[2:34]}.npy"
+            if path.is_file():
+                try:
+                    cached = np.load(path, mmap_mode="r", allow_pickle=False)
+                    if cached.shape == (n_recogniser_frames(wave.shape[0]), len(self.symbols)):
+                        return cached
+                except (ValueError, OSError):
+                    pass                                               # corrupt entry: recompute, overwrite
+        out = np.empty((n_recogniser_frames(wave.shape[0]), len(self.symbols)), dtype=np.float16)
+        for first, block in self.iter_log_probs(wave):
+            out[first:first + block.shape[0]] = block
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            with open(tmp, "wb") as f:
+                np.save(f, out)
+            os.replace(tmp, path)                                      # atomic: readers never see half a file
+        return out
+
+    def spikes(self, log_probs: np.ndarray, blank_bias: float = BLANK_BIAS) -> tuple[np.ndarray, np.ndarray]:
+        """Greedy CTC frames that carry a phone: (frame indices (S,), viseme indices (S,)).
+
+        argmax per frame after adding ``blank_bias`` to ``<blank>``; frames whose symbol is not a phone
+        (blank, ``<wb>``, marks) are dropped. Repeated frames of one phone are all kept (each is a spike)."""
+        lp = np.asarray(log_probs, dtype=np.float32)
+        if blank_bias:
+            lp = lp.copy()
+            lp[:, self.blank_id] += blank_bias
+        vis = self.visemes_of_symbol[lp.argmax(1)]                     # (L,) viseme or -1
+        frames = np.nonzero(vis >= 0)[0]
+        return frames, vis[frames]
+
+
+def spike_track(spike_times: np.ndarray, spike_visemes: np.ndarray, n_frames: int, fps: float = 30.0,
+                window_s: float = WINDOW_S) -> np.ndarray:
+    """Viseme index (T,) int64 per mesh frame: the viseme of the nearest spike within ``window_s``, else 0 (sil).
+
+    ``spike_times`` (S,) seconds, sorted (already moved by the lag); ties go to the earlier spike.
+    Example: spikes at 0.10 s (PP) and 0.30 s (aa), window 0.1, 30 fps: frames 0-5 (0 .. 0.167 s) are within
+    0.1 s of 0.10 (frame 0 at 0.0 s is exactly 0.1 away: included), frame 6 (0.2 s) ties (0.1 from both)
+    -> PP, frames 7-12 -> aa, frames 13+ (>= 0.433 s) -> sil."""
+    t = np.arange(n_frames) / fps
+    out = np.zeros(n_frames, dtype=np.int64)
+    if len(spike_times) == 0:
+        return out
+    spike_times = np.asarray(spike_times, dtype=np.float64)
+    right = np.clip(np.searchsorted(spike_times, t), 0, len(spike_times) - 1)   # first spike at or after t
+    left = np.clip(right - 1, 0, len(spike_times) - 1)
+    d_left, d_right = np.abs(t - spike_times[left]), np.abs(spike_times[right] - t)
+    nearest = np.where(d_left <= d_right + 1e-9, left, right)                  # ties (to 1 ns): earlier
+    dist = np.minimum(d_left, d_right)
+    hit = dist <= window_s + 1e-9
+    out[hit] = np.asarray(spike_visemes)[nearest[hit]]
+    return out
+
+
+# ------------------------------------------------------------------------------ the feature extractor
+class RecogniserExtractor:
+    """:class:`~dualtalker_lite.audio.FeatureExtractor` from hama's phoneme recogniser (table in the module doc).
+
+    ``output``: ``"visemes"`` (one-hot (T, 15), the phonetic route), ``"logprobs"`` ((T, 191)) or
+    ``"logprobs+logmel"`` ((T, 351)). ``lag_s``: spikes and log-probs are read ``lag_s`` later than the mesh
+    frame time (hama lags the phones). ``window_s``: the nearest-spike window of :func:`spike_track`.
+    ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors.
+    """
+
+    def __init__(self, output: str = "visemes", lag_s: float = LAG_S, window_s: float = WINDOW_S,
+                 blank_bias: float = BLANK_BIAS, fps: int = 30, recogniser: PhonemeRecogniser | None = None,
+                 cache: bool = True, cache_dir: str | os.PathLike | None = None):
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {sorted(OUTPUTS)}, got {output!r}")
+        self.output, self.lag_s, self.window_s, self.blank_bias, self.fps = output, lag_s, window_s, blank_bias, fps
+        self.sample_rate = SAMPLE_RATE
+        self.dim = OUTPUTS[output]
+        self.recogniser = recogniser or PhonemeRecogniser(cache=cache, cache_dir=cache_dir)
+        self._logmel = LogMelExtractor(fps=fps) if output == "logprobs+logmel" else None
+
+    # ---- checkpoints
+    def settings(self) -> dict:
+        """``{"name": "hama", "settings": {...}}`` with plain values, as a checkpoint's ``features`` entry."""
+        table = hashlib.sha256(json.dumps(SYMBOL_TO_VISEME, sort_keys=True, ensure_ascii=True).encode()).hexdigest()
+        return {"name": NAME, "settings": {"version": self.recogniser.version, "output": self.output,
+                                           "lag_s": self.lag_s, "window_s": self.window_s,
+                                           "blank_bias": self.blank_bias, "fps": self.fps,
+                                           "sample_rate": self.sample_rate, "dim": self.dim,
+                                           "visemes": list(VISEMES), "table": table[:16]}}
+
+    @classmethod
+    def from_settings(cls, features: dict, source: str = "checkpoint", **kw) -> "RecogniserExtractor":
+        """Rebuild from :meth:`settings`; one-line ValueError for another front-end, version or table."""
+        if not features or features.get("name") != NAME:
+            raise ValueError(f"{source}: features {features and features.get('name')!r} are not the {NAME!r} "
+                             f"recogniser's")
+        s = dict(features.get("settings", {}))
+        ex = cls(output=s.get("output", "visemes"), lag_s=s.get("lag_s", LAG_S), window_s=s.get("window_s", WINDOW_S),
+                 blank_bias=s.get("blank_bias", BLANK_BIAS), fps=s.get("fps", 30), **kw)
+        mine = ex.settings()["settings"]
+        for key in ("version", "visemes", "table", "dim"):
+            if key in s and s[key] != mine[key]:
+                raise ValueError(f"{source}: trained with {NAME} {key} {s[key]!r}, this installation has "
+                                 f"{mine[key]!r}" + (f" (pip install hama=={s[key]})" if key == "version" else ""))
+        return ex
+
+    # ---- features
+    def viseme_ids(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> np.ndarray:
+        """(T,) int64 viseme index per mesh frame (0 = sil): :func:`spike_track` of the lag-corrected spikes."""
+        frames, vis = self.recogniser.spikes(self.recogniser.log_probs(wave), self.blank_bias)
+        return spike_track(frames / RATE - self.lag_s, vis, n_frames, self.fps, self.window_s)
+
+    def log_probs(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
+        """(T, 191) float32: log-probs linearly interpolated at the mesh frame times + ``lag_s``."""
+        lp = self.recogniser.log_probs(wave)                            # (L, 191) float16, maybe memory-mapped
+        pos = np.clip((np.arange(n_frames) / self.fps + self.lag_s) * RATE, 0, lp.shape[0] - 1)   # (T,) in frames
+        i0 = np.floor(pos).astype(np.int64)
+        i1 = np.minimum(i0 + 1, lp.shape[0] - 1)
+        w = (pos - i0)[:, None].astype(np.float32)
+        out = np.empty((n_frames, lp.shape[1]), dtype=np.float32)
+        for a in range(0, n_frames, 9000):                              # 5 min per block: bounded temporaries
+            b = min(n_frames, a + 9000)
+            out[a:b] = (1 - w[a:b]) * lp[i0[a:b]].astype(np.float32) + w[a:b] * lp[i1[a:b]].astype(np.float32)
+        return torch.from_numpy(out)
+
+    def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
+        """(n_frames, dim) float32 features at the mesh rate (see the class doc)."""
+        if n_frames < 1:
+            raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+        if self.output == "visemes":
+            ids = torch.from_numpy(self.viseme_ids(wave, n_frames))
+            return torch.nn.functional.one_hot(ids, len(VISEMES)).float()
+        feats = self.log_probs(wave, n_frames)
+        if self._logmel is not None:
+            feats = torch.cat([feats, self._logmel(wave, n_frames)], dim=1)
+        return feats
+
+    def __repr__(self) -> str:
+        return (f"RecogniserExtractor(output={self.output!r}, lag_s={self.lag_s}, window_s={self.window_s}, "
+                f"hama {self.recogniser.version})")
