@@ -89,6 +89,14 @@ class AudioFeatureExtractor(nn.Module):
                                     for _ in range(n_layers))
         self.norm = nn.LayerNorm(hidden)
 
+    @classmethod
+    def from_config(cls, cfg) -> "AudioFeatureExtractor":
+        """The front-end of a model config with the usual fields: ``audio_dim`` -> ``audio_hidden`` channels,
+        ``audio_heads``, ``audio_conv_layers`` of ``audio_kernel``, ``audio_layers``, ``period``, ``dropout``,
+        ``audio_radius``."""
+        return cls(cfg.audio_dim, cfg.audio_hidden, cfg.audio_heads, cfg.audio_conv_layers, cfg.audio_kernel,
+                   cfg.audio_layers, cfg.period, cfg.dropout, radius=cfg.audio_radius)
+
     def embed_frames(self, audio: Tensor) -> Tensor:
         """Per-frame (non-contextual) feature projection (section III-B stand-in): (B, T, D_a) -> (B, T, C)."""
         return self.feature_projection(self.input_norm(audio))  # (B, T, C)

@@ -44,8 +44,8 @@ from .fusion import DualFusionLayer, QueryFrom
 from .positional import PeriodicPositionalEncoding
 from .windowed import SlidingKVCache, alibi_lag_bias
 
-__all__ = ["TransposedLinear", "MotionDecoder", "check_inputs", "check_window", "lookup_style",
-           "autoregressive_chunks", "autoregressive_reference"]
+__all__ = ["TransposedLinear", "MotionDecoder", "check_inputs", "training_inputs", "check_window", "zero_padding",
+           "lookup_style", "autoregressive_chunks", "autoregressive_reference"]
 
 
 class TransposedLinear(nn.Module):
@@ -79,10 +79,28 @@ def check_inputs(n_vertices: int, audio_dim: int, audio: Tensor, template: Tenso
         raise ValueError(f"speaker: expected shape ({b},), got {tuple(speaker.shape)}")
 
 
-def check_window(window) -> None:
-    """``window`` of the bounded decoding caches: a positive number of frames or None (unbounded)."""
+def training_inputs(batch: dict, n_vertices: int, audio_dim: int) -> tuple[Tensor, Tensor, Tensor | None]:
+    """A training batch checked (:func:`check_inputs`) -> (A (B, T, D_a), M = vertices - template (B, T, V*3), mask)
+    with padded frames zeroed: padding may hold anything (even NaN), and must stay out of every product."""
+    audio, vertices, template = batch["audio"], batch["vertices"], batch["template"]
+    check_inputs(n_vertices, audio_dim, audio, template, batch["speaker"], vertices)
+    mask = batch.get("mask")
+    motion = vertices - template[:, None, :]  # (B, T, V*3) M_{1:T}
+    return zero_padding(audio, mask), zero_padding(motion, mask), mask
+
+
+def check_window(window, configured: int | None = None) -> int | None:
+    """``window`` of the bounded decoding caches: a positive number of frames, None (unbounded) or ``"config"`` (the
+    model's ``configured`` window) -> the number of frames or None; one clear line otherwise."""
+    window = configured if window == "config" else window
     if window is not None and (isinstance(window, bool) or not isinstance(window, int) or window < 1):
         raise ValueError(f"window must be a positive number of frames, None or 'config', got {window!r}")
+    return window
+
+
+def zero_padding(audio: Tensor, mask: Tensor | None) -> Tensor:
+    """Padded frames of A (B, T, D_a) set to 0 (``mask`` (B, T) True on valid frames; None: nothing padded)."""
+    return audio if mask is None else audio.masked_fill(~mask[..., None], 0.0)
 
 
 def lookup_style(table: nn.Embedding, speaker: Tensor) -> Tensor:
@@ -184,7 +202,8 @@ class MotionDecoder(nn.Module):
     # ---- the three ways to run it ---------------------------------------------------------------------------
     def teacher_forced(self, past_motion: Tensor, features: Tensor, style: Tensor, mask: Tensor | None = None,
                        weights: list | None = None) -> Tensor:
-        """Every frame from the motion fed back: past (B, T, V*3) (frame t-1 feeds t), features (B, T, d) -> (B, T, V*3).
+        """Every frame from the motion fed back: past (B, T, V*3) (frame t-1 feeds t), features (B, T, d)
+        -> (B, T, V*3).
 
         ``weights``: a list that receives each layer's attention weights."""
         return self.decode_motion(self.fuse(self.stream(self.encode_motion(past_motion), style), features, style,

@@ -65,9 +65,10 @@ import torch.nn as nn
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
-from ..blocks.fai import fai_from_dataset, normalised_fai
 from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
-                              check_window, lookup_style)
+                              check_window, lookup_style, training_inputs,
+                              zero_padding)
+from ..blocks.fai import fai_from_dataset, normalised_fai
 from ..blocks.hierarchical import HierarchicalFeatureExtractor, WeightGenerator, window_radius
 from ..losses.corrtalk import CorrTalkWeights, corrtalk_loss
 
@@ -153,9 +154,7 @@ class CorrTalk(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
-                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
-                                               radius=cfg.audio_radius)  # the wavLM stand-in (shared front-end)
+        self.extractor = AudioFeatureExtractor.from_config(cfg)  # the wavLM stand-in (shared front-end)
         n_levels = 4 if cfg.hierarchical else 1
         self.hierarchy = HierarchicalFeatureExtractor(c, d, cfg.encoder_heads, cfg.encoder_ff, cfg.radii,
                                                       cfg.dropout, n_levels)
@@ -257,13 +256,8 @@ class CorrTalk(nn.Module):
         Keys: vertices, motion (B, T, V*3); motion_strong, motion_weak (masked branch outputs, summing to motion;
         weak None for one branch); features {"strong", "weak"} (B, T, d); alpha {"strong", "weak"} (B, T, L);
         levels (B, T, L, d)."""
-        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
-        self._check(audio, template, speaker, vertices)
-        mask = batch.get("mask")
-        motion = vertices - template[:, None, :]  # (B, T, V*3)
-        if mask is not None:  # padding may hold anything (even NaN)
-            audio = audio.masked_fill(~mask[..., None], 0.0)
-            motion = motion.masked_fill(~mask[..., None], 0.0)
+        audio, motion, mask = training_inputs(batch, self.cfg.n_vertices, self.cfg.audio_dim)
+        template, speaker = batch["template"], batch["speaker"]
         style = self.speaker_style(speaker)  # (B, d)
         enc = self.encode_audio(audio, mask)
         fed = motion  # teacher forcing: the true past, for both branches
@@ -300,8 +294,7 @@ class CorrTalk(nn.Module):
         if use_cache:
             return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, window=window)), dim=1)
         self._check(audio, template, speaker)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        audio = zero_padding(audio, mask)
         decoders, feats, styles, combine = self._decoding(audio, mask, speaker)
         return autoregressive_reference(decoders, feats, styles, template, combine, mask)
 
@@ -311,10 +304,8 @@ class CorrTalk(nn.Module):
         self-attention keeps the last ``window`` tokens, its cross-attention the diagonal); the summed motion of
         eq. 8 is fed back to both branches."""
         self._check(audio, template, speaker)
-        window = self.cfg.decoder_window if window == "config" else window
-        check_window(window)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        window = check_window(window, self.cfg.decoder_window)
+        audio = zero_padding(audio, mask)
         with torch.no_grad():
             decoders, feats, styles, combine = self._decoding(audio, mask, speaker)
         return autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)

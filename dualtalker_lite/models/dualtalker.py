@@ -42,7 +42,7 @@ from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
 from ..blocks.decoder import (MotionDecoder, TransposedLinear, autoregressive_chunks, autoregressive_reference,
-                              check_inputs, check_window)
+                              check_inputs, check_window, training_inputs, zero_padding)
 from ..losses.dualtalker import LossWeights, joint_loss, rbf_kernel_weights
 
 __all__ = ["DualTalkerConfig", "DualTalker"]
@@ -117,9 +117,7 @@ class DualTalker(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
-                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
-                                               radius=cfg.audio_radius)
+        self.extractor = AudioFeatureExtractor.from_config(cfg)
         self.audio_encoder = nn.Linear(c, d)  # linear "MLP" audio encoder: C -> d (supplementary A)
         self.decoder = MotionDecoder(cfg.n_vertices, d, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
                                      n_speakers=cfg.n_speakers, query_from=cfg.query_from,
@@ -150,13 +148,8 @@ class DualTalker(nn.Module):
         Keys: vertices, motion (B, T, V*3); audio Ã (B, T, D_a) or None; x, y, x_fused (or None), y_fused
         (B, T, d); with ``need_weights`` also "attention": {"primal": [...], "dual": [...]} per layer.
         """
-        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
-        check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker, vertices)
-        mask = batch.get("mask")
-        motion = vertices - template[:, None, :]  # (B, T, V*3) M_{1:T}
-        if mask is not None:  # padding may hold anything (even NaN): keep it out of every product
-            audio = audio.masked_fill(~mask[..., None], 0.0)
-            motion = motion.masked_fill(~mask[..., None], 0.0)
+        audio, motion, mask = training_inputs(batch, self.cfg.n_vertices, self.cfg.audio_dim)
+        template, speaker = batch["template"], batch["speaker"]
         dec = self.decoder
         style = dec.speaker_style(speaker)  # (B, d) S_n
         x = self.encode_audio(audio, mask)  # (B, T, d) X
@@ -245,8 +238,7 @@ class DualTalker(nn.Module):
         if use_cache:
             return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, window=window)), dim=1)
         check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        audio = zero_padding(audio, mask)
         style = self.decoder.speaker_style(speaker)  # (B, d)
         x = self.encode_audio(audio, mask)  # (B, T, d)
         return autoregressive_reference([self.decoder], [x], [style], template, mask=mask)
@@ -257,10 +249,8 @@ class DualTalker(nn.Module):
         (``blocks.decoder.autoregressive_chunks``): an hour of audio decodes in constant memory per frame.
         Inputs are checked here, before the first block is asked for."""
         check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker)
-        window = self.cfg.decoder_window if window == "config" else window
-        check_window(window)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        window = check_window(window, self.cfg.decoder_window)
+        audio = zero_padding(audio, mask)
         with torch.no_grad():
             style = self.decoder.speaker_style(speaker)  # (B, d)
             x = self.encode_audio(audio, mask)  # (B, T, d), banded attention: linear memory

@@ -66,7 +66,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
-from ..blocks.decoder import MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs, check_window
+from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
+                              check_window, training_inputs, zero_padding)
 from ..blocks.mesh_attention import MeshAttention
 from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
 from ..losses.emoface import EmoFaceWeights, emoface_loss
@@ -184,9 +185,7 @@ class EmoFace(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
-                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
-                                               radius=cfg.audio_radius)
+        self.extractor = AudioFeatureExtractor.from_config(cfg)
         self.content_encoder = nn.Linear(c, d)  # E_c: per frame (short-term content)
         self.emotion_projection = nn.Linear(c, d)  # E_e, first part
         # E_e also reads the per-frame log-mel mean and std (frame_level_stats) that the front-end's per-frame
@@ -326,13 +325,8 @@ class EmoFace(nn.Module):
         "content_features", "emotion_features" (B, T, d); with "pair_*" keys also "cross_vertices",
         "cross_emotion", "cross_content" (M_{c1,e2}, ...), "pair_emotion_logits", "pair_emotion_features".
         """
-        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
-        self._check(audio, template, speaker, vertices)
-        mask = batch.get("mask")
-        motion = vertices - template[:, None, :]  # (B, T, V*3)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
-            motion = motion.masked_fill(~mask[..., None], 0.0)
+        audio, motion, mask = training_inputs(batch, self.cfg.n_vertices, self.cfg.audio_dim)
+        template, speaker = batch["template"], batch["speaker"]
         fc, fe_raw = self.encode(audio, mask)  # (B, T, d) F_c1, F_e1
         fe = self.condition(fe_raw, batch["emotion"], batch["level"])  # (B, T, d)
         oe, oc, fused, alpha = self._decode(fe, fc, self._past_motion(fe, fc, motion, speaker, mask), speaker, mask)
@@ -392,8 +386,7 @@ class EmoFace(nn.Module):
     @torch.no_grad()
     def emotion_logits(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
         """Eq. 10's classifier on the speech alone: A (B, T, D_a) -> logits (B, N_e) (the runner's accuracy)."""
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        audio = zero_padding(audio, mask)
         return self.classify(self.encode(audio, mask)[1], mask)
 
     def _conditions(self, audio: Tensor, mask: Tensor | None, emotion, level) -> tuple[Tensor, Tensor]:
@@ -420,8 +413,7 @@ class EmoFace(nn.Module):
         if use_cache:
             return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, emotion=emotion,
                                                        level=level)), dim=1)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        audio = zero_padding(audio, mask)
         decoders, feats, styles, combine = self._decoding(audio, mask, speaker, emotion, level, context=None)
         return autoregressive_reference(decoders, feats, styles, template, combine, mask)
 
@@ -467,10 +459,8 @@ class EmoFace(nn.Module):
 
     @torch.no_grad()
     def _chunks(self, audio, template, speaker, mask, emotion, level, window, chunk):
-        window = self.cfg.decoder_window if window == "config" else window
-        check_window(window)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        window = check_window(window, self.cfg.decoder_window)
+        audio = zero_padding(audio, mask)
         decoders, feats, styles, combine = self._decoding(audio, mask, speaker, emotion, level,
                                                           context=self._fusion_context())
         yield from autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)

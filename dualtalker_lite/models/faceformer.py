@@ -27,7 +27,8 @@ import torch.nn as nn
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
-from ..blocks.decoder import MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs, check_window
+from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
+                              check_window, training_inputs, zero_padding)
 from ..losses.dualtalker import LossWeights, joint_loss
 
 __all__ = ["FaceFormerConfig", "FaceFormer"]
@@ -89,9 +90,7 @@ class FaceFormer(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor(cfg.audio_dim, c, cfg.audio_heads, cfg.audio_conv_layers,
-                                               cfg.audio_kernel, cfg.audio_layers, cfg.period, cfg.dropout,
-                                               radius=cfg.audio_radius)
+        self.extractor = AudioFeatureExtractor.from_config(cfg)
         self.audio_encoder = nn.Linear(c, d)  # C -> d
         self.decoder = MotionDecoder(cfg.n_vertices, d, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
                                      n_speakers=cfg.n_speakers, query_from="decoder", align_window=1,
@@ -107,13 +106,8 @@ class FaceFormer(nn.Module):
 
     def forward(self, batch: dict) -> dict:
         """Teacher-forced pass -> {"vertices", "motion" (B, T, V*3), "x" (B, T, d)}; DualTalker's other outputs None."""
-        audio, vertices, template, speaker = batch["audio"], batch["vertices"], batch["template"], batch["speaker"]
-        check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker, vertices)
-        mask = batch.get("mask")
-        motion = vertices - template[:, None, :]  # (B, T, V*3)
-        if mask is not None:  # padding may hold anything (even NaN)
-            audio = audio.masked_fill(~mask[..., None], 0.0)
-            motion = motion.masked_fill(~mask[..., None], 0.0)
+        audio, motion, mask = training_inputs(batch, self.cfg.n_vertices, self.cfg.audio_dim)
+        template, speaker = batch["template"], batch["speaker"]
         dec = self.decoder
         style = dec.speaker_style(speaker)  # (B, d) S_n
         x = self.encode_audio(audio, mask)  # (B, T, d)
@@ -141,8 +135,7 @@ class FaceFormer(nn.Module):
         if use_cache:
             return torch.cat(list(self.generate_chunks(audio, template, speaker, mask=mask, window=window)), dim=1)
         check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        audio = zero_padding(audio, mask)
         x = self.encode_audio(audio, mask)
         return autoregressive_reference([self.decoder], [x], [self.decoder.speaker_style(speaker)], template,
                                         mask=mask)
@@ -151,10 +144,8 @@ class FaceFormer(nn.Module):
                         window: int | None | str = "config", chunk: int = 900):
         """Vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (constant memory per frame)."""
         check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker)
-        window = self.cfg.decoder_window if window == "config" else window
-        check_window(window)
-        if mask is not None:
-            audio = audio.masked_fill(~mask[..., None], 0.0)
+        window = check_window(window, self.cfg.decoder_window)
+        audio = zero_padding(audio, mask)
         with torch.no_grad():
             style = self.decoder.speaker_style(speaker)  # (B, d)
             x = self.encode_audio(audio, mask)  # (B, T, d)

@@ -129,7 +129,7 @@ sp = np.abs(zxx) * np.r_[1.0, np.full(N_FFT // 2 - 1, 2.0), 1.0][:, None]
 np.testing.assert_allclose(ours, sp, rtol=1e-10, atol=1e-15)
 torch.testing.assert_close(amp[:, :, mouth_v], torch.from_numpy(ours))
 np.testing.assert_allclose(freqs.numpy(), np.arange(N_FFT // 2 + 1) * FPS / N_FFT)
-print(f"eq. 3: NumPy from scratch == scipy.signal.stft == dualtalker_lite.fai on {amp.shape[1]} STFT frames")
+print(f"eq. 3: NumPy from scratch == scipy.signal.stft == dualtalker_lite.blocks.fai on {amp.shape[1]} STFT frames")
 
 # %% [markdown]
 # ## 3. CorrTalk's Fig. 1: a mouth vertex against a forehead vertex
