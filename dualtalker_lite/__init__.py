@@ -1,16 +1,15 @@
 """dualtalker-lite: tested, notebook-first implementations of DualTalker, CorrTalk and EmoFace.
 
-Layout (data -> features -> blocks -> models -> losses -> metrics -> training -> visualisation):
+Layers, lowest first (docs/architecture.md; ``tests/test_architecture.py`` keeps imports pointing down):
 
-- ``dualtalker_lite.face``     procedural face rig: template mesh, regions, rig controls, speakers, visemes
-- ``dualtalker_lite.data``     espeak-ng speech, clip synthesis, corpus generator, Dataset/collate
-- ``dualtalker_lite.audio``    audio I/O, resampling, log-mel features (pluggable extractors)
-- ``dualtalker_lite.blocks``   attention, positional encodings/biases, speaker-aware gate, dual integration
-- ``dualtalker_lite.models``   one module per paper, plus baselines
-- ``dualtalker_lite.losses``   primal/dual regression, duality regularisation, CCRL
-- ``dualtalker_lite.metrics``  LVE, FDD, EVE, lip distance
-- ``dualtalker_lite.train``    plain training loop, checkpoints
-- ``dualtalker_lite.viz``      matplotlib renders, mp4 with sound, pythreejs viewer
+- foundations: ``face`` (procedural face rig), ``audio`` (I/O, log-mel), ``recogniser`` (phoneme recogniser front-end),
+  ``export`` (glTF, HTML), ``seeding``, ``checks``, ``files``, ``processes``, ``console``
+- data and blocks: ``data`` (speech, corpus, datasets); ``blocks`` (attention, positional biases, the shared
+  FaceFormer-style ``decoder``, the audio front-end, each paper's building blocks)
+- models and losses: ``models`` (one module per paper, plus the baselines), ``losses`` (one module per paper)
+- training and evaluation: ``train``, ``checkpoints``, ``metrics``
+- applications: ``experiments``, ``inference``, ``streaming``, ``viz``
+- front ends: ``cli``, ``demo``, ``viz.widgets``
 """
 __version__ = "0.1.0"
 __all__ = ["check_shape", "set_seed", "__version__"]
@@ -19,8 +18,12 @@ __all__ = ["check_shape", "set_seed", "__version__"]
 def __getattr__(name: str):
     # Lazy: `import dualtalker_lite.data.speech` (run in many short-lived worker processes while
     # generating a corpus) must not pay for importing torch.
-    if name in ("check_shape", "set_seed"):
-        from . import utils
+    if name == "check_shape":
+        from .checks import check_shape
 
-        return getattr(utils, name)
+        return check_shape
+    if name == "set_seed":
+        from .seeding import set_seed
+
+        return set_seed
     raise AttributeError(f"module 'dualtalker_lite' has no attribute {name!r}")
