@@ -239,6 +239,22 @@ def test_cross_reconstruction_uses_the_partners_emotion_features(fusion):
     assert (as_main["content"] - out["cross_content"]).abs().amax() > 1e-4  # content still from clip 1
 
 
+@pytest.mark.parametrize("past_motion", ["self_growing", "teacher_forcing"])
+def test_eq_15_the_content_branch_cross_output_is_its_self_output(past_motion):
+    """M^c_{c1,e1} = M^c_{c1,e2} = D_c(F_c1), exactly, in training too (the partner's past never reaches D_c);
+    before this reading D_c was re-run on clip 2's past and the two differed (~1e-2 here)."""
+    model, batch = _model(fusion="mesh_attention", past_motion=past_motion).train(), _batch(t=14)
+    model.set_epoch(5, 10)  # self-growing: stage two mixes in stage one's predictions
+    torch.manual_seed(0)
+    out = model(batch)
+    torch.testing.assert_close(out["cross_content"], out["content"], atol=0, rtol=0)
+    assert (out["cross_emotion"] - out["emotion"]).abs().amax() > 1e-4  # the emotion branch reads clip 2
+    # and the cross term's gradient reaches D_c through that one pass
+    weights = EmoFaceWeights(lambda_self=0.0, lambda_vel=0.0, lambda_cls=0.0)
+    model.loss(out, batch, weights)[0].backward()
+    assert model.content_decoder.motion_decoder.weight.grad.abs().sum() > 0
+
+
 def test_self_growing_stage_two_feeds_stage_one_predictions():
     model, batch = _model(), _batch(t=10)
     with torch.no_grad():

@@ -29,7 +29,9 @@ Readings taken (the paper leaves these open):
   "audio" they attend to is the branch's features F_c or F_e. Both decoders are fed back the *fused* motion
   (teacher forcing: the ground truth; generation: the fused prediction), because the paper predicts one mesh
   sequence M_t "conditioned on ... the prior sequence of face motions M_<=t" (section 3.3.1).
-- Teacher forcing of the cross pass uses clip 2's (warped) ground-truth past motion.
+- Eq. 15 is taken as printed: the content branch's cross output *is* its self output (one D_c pass, reused), so
+  the content branch cannot copy clip 2's emotion from a past it never sees. Eq. 16's D_e(F_e2) is teacher-forced
+  on clip 2's (warped) ground-truth past motion (the target it reconstructs).
 - Emotion type: the paper's inputs are speech, level, style and template; the type is recognised from speech
   (the classifier). We add the type to the emotion branch as a condition, like the level: in training the label
   one-hot, in generation the classifier's probabilities p, or a one-hot chosen by the caller (``emotion=``). This
@@ -294,15 +296,18 @@ class EmoFace(nn.Module):
                              "or load a checkpoint (fusion='sum' needs no mesh)")
         return self.mesh_attention(fe, fc, oe, oc)
 
-    def _decode(self, fe: Tensor, fc: Tensor, past: Tensor, speaker: Tensor, mask: Tensor | None):
-        """Both decoders teacher-forced on ``past`` (B, T, V*3), then fused -> (ΔM^e, ΔM^c, ΔM, α)."""
+    def _decode(self, fe: Tensor, fc: Tensor, past: Tensor, speaker: Tensor, mask: Tensor | None,
+                content: Tensor | None = None):
+        """Both decoders teacher-forced on ``past`` (B, T, V*3), then fused -> (ΔM^e, ΔM^c, ΔM, α). ``content``: the
+        content branch's output ΔM^c given (the cross pass, eq. 15), so D_c is not run again."""
         de, dc = self.emotion_decoder, self.content_decoder
         oe = de.teacher_forced(past, fe, de.speaker_style(speaker), mask)  # (B, T, V*3)
-        oc = dc.teacher_forced(past, fc, dc.speaker_style(speaker), mask)  # (B, T, V*3)
+        oc = dc.teacher_forced(past, fc, dc.speaker_style(speaker), mask) if content is None else content
         fused, alpha = self.fuse(fe, fc, oe, oc)
         return oe, oc, fused, alpha
 
-    def _past_motion(self, fe: Tensor, fc: Tensor, motion: Tensor, speaker: Tensor, mask: Tensor | None) -> Tensor:
+    def _past_motion(self, fe: Tensor, fc: Tensor, motion: Tensor, speaker: Tensor, mask: Tensor | None,
+                     content: Tensor | None = None) -> Tensor:
         """Stage two's input (Fig. 2): ground truth, mixed with stage one's detached prediction or dropped."""
         cfg = self.cfg
         if not self.training or cfg.past_motion == "teacher_forcing":
@@ -313,7 +318,7 @@ class EmoFace(nn.Module):
         if self._share >= 1.0:  # all ground truth: stage one would be thrown away
             return motion
         with torch.no_grad():  # stage one: the whole model, teacher-forced
-            guess = self._decode(fe, fc, motion, speaker, mask)[2]  # (B, T, V*3) P
+            guess = self._decode(fe, fc, motion, speaker, mask, content)[2]  # (B, T, V*3) P
         return torch.where(pick < self._share, motion, guess)  # I_{n,t} of eq. 6
 
     # ---- training ----------------------------------------------------------------------------------
@@ -335,11 +340,13 @@ class EmoFace(nn.Module):
                "attention": alpha, "emotion_logits": self.classify(fe_raw, mask),
                "content_features": fc, "emotion_features": fe_raw}
         if self.cfg.cross_reconstruction and "pair_audio" in batch:
-            out.update(self._cross(batch, fc, template, speaker))
+            out.update(self._cross(batch, fc, oc, template, speaker))
         return out
 
-    def _cross(self, batch: dict, fc1: Tensor, template: Tensor, speaker: Tensor) -> dict:
-        """Eqs. 14-16, 18: clip 2 from clip 1's content features and clip 2's emotion features (Fig. 5)."""
+    def _cross(self, batch: dict, fc1: Tensor, oc1: Tensor, template: Tensor, speaker: Tensor) -> dict:
+        """Eqs. 14-16, 18: clip 2 from clip 1's content and clip 2's emotion (Fig. 5). Eq. 15 as printed:
+        M^c_{c1,e2} = M^c_{c1,e1} = D_c(F_c1), the self pass's content output ``oc1`` reused (one D_c pass); eq. 16:
+        M^e_{c1,e2} = D_e(F_e2), teacher-forced on clip 2's (warped) past motion."""
         pair_audio, pair_mask = batch["pair_audio"], batch["pair_mask"]
         if pair_audio.shape[:2] != batch["audio"].shape[:2]:
             raise ValueError(f"pair_audio: expected the clip's (B, T) = {tuple(batch['audio'].shape[:2])} "
@@ -347,8 +354,8 @@ class EmoFace(nn.Module):
         motion2 = (batch["pair_vertices"] - template[:, None, :]).masked_fill(~pair_mask[..., None], 0.0)
         _, fe2_raw = self.encode(pair_audio.masked_fill(~pair_mask[..., None], 0.0), pair_mask)  # F_e2 (eq. 14)
         fe2 = self.condition(fe2_raw, batch["pair_emotion"], batch["pair_level"])
-        past = self._past_motion(fe2, fc1, motion2, speaker, pair_mask)
-        oe, oc, fused, _ = self._decode(fe2, fc1, past, speaker, pair_mask)  # M^e_{c1,e2}, M^c_{c1,e2}, M_{c1,e2}
+        past = self._past_motion(fe2, fc1, motion2, speaker, pair_mask, content=oc1)
+        oe, oc, fused, _ = self._decode(fe2, fc1, past, speaker, pair_mask, content=oc1)  # M^e, M^c, M of (c1, e2)
         tpl = template[:, None, :]
         return {"cross_vertices": tpl + fused, "cross_emotion": tpl + oe, "cross_content": tpl + oc,
                 "pair_emotion_logits": self.classify(fe2_raw, pair_mask), "pair_emotion_features": fe2_raw}

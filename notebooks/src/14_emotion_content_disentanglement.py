@@ -134,10 +134,13 @@ print(f"d = {cfg.d_model}, {model.num_parameters():,} parameters; batch {B} x {T
 # $$M_{c1,e2} = \epsilon(M^e_{c1,e2}, M^c_{c1,e2}) \tag{18}$$
 #
 # The content decoder $D_c$ only ever sees clip 1's content; to rebuild clip 2 the emotion decoder $D_e$ must
-# bring everything emotion adds, from clip 2's emotion features. Both decoders are the package's FaceFormer-style
-# decoder block (`blocks.decoder.MotionDecoder`) (teacher-forced here; in the cross pass on the partner's past motion). $\epsilon$ is Mesh Attention; this
-# notebook uses the "sum" ablation (the equal-weight mean) to stay fast. The check below is the definition: the
-# cross pass's emotion branch equals the emotion branch run on clip 2 itself, and its content branch does not.
+# bring everything emotion adds, from clip 2's emotion features. Eq. 15 says more: the content output of the cross
+# pass *is* the self pass's, so the model runs $D_c$ once and reuses it (were $D_c$ re-run on clip 2's past motion,
+# it could copy clip 2's emotion from that past). $D_e$ runs twice, teacher-forced on each clip's own past. Both
+# decoders are the package's FaceFormer-style decoder block (`blocks.decoder.MotionDecoder`). $\epsilon$ is Mesh
+# Attention; this notebook uses the "sum" ablation (the equal-weight mean) to stay fast. The checks below are the
+# definitions: the cross pass's content branch equals the self pass's exactly (eq. 15), and its emotion branch
+# equals the emotion branch run on clip 2 itself (eq. 16).
 # (An untrained decoder is zero, so every output is the template whatever it reads: we nudge both decoders first.)
 
 # %%
@@ -148,6 +151,7 @@ with torch.no_grad():
     as_clip_2 = model({**batch, "audio": batch["pair_audio"], "vertices": batch["pair_vertices"],
                        "emotion": batch["pair_emotion"], "level": batch["pair_level"]})
 torch.testing.assert_close(out["cross_emotion"], as_clip_2["emotion"], atol=1e-6, rtol=0)  # D_e(F_e2)
+torch.testing.assert_close(out["cross_content"], out["content"], atol=0, rtol=0)  # eq. 15: one D_c(F_c1) pass
 assert (out["cross_content"] - as_clip_2["content"]).abs().max() > 1e-6  # D_c(F_c1), not D_c(F_c2)
 for key in ("vertices", "emotion", "content", "cross_vertices", "cross_emotion", "cross_content"):
     check_shape(out[key], (B, T, 3 * n_vertices), key)
