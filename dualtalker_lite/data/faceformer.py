@@ -37,6 +37,7 @@ import argparse
 import importlib
 import io
 import json
+import math
 import os
 import pickle
 import re
@@ -51,8 +52,16 @@ __all__ = ["UnsafePickleError", "safe_load_pickle", "convert_templates", "Datase
 
 
 # ------------------------------------------------------------------------------- restricted unpickler
-class UnsafePickleError(pickle.UnpicklingError):
-    """A pickle asked for something other than plain data (numpy arrays, dicts, lists, strings, numbers)."""
+class UnsafePickleError(pickle.UnpicklingError, ValueError):
+    """A pickle asked for something other than plain data (numpy arrays, dicts, lists, strings, numbers), or is
+    forged to exhaust time or memory (too deep, too many objects, arrays larger than the file's data).
+
+    A ``ValueError`` too, so every command shows it as one ``error: <file>: <problem>`` line with exit status 2."""
+
+
+MAX_PICKLE_BYTES = 256 * 2 ** 20  # a templates.pkl / FLAME_masks.pkl is a few MB (BIWI's 14 templates: 8 MB)
+MAX_OBJECTS = 2_000_000           # objects in the loaded data, each shared reference counted where it is used
+MAX_DEPTH = 20                    # nesting levels
 
 
 def _latin1_encode(text: str, encoding: str = "utf-8", errors: str = "strict") -> bytes:
@@ -71,10 +80,68 @@ _ALLOWED = {
 }
 
 
+def _numpy_attr(module: str, name: str):
+    try:
+        return getattr(importlib.import_module(module.replace("numpy.core", "numpy._core")), name)
+    except ImportError:  # numpy 1.x
+        return getattr(importlib.import_module(module.replace("numpy._core", "numpy.core")), name)
+
+
+def _declared_bytes(shape, dtype) -> int:
+    """Bytes an array of ``shape`` and ``dtype`` would take, computed without allocating anything."""
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    if not all(isinstance(n, (int, np.integer)) and n >= 0 for n in shape):
+        raise ValueError(f"invalid array shape {shape!r}")
+    return math.prod(int(n) for n in shape) * np.dtype(dtype).itemsize
+
+
 class _RestrictedUnpickler(pickle.Unpickler):
-    def __init__(self, file, source: str):
+    """Plain data only, and no allocation beyond the data the file holds.
+
+    Every array's bytes must come from the file: numpy's reconstructor (``_reconstruct(ndarray, shape, dtype)``)
+    and ``ndarray.__setstate__`` are guarded so that the declared sizes of all arrays together never exceed the
+    file's size *before* anything is allocated (a 97-byte pickle cannot declare a 1.2 GB array, and one buffer
+    referenced many times cannot be copied into many arrays)."""
+
+    def __init__(self, file, source: str, budget: int):
         super().__init__(file, encoding="latin1")  # Python 2 pickles (VOCASET's) need latin1 for numpy buffers
         self.source = source
+        self.budget = budget  # bytes of array data still allowed
+        unpickler = self
+
+        class _Array(np.ndarray):  # stands for numpy.ndarray inside the pickle; unwrapped after the load
+            def __new__(cls, *args, **kwargs):
+                raise UnsafePickleError(f"{source}: refused a direct call of numpy.ndarray (it allocates "
+                                        f"uninitialised memory of any size); numpy never pickles arrays that way")
+
+            def __setstate__(self, state):
+                if isinstance(state, tuple) and len(state) in (4, 5):
+                    shape, dtype = state[-4], state[-3]
+                    unpickler._spend(_declared_bytes(shape, dtype))
+                super().__setstate__(state)
+
+        self._array_cls = _Array
+        reconstruct = _numpy_attr("numpy._core.multiarray", "_reconstruct")
+        frombuffer = _numpy_attr("numpy._core.numeric", "_frombuffer")
+
+        def _reconstruct(subtype, shape, dtype):
+            if subtype is not _Array:
+                raise UnsafePickleError(f"{source}: refused numpy _reconstruct of {subtype!r}; only plain arrays")
+            unpickler._spend(_declared_bytes(shape, dtype))
+            return reconstruct(_Array, shape, dtype)
+
+        def _frombuffer(buf, dtype, shape, order):
+            arr = frombuffer(buf, dtype, shape, order)  # a view on the file's bytes: nothing allocated yet
+            unpickler._spend(arr.nbytes)
+            return arr
+
+        self._guarded = {"_reconstruct": _reconstruct, "_frombuffer": _frombuffer}
+
+    def _spend(self, nbytes: int) -> None:
+        self.budget -= nbytes
+        if self.budget < 0:
+            raise UnsafePickleError(f"{self.source}: its arrays declare more data than the file holds "
+                                    f"(a forged pickle; every array's bytes must be in the file)")
 
     def find_class(self, module: str, name: str):
         if (module, name) == ("_codecs", "encode"):
@@ -82,52 +149,114 @@ class _RestrictedUnpickler(pickle.Unpickler):
         if (module, name) not in _ALLOWED:
             raise UnsafePickleError(f"{self.source}: refused to load {module}.{name}; only numpy arrays, dicts, "
                                     f"lists, strings and numbers are allowed (the pickle may be malicious)")
+        if (module, name) == ("numpy", "ndarray"):
+            return self._array_cls
+        if name in self._guarded:
+            return self._guarded[name]
         if module.startswith("numpy.core") or module.startswith("numpy._core"):
-            try:
-                return getattr(importlib.import_module(module.replace("numpy.core", "numpy._core")), name)
-            except ImportError:  # numpy 1.x
-                return getattr(importlib.import_module(module.replace("numpy._core", "numpy.core")), name)
+            return _numpy_attr(module, name)
         return getattr(importlib.import_module(module), name)
 
     def persistent_load(self, pid):
         raise UnsafePickleError(f"{self.source}: refused a persistent id in the pickle")
 
 
-def _check_plain(obj, source: str, depth: int = 0) -> None:
-    if depth > 20:
-        raise UnsafePickleError(f"{source}: nested more than 20 levels deep")
-    if isinstance(obj, np.ndarray):
-        if obj.dtype.hasobject:
-            raise UnsafePickleError(f"{source}: holds a numpy array of Python objects; only numeric arrays allowed")
-    elif isinstance(obj, dict):
-        for k, v in obj.items():
-            _check_plain(k, source, depth + 1)
-            _check_plain(v, source, depth + 1)
-    elif isinstance(obj, (list, tuple)):
-        for v in obj:
-            _check_plain(v, source, depth + 1)
-    elif not isinstance(obj, (str, bytes, int, float, complex, bool, type(None), np.generic, np.dtype)):
-        raise UnsafePickleError(f"{source}: holds a {type(obj).__name__}; only plain data is allowed")
+_SCALARS = (str, bytes, int, float, complex, bool, type(None), np.generic, np.dtype)
+
+
+def _check_plain(obj, source: str, array_cls: type = np.ndarray):
+    """Check that ``obj`` is plain data and return it with the loader's guarded arrays as plain ndarrays.
+
+    Visits each object once (shared references cost nothing; a list referenced ten times at each of 18 levels is
+    checked in microseconds), refuses cycles, more than ``MAX_DEPTH`` levels and data that expands to more than
+    ``MAX_OBJECTS`` objects when shared references are counted where they are used (what ``np.asarray`` or a
+    loop over it would visit)."""
+    done: dict[int, tuple] = {}     # id -> (plain object, depth, expanded size)
+    active: set[int] = set()        # on the current path (a cycle if met again)
+    keep = []                       # keep the originals alive, so no id is reused during the walk
+    stack = [(obj, False)]
+    while stack:
+        node, children_done = stack.pop()
+        key = id(node)
+        if key in done and not children_done:
+            continue
+        if isinstance(node, np.ndarray):
+            if node.dtype.hasobject:
+                raise UnsafePickleError(f"{source}: holds a numpy array of Python objects; only numeric arrays "
+                                        f"allowed")
+            plain = node.view(np.ndarray) if type(node) is array_cls else node
+            if type(plain) is not np.ndarray:
+                raise UnsafePickleError(f"{source}: holds a {type(node).__name__}; only plain arrays allowed")
+            done[key] = (plain, 1, 1)
+            keep.append(node)
+            continue
+        if isinstance(node, _SCALARS):
+            done[key] = (node, 1, 1)
+            keep.append(node)
+            continue
+        if isinstance(node, dict):
+            kids = [x for kv in node.items() for x in kv]
+        elif isinstance(node, (list, tuple)):
+            kids = list(node)
+        else:
+            raise UnsafePickleError(f"{source}: holds a {type(node).__name__}; only plain data is allowed")
+        if not children_done:
+            if key in active:
+                raise UnsafePickleError(f"{source}: refers to itself (a cycle); plain data never does")
+            active.add(key)
+            stack.append((node, True))
+            stack.extend((k, False) for k in reversed(kids) if id(k) not in done)
+            for k in kids:
+                if id(k) in active:
+                    raise UnsafePickleError(f"{source}: refers to itself (a cycle); plain data never does")
+            continue
+        active.discard(key)
+        parts = [done[id(k)] for k in kids]
+        depth = 1 + max((p[1] for p in parts), default=0)
+        size = 1 + sum(p[2] for p in parts)
+        if depth > MAX_DEPTH:
+            raise UnsafePickleError(f"{source}: nested more than {MAX_DEPTH} levels deep")
+        if size > MAX_OBJECTS:
+            raise UnsafePickleError(f"{source}: too big: its shared references expand to more than {MAX_OBJECTS:,} "
+                                    f"objects (a forged pickle?)")
+        values = [p[0] for p in parts]
+        if isinstance(node, dict):
+            plain = type(node)(zip(values[0::2], values[1::2])) if type(node) is not dict else \
+                dict(zip(values[0::2], values[1::2]))
+        else:
+            plain = type(node)(values) if type(node) in (list, tuple) else list(values)
+        done[key] = (plain, depth, size)
+        keep.append(node)
+    return done[id(obj)][0]
 
 
 def safe_load_pickle(path: str | os.PathLike):
-    """Load a pickle of plain data (numpy arrays, dicts, lists, strings, numbers) without running any code.
+    """Load a pickle of plain data (numpy arrays, dicts, lists, strings, numbers) without running any code,
+    in time and memory bounded by the file's size.
 
-    Raises :class:`UnsafePickleError` naming the file and the refused global for anything else, and
-    ``ValueError`` for a file that is not a pickle at all.
+    Raises :class:`UnsafePickleError` (a ``ValueError``) naming the file and the problem for anything else (a
+    refused global, a cycle, more than ``MAX_DEPTH`` levels, more than ``MAX_OBJECTS`` objects, arrays declaring
+    more bytes than the file holds, a file over ``MAX_PICKLE_BYTES``), and ``ValueError`` for a file that is not a
+    pickle at all.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, not a pickle file")
     if not path.is_file():
         raise FileNotFoundError(f"pickle file not found: {path}")
+    size = path.stat().st_size
+    if size > MAX_PICKLE_BYTES:
+        raise UnsafePickleError(f"{path}: {size / 2 ** 20:.0f} MiB, larger than any plausible templates or masks "
+                                f"pickle ({MAX_PICKLE_BYTES // 2 ** 20} MiB)")
     data = path.read_bytes()
+    unpickler = _RestrictedUnpickler(io.BytesIO(data), str(path), budget=len(data))
     try:
-        obj = _RestrictedUnpickler(io.BytesIO(data), str(path)).load()
+        obj = unpickler.load()
     except UnsafePickleError:
         raise
     except Exception as e:  # truncated, not a pickle, ...
         raise ValueError(f"{path}: not a readable pickle ({type(e).__name__}: {str(e)[:120]})") from e
-    _check_plain(obj, str(path))
-    return obj
+    return _check_plain(obj, str(path), unpickler._array_cls)
 
 
 def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
