@@ -6,13 +6,15 @@ as ``error: ...`` with exit status 2).
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import torch
 
-__all__ = ["check_shape", "NonFiniteError", "check_finite", "load_npy"]
+__all__ = ["check_shape", "NonFiniteError", "check_finite", "load_npy", "load_npz", "check_name"]
 
 
 def check_shape(x: torch.Tensor | np.ndarray, shape: Sequence[int | None], name: str = "tensor") -> None:
@@ -57,3 +59,38 @@ def load_npy(path: str | os.PathLike, what: str = "array") -> np.ndarray:
     if arr.dtype.kind not in "fiub":
         raise ValueError(f"{path}: has dtype {arr.dtype}, expected numbers")
     return arr
+
+
+def load_npz(path: str | os.PathLike, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` archive -> ``{name: array}`` (``keys`` only, if given; names the archive lacks are
+    left out for the caller to report), never unpickling, with one-line errors naming the file: a truncated or
+    corrupt archive (bad zip, bad CRC, bad compressed data) or a member that is not a numeric array."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"archive not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            names = list(npz.files) if keys is None else [k for k in keys if k in npz.files]
+            arrays = {k: npz[k] for k in names}
+    except ValueError as e:
+        if "pickle" in str(e):
+            raise ValueError(f"{path}: holds pickled Python objects, not plain numeric arrays; refused") from e
+        raise ValueError(f"{path}: not a readable .npz archive of arrays (truncated or corrupt?)") from e
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, KeyError) as e:
+        why = str(e).strip().splitlines()[0][:80] if str(e).strip() else type(e).__name__
+        raise ValueError(f"{path}: not a readable .npz archive of arrays (truncated or corrupt? {why})") from e
+    for name, arr in arrays.items():
+        if arr.dtype.kind not in "fiub":
+            raise ValueError(f"{path}: member {name!r} has dtype {arr.dtype}, expected numbers")
+    return arrays
+
+
+def check_name(name: object, what: str, source: str | os.PathLike) -> str:
+    """``name`` if it is safe as one file-name component (a clip, speaker or template name), else one ValueError
+    line naming ``source``: no path separators, no ``..`` or ``.``, not absolute, not empty, no NUL."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{source}: {what} {name!r} is not a non-empty string")
+    if name in (".", "..") or any(c in name for c in "/\\\0") or os.path.isabs(name):
+        raise ValueError(f"{source}: {what} {name!r} is not a plain name (path separators, '..' and absolute "
+                         f"paths are refused: it would reach files outside the folder)")
+    return name

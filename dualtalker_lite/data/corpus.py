@@ -8,7 +8,7 @@ Both share ``faces.npy``, ``regions.json`` and ``metadata.json``. Loaded arrays 
 error names the clip or file at fault.
 
 Validation at load (one ``ValueError`` line each, naming the file or clip): broken JSON, a missing or
-malformed ``clips`` table, empty splits, clips shared between ``train`` and ``val``/``test*`` splits,
+malformed ``clips`` table, clip names that are not plain file names (``../x``, ``/etc/x``), empty splits, clips shared between ``train`` and ``val``/``test*`` splits,
 ``.npy`` files that are not plain numeric arrays (never unpickled), NaN/inf in templates and vertices,
 vertices in millimetres instead of metres, a transposed ``(T, 3, V)`` layout, and triangle indices
 outside the vertex range. Optional metadata keys for real datasets (see :mod:`.faceformer`):
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import check_finite, load_npy
+from ..checks import check_finite, check_name, load_npy, load_npz
 
 __all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH"]
 
@@ -103,6 +103,7 @@ class Corpus:
         if not isinstance(m["clips"], dict) or not m["clips"]:
             raise ValueError(f"{path}: 'clips' must be a non-empty object {{clip name: {{subject: ...}}}}")
         for name, entry in m["clips"].items():
+            check_name(name, "clip name", path)  # clip names become file names: never ../ or /abs
             if not isinstance(entry, dict) or "subject" not in entry:
                 raise ValueError(f"{path}: clip {name!r} has no 'subject' (each clip needs at least its speaker)")
         splits = m.get("splits", {})
@@ -184,14 +185,12 @@ class Corpus:
                         f"{path} not found, but {path.with_suffix('.pkl')} (FaceFormer's pickle) is there; convert "
                         f"it once, safely: dualtalker-lite convert-templates {path.with_suffix('.pkl')}")
                 _need(path)
-                try:
-                    npz = np.load(path, allow_pickle=False)
-                except (ValueError, OSError, EOFError) as e:
-                    raise ValueError(f"{path}: not a readable .npz archive of arrays (corrupt?)") from e
-                with npz:
-                    if subject not in npz.files:
-                        raise KeyError(f"{path} has no template for speaker {subject!r} (has {sorted(npz.files)})")
-                    tpl = npz[subject]
+                found = load_npz(path, [subject])
+                if subject not in found:
+                    with np.load(path, allow_pickle=False) as npz:
+                        names = sorted(npz.files)
+                    raise KeyError(f"{path} has no template for speaker {subject!r} (has {names})")
+                tpl = found[subject]
             else:
                 tpl = self._rig(subject).template
             tpl = np.asarray(tpl, dtype=np.float32).reshape(-1)
@@ -289,12 +288,7 @@ class Corpus:
     def _all_controls(self) -> dict[str, np.ndarray]:
         if self._controls is None:
             path = _need(self.root / "controls.npz")
-            try:
-                npz = np.load(path, allow_pickle=False)
-            except (ValueError, OSError, EOFError) as e:
-                raise ValueError(f"{path}: not a readable .npz archive of arrays (corrupt?)") from e
-            with npz:
-                self._controls = {k: npz[k].astype(np.float32, copy=False) for k in npz.files}
+            self._controls = {k: v.astype(np.float32, copy=False) for k, v in load_npz(path).items()}
             for k, v in self._controls.items():
                 check_finite(v, f"{path}: control track of clip {k!r}")
         return self._controls

@@ -261,7 +261,7 @@ def safe_load_pickle(path: str | os.PathLike):
 
 def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
     """FaceFormer's ``templates.pkl`` ({subject: (V, 3)}) -> ``templates.npz`` (float32 (V*3,) per subject)."""
-    from ..checks import check_finite
+    from ..checks import check_finite, check_name
     from ..files import default_file_mode
 
     pkl = Path(pkl)
@@ -271,6 +271,8 @@ def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = No
     obj = safe_load_pickle(pkl)
     if not isinstance(obj, dict) or not obj:
         raise ValueError(f"{pkl}: expected a non-empty dict {{subject: (V, 3) array}}, found {type(obj).__name__}")
+    for subject in obj:  # names become archive members (and, unpacked, file names): never ../x or /abs
+        check_name(subject, "template name", pkl)
     arrays = {}
     for subject, tpl in obj.items():
         arr = np.asarray(tpl)
@@ -380,7 +382,7 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
 
     Afterwards ``Corpus(root)`` reads it (vertices subsampled by ``mesh_stride``). Returns the metadata.
     """
-    from ..checks import load_npy
+    from ..checks import load_npy, load_npz
     from ..files import atomic_write_text
 
     root = Path(root)
@@ -408,12 +410,12 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
     npz = root / "templates.npz"
     if not npz.exists() or overwrite:
         convert_templates(root / "templates.pkl", npz, overwrite=True)
-    with np.load(npz, allow_pickle=False) as t:
-        subjects = {parse_clip_name(c)[0] for c in used}
-        missing = sorted(subjects - set(t.files))
-        if missing:
-            raise ValueError(f"{npz} has no template for subject(s) {missing}")
-        sizes = {t[s].size // 3 for s in subjects}
+    subjects = {parse_clip_name(c)[0] for c in used}
+    t = load_npz(npz, sorted(subjects))
+    missing = sorted(subjects - set(t))
+    if missing:
+        raise ValueError(f"{npz} has no template for subject(s) {missing}")
+    sizes = {t[s].size // 3 for s in subjects}
     if sizes != {p.n_vertices}:
         raise ValueError(f"{root}: templates have {sorted(sizes)} vertices, the {preset} preset expects "
                          f"{p.n_vertices}")
