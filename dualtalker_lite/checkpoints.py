@@ -27,13 +27,20 @@ are now ``decoder.*``, and a FaceFormer-style baseline, saved before as a ``Dual
 a ``FaceFormer``. :func:`upgrade_checkpoint` renames both on load (one note on stderr); the numbers are unchanged.
 
 Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
-refused both when saving and when loading.
+refused both when saving and when loading. :func:`load_checkpoint` also checks the file's integrity (the zip CRC of
+every record of the torch archive: one flipped byte is refused, never loaded) and validates hand-edited fields
+against a small schema (:func:`validate_fields`): ``features`` (a known name, settings of the right types, hop > 0),
+``speakers`` (a list of distinct names, never a string), ``n_vertices``, ``topology`` and the type of every
+``model_config`` field (``d_model: '64'`` is one clear line, not a formatting error deep in a model).
 """
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import sys
+import zipfile
+import zlib
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
@@ -51,7 +58,7 @@ from .files import atomic_torch_save
 
 __all__ = ["FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
            "extractor_settings", "extractor_from_settings", "describe", "upgrade_checkpoint",
-           "upgrade_state_dict"]
+           "upgrade_state_dict", "verify_integrity", "validate_fields", "FEATURE_NAMES"]
 
 FORMAT_VERSION = 3
 # format <= 2: the decoder's parts sat on the model itself (DualTalker, and the baseline saved as a DualTalker)
@@ -60,6 +67,10 @@ _DECODER_PARTS = ("motion_encoder.", "style.", "ppe.", "layers.", "motion_decode
 _FACEFORMER_SWITCHES = {"dual": False, "speaker_gate": False, "query_from": "decoder", "align_window": 1,
                         "add_style_to_motion": True, "share_enc_dec": False, "scheduled_sampling": 0.0}
 REQUIRED_KEYS = ("model_class", "model_config", "state_dict")
+FEATURE_NAMES = ("logmel", "phonemes")  # the audio front-ends a checkpoint may name (experiments.specs.RunSpec)
+# LogMelExtractor's settings: name -> (accepted types, what a value must satisfy, in words)
+_LOGMEL_INTS = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length")
+_LOGMEL_KEYS = (*_LOGMEL_INTS, "f_min", "f_max", "mean", "std")
 
 
 def topology_fingerprint(faces: np.ndarray | None) -> str | None:
@@ -174,6 +185,124 @@ def upgrade_checkpoint(ckpt: dict) -> tuple[dict, str | None]:
     return out, note + "; save it again to skip this step"
 
 
+def verify_integrity(path: str | Path) -> None:
+    """Raise one ValueError line unless every record of the torch zip archive at ``path`` matches its CRC-32.
+
+    ``torch.load`` never checks them, so a flipped byte in the weights would load without complaint. Files that are
+    not zip archives (torch's legacy format, or no checkpoint at all) are left to ``torch.load`` to judge."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        if f.read(4) != b"PK\x03\x04":
+            return
+    try:
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError, RuntimeError) as e:
+        raise ValueError(f"{path}: corrupt checkpoint: its archive is damaged ({_first_line(e)[:120]}); "
+                         f"it was truncated or changed after saving") from e
+    if bad is not None:
+        raise ValueError(f"{path}: corrupt checkpoint: record {bad!r} fails its CRC-32 check (the file was changed "
+                         f"or damaged after saving); refusing to load it")
+
+
+def _type_name(value: Any) -> str:
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)) and math.isfinite(v)
+
+
+# annotation of a config field (as written in the dataclass) -> (check, expected in words)
+_FIELD_TYPES = {
+    "int": (_is_int, "an int"),
+    "int | None": (lambda v: v is None or _is_int(v), "an int or null"),
+    "float": (_is_number, "a finite number"),
+    "bool": (lambda v: isinstance(v, bool), "true or false"),
+    "str": (lambda v: isinstance(v, str), "a string"),
+    "tuple[int, ...]": (lambda v: isinstance(v, (list, tuple)) and all(_is_int(x) for x in v), "a list of ints"),
+}
+
+
+def _check_config_types(cfg: dict, cfg_cls: type, source: str) -> None:
+    for f in dataclasses.fields(cfg_cls):
+        if f.name not in cfg:
+            continue
+        check = _FIELD_TYPES.get(str(f.type) if not isinstance(f.type, type) else f.type.__name__)
+        if check is not None and not check[0](cfg[f.name]):
+            raise ValueError(f"{source}: model_config field {f.name!r} must be {check[1]}, found a "
+                             f"{_type_name(cfg[f.name])} (hand-edited checkpoint?)")
+
+
+def _check_features(features: Any, source: str) -> None:
+    if features is None:
+        return
+    if not isinstance(features, dict):
+        raise ValueError(f"{source}: 'features' must be a dict {{name, settings}}, found {_type_name(features)}")
+    name = features.get("name")
+    if name not in FEATURE_NAMES:
+        raise ValueError(f"{source}: 'features' names an unknown audio front-end {name!r}; known: "
+                         f"{', '.join(FEATURE_NAMES)}")
+    settings = features.get("settings", {})
+    if not isinstance(settings, dict):
+        raise ValueError(f"{source}: features 'settings' must be a dict, found {_type_name(settings)}")
+    if name != "logmel":
+        return
+    unknown = sorted(map(str, set(settings) - set(_LOGMEL_KEYS)))
+    if unknown:
+        raise ValueError(f"{source}: features settings {unknown} are not LogMelExtractor settings; known: "
+                         f"{', '.join(_LOGMEL_KEYS)}")
+    for key in _LOGMEL_INTS:
+        if key in settings and not (_is_int(settings[key]) and settings[key] > 0):
+            raise ValueError(f"{source}: features setting {key!r} must be a positive int, found a "
+                             f"{_type_name(settings[key])}")
+    for key in ("f_min", "f_max"):
+        v = settings.get(key)
+        if v is not None and not (_is_number(v) and v >= 0):
+            raise ValueError(f"{source}: features setting {key!r} must be a number >= 0 (Hz), found {_type_name(v)}")
+    f_min, f_max = settings.get("f_min") or 0.0, settings.get("f_max")
+    rate = settings.get("sample_rate", 16000)
+    if f_max is not None and not f_min < f_max <= rate / 2:
+        raise ValueError(f"{source}: features settings f_min {f_min} and f_max {f_max} Hz must satisfy "
+                         f"f_min < f_max <= sample_rate / 2 = {rate / 2:g}")
+    n_mels = settings.get("n_mels", 80)
+    for key in ("mean", "std"):
+        v = settings.get(key)
+        if v is None:
+            continue
+        if not (isinstance(v, (list, tuple)) and len(v) == n_mels and all(_is_number(x) for x in v)):
+            raise ValueError(f"{source}: features setting {key!r} must be null or a list of {n_mels} finite numbers "
+                             f"(one per mel band), found {_type_name(v)}")
+        if key == "std" and min(v) <= 0:
+            raise ValueError(f"{source}: features setting 'std' must be positive in every mel band, found "
+                             f"{min(v):g}")
+
+
+def validate_fields(ckpt: dict, source: str) -> None:
+    """One ValueError line naming ``source`` for a hand-edited or mixed-up field (see the module docstring)."""
+    speakers = ckpt.get("speakers")
+    if speakers is not None:
+        if not isinstance(speakers, (list, tuple)):
+            raise ValueError(f"{source}: 'speakers' must be a list of speaker names, found {_type_name(speakers)}")
+        bad = [s for s in speakers if not isinstance(s, str) or not s]
+        if bad:
+            raise ValueError(f"{source}: 'speakers' must hold non-empty names (strings), found {_type_name(bad[0])}")
+        if len(set(speakers)) != len(speakers):
+            raise ValueError(f"{source}: 'speakers' names a speaker twice: {list(speakers)}")
+    n_vertices = ckpt.get("n_vertices")
+    if n_vertices is not None and not (_is_int(n_vertices) and n_vertices > 0):
+        raise ValueError(f"{source}: 'n_vertices' must be a positive int, found {_type_name(n_vertices)}")
+    topology = ckpt.get("topology")
+    if topology is not None and not isinstance(topology, str):
+        raise ValueError(f"{source}: 'topology' must be a fingerprint string, found {_type_name(topology)}")
+    _check_features(ckpt.get("features"), source)
+
+
 def _first_line(e: BaseException) -> str:
     return (str(e).strip().splitlines() or [type(e).__name__])[0]
 
@@ -186,8 +315,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     model class, wrong config fields, weights of another shape, NaN weights).
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, not a checkpoint file")
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
+    verify_integrity(path)
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as e:  # corrupt, truncated, or pickled with classes weights_only refuses
@@ -202,6 +334,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if missing:
         raise ValueError(f"{path}: checkpoint is missing key(s) {missing} (has {sorted(map(str, ckpt))[:8]})")
     ckpt, note = upgrade_checkpoint(ckpt)
+    validate_fields(ckpt, str(path))
     registry = model_registry()
     name = ckpt["model_class"]
     if name not in registry:
@@ -216,6 +349,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         if unknown:
             raise ValueError(f"{path}: model_config has field(s) {unknown} that {cfg_cls.__name__} does not know "
                              f"(written by another version of the package?)")
+        _check_config_types(cfg, cfg_cls, str(path))
         try:
             model = cls(cfg_cls(**cfg))
         except (TypeError, ValueError, AssertionError, RuntimeError) as e:
