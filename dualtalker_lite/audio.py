@@ -68,6 +68,8 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
     if mono not in ("error", "mean"):
         raise ValueError(f"mono must be 'error' or 'mean', got {mono!r}")
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, not an audio file; name a WAV or FLAC file")
     if not path.is_file():
         raise FileNotFoundError(f"audio file not found: {path}")
     check_wav_header(path)

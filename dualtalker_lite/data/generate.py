@@ -1,7 +1,7 @@
 """Corpus generator: real synthesized speech -> phoneme timing -> rig controls -> 3D talking faces.
 
     python -m dualtalker_lite.data.generate --out runs/corpus --speakers 10 --sentences 48 --processes 2
-    python -m dualtalker_lite.data.generate --preset sample --out data_samples    # the shipped sample, bit for bit
+    python -m dualtalker_lite.data.generate --preset sample --out runs/sample.tmp  # the shipped sample, bit for bit
     python -m dualtalker_lite.data.generate --out runs/mine --sentences-file my.txt --speakers 4 \\
         --unseen-speakers 1 --val-sentences 1 --test-sentences 2 --emotions happy,sad
 
@@ -20,6 +20,12 @@ speaker and sentence, is in ``train``); ``test_emo_a`` = the same speakers on th
 shortest test sentences, every emotion and level (neutral twins in ``test_a``); ``test_emo_b`` = the unseen
 speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence neutral clips of 10-30 s
 (sentences outside ``train``), for length generalisation and speed.
+
+Output. The corpus is built in a hidden temporary folder beside ``--out`` and moved into place when complete
+(:class:`~dualtalker_lite.files.AtomicOutputDir`): a failure, Ctrl-C or kill leaves an existing corpus untouched. An
+existing non-empty ``--out`` is refused unless ``--overwrite`` is given, and even then only a corpus (a folder with
+``metadata.json``) is replaced; the shipped ``data_samples/`` (and any folder holding it) is never a target
+(``make sample`` regenerates it).
 """
 from __future__ import annotations
 
@@ -239,10 +245,32 @@ def _pairs(clips: dict) -> dict[str, dict[str, str]]:
     return {k: dict(sorted(v.items())) for k, v in sorted(groups.items()) if len(v) > 1}
 
 
+def claim_output(out: str | Path, overwrite: bool = False):
+    """The :class:`~dualtalker_lite.files.AtomicOutputDir` a corpus is built in, after the checks of the module
+    docstring (never the shipped sample, an existing folder only with ``overwrite`` and only if it is a corpus)."""
+    from ..files import AtomicOutputDir
+    from . import sample_path
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a folder")
+    resolved, shipped = out.resolve(), sample_path().resolve()
+    if resolved == shipped or shipped in resolved.parents or resolved in shipped.parents:
+        raise ValueError(f"--out {out}: would write into the shipped sample {shipped} (or replace a folder holding "
+                         f"it); generate into another folder (make sample regenerates the sample)")
+    if overwrite and out.is_dir() and any(out.iterdir()) and not (out / "metadata.json").is_file():
+        raise ValueError(f"--out {out}: is not a corpus (no metadata.json); --overwrite replaces only a corpus, "
+                         f"choose an empty or new folder")
+    return AtomicOutputDir(out, overwrite=overwrite)
+
+
 def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progress: bool = True,
                     only: list[str] | None = None, texts: tuple[str, ...] | None = None,
-                    sentences_file: str | None = None) -> dict:
+                    sentences_file: str | None = None, overwrite: bool = False) -> dict:
     """Generate the corpus described by ``spec`` into ``out``; returns the metadata dict.
+
+    ``out`` is claimed first (:func:`claim_output`: an existing non-empty folder needs ``overwrite``), the corpus is
+    built in a temporary sibling and swapped in when complete, so a failure leaves the old ``out`` untouched.
 
     ``only``: generate just these clip names (for tests that check a shipped clip bit for bit).
     ``texts``: the sentences (default :data:`SENTENCES`), e.g. from :func:`read_sentences`.
@@ -265,61 +293,61 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
         if unknown:
             raise ValueError(f"only: clips not in this corpus: {unknown[:5]}")
         plans = [p for p in plans if p.name in set(only)]
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: exists and is not a folder")
+    target = claim_output(out, overwrite)  # before any long work
     requests = [(" ".join(texts[i] for i in p.sentences), emotional_prosody(voices[p.subject], p.emotion, p.level))
                 for p in plans]
     utterances = synthesize_many(requests, processes=processes, progress=progress)
 
-    audio_dir = out / ("audio" if spec.format == "compact" else "wav")
-    audio_dir.mkdir(parents=True, exist_ok=True)
-    if spec.format == "faceformer":
-        (out / "vertices_npy").mkdir(exist_ok=True)
-    rigs = {name: FaceRig(s) for name, s in by_name.items()}
-    clips, controls = {}, {}
-    for plan, utt in tqdm(list(zip(plans, utterances)), desc="faces", disable=not progress, leave=False):
-        clip = render_clip(plan, utt, by_name[plan.subject], texts)
-        clips[plan.name] = clip["meta"]
-        pcm = to_pcm16(utt.wave)
-        if spec.format == "compact":
-            sf.write(audio_dir / f"{plan.name}.flac", pcm, SAMPLE_RATE, subtype="PCM_16", format="FLAC",
-                     compression_level=1.0)  # smallest files; still bit-exact PCM
-            controls[plan.name] = clip["controls"]
-        else:
-            sf.write(audio_dir / f"{plan.name}.wav", pcm, SAMPLE_RATE, subtype="PCM_16")
-            verts = rigs[plan.subject].animate(clip["controls"])  # (T, V, 3)
-            np.save(out / "vertices_npy" / f"{plan.name}.npy", verts.reshape(len(verts), -1))
+    with target as root:  # a hidden sibling of out, moved into place when complete
+        audio_dir = root / ("audio" if spec.format == "compact" else "wav")
+        audio_dir.mkdir(parents=True, exist_ok=True)
+        if spec.format == "faceformer":
+            (root / "vertices_npy").mkdir(exist_ok=True)
+        rigs = {name: FaceRig(s) for name, s in by_name.items()}
+        clips, controls = {}, {}
+        for plan, utt in tqdm(list(zip(plans, utterances)), desc="faces", disable=not progress, leave=False):
+            clip = render_clip(plan, utt, by_name[plan.subject], texts)
+            clips[plan.name] = clip["meta"]
+            pcm = to_pcm16(utt.wave)
+            if spec.format == "compact":
+                sf.write(audio_dir / f"{plan.name}.flac", pcm, SAMPLE_RATE, subtype="PCM_16", format="FLAC",
+                         compression_level=1.0)  # smallest files; still bit-exact PCM
+                controls[plan.name] = clip["controls"]
+            else:
+                sf.write(audio_dir / f"{plan.name}.wav", pcm, SAMPLE_RATE, subtype="PCM_16")
+                verts = rigs[plan.subject].animate(clip["controls"])  # (T, V, 3)
+                np.save(root / "vertices_npy" / f"{plan.name}.npy", verts.reshape(len(verts), -1))
 
-    mesh = build_template(n_vertices=spec.vertices)
-    np.save(out / "faces.npy", mesh.faces.astype(np.int64))
-    regions = {k: [int(i) for i in v] for k, v in mesh.regions.items()}
-    regions["lip_midpoints"] = [int(i) for i in mesh.lip_midpoints]
-    (out / "regions.json").write_text(json.dumps(regions))
-    if spec.format == "compact":
-        np.savez_compressed(out / "controls.npz", **controls)
-        (out / "speakers.json").write_text(json.dumps({n: s.to_dict() for n, s in by_name.items()}, indent=1))
-    else:
-        np.savez(out / "templates.npz", **{n: r.template.reshape(-1) for n, r in rigs.items()})
-    n_seen = spec.speakers - spec.unseen_speakers
-    observed = set(ENGLISH_PHONEMES) | {p for c in clips.values() for p, _, _ in c["phonemes"]}
-    meta = {
-        "format": spec.format, "version": 2, "fps": FPS, "sample_rate": SAMPLE_RATE,
-        "n_vertices": int(mesh.vertices.shape[0]),
-        "generator": {"spec": asdict(spec), "versions": _versions(), "only": only, "sentences_file": sentences_file},
-        "speakers": {n: {"voice": asdict(voices[n]), "split": "seen" if i < n_seen else "unseen"}
-                     for i, n in enumerate(by_name)},
-        "emotions": ["neutral", *EMOTIONAL],
-        "controls": list(CONTROL_NAMES),
-        "phoneme_inventory": ["_", *sorted(observed - {"_"})],
-        "viseme_inventory": list(VISEMES),
-        "splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS},
-        "pairs": _pairs(clips),
-        "clips": clips,
-    }
-    # One clip per line: compact, yet readable and diff-friendly.
-    body = ",\n".join(f"{json.dumps(k)}:{json.dumps(v, separators=(',', ':'))}" for k, v in clips.items())
-    head = json.dumps({k: v for k, v in meta.items() if k != "clips"}, indent=1)
-    (out / "metadata.json").write_text(head[:-2] + ',\n "clips": {\n' + body + "\n}\n}\n")
+        mesh = build_template(n_vertices=spec.vertices)
+        np.save(root / "faces.npy", mesh.faces.astype(np.int64))
+        regions = {k: [int(i) for i in v] for k, v in mesh.regions.items()}
+        regions["lip_midpoints"] = [int(i) for i in mesh.lip_midpoints]
+        (root / "regions.json").write_text(json.dumps(regions))
+        if spec.format == "compact":
+            np.savez_compressed(root / "controls.npz", **controls)
+            (root / "speakers.json").write_text(json.dumps({n: s.to_dict() for n, s in by_name.items()}, indent=1))
+        else:
+            np.savez(root / "templates.npz", **{n: r.template.reshape(-1) for n, r in rigs.items()})
+        n_seen = spec.speakers - spec.unseen_speakers
+        observed = set(ENGLISH_PHONEMES) | {p for c in clips.values() for p, _, _ in c["phonemes"]}
+        meta = {
+            "format": spec.format, "version": 2, "fps": FPS, "sample_rate": SAMPLE_RATE,
+            "n_vertices": int(mesh.vertices.shape[0]),
+            "generator": {"spec": asdict(spec), "versions": _versions(), "only": only, "sentences_file": sentences_file},
+            "speakers": {n: {"voice": asdict(voices[n]), "split": "seen" if i < n_seen else "unseen"}
+                         for i, n in enumerate(by_name)},
+            "emotions": ["neutral", *EMOTIONAL],
+            "controls": list(CONTROL_NAMES),
+            "phoneme_inventory": ["_", *sorted(observed - {"_"})],
+            "viseme_inventory": list(VISEMES),
+            "splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS},
+            "pairs": _pairs(clips),
+            "clips": clips,
+        }
+        # One clip per line: compact, yet readable and diff-friendly.
+        body = ",\n".join(f"{json.dumps(k)}:{json.dumps(v, separators=(',', ':'))}" for k, v in clips.items())
+        head = json.dumps({k: v for k, v in meta.items() if k != "clips"}, indent=1)
+        (root / "metadata.json").write_text(head[:-2] + ',\n "clips": {\n' + body + "\n}\n}\n")
     return meta
 
 
@@ -357,6 +385,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
                     "'' for none")
     ap.add_argument("--format", choices=["faceformer", "compact"], default=None)
     ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an existing corpus in --out (built aside, swapped in when complete)")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bars (they are shown only when stderr is a terminal anyway)")
     args = ap.parse_args(argv)
@@ -378,7 +408,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     except ValueError as err:
         ap.exit(2, f"error: {err}\n")
     meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
-                           progress=not args.no_progress and sys.stderr.isatty())
+                           progress=not args.no_progress and sys.stderr.isatty(), overwrite=args.overwrite)
     sizes = {k: len(v) for k, v in meta["splits"].items()}
     print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: {sizes}")
 
