@@ -172,9 +172,15 @@ def _evaluate(argv: list[str]) -> dict:
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--split", default="test_a")
     ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     args = ap.parse_args(argv)
     if args.json and Path(args.json).is_dir():
         raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
+    if args.json and Path(args.json).exists():  # checked before the long work; written atomically at the end
+        if Path(args.checkpoint).exists() and Path(args.json).samefile(args.checkpoint):
+            raise ValueError(f"--json {args.json}: is the checkpoint being evaluated; name another file")
+        if not args.overwrite:
+            raise FileExistsError(f"--json {args.json}: already exists; pass --overwrite to replace it")
     model, ckpt = load_checkpoint(args.checkpoint)
     corpus = Corpus(args.corpus or sample_path())
     _check_corpus(corpus, ckpt)
