@@ -1,0 +1,465 @@
+"""Fault injection (issue 23): malicious and forged pickles, path traversal in names, corrupt archives and
+checkpoints, hand-edited checkpoint fields, outputs that must never be lost. Each case asserts what a user sees:
+exit status 2, exactly one ``error: <file>: <problem>`` line on stderr (plus the ``--debug`` hint, nothing else, no
+traceback), and the previous output byte-identical (or nothing written). ``docs/faults.md`` lists every case.
+
+Commands run as real processes (``python -m dualtalker_lite.cli``) where the process matters (a hang, an exit
+status of 1 from an escaping exception); the many checkpoint-field cases run in-process through the same
+``run_main`` (``SystemExit`` carries the status) to stay fast.
+"""
+import copy
+import hashlib
+import io
+import json
+import os
+import pickle
+import struct
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+import torch
+
+from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint
+from dualtalker_lite.data import sample_path
+from dualtalker_lite.data.corpus import Corpus
+from dualtalker_lite.data.faceformer import (MAX_DEPTH, VOCASET_TEST, VOCASET_TRAIN, VOCASET_VAL, UnsafePickleError,
+                                             safe_load_pickle)
+from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+REPO = Path(__file__).resolve().parent.parent
+HINT = "(run with --debug for the full traceback)"
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+def cli(*argv, timeout=120) -> subprocess.CompletedProcess:
+    """The command line as a real process, importing this checkout's package."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg",
+           "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p)}
+    return subprocess.run([sys.executable, "-m", "dualtalker_lite.cli", *map(str, argv)], capture_output=True,
+                          text=True, env=env, timeout=timeout, cwd=REPO)
+
+
+def one_line(stderr: str, *fragments) -> str:
+    """stderr is exactly one ``error:`` line (and the --debug hint); the line holds every fragment."""
+    lines = stderr.strip().splitlines()
+    errors = [line for line in lines if line.startswith("error: ")]
+    assert len(errors) == 1 and set(lines) - set(errors) <= {HINT} and "Traceback" not in stderr, stderr[-3000:]
+    for fragment in fragments:
+        assert str(fragment) in errors[0], (fragment, errors[0])
+    return errors[0]
+
+
+def refused(proc: subprocess.CompletedProcess, *fragments) -> str:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-3000:])
+    return one_line(proc.stderr, *fragments)
+
+
+def refused_in_process(capsys, argv, *fragments, main=None) -> str:
+    from dualtalker_lite.cli import main as cli_main
+
+    with pytest.raises(SystemExit) as e:
+        (main or cli_main)([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert e.value.code == 2, err
+    return one_line(err, *fragments)
+
+
+def snapshot(root: Path) -> dict:
+    """{relative path: sha256} of every file under ``root`` (hidden ones included): byte-identical or not."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+# ------------------------------------------------------------------------------------------ forged pickles
+def _shared_deep(levels=18, fan=10):
+    """One list referenced ``fan`` times at each of ``levels`` levels: ~0.5 kB pickled, 10^18 paths to walk."""
+    x = [0.0]
+    for _ in range(levels):
+        x = [x] * fan
+    return {"F2": x}
+
+
+class _Reconstruct:
+    """numpy's own reconstructor asked for a huge uninitialised array: ~100 bytes pickled, 1.2 GB declared."""
+
+    def __reduce__(self):
+        from numpy._core.multiarray import _reconstruct
+        return _reconstruct, (np.ndarray, (300_000_000,), b"f")
+
+
+class _NdarrayCall:
+    def __reduce__(self):
+        return np.ndarray, ((300_000_000,), "f4")
+
+
+class _SharedBuffer:
+    """Each array is rebuilt from the same 80 kB buffer: 100 references -> 8 MB of copies from an 80 kB file."""
+    raw = b"\0" * 80_000
+
+    def __reduce__(self):
+        from numpy._core.multiarray import _reconstruct
+        return _reconstruct, (np.ndarray, (0,), b"b"), (1, (10_000,), np.dtype("f8"), False, self.raw)
+
+
+class _System:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return os.system, (f"touch {self.marker}",)
+
+
+def _deep_distinct(levels):
+    x = [0.0]
+    for _ in range(levels):
+        x = [x]
+    return {"F2": x}
+
+
+def _cycle():
+    x = []
+    x.append(x)
+    return {"F2": x}
+
+
+FORGED = {
+    "shared_deep": (lambda tmp: pickle.dumps(_shared_deep(), protocol=2), "too big"),
+    "shared_deep_p0": (lambda tmp: pickle.dumps(_shared_deep(), protocol=0), "too big"),
+    "huge_array": (lambda tmp: pickle.dumps({"F2": _Reconstruct()}, protocol=2), "declare more data than the file"),
+    "ndarray_call": (lambda tmp: pickle.dumps({"F2": _NdarrayCall()}, protocol=2), "direct call of numpy.ndarray"),
+    "shared_buffer": (lambda tmp: pickle.dumps({f"S{i}": _SharedBuffer() for i in range(100)}, protocol=2),
+                      "declare more data than the file"),
+    "too_deep": (lambda tmp: pickle.dumps(_deep_distinct(MAX_DEPTH + 5), protocol=2), "levels deep"),
+    "cycle": (lambda tmp: pickle.dumps(_cycle(), protocol=2), "a cycle"),
+    "malicious": (lambda tmp: pickle.dumps({"F2": _System(tmp / "pwned")}, protocol=2), "refused to load posix.system"),
+    "truncated": (lambda tmp: pickle.dumps({"F2": np.ones((5, 3))}, protocol=2)[:60], "not a readable pickle"),
+}
+
+
+def test_forged_pickles_are_small():
+    """The cases are what the issue describes: a ~0.5 kB pickle and a ~100-byte one."""
+    assert len(FORGED["shared_deep"][0](None)) < 600 and len(FORGED["huge_array"][0](None)) < 200
+
+
+@pytest.mark.parametrize("case", sorted(FORGED))
+def test_forged_pickle_is_refused_in_process_without_allocating(tmp_path, case):
+    make, message = FORGED[case]
+    (tmp_path / "t.pkl").write_bytes(make(tmp_path))
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=message):  # UnsafePickleError is a ValueError: a user error
+        safe_load_pickle(tmp_path / "t.pkl")
+    assert time.perf_counter() - t0 < 2.0
+    assert not (tmp_path / "pwned").exists()
+
+
+@pytest.mark.parametrize("case", ["shared_deep", "huge_array", "malicious", "too_deep", "truncated"])
+def test_convert_templates_refuses_with_one_line_and_keeps_the_old_npz(tmp_path, case):
+    """Exit 2 and one line (was: a hang at 100% CPU, a 1.2 GB npz, or a traceback with exit 1); with --overwrite
+    the previous templates.npz stays byte-identical."""
+    good = {"F2": np.full((5, 3), 0.1), "M3": np.full((5, 3), -0.1)}
+    (tmp_path / "good.pkl").write_bytes(pickle.dumps(good, protocol=2))
+    assert cli("convert-templates", tmp_path / "good.pkl", "--out", tmp_path / "templates.npz").returncode == 0
+    before = snapshot(tmp_path)
+    make, message = FORGED[case]
+    (tmp_path / "bad.pkl").write_bytes(make(tmp_path))
+    before["bad.pkl"] = hashlib.sha256((tmp_path / "bad.pkl").read_bytes()).hexdigest()
+    t0 = time.perf_counter()
+    proc = cli("convert-templates", tmp_path / "bad.pkl", "--out", tmp_path / "templates.npz", "--overwrite",
+               timeout=60)
+    assert time.perf_counter() - t0 < 30
+    refused(proc, tmp_path / "bad.pkl", message)
+    assert snapshot(tmp_path) == before  # old npz untouched, no temporaries, no marker
+
+
+def _vocaset_stub(root: Path) -> None:
+    """Enough of FaceFormer's layout for prepare-dataset to reach templates.pkl (file names only)."""
+    (root / "wav").mkdir(parents=True)
+    (root / "vertices_npy").mkdir()
+    for subject, sentence in ((VOCASET_TRAIN[0], 1), (VOCASET_VAL[0], 21), (VOCASET_TEST[0], 21)):
+        (root / "wav" / f"{subject}_sentence{sentence:02d}.wav").write_bytes(b"")
+        (root / "vertices_npy" / f"{subject}_sentence{sentence:02d}.npy").write_bytes(b"")
+
+
+@pytest.mark.parametrize("case", ["shared_deep", "huge_array", "malicious"])
+def test_prepare_dataset_refuses_forged_templates(tmp_path, case):
+    root = tmp_path / "vocaset"
+    _vocaset_stub(root)
+    (root / "templates.pkl").write_bytes(FORGED[case][0](tmp_path))
+    before = snapshot(root)
+    refused(cli("prepare-dataset", root, "--preset", "vocaset", timeout=60), root / "templates.pkl",
+            FORGED[case][1])
+    assert snapshot(root) == before and not (tmp_path / "pwned").exists()
+
+
+def test_legitimate_pickles_still_load(tmp_path):
+    """Shared references to one array, OrderedDicts, tuples, scalars and Python 2 era protocols still load, with
+    plain ndarrays (not the loader's guarded class) in the result."""
+    from collections import OrderedDict
+
+    arr = np.arange(12.0).reshape(4, 3)
+    data = {"F2": arr, "again": [arr, arr], "o": OrderedDict(a=(1, "x", np.float32(2.5))), "n": None}
+    for protocol in (0, 2, 4, 5):
+        (tmp_path / "t.pkl").write_bytes(pickle.dumps(data, protocol=protocol))
+        out = safe_load_pickle(tmp_path / "t.pkl")
+        assert type(out["F2"]) is np.ndarray and out["again"][0] is out["again"][1]
+        np.testing.assert_array_equal(out["again"][1], arr)
+        assert out["o"] == OrderedDict(a=(1, "x", 2.5)) and type(out["o"]) is OrderedDict
+
+
+# ------------------------------------------------------------------------------------------ names and zips
+@pytest.mark.parametrize("name", ["../../x", "/etc/passwd", "a/b", "..", "a\\b"])
+def test_template_names_with_paths_are_refused(tmp_path, name):
+    (tmp_path / "t.pkl").write_bytes(pickle.dumps({name: np.full((5, 3), 0.1)}, protocol=2))
+    refused(cli("convert-templates", tmp_path / "t.pkl"), tmp_path / "t.pkl", "template name", "not a plain name")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.pkl"]
+
+
+def corpus_copy(tmp_path: Path, edit_meta=None, replace: dict | None = None) -> Path:
+    """data_samples/ linked file by file, with an edited metadata.json and replaced files."""
+    root = tmp_path / "corpus"
+    root.mkdir()
+    replace = replace or {}
+    for entry in sample_path().iterdir():
+        if entry.name in replace:
+            (root / entry.name).write_bytes(replace[entry.name])
+        elif entry.name != "metadata.json":
+            (root / entry.name).symlink_to(entry.resolve())
+    meta = json.loads((sample_path() / "metadata.json").read_text())
+    if edit_meta:
+        edit_meta(meta)
+    (root / "metadata.json").write_text(json.dumps(meta))
+    return root
+
+
+@pytest.mark.parametrize("name", ["../../../etc/passwd", "/etc/passwd", "sub/clip"])
+def test_clip_names_with_paths_are_refused(tmp_path, name, capsys):
+    def rename(meta):
+        old = meta["splits"]["train"][0]
+        meta["clips"][name] = meta["clips"].pop(old)
+        meta["splits"]["train"][0] = name
+    root = corpus_copy(tmp_path, rename)
+    with pytest.raises(ValueError, match="clip name .* is not a plain name"):
+        Corpus(root)
+    refused_in_process(capsys, ["train", "--corpus", root, "--model", "voca", "--epochs", "1", "--out",
+                                tmp_path / "m.pt"], root / "metadata.json", "clip name", name)
+    assert not (tmp_path / "m.pt").exists()
+
+
+def test_truncated_controls_npz(tmp_path):
+    raw = (sample_path() / "controls.npz").read_bytes()
+    root = corpus_copy(tmp_path, replace={"controls.npz": raw[: len(raw) // 2]})
+    proc = cli("train", "--corpus", root, "--model", "voca", "--epochs", "1", "--clips", "1", "--out",
+               tmp_path / "m.pt")
+    refused(proc, root / "controls.npz", "not a readable .npz archive")
+    assert not (tmp_path / "m.pt").exists()
+
+
+def test_corrupt_controls_npz_member(tmp_path):
+    """A flipped byte inside a compressed member: zlib's error or the CRC, as one ValueError line."""
+    raw = bytearray((sample_path() / "controls.npz").read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    root = corpus_copy(tmp_path, replace={"controls.npz": bytes(raw)})
+    corpus = Corpus(root)
+    with pytest.raises(ValueError, match="controls.npz: not a readable .npz archive"):
+        corpus.vertices(corpus.clips[0])
+
+
+def test_truncated_templates_npz_reused_by_prepare_dataset(tmp_path):
+    root = tmp_path / "vocaset"
+    _vocaset_stub(root)
+    (root / "templates.pkl").write_bytes(pickle.dumps({VOCASET_TRAIN[0]: np.full((5, 3), 0.1)}, protocol=2))
+    buf = io.BytesIO()
+    np.savez(buf, **{s: np.full(15, 0.1, np.float32) for s in (VOCASET_TRAIN[0], VOCASET_VAL[0], VOCASET_TEST[0])})
+    (root / "templates.npz").write_bytes(buf.getvalue()[:-40])  # a stale npz of a killed run, cut short
+    before = snapshot(root)
+    refused(cli("prepare-dataset", root, "--preset", "vocaset"), root / "templates.npz",
+            "not a readable .npz archive")
+    assert snapshot(root) == before
+
+
+# ----------------------------------------------------------------------------------------------- checkpoints
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory) -> Path:
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                                n_speakers=len(corpus.train_speakers))
+    path = tmp_path_factory.mktemp("ckpt") / "model.pt"
+    save_checkpoint(path, DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+    return path
+
+
+@pytest.fixture(scope="module")
+def wav(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("audio") / "me.wav"
+    sf.write(path, 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
+    return path
+
+
+def _flip_in_largest_record(src: Path, dst: Path) -> str:
+    raw = bytearray(src.read_bytes())
+    with zipfile.ZipFile(src) as z:
+        info = max(z.infolist(), key=lambda i: i.file_size)
+    n, extra = struct.unpack("<HH", raw[info.header_offset + 26: info.header_offset + 30])
+    start = info.header_offset + 30 + n + extra
+    raw[start + info.file_size // 2] ^= 0x01
+    dst.write_bytes(bytes(raw))
+    return info.filename
+
+
+def test_flipped_byte_in_a_checkpoint_is_refused(ckpt, wav, tmp_path):
+    """One flipped bit in the weights: was loaded without complaint (torch never checks the zip CRC)."""
+    record = _flip_in_largest_record(ckpt, tmp_path / "flipped.pt")
+    with pytest.raises(ValueError, match="fails its CRC-32 check"):
+        load_checkpoint(tmp_path / "flipped.pt")
+    proc = cli("animate", "--checkpoint", tmp_path / "flipped.pt", "--wav", wav, "--out", tmp_path / "o")
+    refused(proc, tmp_path / "flipped.pt", "corrupt checkpoint", record)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flipped.pt"]
+
+
+def _edited(ckpt: Path, tmp_path: Path, edit) -> Path:
+    data = torch.load(ckpt, weights_only=True)
+    data = copy.deepcopy(data)
+    edit(data)
+    path = tmp_path / "edited.pt"
+    torch.save(data, path)
+    return path
+
+
+def _set(*keys_and_value):
+    *keys, value = keys_and_value
+
+    def edit(d):
+        for k in keys[:-1]:
+            d = d[k]
+        d[keys[-1]] = value
+    return edit
+
+
+EDITS = {
+    "speakers_string": (_set("speakers", "SPK01SPK05"), "'speakers' must be a list of speaker names"),
+    "speakers_numbers": (_set("speakers", [1, 2]), "'speakers' must hold non-empty names"),
+    "speakers_twice": (_set("speakers", ["SPK01", "SPK01"]), "names a speaker twice"),
+    "hop_zero": (_set("features", "settings", "hop_length", 0), "'hop_length' must be a positive int"),
+    "n_mels_text": (_set("features", "settings", "n_mels", "80"), "'n_mels' must be a positive int"),
+    "features_unknown": (_set("features", "name", "wav2vec"), "unknown audio front-end 'wav2vec'"),
+    "features_list": (_set("features", [1, 2]), "'features' must be a dict"),
+    "settings_list": (_set("features", "settings", [80]), "features 'settings' must be a dict"),
+    "settings_unknown": (_set("features", "settings", "window", "hann"), "are not LogMelExtractor settings"),
+    "mean_nan": (_set("features", "settings", "mean", [float("nan")] * 80), "'mean' must be null or a list"),
+    "std_zero": (_set("features", "settings", "std", [0.0] * 80), "'std' must be positive"),
+    "f_max_high": (_set("features", "settings", "f_max", 96000.0), "f_max <= sample_rate / 2"),
+    "d_model_text": (_set("model_config", "d_model", "64"), "model_config field 'd_model' must be an int"),
+    "dropout_text": (_set("model_config", "dropout", "0.1"), "model_config field 'dropout' must be a finite"),
+    "n_vertices_float": (_set("n_vertices", 1558.0), "'n_vertices' must be a positive int"),
+    "topology_number": (_set("topology", 7), "'topology' must be a fingerprint string"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(EDITS))
+def test_hand_edited_checkpoint_fields(ckpt, wav, tmp_path, capsys, case):
+    """Was: TypeError, ZeroDivisionError, AttributeError, RuntimeError, a string-formatting error, or a speaker
+    matched by substring (``--speaker 1`` -> SPK05). Now: one line naming the file and the field."""
+    edit, message = EDITS[case]
+    path = _edited(ckpt, tmp_path, edit)
+    argv = ["animate", "--checkpoint", path, "--wav", wav, "--speaker", "1", "--out", tmp_path / "o"]
+    refused_in_process(capsys, argv, path, message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["edited.pt"]
+
+
+def test_an_unedited_checkpoint_still_loads(ckpt):
+    model, info = load_checkpoint(ckpt)
+    assert info["speakers"] == Corpus(sample_path()).train_speakers and info["features"]["name"] == "logmel"
+
+
+# ------------------------------------------------------------------------------------------ outputs never lost
+SMALL = ["--speakers", "2", "--unseen-speakers", "1", "--val-sentences", "1", "--test-sentences", "1",
+         "--emotion-speakers", "0", "--long-clips", "", "--format", "compact", "--vertices", "500",
+         "--processes", "1", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def small_corpus(tmp_path_factory) -> Path:
+    base = tmp_path_factory.mktemp("gen")
+    (base / "s.txt").write_text("Bob ate a plum.\nIs it raining?\nMove the map.\nWe won!\n")
+    proc = cli("generate", "--out", base / "c", "--sentences-file", base / "s.txt", *SMALL)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    return base / "c"
+
+
+def test_generate_over_an_existing_corpus_needs_overwrite(small_corpus):
+    """Was: written in place (a 703-clip corpus became 28 clips plus 675 orphans)."""
+    before = snapshot(small_corpus)
+    proc = cli("generate", "--out", small_corpus, "--sentences-file", small_corpus.parent / "s.txt", *SMALL)
+    refused(proc, small_corpus, "already exists", "--overwrite")
+    assert snapshot(small_corpus) == before
+    assert [p.name for p in small_corpus.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def test_generate_failure_leaves_the_old_corpus_untouched(small_corpus, monkeypatch):
+    """A failure after half the corpus is written (here the last archive, as a full disk would): the old corpus is
+    byte-identical and no temporary folder is left (was: old metadata next to new files, which still trained)."""
+    from dualtalker_lite.data import generate as gen
+
+    before = snapshot(small_corpus)
+    spec = gen.CorpusSpec(speakers=2, unseen_speakers=1, sentences=4, val_sentences=1, test_sentences=1,
+                          emotion_speakers=0, long_clips=(), format="compact", vertices=500, seed=1)
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(gen.np, "savez_compressed", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        gen.generate_corpus(spec, small_corpus, processes=1, progress=False, overwrite=True,
+                            texts=("Bob ate a plum.", "Is it raining?", "Move the map.", "We won!"))
+    assert snapshot(small_corpus) == before
+    assert [p.name for p in small_corpus.parent.iterdir() if p.name.startswith(".")] == []
+
+
+@pytest.mark.parametrize("target", ["data_samples", "data_samples/sub", "."])
+def test_generate_never_writes_into_the_shipped_sample(target):
+    before = (sample_path() / "metadata.json").stat().st_mtime_ns, len(list(sample_path().iterdir()))
+    proc = cli("generate", "--out", REPO / target, "--overwrite", *SMALL)
+    refused(proc, "shipped sample")
+    assert ((sample_path() / "metadata.json").stat().st_mtime_ns, len(list(sample_path().iterdir()))) == before
+    assert not (sample_path() / "sub").exists()
+
+
+def test_generate_overwrite_replaces_only_a_corpus(tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    refused(cli("generate", "--out", tmp_path, "--overwrite", *SMALL), tmp_path, "is not a corpus")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_evaluate_json_never_overwrites(ckpt, tmp_path, capsys):
+    """Was: any file overwritten, including the checkpoint being evaluated."""
+    (tmp_path / "m.json").write_text('{"mine": 1}')
+    refused_in_process(capsys, ["evaluate", "--checkpoint", ckpt, "--json", tmp_path / "m.json"],
+                       tmp_path / "m.json", "already exists", "--overwrite")
+    assert (tmp_path / "m.json").read_text() == '{"mine": 1}'
+    before = hashlib.sha256(ckpt.read_bytes()).hexdigest()
+    refused_in_process(capsys, ["evaluate", "--checkpoint", ckpt, "--json", ckpt, "--overwrite"], ckpt,
+                       "is the checkpoint being evaluated")
+    assert hashlib.sha256(ckpt.read_bytes()).hexdigest() == before
+    load_checkpoint(ckpt)
+
+
+def test_train_zero_epochs_is_refused(tmp_path):
+    """Was: an untrained checkpoint saved with exit 0."""
+    refused(cli("train", "--model", "voca", "--epochs", "0", "--out", tmp_path / "m.pt"), "--epochs 0")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_as_wav_says_it_is_a_folder(ckpt, tmp_path, capsys):
+    """Was: 'audio file not found' for a folder that exists."""
+    (tmp_path / "clips").mkdir()
+    refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", tmp_path / "clips", "--out",
+                                tmp_path / "o"], tmp_path / "clips", "is a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clips"]
