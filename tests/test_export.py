@@ -9,6 +9,7 @@
 The validator and three.js come from ``npm ci --prefix tools/node`` and chromium from ``apt-get install chromium``
 (both done by ``.ci/run``); the tests that need them are skipped, saying what to install, where they are absent.
 """
+import base64
 import json
 import os
 import shutil
@@ -221,3 +222,42 @@ def test_html_plays_with_sound_in_headless_chromium(clip, tmp_path):
         finally:
             browser.close()
     assert [u for u in requests if not u.startswith("data:")] == [page_path.as_uri()]
+
+
+# ------------------------------------------------------------------------------------------ the animate command
+@pytest.fixture(scope="module")
+def checkpoint(corpus, tmp_path_factory):
+    """A self-describing checkpoint of an untrained tiny DualTalker (its output still moves a little)."""
+    import torch
+
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160, n_speakers=8)
+    path = tmp_path_factory.mktemp("ckpt") / "model.pt"
+    save_checkpoint(path, DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+    return path
+
+
+def test_animate_writes_npy_gltf_and_html(checkpoint, corpus, tmp_path, capsys):
+    from dualtalker_lite.inference import main
+
+    wav = sample_path() / "audio" / "SPK09_s02.flac"
+    out = tmp_path / "me"
+    main([str(a) for a in ["--checkpoint", checkpoint, "--wav", wav, "--speaker", "SPK01", "--out", out,
+                           "--format", "npy,gltf,html"]])
+    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "animation.html", "animation.wav",
+                                                     "frame0.obj", "vertices.npy"]
+    printed = capsys.readouterr().out
+    assert "animation.glb:" in printed and "max vertex error" in printed
+    verts = np.load(out / "vertices.npy")
+    got = read_gltf_animation(out / "animation.glb")
+    np.testing.assert_array_equal(got["base"].reshape(-1), corpus.template("SPK01"))  # the rest shape
+    rec = got["base"].reshape(-1) + got["weights"] @ got["targets"].reshape(len(got["targets"]), -1)
+    assert _vertex_error(rec, verts).max() < 1e-4 and len(got["times"]) == len(verts)
+    glb64 = base64.b64encode((out / "animation.glb").read_bytes()).decode()
+    assert f'const GLB = "{glb64}"' in (out / "animation.html").read_text()  # the page plays that very file
+    only = tmp_path / "page"  # html alone: no .glb or .wav left beside it
+    main([str(a) for a in ["--checkpoint", checkpoint, "--wav", wav, "--out", only, "--format", "html"]])
+    assert [p.name for p in only.iterdir()] == ["animation.html"]

@@ -78,7 +78,12 @@ def _release(clip: np.ndarray) -> None:
 
 
 def _offsets(clip: np.ndarray, base: np.ndarray, block: int):
-    """Yield (start, D_b) with D_b = frames - base, float32 (n, 3V), one block of the memory map at a time."""
+    """Yield (start, D_b) with D_b = frames - base, float32 (n, 3V), one block of the memory map at a time.
+
+    Blocks hold at most ``block`` frames and 64 MB (VOCASET's 5,023 vertices: 1,113 frames), so the few
+    temporaries of a block stay small whatever the mesh.
+    """
+    block = max(1, min(block, (64 << 20) // (4 * clip.shape[1])))
     for s in range(0, len(clip), block):
         frames = np.array(clip[s:s + block], np.float32)
         _release(clip)
@@ -250,13 +255,17 @@ class GltfReport:
                 + (f"; audio: {self.audio.name}" if self.audio else ""))
 
 
-def write_wav(path: str | os.PathLike, wave: np.ndarray, sample_rate: int) -> Path:
-    """Mono float speech (N,) -> 16-bit PCM WAV (what every DCC tool, engine and browser reads)."""
+def write_wav(path, wave: np.ndarray, sample_rate: int):
+    """Mono float speech (N,) -> 16-bit PCM WAV (what every DCC tool, engine and browser reads).
+
+    Written in blocks of 2**20 samples, so an hour (230 MB of float32) is not copied whole on the way."""
     import soundfile as sf
 
-    path = Path(path)
-    sf.write(path, np.clip(np.asarray(wave, np.float32).reshape(-1), -1.0, 1.0), int(sample_rate),
-             subtype="PCM_16", format="WAV")
+    path = path if hasattr(path, "write") else Path(path)  # a path or a binary file object (io.BytesIO)
+    wave = np.asarray(wave).reshape(-1)
+    with sf.SoundFile(path, "w", int(sample_rate), 1, subtype="PCM_16", format="WAV") as f:
+        for s in range(0, len(wave), 1 << 20):
+            f.write(np.clip(np.asarray(wave[s:s + (1 << 20)], np.float32), -1.0, 1.0))
     return path
 
 

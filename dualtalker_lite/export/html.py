@@ -71,11 +71,10 @@ def _import_map() -> str:
 
 
 def _wav_bytes(wave: np.ndarray, sample_rate: int) -> bytes:
-    import soundfile as sf
+    from .gltf import write_wav
 
     buf = io.BytesIO()
-    sf.write(buf, np.clip(np.asarray(wave, np.float32).reshape(-1), -1, 1), int(sample_rate), subtype="PCM_16",
-             format="WAV")
+    write_wav(buf, wave, sample_rate)
     return buf.getvalue()
 
 
@@ -207,7 +206,7 @@ def viewer_html(glb: str | os.PathLike | bytes, wave: np.ndarray | None = None, 
     if wave is None:
         sample_rate = 8000
         wave = np.zeros(max(1, int(round(frames / fps * sample_rate))), np.float32)
-    wave = np.asarray(wave, np.float32).reshape(-1)
+    wave = np.asarray(wave).reshape(-1)
     duration = max(len(wave) / sample_rate, (frames - 1) / fps)
     err = info.get("morph_max_error_m")
     caption = f"{frames} frames at {fps:g} fps" + (f", morph targets within {err * 1e3:.3f} mm" if err else "")
