@@ -204,7 +204,7 @@ def test_html_plays_with_sound_in_headless_chromium(clip, tmp_path):
             page.click("button.play")
             page.wait_for_function(f"() => {viewer}.audio.currentTime > 1.5", timeout=20000)
             state = page.evaluate(f"""() => {{ const v = {viewer};
-                return [v.audio.paused, v.audio.currentTime, v.mixer.time,
+                return [v.audio.paused, v.audio.currentTime, v.action.time,
                         Array.from(v.mesh.morphTargetInfluences),
                         document.querySelector('button.play').textContent]; }}""")
             page.screenshot(path=str(shots / "viewer_playing.png"))
@@ -214,11 +214,16 @@ def test_html_plays_with_sound_in_headless_chromium(clip, tmp_path):
             assert abs(t_mixer - t_audio) < 0.1  # the lips follow the audio clock
             assert max(abs(a - b) for a, b in zip(before, after)) > 0.05  # the mesh moves
             assert pixels_before != pixels_after
-            page.click("button.play")  # pause, then scrub to 5 s
-            page.evaluate("() => { const s = document.querySelector('.scrub'); s.value = 5; "
-                          "s.dispatchEvent(new Event('input')); }")
-            t_audio, t_mixer = page.evaluate(f"() => [{viewer}.audio.currentTime, {viewer}.mixer.time]")
-            assert abs(t_audio - 5) < 0.05 and abs(t_mixer - 5) < 1e-6
+            page.click("button.play")  # pause, then scrub to 5 s, to the end and back to 5 s
+            scrub = ("(t) => { const s = document.querySelector('.scrub'); s.value = t; "
+                     "s.dispatchEvent(new Event('input')); "
+                     f"return [{viewer}.audio.currentTime, {viewer}.action.time, "
+                     f"Array.from({viewer}.mesh.morphTargetInfluences)]; }}")
+            t_audio, t_action, at5 = page.evaluate(scrub, 5)
+            assert abs(t_audio - 5) < 0.05 and abs(t_action - 5) < 1e-6
+            end = page.evaluate(scrub, len(verts) / 30)[2]
+            again = page.evaluate(scrub, 5)[2]  # a finished animation still follows the scrub bar back
+            assert again == at5 and max(abs(a - b) for a, b in zip(end, at5)) > 0.05
         finally:
             browser.close()
     assert [u for u in requests if not u.startswith("data:")] == [page_path.as_uri()]

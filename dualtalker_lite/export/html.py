@@ -16,9 +16,11 @@ The page holds everything it needs, so it can be mailed to anyone and opened in 
 - **the audio** as a base64 16-bit WAV (lossless, decoded alike by every browser, no encoder delay to shift the
   lips: 2.6 MB of page per minute of 16 kHz speech).
 
-The **audio element is the clock**: every animation frame sets the mixer to ``audio.currentTime``, so sound and
+The **audio element is the clock**: every animation frame poses the face at ``audio.currentTime``, so sound and
 lips cannot drift; play/pause, a scrub bar (seeks both) and orbit controls (drag: rotate, wheel: zoom, right
-drag: pan). For tests, ``window.dtlViewers[id]`` exposes ``{ready, mesh, audio, mixer, error}``.
+drag: pan). For tests, ``window.dtlViewers[id]`` exposes ``{ready, mesh, audio, mixer, action, seek, error}``.
+Seeking resets the action first: a LoopOnce action that reached its end is paused by three.js and would
+otherwise ignore every later time (scrubbing back after the end would freeze the face).
 
 :func:`viewer_html` returns the page as a string (what notebooks embed: :func:`iframe_html` wraps it in an
 ``<iframe srcdoc>``, since an import map must come before any module of its document).
@@ -151,12 +153,14 @@ try {
   const clip = gltf.animations[0];
   const action = mixer.clipAction(clip);
   action.setLoop(THREE.LoopOnce, 1); action.clampWhenFinished = true; action.play();
-  mixer.setTime(0);
+  // seek(t): pose the face at t seconds (reset first: a finished LoopOnce action is paused and ignores time)
+  const seek = (t) => { action.reset(); action.time = Math.min(Math.max(t, 0), clip.duration); mixer.update(0); };
+  seek(0);
 
   const duration = Math.max(clip.duration, %(duration).6f);
   const show = (t) => { clock.textContent = t.toFixed(2) + " / " + duration.toFixed(2) + " s"; };
   // The audio element is the clock: the lips follow audio.currentTime, so they cannot drift from the sound.
-  const sync = () => { const t = audio.currentTime; mixer.setTime(t); if (!scrubbing) scrub.value = t; show(t); };
+  const sync = () => { const t = audio.currentTime; seek(t); if (!scrubbing) scrub.value = t; show(t); };
   let scrubbing = false;
   button.onclick = () => {
     if (audio.paused) { if (audio.ended) audio.currentTime = 0; audio.play(); } else audio.pause();
@@ -165,7 +169,7 @@ try {
   audio.onpause = audio.onended = () => { button.textContent = "Play"; sync(); };
   scrub.oninput = () => {
     const t = Number(scrub.value);
-    scrubbing = true; audio.currentTime = t; mixer.setTime(t); show(t);
+    scrubbing = true; audio.currentTime = t; seek(t); show(t);
   };
   scrub.onchange = () => { scrubbing = false; };
 
@@ -176,7 +180,7 @@ try {
   new ResizeObserver(resize).observe(view);
   resize();
   renderer.setAnimationLoop(() => { if (!audio.paused) sync(); controls.update(); renderer.render(scene, camera); });
-  Object.assign(state, { ready: true, mesh, mixer, clip, renderer, extras: gltf.scene.userData });
+  Object.assign(state, { ready: true, mesh, mixer, action, seek, clip, renderer, extras: gltf.scene.userData });
   msg.textContent = %(caption)s;
   button.disabled = false;
 } catch (e) {
