@@ -46,24 +46,43 @@ FPS, SR = 30, 16000
 FORMATS = ("baseline", "gltf", "html")
 
 
+def _vertices() -> int | None:
+    """``--vertices V`` (passed to the child processes in DTL_BENCH_VERTICES): a mesh of V vertices."""
+    return int(os.environ.get("DTL_BENCH_VERTICES", 0)) or None
+
+
+def _work() -> Path:
+    return WORK / f"v{_vertices()}" if _vertices() else WORK
+
+
 def prepare(minutes: float) -> tuple[Path, Path]:
-    """Write the rig's motion and the speech for ``minutes`` (repeated long clips) -> (.npy, .wav) paths."""
+    """Write the rig's motion and the speech for ``minutes`` (repeated long clips) -> (.npy, .wav) paths.
+
+    With ``--vertices V`` (e.g. VOCASET's 5,023) vertex i of the bigger mesh is the rig's vertex i mod 1,558,
+    shifted by a fixed random 2 mm for every copy after the first, with that vertex's motion: the same motion
+    subspace (same K) on a mesh of V vertices, to measure time and memory at that size.
+    """
     import numpy as np
     import soundfile as sf
 
     from dualtalker_lite.data import sample_path
     from dualtalker_lite.data.corpus import Corpus
 
-    WORK.mkdir(parents=True, exist_ok=True)
-    npy, wav = WORK / f"{minutes:g}min.npy", WORK / f"{minutes:g}min.wav"
+    work = _work()
+    work.mkdir(parents=True, exist_ok=True)
+    npy, wav = work / f"{minutes:g}min.npy", work / f"{minutes:g}min.wav"
     T = int(round(minutes * 60 * FPS))
     corpus = Corpus(sample_path())
-    np.save(WORK / "template.npy", corpus.template("SPK01"))  # the workers read these, not the corpus (torch)
-    np.save(WORK / "faces.npy", corpus.faces)
+    base = corpus.template("SPK01").reshape(-1, 3)
+    idx = np.arange(_vertices() or len(base)) % len(base)
+    shift = np.random.default_rng(0).normal(0, 2e-3, (len(idx), 3)) * (np.arange(len(idx)) >= len(base))[:, None]
+    big = (base[idx] + shift).astype(np.float32).reshape(-1)
+    np.save(work / "template.npy", big)  # the workers read these, not the corpus (which imports torch)
+    np.save(work / "faces.npy", corpus.faces)
     if npy.is_file() and wav.is_file() and np.load(npy, mmap_mode="r").shape[0] == T:
         return npy, wav
-    base = corpus.template("SPK01")
-    motion = np.concatenate([corpus.vertices(c) - corpus.template(c.split("_")[0]) for c in CLIPS]) + base
+    offsets = np.concatenate([corpus.vertices(c) - corpus.template(c.split("_")[0]) for c in CLIPS])
+    motion = offsets.reshape(len(offsets), -1, 3)[:, idx].reshape(len(offsets), -1) + big
     speech = np.concatenate([corpus.wave(c)[:len(corpus.vertices(c)) * SR // FPS] for c in CLIPS])
     out = np.lib.format.open_memmap(npy, mode="w+", dtype=np.float32, shape=(T, motion.shape[1]))
     for s in range(0, T, len(motion)):
@@ -87,7 +106,7 @@ def one(fmt: str, npy: str, wav: str, out: str) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     row = {"format": fmt}
     if fmt != "baseline":
-        template, faces = np.load(WORK / "template.npy"), np.load(WORK / "faces.npy")
+        template, faces = np.load(_work() / "template.npy"), np.load(_work() / "faces.npy")
         clip = np.load(npy, mmap_mode="r")
         wave = sf.read(wav, dtype="float32")[0]
         out = Path(out)
@@ -144,6 +163,8 @@ def main() -> None:
     ap.add_argument("--browse", help=argparse.SUPPRESS)
     ap.add_argument("--one", nargs=4, metavar=("FORMAT", "NPY", "WAV", "OUT"), help=argparse.SUPPRESS)
     ap.add_argument("--prepare", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--vertices", type=int, help="a mesh of this many vertices (e.g. 5023, VOCASET's), built by "
+                    "repeating the rig's vertices with their motion; writes results/exports_v<N>.md")
     args = ap.parse_args()
     if args.one:
         print(json.dumps(one(*args.one)))
@@ -154,6 +175,8 @@ def main() -> None:
     if args.prepare:
         print(json.dumps([str(p) for p in prepare(args.prepare)]))
         return
+    if args.vertices:
+        os.environ["DTL_BENCH_VERTICES"] = str(args.vertices)  # read by the child processes
     rows = []
     for minutes in args.minutes:
         # in a child too: ru_maxrss survives fork + exec (getrusage(2)), so this parent stays small (no torch)
@@ -179,10 +202,12 @@ def main() -> None:
              f"`python benchmarks/exports.py {' '.join(sys.argv[1:])}` "
              f"({platform.processor() or platform.machine()}, one BLAS thread, {time.strftime('%Y-%m-%d')}). "
              "Motion: the rig's ground truth of the three long sample clips, repeated (see the script's "
-             "docstring); 1,558 vertices, 30 fps; speech 16 kHz. Peak memory: `ru_maxrss` of a fresh process "
-             "per row (the baseline row is the interpreter with numpy, soundfile, pygltflib and the exporters "
-             "imported). The .wav is 16-bit PCM (1.92 MB per minute); the html page holds the .glb and the .wav "
-             "in base64 (x 4/3) and three.js r170 (1.2 MB).", "",
+             f"docstring); {args.vertices or 1558:,} vertices"
+             f"{' (the rig repeated, see prepare())' if args.vertices else ''}, 30 fps; speech 16 kHz. "
+             "Peak memory: `ru_maxrss` of a fresh process per row (the baseline row is the interpreter with "
+             "numpy, soundfile, pygltflib and the exporters imported). The .wav is 16-bit PCM (1.92 MB per "
+             "minute); the html page holds the .glb and the .wav in base64 (x 4/3) and three.js r170 (1.2 MB).",
+             "",
              "| length | format | size, MB | MB per minute | files, MB | morph targets (components) "
              "| max / mean error, mm | export CPU s (wall s) | peak memory, MB |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -206,8 +231,9 @@ def main() -> None:
     print(text)
     if not args.no_write:
         (ROOT / "results").mkdir(exist_ok=True)
-        (ROOT / "results" / "exports.json").write_text(json.dumps(rows, indent=1) + "\n")
-        (ROOT / "results" / "exports.md").write_text(text)
+        name = f"exports_v{args.vertices}" if args.vertices else "exports"
+        (ROOT / "results" / f"{name}.json").write_text(json.dumps(rows, indent=1) + "\n")
+        (ROOT / "results" / f"{name}.md").write_text(text)
 
 
 if __name__ == "__main__":
