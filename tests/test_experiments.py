@@ -347,3 +347,19 @@ def test_emotional_tables_columns(quick_tables):
     assert all(r["test_split"] == "test_emo_a" and r["n_train_clips"] == 32 for r in data["runs"])  # 16 + 16 (quick)
     assert all(c.startswith("SPK01_s02-") for r in data["runs"] for c in r["test_clips"])
     assert "emotion acc." not in (quick_tables / "main.md").read_text()
+
+
+def test_markdown_with_a_few_metrics_fits_and_says_where_the_rest_is():
+    """Notebooks show a few columns of the committed tables (the full ones are too wide for the page)."""
+    from dualtalker_lite.files import repo_root
+
+    specs, runs, payload = ex.load_table(repo_root() / "results" / "corrtalk.json")
+    full = ex.table_markdown("corrtalk", specs, runs, payload)
+    md = ex.table_markdown("corrtalk", specs, runs, payload, metrics=["lve_euclidean", "bilabial_closure_1mm"])
+    header = next(line for line in md.splitlines() if line.startswith("| model |"))
+    assert header == "| model | LVE (mm) ↓ | closed <1 mm at /p b m/ ↑ | collapsed | train (s) | params | note |"
+    assert "Columns: 2 of the 12 metrics; all of them in `results/corrtalk.md`." in md
+    row = next(line for line in md.splitlines() if line.startswith("| CorrTalk |"))
+    assert row.split(" | ")[1] == next(ln for ln in full.splitlines() if ln.startswith("| CorrTalk |")).split(" | ")[2]
+    with pytest.raises(ValueError, match="no metric"):
+        ex.table_markdown("corrtalk", specs, runs, payload, metrics=["emotion_accuracy"])

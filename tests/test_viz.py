@@ -153,6 +153,24 @@ def test_mesh_viewer_update_changes_positions(sphere):
         viewer.update(v[:10])
 
 
+def test_mesh_viewer_player_steps_through_frames_and_colours(sphere):
+    pytest.importorskip("pythreejs")
+    from dualtalker_lite.viz import MeshViewer
+
+    v, f = sphere
+    frames = np.stack([v * (1 + 0.1 * k) for k in range(4)])  # (4, V, 3)
+    values = np.stack([v[:, 1] * (k + 1) for k in range(4)])   # (4, V): a map that changes over time
+    viewer = MeshViewer(v, f, colors=values[0], vmin=float(values.min()), vmax=float(values.max()))
+    box = viewer.player(frames, colors=values)
+    slider = box.children[0].children[1]
+    first_colours = viewer.color.array.copy()
+    slider.value = 3
+    np.testing.assert_allclose(viewer.position.array, frames[3], rtol=1e-6)
+    assert not np.allclose(viewer.color.array, first_colours)  # the colours followed the frame
+    with pytest.raises(ValueError, match="colors: expected shape"):
+        viewer.player(frames, colors=values[:2])
+
+
 def test_static_html_embeds_a_self_contained_viewer(sphere):
     from dualtalker_lite.viz import static_html
 

@@ -220,3 +220,29 @@ def test_training_panel_refuses_bad_control_defaults(default, message):
 
     with pytest.raises(ValueError, match="^" + re.escape(message) + "$"):
         TrainingPanel(lambda *a: None, {"c": default})
+
+
+def test_panels_keep_their_controls_readable_beside_a_wide_figure():
+    """The figure goes below the controls (full width), never beside them: in JupyterLab an HBox shared with a
+    wide figure squeezed the sliders' tracks to nothing and cut the control names ("lambda_c...")."""
+    import ipywidgets as widgets
+
+    from dualtalker_lite.viz.widgets import CONTROL_WIDTH, LABEL_STYLE, RetrainPanel, TrainingPanel
+
+    panels = [TrainingPanel(lambda s, n, f: ("figure",), {"lambda_cross": 1.0, "emotion": ("happy", "sad")}),
+              RetrainPanel(lambda lambdas, bandwidth, n, f: ("figure",))]
+    for panel in panels:
+        top = panel.widget
+        assert isinstance(top, widgets.VBox) and top.children[-1] is panel.output
+        assert panel.output not in top.children[0].children  # not beside the controls
+        sliders = [w for w in _descendants(top) if isinstance(w, (widgets.FloatLogSlider, widgets.IntSlider))]
+        assert len(sliders) >= 2 and all(w.layout.width == CONTROL_WIDTH for w in sliders)
+        named = [w for w in _descendants(top) if isinstance(w, (widgets.FloatLogSlider, widgets.Dropdown))]
+        assert all(w.style.description_width == LABEL_STYLE["description_width"] for w in named)
+    assert int(LABEL_STYLE["description_width"].removesuffix("px")) >= 8 * len("lambda_cross")
+
+
+def _descendants(widget):
+    for child in getattr(widget, "children", ()):
+        yield child
+        yield from _descendants(child)

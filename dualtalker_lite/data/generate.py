@@ -81,7 +81,9 @@ class CorpusSpec:
         if self.sentences < 1:
             raise ValueError(f"sentences must be at least 1, got {self.sentences}")
         if self.val_sentences + self.test_sentences >= self.sentences:
-            raise ValueError("val_sentences + test_sentences must leave some training sentences")
+            raise ValueError(f"val_sentences + test_sentences must leave some training sentences: {self.val_sentences} + "
+                             f"{self.test_sentences} of {self.sentences}; for a short sentences file lower them, "
+                             f"e.g. --val-sentences 1 --test-sentences 2")
         if not 0 <= self.unseen_speakers < self.speakers:
             raise ValueError("unseen_speakers must be smaller than speakers")
         if not 0 <= self.emotion_speakers <= self.speakers - self.unseen_speakers:

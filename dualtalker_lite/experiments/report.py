@@ -8,6 +8,7 @@ import json
 import math
 from dataclasses import asdict, fields
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -103,13 +104,26 @@ def load_table(path: str | Path) -> tuple[list[RunSpec], list[dict], dict]:
     return specs, payload["runs"], payload
 
 
-def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dict) -> str:
+def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dict,
+                   metrics: Sequence[str] | None = None) -> str:
     """The Markdown table of :func:`write_table`, from the runs (summaries recomputed with the current collapse
-    rule, so older results get the flags too); metrics a run does not have are shown as "—"."""
+    rule, so older results get the flags too); metrics a run does not have are shown as "—".
+
+    ``metrics``: the metric keys to show, in the table's order (default: all; a notebook shows a few so that the
+    table fits the page; the table then says where the others are)."""
     summary = {s.row: summarize([r for r in runs if r["row"] == s.row]) for s in specs}
     ref = next((s for s in specs if s.reference), None)
     params = {s.row: next(r["n_parameters"] for r in runs if r["row"] == s.row) for s in specs}
     seeds, columns, split = meta["seeds"], table_metrics(table), meta.get("test_split", TEST_SPLIT)
+    shown = ""
+    if metrics is not None:
+        unknown = sorted(set(metrics) - {k for k, _, _ in columns})
+        if unknown or not metrics:
+            raise ValueError(f"table {table!r} has no metric(s) {unknown or metrics}; it has "
+                             f"{', '.join(k for k, _, _ in columns)}")
+        shown = (f" Columns: {len(metrics)} of the {len(columns)} metrics; all of them in "
+                 f"`results/{table}.md`.")
+        columns = [c for c in columns if c[0] in set(metrics)]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
     lines = [f"# {TITLES[table]}", "",
              f"Command: `{meta['command']}`", "",
@@ -117,7 +131,7 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
              f"{split} clips: {meta['n_test_clips']}{quick}; "
              f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
-             f"commit {meta['git']}; {meta['created']}.", "",
+             f"commit {meta['git']}; {meta['created']}.{shown}", "",
              "| model | " + " | ".join(h for _, h, _ in columns) + " | collapsed | train (s) | params | note |",
              "|---" * (len(columns) + 5) + "|"]
     for s in specs:

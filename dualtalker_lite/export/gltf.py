@@ -19,7 +19,7 @@ key's value to its slider range (default [0, 1]; its glTF importer widens it fro
 Unity clamps blend shapes to [0, 100]. So each component k becomes up to two targets, ``+max(c_k) B_k`` driven by
 ``max(c_tk, 0) / max(c_k)`` and ``min(c_k) B_k`` driven by ``min(c_tk, 0) / min(c_k)``: identical at every
 keyframe, weights always in [0, 1], the basis shape is the neutral template. Cost: up to 2K weights per frame
-(K = 20-70 here: 0.3-1 MB per minute, far below the 5 MB target).
+(the rig's motion: K = 17, 33 targets, 0.24 MB of weights per minute; far below the 5 MB target).
 
 **PCA in bounded memory** (:func:`morph_basis`). The covariance ``D^T D`` is 3V x 3V: 175 MB in float64 for the
 sample's 1,558 vertices but 1.8 GB for VOCASET's 5,023, and the frames' Gram matrix ``D D^T`` is T x T: 93 GB
@@ -33,9 +33,10 @@ for an hour. Neither is formed. The prediction is read from its memory map in bl
    directions ``B = (Q R)^T`` and give every frame's coefficients ``C = M R`` with no further pass;
 4. selection of K (smallest K whose blocks all meet ``tol``), then 5. the exact check of the written arrays.
 
-Memory: Q and Y (3V x l), M and C (T x l, float32), one block of frames: 120 MB for an hour of the
-sample's face at l = 128, whatever V's block. If K = l is not enough, l doubles (up to min(T, 3V), where the
-basis is exact). The approximation of the randomized sketch can only cost a larger K (a bigger file), never a
+Memory: Q and Y (3V x l), M and C (T x l, float32) and a few copies of one block of frames (at most 64 MB
+each): about 200 MB for an hour of the sample's face at l = 64 (``results/exports.md``: 497 MB peak for the
+whole export, 230 MB of it the caller's speech). If K = l is not enough, l doubles (up to min(T, 3V), where
+the basis is exact). The approximation of the randomized sketch can only cost a larger K (a bigger file), never a
 wrong one: the reported error is measured on the written arrays against the raw frames.
 """
 from __future__ import annotations
@@ -78,7 +79,12 @@ def _release(clip: np.ndarray) -> None:
 
 
 def _offsets(clip: np.ndarray, base: np.ndarray, block: int):
-    """Yield (start, D_b) with D_b = frames - base, float32 (n, 3V), one block of the memory map at a time."""
+    """Yield (start, D_b) with D_b = frames - base, float32 (n, 3V), one block of the memory map at a time.
+
+    Blocks hold at most ``block`` frames and 64 MB (VOCASET's 5,023 vertices: 1,113 frames), so the few
+    temporaries of a block stay small whatever the mesh.
+    """
+    block = max(1, min(block, (64 << 20) // (4 * clip.shape[1])))
     for s in range(0, len(clip), block):
         frames = np.array(clip[s:s + block], np.float32)
         _release(clip)
@@ -250,13 +256,17 @@ class GltfReport:
                 + (f"; audio: {self.audio.name}" if self.audio else ""))
 
 
-def write_wav(path: str | os.PathLike, wave: np.ndarray, sample_rate: int) -> Path:
-    """Mono float speech (N,) -> 16-bit PCM WAV (what every DCC tool, engine and browser reads)."""
+def write_wav(path, wave: np.ndarray, sample_rate: int):
+    """Mono float speech (N,) -> 16-bit PCM WAV (what every DCC tool, engine and browser reads).
+
+    Written in blocks of 2**20 samples, so an hour (230 MB of float32) is not copied whole on the way."""
     import soundfile as sf
 
-    path = Path(path)
-    sf.write(path, np.clip(np.asarray(wave, np.float32).reshape(-1), -1.0, 1.0), int(sample_rate),
-             subtype="PCM_16", format="WAV")
+    path = path if hasattr(path, "write") else Path(path)  # a path or a binary file object (io.BytesIO)
+    wave = np.asarray(wave).reshape(-1)
+    with sf.SoundFile(path, "w", int(sample_rate), 1, subtype="PCM_16", format="WAV") as f:
+        for s in range(0, len(wave), 1 << 20):
+            f.write(np.clip(np.asarray(wave[s:s + (1 << 20)], np.float32), -1.0, 1.0))
     return path
 
 

@@ -16,9 +16,11 @@ The page holds everything it needs, so it can be mailed to anyone and opened in 
 - **the audio** as a base64 16-bit WAV (lossless, decoded alike by every browser, no encoder delay to shift the
   lips: 2.6 MB of page per minute of 16 kHz speech).
 
-The **audio element is the clock**: every animation frame sets the mixer to ``audio.currentTime``, so sound and
+The **audio element is the clock**: every animation frame poses the face at ``audio.currentTime``, so sound and
 lips cannot drift; play/pause, a scrub bar (seeks both) and orbit controls (drag: rotate, wheel: zoom, right
-drag: pan). For tests, ``window.dtlViewers[id]`` exposes ``{ready, mesh, audio, mixer, error}``.
+drag: pan). For tests, ``window.dtlViewers[id]`` exposes ``{ready, mesh, audio, mixer, action, seek, error}``.
+Seeking resets the action first: a LoopOnce action that reached its end is paused by three.js and would
+otherwise ignore every later time (scrubbing back after the end would freeze the face).
 
 :func:`viewer_html` returns the page as a string (what notebooks embed: :func:`iframe_html` wraps it in an
 ``<iframe srcdoc>``, since an import map must come before any module of its document).
@@ -71,11 +73,10 @@ def _import_map() -> str:
 
 
 def _wav_bytes(wave: np.ndarray, sample_rate: int) -> bytes:
-    import soundfile as sf
+    from .gltf import write_wav
 
     buf = io.BytesIO()
-    sf.write(buf, np.clip(np.asarray(wave, np.float32).reshape(-1), -1, 1), int(sample_rate), subtype="PCM_16",
-             format="WAV")
+    write_wav(buf, wave, sample_rate)
     return buf.getvalue()
 
 
@@ -152,12 +153,14 @@ try {
   const clip = gltf.animations[0];
   const action = mixer.clipAction(clip);
   action.setLoop(THREE.LoopOnce, 1); action.clampWhenFinished = true; action.play();
-  mixer.setTime(0);
+  // seek(t): pose the face at t seconds (reset first: a finished LoopOnce action is paused and ignores time)
+  const seek = (t) => { action.reset(); action.time = Math.min(Math.max(t, 0), clip.duration); mixer.update(0); };
+  seek(0);
 
   const duration = Math.max(clip.duration, %(duration).6f);
   const show = (t) => { clock.textContent = t.toFixed(2) + " / " + duration.toFixed(2) + " s"; };
   // The audio element is the clock: the lips follow audio.currentTime, so they cannot drift from the sound.
-  const sync = () => { const t = audio.currentTime; mixer.setTime(t); if (!scrubbing) scrub.value = t; show(t); };
+  const sync = () => { const t = audio.currentTime; seek(t); if (!scrubbing) scrub.value = t; show(t); };
   let scrubbing = false;
   button.onclick = () => {
     if (audio.paused) { if (audio.ended) audio.currentTime = 0; audio.play(); } else audio.pause();
@@ -166,7 +169,7 @@ try {
   audio.onpause = audio.onended = () => { button.textContent = "Play"; sync(); };
   scrub.oninput = () => {
     const t = Number(scrub.value);
-    scrubbing = true; audio.currentTime = t; mixer.setTime(t); show(t);
+    scrubbing = true; audio.currentTime = t; seek(t); show(t);
   };
   scrub.onchange = () => { scrubbing = false; };
 
@@ -177,7 +180,7 @@ try {
   new ResizeObserver(resize).observe(view);
   resize();
   renderer.setAnimationLoop(() => { if (!audio.paused) sync(); controls.update(); renderer.render(scene, camera); });
-  Object.assign(state, { ready: true, mesh, mixer, clip, renderer, extras: gltf.scene.userData });
+  Object.assign(state, { ready: true, mesh, mixer, action, seek, clip, renderer, extras: gltf.scene.userData });
   msg.textContent = %(caption)s;
   button.disabled = false;
 } catch (e) {
@@ -207,7 +210,7 @@ def viewer_html(glb: str | os.PathLike | bytes, wave: np.ndarray | None = None, 
     if wave is None:
         sample_rate = 8000
         wave = np.zeros(max(1, int(round(frames / fps * sample_rate))), np.float32)
-    wave = np.asarray(wave, np.float32).reshape(-1)
+    wave = np.asarray(wave).reshape(-1)
     duration = max(len(wave) / sample_rate, (frames - 1) / fps)
     err = info.get("morph_max_error_m")
     caption = f"{frames} frames at {fps:g} fps" + (f", morph targets within {err * 1e3:.3f} mm" if err else "")

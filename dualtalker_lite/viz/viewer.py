@@ -114,15 +114,25 @@ class MeshViewer:
                 self.color.array = vertex_colors(len(vertices), colors, self.cmap, self.vmin, self.vmax).astype(
                     np.float32)
 
-    def player(self, frames: np.ndarray, fps: float = 30):
-        """The viewer under a play button and frame slider driving ``update`` through a (T, V, 3) clip."""
+    def player(self, frames: np.ndarray, fps: float = 30, colors: np.ndarray | None = None):
+        """The viewer under a play button and frame slider driving ``update`` through a (T, V, 3) clip;
+        ``colors`` (T, V): per-frame vertex values (e.g. an attention map over time), through the viewer's cmap."""
         import ipywidgets as widgets
 
         frames = np.asarray(frames, dtype=np.float32)
+        if colors is not None:
+            colors = np.asarray(colors, dtype=np.float64)
+            if colors.shape != frames.shape[:2]:
+                raise ValueError(f"colors: expected shape {frames.shape[:2]} (frames, vertices), got {colors.shape}")
         play = widgets.Play(value=0, min=0, max=len(frames) - 1, interval=int(1000 / fps), description="play")
         slider = widgets.IntSlider(value=0, min=0, max=len(frames) - 1, description="frame")
         widgets.jslink((play, "value"), (slider, "value"))
-        slider.observe(lambda change: self.update(frames[change["new"]]), names="value")
+
+        def show(change):
+            k = change["new"]
+            self.update(frames[k], None if colors is None else colors[k])
+
+        slider.observe(show, names="value")
         return widgets.VBox([widgets.HBox([play, slider]), self.widget])
 
     def _repr_mimebundle_(self, **kwargs):

@@ -35,6 +35,10 @@ from ..losses import LossWeights
 __all__ = ["progress_loader", "TrainingPanel", "RetrainPanel", "animate_recording", "RecordingPanel"]
 
 Settings = tuple[tuple[float, float, float, float], "float | None", int]
+# Controls keep their size whatever the output shows: a fixed label column (the longest control name,
+# "lambda_cross", in full) and fixed widths, so a wide figure never squeezes a slider's track to nothing.
+LABEL_STYLE = {"description_width": "100px"}
+CONTROL_WIDTH = "400px"
 
 
 class progress_loader:  # noqa: N801 (used like a function)
@@ -84,7 +88,8 @@ class TrainingPanel:
             if isinstance(default, (tuple, list)):
                 if not default or not all(isinstance(o, str) for o in default):
                     raise ValueError(f"control {name!r}: a choice needs a non-empty tuple of strings, got {default!r}")
-                box = widgets.Dropdown(options=list(default), value=default[0], description=name)
+                box = widgets.Dropdown(options=list(default), value=default[0], description=name,
+                                       style=LABEL_STYLE, layout=widgets.Layout(width="260px"))
                 self.controls[name] = (box, None)
                 rows.append(box)
             elif isinstance(default, (int, float)) and not isinstance(default, bool) and default > 0:
@@ -95,15 +100,19 @@ class TrainingPanel:
                 raise ValueError(f"control {name!r}: the default must be a positive number (log slider) or a "
                                  f"tuple of choices, got {default!r}")
         self.steps = widgets.IntSlider(value=steps, min=5, max=max_steps, step=5, description="steps",
-                                       continuous_update=False)
+                                       continuous_update=False, style=LABEL_STYLE,
+                                       layout=widgets.Layout(width=CONTROL_WIDTH))
         self.button = widgets.Button(description="Train", button_style="primary", icon="play")
-        self.progress = widgets.IntProgress(value=0, min=0, max=steps, description="progress")
+        self.progress = widgets.IntProgress(value=0, min=0, max=steps, description="progress", style=LABEL_STYLE,
+                                            layout=widgets.Layout(width=CONTROL_WIDTH))
         self.status = widgets.Label(value="not trained yet")
         self.output = widgets.Output()
         self.button.on_click(lambda _: self.run())
         self._rows = rows
-        self.widget = widgets.HBox([widgets.VBox(self._control_rows() + [self.steps, self.button, self.progress,
-                                                                         self.status]), self.output])
+        # The settings, then the run controls beside them, and the figure below both at the full width.
+        run_box = widgets.VBox([self.steps, self.button, self.progress, self.status],
+                               layout=widgets.Layout(margin="0 0 0 24px"))
+        self.widget = widgets.VBox([widgets.HBox([widgets.VBox(self._control_rows()), run_box]), self.output])
 
     def _control_rows(self) -> list:
         return self._rows
@@ -115,7 +124,8 @@ class TrainingPanel:
     @staticmethod
     def _log_slider(widgets, value: float, description: str, lo: float = -4, hi: float = 1):
         return widgets.FloatLogSlider(value=value, base=10, min=lo, max=hi, step=0.1, description=description,
-                                      readout_format=".1e", continuous_update=False)
+                                      readout_format=".1e", continuous_update=False, style=LABEL_STYLE,
+                                      layout=widgets.Layout(width=CONTROL_WIDTH, min_width=CONTROL_WIDTH))
 
     def settings(self) -> dict:
         """``{name: value}`` of the controls (0.0 for an unticked slider)."""

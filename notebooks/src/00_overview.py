@@ -220,7 +220,7 @@ HTML(video._repr_html_())  # the player only (the object's repr would show a loc
 #
 # The checkpoint list shows every `*.pt` under `runs/` (notebook 08 writes `runs/nb08/dualtalker_tiny.pt`,
 # `make demo` writes `runs/demo/dualtalker.pt`). If there is none yet, a stand-in is trained here in a few
-# seconds (a VOCA-style model, 3 epochs on 75 clips): it moves the mouth with the speech, but crudely; train properly in
+# seconds (a VOCA-style model, 3 epochs on 59 clips): it moves the mouth with the speech, but crudely; train properly in
 # notebook 08 or with `make demo`. Without an upload, the cell animates a shipped test clip's speech, so the
 # notebook also runs unattended.
 

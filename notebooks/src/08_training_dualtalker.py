@@ -158,7 +158,7 @@ assert history.val_lve[-1] < static_val, "the trained model must beat the static
 print(f"training: {train_seconds:.1f} s for {EPOCHS} epochs ({sum(history.seconds[:1]):.1f} s for the first)")
 
 # %%
-fig, axes = plt.subplots(1, 3, figsize=(16, 4), constrained_layout=True)
+fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), constrained_layout=True)
 epochs = np.arange(1, EPOCHS + 1)
 for key, label in (("primal", "$L_{\\rm Primal}$ (mm²)"), ("dual", "$L_{\\rm Dual}$"), ("dr", "$L_{\\rm DR}$"),
                    ("ccrl", "$L_{\\rm CCRL}$"), ("total", "Loss (weighted total)")):
@@ -285,7 +285,7 @@ tiny_set = Subset(train_ds, mine(train_ds)[:8])
 
 def retrain_figure(hist, lips: np.ndarray, epochs: int, title: str):
     """Loss terms per step (left) and the retrained model's lip distance against the ground truth (right)."""
-    fig, axes = plt.subplots(1, 2, figsize=(14, 3.6), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4), constrained_layout=True)
     for key in ("primal", "dual", "dr", "ccrl", "total"):
         if any(hist.term(key)):
             axes[0].plot(np.arange(1, epochs + 1), hist.term(key), marker="o", ms=3, label=key)

@@ -233,7 +233,7 @@ assert models["CorrTalk"].num_parameters() > 1.5 * models["DualTalker"].num_para
 # in mm², so not on the same scale), and the validation LVE of both against the static template.
 
 # %%
-fig, axes = plt.subplots(1, 3, figsize=(16, 3.8), constrained_layout=True)
+fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), constrained_layout=True)
 ep = np.arange(1, EPOCHS + 1)
 for key, label in (("reconstruction", "$L_{rec}$ (mm)"), ("velocity", "$L_{vel}$ (mm)"), ("total", "$L$")):
     axes[0].plot(ep, ct_hist.term(key), marker="o", ms=3, label=label)
@@ -379,7 +379,7 @@ def retrain(settings: dict, steps: int = 10, on_step=lambda: None):
 
 # %%
 def _retrain_figure(hist, mask_start, lips, settings, steps):
-    fig, axes = plt.subplots(1, 3, figsize=(16, 3.6), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4), constrained_layout=True)
     for key in ("reconstruction", "velocity", "total"):
         axes[0].plot(np.arange(1, steps + 1), hist.term(key), marker="o", ms=3, label=key)
     axes[0].set(title="loss terms (mm; 'total' weighted)", xlabel="training step", ylabel="loss (mm)")
@@ -458,7 +458,8 @@ print("rows:", [s.row for s in ct_specs])
 # ### Table III analogue: ablations of CorrTalk
 
 # %%
-display(Markdown(experiments.table_markdown("corrtalk", ct_specs, ct_runs, ct_meta)))
+CT_METRICS = ["lve_euclidean", "fdd_paper", "smoothing_upper", "bilabial_closure_1mm", "lip_distance_corr"]
+display(Markdown(experiments.table_markdown("corrtalk", ct_specs, ct_runs, ct_meta, metrics=CT_METRICS)))
 
 # %% [markdown]
 # How to read it (the definitions under the table): every row is CorrTalk with one component changed, trained and
@@ -474,7 +475,8 @@ display(Markdown(experiments.table_markdown("corrtalk", ct_specs, ct_runs, ct_me
 # ### CorrTalk in the main table (Table I analogue)
 
 # %%
-display(Markdown(experiments.table_markdown("main", main_specs, main_runs, main_meta)))
+MAIN_METRICS = ["lve_euclidean", "lve_published", "bilabial_closure_2mm", "bilabial_closure_1mm", "lip_distance_corr"]
+display(Markdown(experiments.table_markdown("main", main_specs, main_runs, main_meta, metrics=MAIN_METRICS)))
 
 # %% [markdown]
 # The same rule for the main table: CorrTalk's note compares it with DualTalker, the main table's reference row.

@@ -239,15 +239,19 @@ ax.axhline(0.5, color="grey", lw=0.8, ls=":")
 ax.set(xlabel="time (s)", ylabel="mean A in the region", title=f"Emotion-branch share per region over time, {name}")
 ax.legend(fontsize=8, ncols=5)
 plt.show()
+over_time = float(A.mean(1).max() - A.mean(1).min())  # how far the face-mean share moves over the clip
+across_face = max(share_by_region.values()) - min(share_by_region.values())  # how far the regions' means differ
+assert abs(float(A.mean()) - 0.5) > 0.1 and over_time > 5 * across_face  # what the text below says
 
 # %% [markdown]
-# After 20 steps the map has barely left its initial 0.5 (a sigmoid of small numbers, notebook 13): the regions'
-# means above differ in the third decimal, and the map (colours stretched to its own narrow range) changes over
-# time, with the speech features, far more than across the face. So this run cannot say where the emotion branch
-# wins. The map that the
-# paper's Fig. 4 shows (emotion on the brows, eyes and mouth corners) needs the full training; rerun this section
-# with `fit(300)` (about 2 CPU minutes) to watch it form, or load a model trained by the runner
-# (`experiments.run_one(table_specs("emoface")[0], 0, epochs=37, checkpoint=...)`).
+# After 20 steps the map has left its initial 0.5 (a sigmoid of small numbers, notebook 13) by about the same
+# amount everywhere: the regions' means printed above are all about two thirds and differ by less than 0.01, each
+# face in the first figure is nearly one colour, and the map rises and falls over time with the speech features
+# (the second figure: 0.53 to 0.76 over this clip) far more than it varies across the face (asserted above). So
+# this run cannot say where the emotion branch wins. The map of the paper's Fig. 4 (emotion on the brows, eyes
+# and mouth corners) needs the full training: rerun this section with `fit(300)` (about 2 CPU minutes) to watch
+# it form, or train one with the tables' recipe (`dualtalker-lite train --model emoface --epochs 12 --out
+# runs/emoface.pt`, about 15 CPU minutes). Section 7 shows what the five trained models of the tables do.
 #
 # ## 5. Train it yourself: emotion, level and loss weights
 #
@@ -282,7 +286,7 @@ def retrain(settings: dict, steps: int = 10, on_step=lambda: None):
 
 # %%
 def _panel_figure(hist, curves, settings, steps):
-    fig, axes = plt.subplots(1, 3, figsize=(15, 3.4), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4), constrained_layout=True)
     for key in ("self", "cross", "vel", "cls"):
         axes[0].plot(np.arange(1, steps + 1), hist.term(key), marker="o", ms=3, label=key)
     axes[0].set(title="loss terms (unweighted; mm for vertices)", xlabel="training step", ylabel="loss")
@@ -396,7 +400,9 @@ print(f"{steps} steps per trained model ({neutral_steps} in the neutral tables);
 # ### Table 2/3 analogue: four models on the emotional test split
 
 # %%
-display(Markdown(experiments.table_markdown("emotion", *tables["emotion"])))
+EMO_METRICS = ["lve_euclidean", "eve_published", "bilabial_closure_1mm", "lip_distance_corr", "emotion_accuracy",
+               "brow_raise_error_mm", "smile_error_mm"]
+display(Markdown(experiments.table_markdown("emotion", *tables["emotion"], metrics=EMO_METRICS)))
 
 # %%
 # NBVAL_CHECK_OUTPUT
@@ -432,7 +438,7 @@ assert 0.25 < acc["EmoFace"] < 0.75  # above chance, far from perfect
 # ### EmoFace's ablations
 
 # %%
-display(Markdown(experiments.table_markdown("emoface", *tables["emoface"])))
+display(Markdown(experiments.table_markdown("emoface", *tables["emoface"], metrics=EMO_METRICS)))
 
 # %%
 # NBVAL_CHECK_OUTPUT
@@ -473,16 +479,17 @@ CONTROL_COMMAND = "python benchmarks/emotion_control.py " + " ".join(
     f"runs/emotional_tables/EmoFace_seed{k}.pt" for k in range(5))
 control = json.loads((RESULTS / "emotion_control.json").read_text())
 assert control["command"] == CONTROL_COMMAND and len(control["models"]) == 5
-fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+conditions = control["models"][0]["conditions"]  # one colour per condition (no labels on top of each other)
+fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
 for j, (ax, what) in enumerate(zip(axes, ("brow raise", "smile width"))):
-    for m in control["models"]:
-        gen, gt = np.array(m["generated_mm"])[:, j], np.array(m["ground_truth_mm"])[:, j]
-        ax.scatter(gt, gen, s=14, alpha=0.6)
-    for c, x in zip(control["models"][0]["conditions"], np.array(control["models"][0]["ground_truth_mm"])[:, j]):
-        ax.annotate(c, (x, x), fontsize=7, alpha=0.7)
+    for k, c in enumerate(conditions):  # the 5 models' dots of condition c
+        gen = [np.array(m["generated_mm"])[k, j] for m in control["models"]]
+        gt = [np.array(m["ground_truth_mm"])[k, j] for m in control["models"]]
+        ax.scatter(gt, gen, s=16, alpha=0.75, color=plt.cm.tab10(k), label=c)
     lim = ax.get_xlim()
     ax.plot(lim, lim, color="grey", lw=0.8, ls=":")
     ax.set(xlabel=f"real emotional reading: {what} (mm)", ylabel="neutral audio + condition (mm)", title=what)
+fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right center", fontsize=8, title="condition")
 plt.show()
 
 # %%
@@ -503,7 +510,7 @@ assert min(alpha.values()) > 0.5 and min(alpha, key=alpha.get) == "lips"
 # of a millimetre of what the same speakers do when they really speak that way. Mesh Attention, however, does not
 # split the face into an emotion part and a content part: the emotion branch gets most of every region, the most on
 # the brows, eyes and mouth corners, the least on the lips, where the content branch has the most say. Section 4's
-# 20-step map (near 0.5 everywhere) was the untrained start of this.
+# 20-step map (about two thirds everywhere, nearly uniform across the face) was the untrained start of this.
 
 # %%
 # NBVAL_IGNORE_OUTPUT
