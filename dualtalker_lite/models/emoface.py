@@ -54,7 +54,7 @@ Readings taken (the paper leaves these open):
   (eqs. 7-8), so their plain sum would double it; "sum" is therefore the equal-weight mean, i.e. Mesh Attention's
   map held at 0.5 everywhere.
 - Motion enters and leaves the decoders in mm (``motion_scale``), and :meth:`init_output_bias` starts both decoder
-  biases at the training mean motion, as for DualTalker (see its "Mean-face collapse" note).
+  biases at the training mean motion, as for every model (docs/design-notes.md, "Mean-face collapse").
 """
 from __future__ import annotations
 
