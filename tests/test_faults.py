@@ -13,6 +13,8 @@ import io
 import json
 import os
 import pickle
+import shutil
+import signal
 import struct
 import subprocess
 import sys
@@ -421,6 +423,46 @@ def test_generate_failure_leaves_the_old_corpus_untouched(small_corpus, monkeypa
                             texts=("Bob ate a plum.", "Is it raining?", "Move the map.", "We won!"))
     assert snapshot(small_corpus) == before
     assert [p.name for p in small_corpus.parent.iterdir() if p.name.startswith(".")] == []
+
+
+SLOW_WRITER = """import sys, time
+import dualtalker_lite.data.generate as g
+pcm = g.to_pcm16
+g.to_pcm16 = lambda wave: (time.sleep(0.3), pcm(wave))[1]  # slow clip writes: a wide window to kill in
+from dualtalker_lite.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGKILL, -signal.SIGKILL), (signal.SIGTERM, 130)])
+def test_generate_killed_while_writing_leaves_the_old_corpus(small_corpus, sig, status):
+    """Killed after some clips of the new corpus are written: the old corpus is byte-identical (was: old metadata
+    next to new files). SIGTERM also removes the temporary folder; SIGKILL cannot, and leaves only a hidden
+    sibling."""
+    before = snapshot(small_corpus)
+    env = {**os.environ, "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p)}
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_WRITER, "generate", "--out", small_corpus, "--overwrite",
+                             "--sentences-file", small_corpus.parent / "s.txt", *SMALL], env=env, cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    hidden = []
+    while time.monotonic() < deadline and proc.poll() is None:
+        hidden = [p for p in small_corpus.parent.iterdir() if p.name.startswith(f".{small_corpus.name}.")]
+        if hidden and len(list(hidden[0].rglob("*.flac"))) >= 2:
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == status, err
+    assert snapshot(small_corpus) == before
+    left = [p for p in small_corpus.parent.iterdir() if p.name.startswith(".")]
+    if sig == signal.SIGTERM:
+        assert left == [] and err.strip() == "interrupted; temporary files removed"
+    else:
+        assert [p.name for p in left] == [hidden[0].name]  # only the temporary sibling, never the target
+        shutil.rmtree(hidden[0])
 
 
 @pytest.mark.parametrize("target", ["data_samples", "data_samples/sub", "."])
