@@ -111,6 +111,15 @@ class _SharedBuffer:
         return _reconstruct, (np.ndarray, (0,), b"b"), (1, (10_000,), np.dtype("f8"), False, self.raw)
 
 
+class _SharedScalar:
+    """The same 100 kB buffer behind 50 numpy scalars: each one copies it."""
+    raw = b"\0" * 100_000
+
+    def __reduce__(self):
+        from numpy._core.multiarray import scalar
+        return scalar, (np.dtype("V100000"), self.raw)
+
+
 class _System:
     def __init__(self, marker):
         self.marker = marker
@@ -138,6 +147,8 @@ FORGED = {
     "huge_array": (lambda tmp: pickle.dumps({"F2": _Reconstruct()}, protocol=2), "declare more data than the file"),
     "ndarray_call": (lambda tmp: pickle.dumps({"F2": _NdarrayCall()}, protocol=2), "direct call of numpy.ndarray"),
     "shared_buffer": (lambda tmp: pickle.dumps({f"S{i}": _SharedBuffer() for i in range(100)}, protocol=2),
+                      "declare more data than the file"),
+    "shared_scalar": (lambda tmp: pickle.dumps({f"S{i}": _SharedScalar() for i in range(50)}, protocol=2),
                       "declare more data than the file"),
     "too_deep": (lambda tmp: pickle.dumps(_deep_distinct(MAX_DEPTH + 5), protocol=2), "levels deep"),
     "cycle": (lambda tmp: pickle.dumps(_cycle(), protocol=2), "a cycle"),

@@ -101,7 +101,7 @@ class _RestrictedUnpickler(pickle.Unpickler):
     Every array's bytes must come from the file: numpy's reconstructor (``_reconstruct(ndarray, shape, dtype)``)
     and ``ndarray.__setstate__`` are guarded so that the declared sizes of all arrays together never exceed the
     file's size *before* anything is allocated (a 97-byte pickle cannot declare a 1.2 GB array, and one buffer
-    referenced many times cannot be copied into many arrays)."""
+    referenced many times cannot be copied into many arrays or numpy scalars)."""
 
     def __init__(self, file, source: str, budget: int):
         super().__init__(file, encoding="latin1")  # Python 2 pickles (VOCASET's) need latin1 for numpy buffers
@@ -123,6 +123,7 @@ class _RestrictedUnpickler(pickle.Unpickler):
         self._array_cls = _Array
         reconstruct = _numpy_attr("numpy._core.multiarray", "_reconstruct")
         frombuffer = _numpy_attr("numpy._core.numeric", "_frombuffer")
+        scalar = _numpy_attr("numpy._core.multiarray", "scalar")
 
         def _reconstruct(subtype, shape, dtype):
             if subtype is not _Array:
@@ -135,7 +136,11 @@ class _RestrictedUnpickler(pickle.Unpickler):
             unpickler._spend(arr.nbytes)
             return arr
 
-        self._guarded = {"_reconstruct": _reconstruct, "_frombuffer": _frombuffer}
+        def _scalar(dtype, *args):
+            unpickler._spend(np.dtype(dtype).itemsize)  # copies its bytes: one buffer must not feed many
+            return scalar(dtype, *args)
+
+        self._guarded = {"_reconstruct": _reconstruct, "_frombuffer": _frombuffer, "scalar": _scalar}
 
     def _spend(self, nbytes: int) -> None:
         self.budget -= nbytes
