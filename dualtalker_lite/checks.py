@@ -1,4 +1,5 @@
-"""Checks on the way in: shapes (d2l's ``check_shape``), finite values, and ``.npy`` files loaded safely.
+"""Checks on the way in: shapes (d2l's ``check_shape``), finite values, ``.npy``/``.npz`` files loaded safely, and
+names that must stay plain file names (``check_name``).
 
 Every error names the array or file and the problem in one line (a ``ValueError``, which the command line shows
 as ``error: ...`` with exit status 2).

@@ -8,7 +8,8 @@ Both share ``faces.npy``, ``regions.json`` and ``metadata.json``. Loaded arrays 
 error names the clip or file at fault.
 
 Validation at load (one ``ValueError`` line each, naming the file or clip): broken JSON, a missing or
-malformed ``clips`` table, clip names that are not plain file names (``../x``, ``/etc/x``), empty splits, clips shared between ``train`` and ``val``/``test*`` splits,
+malformed ``clips`` table, clip names that are not plain file names (``../x``, ``/etc/x``), empty splits,
+clips shared between ``train`` and ``val``/``test*`` splits,
 ``.npy`` files that are not plain numeric arrays (never unpickled), NaN/inf in templates and vertices,
 vertices in millimetres instead of metres, a transposed ``(T, 3, V)`` layout, and triangle indices
 outside the vertex range. Optional metadata keys for real datasets (see :mod:`.faceformer`):

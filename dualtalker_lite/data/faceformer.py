@@ -24,10 +24,12 @@ biwi       25 fps, 23370 vertices; regions ``regions/lve.txt``    train: F2 F3 F
 
 ``templates.pkl`` is read with :func:`safe_load_pickle`, a restricted unpickler that admits only numpy
 arrays, dicts, lists, tuples, strings and numbers: any other global (``os.system``, ``builtins.eval``, ...)
-raises :class:`UnsafePickleError` before anything runs. :func:`prepare_dataset` (``dualtalker-lite
-prepare-dataset ROOT --preset vocaset``) converts it to ``templates.npz`` and writes ``metadata.json``,
-``regions.json`` and ``faces.npy`` beside the data, so :class:`~dualtalker_lite.data.corpus.Corpus` and
-the whole package read the folder like the shipped sample. Nothing is downloaded: the real datasets need
+raises :class:`UnsafePickleError` before anything runs. Forged plain data is bounded too: each object is
+visited once (shared references and cycles cannot make the check hang), at most ``MAX_OBJECTS`` objects and
+``MAX_DEPTH`` levels, and no array may declare more bytes than the file holds, checked before anything is
+allocated. :func:`prepare_dataset` (``dualtalker-lite prepare-dataset ROOT --preset vocaset``) converts it
+to ``templates.npz`` and writes ``metadata.json``, ``regions.json`` and ``faces.npy`` beside the data, so
+:class:`~dualtalker_lite.data.corpus.Corpus` and the whole package read the folder like the shipped sample. Nothing is downloaded: the real datasets need
 their own licences. Assumptions where FaceFormer's code is the only specification are stated above; the
 region file names follow CodeTalker (BIWI) and the FLAME masks file (VOCASET).
 """

@@ -335,7 +335,8 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
         meta = {
             "format": spec.format, "version": 2, "fps": FPS, "sample_rate": SAMPLE_RATE,
             "n_vertices": int(mesh.vertices.shape[0]),
-            "generator": {"spec": asdict(spec), "versions": _versions(), "only": only, "sentences_file": sentences_file},
+            "generator": {"spec": asdict(spec), "versions": _versions(), "only": only,
+                          "sentences_file": sentences_file},
             "speakers": {n: {"voice": asdict(voices[n]), "split": "seen" if i < n_seen else "unseen"}
                          for i, n in enumerate(by_name)},
             "emotions": ["neutral", *EMOTIONAL],
