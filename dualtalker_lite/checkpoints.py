@@ -235,7 +235,7 @@ def _check_config_types(cfg: dict, cfg_cls: type, source: str) -> None:
             continue
         check = _FIELD_TYPES.get(str(f.type) if not isinstance(f.type, type) else f.type.__name__)
         if check is not None and not check[0](cfg[f.name]):
-            raise ValueError(f"{source}: model_config field {f.name!r} must be {check[1]}, found a "
+            raise ValueError(f"{source}: model_config field {f.name!r} must be {check[1]}, found "
                              f"{_type_name(cfg[f.name])} (hand-edited checkpoint?)")
 
 
@@ -259,7 +259,7 @@ def _check_features(features: Any, source: str) -> None:
                          f"{', '.join(_LOGMEL_KEYS)}")
     for key in _LOGMEL_INTS:
         if key in settings and not (_is_int(settings[key]) and settings[key] > 0):
-            raise ValueError(f"{source}: features setting {key!r} must be a positive int, found a "
+            raise ValueError(f"{source}: features setting {key!r} must be a positive int, found "
                              f"{_type_name(settings[key])}")
     for key in ("f_min", "f_max"):
         v = settings.get(key)
