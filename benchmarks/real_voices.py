@@ -54,7 +54,8 @@ sys.path.insert(0, str(ROOT))
 from dualtalker_lite.audio import LogMelExtractor, load_audio  # noqa: E402
 from dualtalker_lite.data import sample_path  # noqa: E402
 from dualtalker_lite.data.corpus import Corpus, read_json  # noqa: E402
-from dualtalker_lite.data.dataset import TalkingFaceDataset, VisemeLabels, collate, make_loader, segments_to_frames  # noqa: E402
+from dualtalker_lite.data.dataset import (TalkingFaceDataset, VisemeLabels, collate, make_loader,  # noqa: E402
+                                          segments_to_frames)
 from dualtalker_lite.face import FaceRig, Speaker, clip_controls  # noqa: E402
 from dualtalker_lite.face.visemes import VISEMES, phoneme_to_viseme  # noqa: E402
 from dualtalker_lite.metrics import (BILABIALS, closure_rate, curve_correlation, lip_distance,  # noqa: E402
@@ -91,6 +92,7 @@ MODELS = {  # row -> (architecture, training input, test input)
     "CorrTalk, phonetic (labels -> recogniser visemes)": ("corrtalk", "labels", "visemes"),
     "DualTalker, end to end (recogniser log-probs + log-mel)": ("dualtalker", "e2e", "e2e"),
 }
+BASELINE = "rig driven by the recogniser's classes (no learning)"
 DIMS = {"logmel": 160, "labels": 15, "visemes": 15, "e2e": 351}
 
 
@@ -225,11 +227,16 @@ def prepare(limit: int | None = None) -> dict:
             item[k] = e(p["wave"], n)
         item["visemes_ids"] = item["visemes"].argmax(1).numpy()
         real.append(item)
+    rng = np.random.default_rng(0)                    # 6 s of room tone: -50 dBFS white noise
+    noise = (10 ** (-50 / 20) * rng.standard_normal(6 * 16000)).astype(np.float32)
+    silence = {"name": "room-tone", "wave": noise, "ref": np.zeros((180, template.size), np.float32)}
+    silence.update({k: e(noise, 180) for k, e in ex.items()})
     print(f"real voices: {len(real)} prompts aligned ({len(failed)} failed), "
           f"{sum(r['wave_s'] for r in real) / 60:.1f} min, {time.time() - t0:.0f} s", flush=True)
     train = TalkingFaceDataset(corpus, "train")
     test = TalkingFaceDataset(corpus, "test_a")
     data = {"corpus": corpus, "subject": subject, "speaker": speaker, "rig": rig, "template": template, "real": real,
+            "silence": silence,
             "failed": failed, "train": {"logmel": train, "labels": VisemeLabels(train),
                                         "e2e": TalkingFaceDataset(corpus, "train", extractor=ex["e2e"])},
             "test": {"logmel": test, "labels": VisemeLabels(test),
@@ -283,6 +290,14 @@ def evaluate(model, test_feature: str) -> dict:
     return res
 
 
+def silence_motion(model, test_feature: str) -> dict:
+    """6 s of -50 dBFS noise: the range (max - min) and mean of the predicted lip distance, mm (a still mouth: ~0)."""
+    lip_mid = tuple(DATA["corpus"].regions["lip_midpoints"])
+    pred = predict_all(model, _real_batches([DATA["silence"]], test_feature, DATA["template"]))[0]
+    curve = lip_distance(pred, *lip_mid)
+    return {"lip_range_mm": float(curve.max() - curve.min()), "lip_mean_mm": float(curve.mean())}
+
+
 def build_model(arch: str, audio_dim: int, seed: int):
     from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
     from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
@@ -308,14 +323,21 @@ def run_one(job: tuple[str, int]) -> dict:
     epochs = DATA.get("epochs")
     path = OUT / f"{slug}_s{seed}{'' if epochs is None else f'_e{epochs}'}.json"
     if path.is_file():
-        return json.loads(path.read_text())
+        res = json.loads(path.read_text())
+        if "silence" not in res and path.with_suffix(".pt").is_file():   # added later: from the saved weights
+            model = build_model(arch, DIMS[train_feature], seed)
+            model.load_state_dict(torch.load(path.with_suffix(".pt"), weights_only=True))
+            res["silence"] = silence_motion(model, test_feature)
+            path.write_text(json.dumps(res, indent=1))
+        return res
     torch.set_num_threads(1)
     model = build_model(arch, DIMS[train_feature], seed)
     t0 = time.process_time()
     train(model, make_loader(DATA["train"][train_feature], 8, shuffle=True, seed=seed),
           TrainConfig.tiny(seed=seed, progress=False, **({} if epochs is None else {"epochs": epochs})))
     cpu = time.process_time() - t0
-    res = {"row": row, "seed": seed, "train_cpu_s": cpu, **evaluate(model, test_feature)}
+    res = {"row": row, "seed": seed, "train_cpu_s": cpu, **evaluate(model, test_feature),
+           "silence": silence_motion(model, test_feature)}
     torch.save(model.state_dict(), path.with_suffix(".pt"))
     path.write_text(json.dumps(res, indent=1))
     print(f"{row} seed {seed}: trained in {cpu:.0f} CPU s; real closure<2 {res['real']['closure_2mm']:.2f} "
@@ -347,8 +369,9 @@ def rig_rows() -> dict:
         syn_segs.append(meta["phonemes"])
     rows["rig reference (pocketsphinx phones; synthetic: ground truth)"]["synthetic"] = lip_metrics(
         syn_gt, syn_gt, syn_segs, lip_mid)
-    rows["rig driven by the recogniser's classes (no learning)"] = {
-        "real": lip_metrics(recog, refs, segs, lip_mid, REAL_TOL), "synthetic": lip_metrics(syn_pred, syn_gt, syn_segs, lip_mid)}
+    rows[BASELINE] = {
+        "real": lip_metrics(recog, refs, segs, lip_mid, REAL_TOL),
+        "synthetic": lip_metrics(syn_pred, syn_gt, syn_segs, lip_mid)}
     # the alternative recogniser, same use: pocketsphinx's phone loop (the reference's own acoustic model: favoured)
     alt = [rig_vertices(allphone(r["wave"]), r["ref"].shape[0], d["speaker"], d["rig"], r["wave"]) for r in real]
     alt_syn = []
@@ -358,7 +381,8 @@ def rig_rows() -> dict:
         wave = c.wave(item["name"])
         alt_syn.append(rig_vertices(allphone(wave), item["audio"].shape[0], sp, FaceRig(sp), wave))
     rows["rig driven by pocketsphinx's phone loop (alternative recogniser, no transcript)"] = {
-        "real": lip_metrics(alt, refs, segs, lip_mid, REAL_TOL), "synthetic": lip_metrics(alt_syn, syn_gt, syn_segs, lip_mid)}
+        "real": lip_metrics(alt, refs, segs, lip_mid, REAL_TOL),
+        "synthetic": lip_metrics(alt_syn, syn_gt, syn_segs, lip_mid)}
     return rows
 
 
@@ -407,7 +431,47 @@ def real_lag() -> dict:
             if near:
                 offsets.append(min(near, key=abs))
     offsets = np.array(offsets)
-    return {"median_ms": 1000 * float(np.median(offsets)), "mean_ms": 1000 * float(offsets.mean()), "n": int(offsets.size)}
+    return {"median_ms": 1000 * float(np.median(offsets)), "mean_ms": 1000 * float(offsets.mean()),
+            "n": int(offsets.size)}
+
+
+def cost(minutes: float = 5.0) -> dict:
+    """One-time extraction of the whole shipped corpus into an empty cache, the cached pass, and one long recording
+    (corpus speech concatenated to ``minutes``) through the viseme extractor without cache: CPU, wall, peak RSS."""
+    import resource
+    import tempfile
+
+    corpus = Corpus(sample_path())
+    names = list(corpus.metadata["clips"])
+    waves = [corpus.wave(n) for n in names]
+    audio_s = sum(len(w) for w in waves) / 16000
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        r = PhonemeRecogniser(cache_dir=tmp)
+        t0, c0 = time.time(), time.process_time()
+        for w in waves:
+            r.log_probs(w)
+        out["corpus"] = {"clips": len(names), "audio_s": audio_s, "wall_s": time.time() - t0,
+                         "cpu_s": time.process_time() - c0}
+        t0 = time.time()
+        for w in waves:
+            r.log_probs(w)
+        out["corpus"]["cached_pass_wall_s"] = time.time() - t0
+        out["corpus"]["cache_mb"] = sum(f.stat().st_size for f in Path(tmp).rglob("*.npy")) / 2 ** 20
+    long = np.concatenate(waves[: 1 + int(np.searchsorted(np.cumsum([len(w) for w in waves]), minutes * 60 * 16000))])
+    long = long[: int(minutes * 60 * 16000)]
+    del waves
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    ex = RecogniserExtractor("visemes", cache=False)
+    t0, c0 = time.time(), time.process_time()
+    ex(long, int(len(long) / 16000 * 30))
+    out["long"] = {"audio_s": len(long) / 16000, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0,
+                   "maxrss_before_mb": before,
+                   "maxrss_after_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    for k in ("corpus", "long"):
+        out[k]["cpu_s_per_audio_s"] = out[k]["cpu_s"] / out[k]["audio_s"]
+    print(json.dumps(out, indent=1))
+    return out
 
 
 # ------------------------------------------------------------------------------------------- report
@@ -430,11 +494,13 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
              f"{meta['n_real_clips']} prompts of Debian's asterisk-core-sounds-en-wav (one professional voice, 8 kHz "
              f"telephone band, {meta['real_minutes']:.1f} min, {meta['n_real_bilabials']} /p b m/, "
              f"{meta['n_real_vowel_frames']} vowel frames), phones force-aligned by pocketsphinx 5.1.1 driving the "
-             "project's rig as the reference. Synthetic: the shipped corpus's test_a (48 held-out sentences, "
-             f"{meta['n_syn_bilabials']} /p b m/), reference = ground truth. Models: tiny, trained on the shipped "
-             "corpus with `TrainConfig.tiny()` (one thread), mean ± std over seeds "
-             f"({meta['seeds']}). Targets (real): closure < 2 mm >= 0.9, < 1 mm >= 0.8, vowel frames shut <= 0.06, "
-             "r >= 0.7. Nothing was tuned on the real recordings (lag and window: `--tune`, synthetic training split).",
+             "project's rig as the reference; a bilabial's window is its aligned phone widened by one mesh frame on "
+             "each side (exact windows: second table). Synthetic: the shipped corpus's test_a (48 held-out sentences, "
+             f"{meta['n_syn_bilabials']} /p b m/, exact label windows), reference = ground truth. Models: tiny, "
+             "trained on the shipped corpus with `TrainConfig.tiny()` (one thread), mean ± std over seeds "
+             f"(0-{meta['seeds'] - 1}). Targets (real): closure < 2 mm >= 0.9, < 1 mm >= 0.8, vowel frames shut "
+             "<= 0.06, r >= 0.7. Nothing was tuned on the real recordings (the recogniser's lag and window: `--tune`, "
+             "synthetic training split). Vowel frames shut: lip distance < 1 mm inside a vowel.",
              "", "| row | seeds | real: " + " | real: ".join(k[1] for k in keys) + " | synthetic: "
              + " | synthetic: ".join(k[1] for k in keys) + " |", "|---|---|" + "---|" * (2 * len(keys))]
     for name, r in rows.items():
@@ -449,11 +515,26 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
         lines.append(f"| {row} | {len(rs)} | " + " | ".join(cells) + " |")
         if "synthetic_labels" in rs[0]:
             cells = ["-"] * len(keys) + [_ms([r["synthetic_labels"][k] for r in rs]) for k, _ in keys]
-            lines.append(f"| ... same models fed the true labels (ceiling) | {len(rs)} | " + " | ".join(cells) + " |")
+            lines.append(f"| ... the same models fed the true labels (ceiling) | {len(rs)} | " + " | ".join(cells)
+                         + " |")
+    lines += ["", "Real voices with the exact aligned-phone windows (no widening), and 6 s of room tone (-50 dBFS "
+              "white noise): range and mean of the predicted lip distance (a still mouth has range ~0).", "",
+              "| row | real: closure < 2 mm, exact | < 1 mm, exact | room tone: lip range mm | lip mean mm |",
+              "|---|---|---|---|---|"]
+    for name, r in rows.items():
+        lines.append(f"| {name} | {r['real']['closure_2mm_exact']:.2f} | {r['real']['closure_1mm_exact']:.2f} "
+                     "| - | - |")
+    for row in MODELS:
+        rs = [r for r in runs if r["row"] == row]
+        if rs:
+            lines.append(f"| {row} | {_ms([r['real']['closure_2mm_exact'] for r in rs])} | "
+                         f"{_ms([r['real']['closure_1mm_exact'] for r in rs])} | "
+                         f"{_ms([r['silence']['lip_range_mm'] for r in rs if 'silence' in r])} | "
+                         f"{_ms([r['silence']['lip_mean_mm'] for r in rs if 'silence' in r])} |")
     lines += ["", f"Recogniser spikes minus the aligned phone centres on the real voices (measured, not used): "
               f"median {meta['real_lag']['median_ms']:.0f} ms (mean {meta['real_lag']['mean_ms']:.0f} ms, "
               f"{meta['real_lag']['n']} spikes); the extractor's lag is {meta['lag_s'] * 1000:.0f} ms "
-              f"(chosen on the synthetic corpus). Training CPU per model: {meta['train_cpu_s']}.", ""]
+              f"(chosen on the synthetic corpus). Training CPU seconds per model: {meta['train_cpu_s']}.", ""]
     (results / "real_voices.md").write_text("\n".join(lines))
     print("\n".join(lines))
 
@@ -461,6 +542,7 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--tune", action="store_true", help="only the lag/window grid on the synthetic training split")
+    ap.add_argument("--cost", action="store_true", help="only the recogniser's extraction cost (corpus, 5 min clip)")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--rows", nargs="*", default=None, help="model rows to run (default: all)")
     ap.add_argument("--workers", type=int, default=2)
@@ -468,6 +550,10 @@ def main(argv=None) -> None:
     ap.add_argument("--epochs", type=int, default=None, help="training epochs (default: TrainConfig.tiny()'s)")
     ap.add_argument("--no-report", action="store_true", help="do not write results/ (smoke runs)")
     args = ap.parse_args(argv)
+    if args.cost:
+        OUT.mkdir(parents=True, exist_ok=True)
+        (OUT / "cost.json").write_text(json.dumps(cost(), indent=1))
+        return
     if args.tune:
         result = tune()
         OUT.mkdir(parents=True, exist_ok=True)
@@ -495,9 +581,9 @@ def main(argv=None) -> None:
             "date": time.strftime("%Y-%m-%d"), "commit": commit.strip(), "seeds": args.seeds,
             "n_real_clips": len(DATA["real"]), "failed_alignments": DATA["failed"],
             "real_minutes": sum(x["wave_s"] for x in DATA["real"]) / 60,
-            "n_real_bilabials": rows["rig driven by the recogniser's classes (no learning)"]["real"]["n_bilabials"],
-            "n_real_vowel_frames": rows["rig driven by the recogniser's classes (no learning)"]["real"]["n_vowel_frames"],
-            "n_syn_bilabials": rows["rig driven by the recogniser's classes (no learning)"]["synthetic"]["n_bilabials"],
+            "n_real_bilabials": rows[BASELINE]["real"]["n_bilabials"],
+            "n_real_vowel_frames": rows[BASELINE]["real"]["n_vowel_frames"],
+            "n_syn_bilabials": rows[BASELINE]["synthetic"]["n_bilabials"],
             "real_lag": real_lag(), "lag_s": LAG_S,
             "train_cpu_s": ", ".join(f"{k}: {v} s" for k, v in cpu.items() if v != "-"),
             "clips": [x["name"] for x in DATA["real"]]}

@@ -427,7 +427,7 @@ for query_from, window, title in readings:
 torch.testing.assert_close(weights["FaceFormer, diagonal (VOCASET)"], torch.eye(T).expand(B, H, T, T))
 
 # %%
-fig, axes = plt.subplots(1, 4, figsize=(15, 3.9), constrained_layout=True)
+fig, axes = plt.subplots(1, 4, figsize=(12, 3.4), constrained_layout=True)
 for ax, (query_from, window, title) in zip(axes, readings):
     im = ax.imshow(weights[title][0, 0], cmap="magma", vmin=0, vmax=1)
     ax.set_title(title, fontsize=10)

@@ -250,7 +250,7 @@ s_off, s_on = runs[0.0]["steps"], runs[1.0]["steps"]
 np.testing.assert_allclose(s_on["dr"], s_on["dr_x"] + s_on["dr_y"], rtol=1e-5)  # eq. 8 = its two terms
 
 # %%
-fig, axes = plt.subplots(2, 3, figsize=(15, 7.4), constrained_layout=True)
+fig, axes = plt.subplots(2, 3, figsize=(12, 6.6), constrained_layout=True)
 step, colors = np.arange(1, n_steps + 1), {0.0: "tab:gray", 1.0: "tab:red"}
 for lam, r in runs.items():
     s, c, lab = r["steps"], colors[lam], f"$\\lambda_3$ = {lam:g}"
@@ -355,7 +355,7 @@ print(f"same-frame minus shifted cosine with L_DR: Y {on['cos_y'] - on['cos_y_sh
 
 # %%
 clip, n = 0, int(val_batch["lengths"][0])
-fig, axes = plt.subplots(1, 4, figsize=(16, 4), constrained_layout=True)
+fig, axes = plt.subplots(1, 4, figsize=(12, 3.4), constrained_layout=True)
 for col, lam in enumerate(LAMBDAS):
     for row, (fused, enc, sym) in enumerate((("y_fused", "y", "Y"), ("x_fused", "x", "X"))):
         ax = axes[2 * row + col]

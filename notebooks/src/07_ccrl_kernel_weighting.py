@@ -196,7 +196,7 @@ def draw_kernel(axes_pair, w: torch.Tensor, title: str):
 
 
 bandwidths = {"0.5 x median": 0.5 * sigma_median, "median heuristic": sigma_median, "4 x median": 4 * sigma_median}
-fig, axes = plt.subplots(2, 3, figsize=(15, 6.6), gridspec_kw={"height_ratios": [4, 1.1]}, sharex="col",
+fig, axes = plt.subplots(2, 3, figsize=(12, 5.8), gridspec_kw={"height_ratios": [4, 1.1]}, sharex="col",
                          constrained_layout=True)
 for col, (label, sigma) in enumerate(bandwidths.items()):
     w = rbf_kernel_weights(motion, sigma, clip_mask)[0]
@@ -300,8 +300,8 @@ assert torch.all(torch.diagonal(w_small[0]) == 1)
 # $s(1 - w)$ are near 0 whatever the features say.
 
 # %%
-fig, axes = plt.subplots(1, 6, figsize=(18, 3.4), constrained_layout=True,
-                         gridspec_kw={"width_ratios": [1, 1, 1, 1, 1, 0.8]})
+fig, axes = plt.subplots(2, 3, figsize=(12, 7.4), constrained_layout=True)
+axes = axes.ravel()  # five matrices, then the per-anchor losses
 panels = [(w_small[0], "$w_{k,t}$ (kernel)", 0, 1, "magma"),
           (s_inter[0], "$s^{inter}_{k,t}$ = cos($X_k, Y_t$)", -1, 1, "RdBu_r"),
           (s_intra[0], "$s^{intra}_{k,t}$ = cos($X_k, X_t$)", -1, 1, "RdBu_r"),
@@ -321,7 +321,8 @@ for shift, (reading, l_read) in zip((-0.27, 0.0, 0.27), by_hand.items()):
 axes[5].axhline(0, color="k", lw=0.6)
 axes[5].set(title="per-anchor loss $l_k$", xlabel="anchor k (frame)", ylabel="$l_k$ (nats)",
             xticks=k_axis, xticklabels=frames.tolist())
-axes[5].legend(fontsize=7)
+axes[5].set_ylim(top=axes[5].get_ylim()[1] * 1.3)  # head room: the legend above the bars, not on them
+axes[5].legend(fontsize=7, ncols=3, loc="upper center")
 plt.show()
 
 # %% [markdown]

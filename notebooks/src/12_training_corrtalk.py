@@ -48,8 +48,8 @@ from dualtalker_lite.train import TrainConfig, mean_motion, predict, train
 from dualtalker_lite.checks import check_shape
 from dualtalker_lite.files import repo_root
 from dualtalker_lite.seeding import set_seed
-from dualtalker_lite.viz import (animate_clip, branch_mean_errors, plot_branch_error_maps, plot_lip_distance,
-                                 plot_vertex_maps)
+from dualtalker_lite.viz import (MeshViewer, animate_clip, branch_mean_errors, plot_branch_error_maps,
+                                 plot_lip_distance, plot_vertex_maps)
 from dualtalker_lite.viz.widgets import TrainingPanel, progress_loader
 
 torch.set_num_threads(1)  # tiny models: a second thread only waits on a shared machine (notebook 08)
@@ -494,6 +494,21 @@ animate_clip({label: x[b, :n_b].reshape(n_b, V, 3).numpy() for label, x in
               (("ground truth", test_batch["vertices"]), ("DualTalker", preds["DualTalker"]),
                ("CorrTalk", preds["CorrTalk"]))},
              corpus.faces, wave=corpus.wave(CLIP), sample_rate=corpus.sample_rate, size=160)
+
+# %% [markdown]
+# CorrTalk's prediction of the same clip in 3D, coloured by its learned mask $\mathcal{M}$ (yellow: the strong
+# branch decodes the vertex, purple: the weak one).
+#
+# With a running kernel the cell below shows it live in 3D (drag to orbit, scroll to zoom, the play button or
+# the frame slider runs the clip); the committed notebook stores only the widget's placeholder, as in
+# notebook 01.
+
+# %%
+# NBVAL_IGNORE_OUTPUT
+ct_clip = preds["CorrTalk"][b, :n_b].reshape(n_b, V, 3).numpy()  # (T, V, 3) metres
+viewer = MeshViewer(ct_clip[0], corpus.faces, colors=mask_now.numpy(), cmap="viridis", vmin=0.0, vmax=1.0,
+                    width=360, height=360)
+display(viewer.player(ct_clip))
 
 # %%
 # NBVAL_IGNORE_OUTPUT
