@@ -132,6 +132,13 @@ def test_stitched_output_matches_one_call_inside_a_core(two_minutes, recogniser)
     assert agree > 0.9, agree
 
 
+def test_threads_give_the_same_frames(corpus):
+    """Cores run two at a time on two threads (hama releases the GIL); the stitched output is identical."""
+    wave = np.concatenate([corpus.wave(n) for n in corpus.split("long")[:1]])[:12 * 16000]
+    one, two = (PhonemeRecogniser(core_s=4, context_s=1, cache=False, threads=t).log_probs(wave) for t in (1, 2))
+    assert one.shape == (1 + wave.shape[0] // 320, 191) and np.array_equal(one, two)
+
+
 def test_cache_is_content_hashed(tmp_path, corpus):
     r = PhonemeRecogniser(cache_dir=tmp_path)
     wave = corpus.wave(corpus.split("test_a")[0])
