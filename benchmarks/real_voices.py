@@ -489,8 +489,8 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
     keys = (("closure_2mm", "closure < 2 mm"), ("closure_1mm", "< 1 mm"), ("vowel_shut", "vowel frames shut"),
             ("r", "r with reference"))
     lines = ["# Lip sync on real voices (issue 19)", "",
-             f"Made by `{meta['command']}` ({meta['date']}, commit {meta['commit']}); `benchmarks/real_voices.py` "
-             "says how. Real voices: "
+             f"Made by `{meta['command']}` ({meta['date']}, code of commit {meta['commit']}); "
+             "`benchmarks/real_voices.py` says how. Real voices: "
              f"{meta['n_real_clips']} prompts of Debian's asterisk-core-sounds-en-wav (one professional voice, 8 kHz "
              f"telephone band, {meta['real_minutes']:.1f} min, {meta['n_real_bilabials']} /p b m/, "
              f"{meta['n_real_vowel_frames']} vowel frames), phones force-aligned by pocketsphinx 5.1.1 driving the "
@@ -575,7 +575,8 @@ def main(argv=None) -> None:
         runs = [run_one(j) for j in jobs]
     import subprocess
 
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
+    commit = subprocess.run(["git", "log", "-1", "--format=%h", "--", "benchmarks/real_voices.py",  # the code's
+                             "dualtalker_lite/recogniser.py"], cwd=ROOT, capture_output=True, text=True).stdout
     cpu = {row: _ms([x["train_cpu_s"] for x in runs if x["row"] == row]) for row in MODELS}
     meta = {"command": "benchmarks/real_voices.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             "date": time.strftime("%Y-%m-%d"), "commit": commit.strip(), "seeds": args.seeds,
