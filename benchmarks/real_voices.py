@@ -460,15 +460,17 @@ def cost(minutes: float = 5.0) -> dict:
     long = np.concatenate(waves[: 1 + int(np.searchsorted(np.cumsum([len(w) for w in waves]), minutes * 60 * 16000))])
     long = long[: int(minutes * 60 * 16000)]
     del waves
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    ex = RecogniserExtractor("visemes", cache=False)
-    t0, c0 = time.time(), time.process_time()
-    ex(long, int(len(long) / 16000 * 30))
-    out["long"] = {"audio_s": len(long) / 16000, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0,
-                   "maxrss_before_mb": before,
-                   "maxrss_after_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-    for k in ("corpus", "long"):
+    for threads in (1, 2):
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        ex = RecogniserExtractor("visemes", recogniser=PhonemeRecogniser(cache=False, threads=threads))
+        t0, c0 = time.time(), time.process_time()
+        ex(long, int(len(long) / 16000 * 30))
+        out[f"long_{threads}_thread"] = {
+            "audio_s": len(long) / 16000, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0,
+            "maxrss_before_mb": before, "maxrss_after_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    for k in ("corpus", "long_1_thread", "long_2_thread"):
         out[k]["cpu_s_per_audio_s"] = out[k]["cpu_s"] / out[k]["audio_s"]
+        out[k]["real_time_factor"] = out[k]["audio_s"] / out[k]["wall_s"]
     print(json.dumps(out, indent=1))
     return out
 
