@@ -1,4 +1,5 @@
 """The pretrained phoneme recogniser front-end (dualtalker_lite/recogniser.py, issue 19)."""
+import io
 import os
 from pathlib import Path
 
@@ -204,6 +205,10 @@ def test_extractor_outputs_and_settings(recogniser, corpus):
         assert desc["name"] == "hama" and desc["settings"]["dim"] == dim
         again = RecogniserExtractor.from_settings(desc, recogniser=recogniser)
         assert again.settings() == desc
+        buffer = io.BytesIO()                                 # plain values: a checkpoint's weights_only load takes them
+        torch.save({"features": desc}, buffer)
+        buffer.seek(0)
+        assert torch.load(buffer, weights_only=True)["features"] == desc
     with pytest.raises(ValueError, match="hama version '0.9'.*pip install hama==0.9"):
         RecogniserExtractor.from_settings({"name": "hama", "settings": {**desc["settings"], "version": "0.9"}},
                                           recogniser=recogniser)
