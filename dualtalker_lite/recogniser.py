@@ -20,7 +20,8 @@ Pieces, bottom up (each usable alone):
   are rounded to float16 (0.01 nat resolution; always, so cached and fresh results are identical) and cached on
   disk under a content hash (sha256 of the wave's float32 bytes + the recogniser settings):
   :func:`default_cache_dir`. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one call at a
-  time, so an hour of audio never holds more than one 28 s call in the model.
+  time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s calls
+  in the model.
 * :data:`SYMBOL_TO_VISEME` -- every one of hama's 191 output symbols mapped to a viseme of
   :data:`~dualtalker_lite.face.visemes.VISEMES`, or to ``None`` for symbols that are not phones (tones, length
   and diacritic marks, punctuation, ``<wb>``, ``<blank>``; :data:`NON_PHONES`). Diphthongs map to their first
@@ -32,14 +33,16 @@ Pieces, bottom up (each usable alone):
 * :class:`RecogniserExtractor` -- the :class:`~dualtalker_lite.audio.FeatureExtractor`: ``(wave, T) -> (T, dim)``
   at the mesh rate, with ``output``:
 
-  ===================  =====  ==================================================================================
-  ``output``           dim    features per mesh frame
-  ===================  =====  ==================================================================================
-  ``"visemes"``        15     one-hot viseme class from the spikes (the phonetic route; train on
-                              :class:`~dualtalker_lite.data.dataset.VisemeLabels`, the corpus's own labels)
-  ``"logprobs"``       191    the log-probabilities, linearly interpolated to the mesh frame times (end to end)
-  ``"logprobs+logmel"``351    the same plus the 160 log-mel features of :class:`~dualtalker_lite.audio.LogMelExtractor`
-  ===================  =====  ==================================================================================
+  =====================  =====  ================================================================================
+  ``output``             dim    features per mesh frame
+  =====================  =====  ================================================================================
+  ``"visemes"``          15     one-hot viseme class from the spikes (the phonetic route; train on
+                                :class:`~dualtalker_lite.data.dataset.VisemeLabels`, the corpus's own labels)
+  ``"logprobs"``         191    the log-probabilities, linearly interpolated to the mesh frame times (end to end)
+  ``"logprobs+logmel"``  351    the same plus the 160 log-mel features of ``audio.LogMelExtractor``
+  ``"visemes+logmel"``   175    the viseme one-hot then the 160 log-mel features (for models that also need what
+                                visemes drop, e.g. EmoFace's emotion; train on ``VisemeLabels(base, keep_audio=True)``)
+  =====================  =====  ================================================================================
 
   :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "hama", "settings": {...}}``)
   and :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
@@ -73,10 +76,12 @@ FRAME_SAMPLES = SAMPLE_RATE // RATE   # 320 samples = 20 ms per frame (STFT hop 
 MAX_FRAMES_PER_CALL = 1500      # hama returns at most this many frames (30 s) per call, silently
 CORE_S, CONTEXT_S = 24.0, 2.0   # per call: 24 s kept + 2 s of context each side = 28 s = 1400 frames < 1500
 # Chosen on the shipped corpus's *training* split (benchmarks/real_voices.py --tune; docs/front-ends.md):
-LAG_S = 0.02                    # spikes are moved this much earlier (hama's spikes trail the phones)
+LAG_S = 0.02                    # spikes are moved this much earlier: hama's spikes trail the labelled phone
+                                # centres by 14 ms (median); 20 ms gives the best frame accuracy at every window
 WINDOW_S = 0.1                  # a mesh frame takes the nearest spike within this distance, else "sil"
 BLANK_BIAS = -0.1               # added to <blank> before the argmax (hama's own greedy decoder does the same)
-OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160}
+OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160,
+           "visemes+logmel": len(VISEMES) + 160}
 
 # ------------------------------------------------------------------------------ symbol -> viseme table
 # hama's 191 output symbols (vocab ``decoder`` + "<wb>", "<blank>"), grouped by viseme. Phones of other languages
@@ -300,9 +305,10 @@ def spike_track(spike_times: np.ndarray, spike_visemes: np.ndarray, n_frames: in
 class RecogniserExtractor:
     """:class:`~dualtalker_lite.audio.FeatureExtractor` from hama's phoneme recogniser (table in the module doc).
 
-    ``output``: ``"visemes"`` (one-hot (T, 15), the phonetic route), ``"logprobs"`` ((T, 191)) or
-    ``"logprobs+logmel"`` ((T, 351)). ``lag_s``: spikes and log-probs are read ``lag_s`` later than the mesh
-    frame time (hama lags the phones). ``window_s``: the nearest-spike window of :func:`spike_track`.
+    ``output``: ``"visemes"`` (one-hot (T, 15), the phonetic route), ``"logprobs"`` ((T, 191)),
+    ``"logprobs+logmel"`` ((T, 351)) or ``"visemes+logmel"`` ((T, 175)). ``lag_s``: spikes and log-probs are
+    read ``lag_s`` later than the mesh frame time (hama lags the phones). ``window_s``: the nearest-spike window of
+    :func:`spike_track`.
     ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors.
     """
 
@@ -315,7 +321,7 @@ class RecogniserExtractor:
         self.sample_rate = SAMPLE_RATE
         self.dim = OUTPUTS[output]
         self.recogniser = recogniser or PhonemeRecogniser(cache=cache, cache_dir=cache_dir)
-        self._logmel = LogMelExtractor(fps=fps) if output == "logprobs+logmel" else None
+        self._logmel = LogMelExtractor(fps=fps) if output.endswith("+logmel") else None
 
     # ---- checkpoints
     def settings(self) -> dict:
@@ -366,10 +372,11 @@ class RecogniserExtractor:
         """(n_frames, dim) float32 features at the mesh rate (see the class doc)."""
         if n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {n_frames}")
-        if self.output == "visemes":
+        if self.output.startswith("visemes"):
             ids = torch.from_numpy(self.viseme_ids(wave, n_frames))
-            return torch.nn.functional.one_hot(ids, len(VISEMES)).float()
-        feats = self.log_probs(wave, n_frames)
+            feats = torch.nn.functional.one_hot(ids, len(VISEMES)).float()
+        else:
+            feats = self.log_probs(wave, n_frames)
         if self._logmel is not None:
             feats = torch.cat([feats, self._logmel(wave, n_frames)], dim=1)
         return feats

@@ -1,4 +1,5 @@
 """The pretrained phoneme recogniser front-end (dualtalker_lite/recogniser.py, issue 19)."""
+import io
 import os
 from pathlib import Path
 
@@ -189,13 +190,13 @@ def test_extractor_outputs_and_settings(recogniser, corpus):
     from dualtalker_lite.audio import FeatureExtractor
 
     wave = corpus.wave(corpus.split("test_a")[0])
-    for output, dim in (("visemes", 15), ("logprobs", 191), ("logprobs+logmel", 351)):
+    for output, dim in (("visemes", 15), ("logprobs", 191), ("logprobs+logmel", 351), ("visemes+logmel", 175)):
         ex = RecogniserExtractor(output, recogniser=recogniser)
         assert isinstance(ex, FeatureExtractor) and ex.dim == dim and ex.sample_rate == 16000
         feats = ex(wave, 53)
         assert feats.shape == (53, dim) and feats.dtype == torch.float32 and torch.isfinite(feats).all()
-        if output == "visemes":
-            assert torch.equal(feats.sum(1), torch.ones(53))
+        if output.startswith("visemes"):
+            assert torch.equal(feats[:, :15].sum(1), torch.ones(53))
         else:
             # interpolated log-probs: a geometric mean of two distributions sums to at most 1 (Hoelder)
             total = torch.logsumexp(feats[:, :191], dim=1)
@@ -204,6 +205,10 @@ def test_extractor_outputs_and_settings(recogniser, corpus):
         assert desc["name"] == "hama" and desc["settings"]["dim"] == dim
         again = RecogniserExtractor.from_settings(desc, recogniser=recogniser)
         assert again.settings() == desc
+        buffer = io.BytesIO()                                 # plain values: a checkpoint's weights_only load takes them
+        torch.save({"features": desc}, buffer)
+        buffer.seek(0)
+        assert torch.load(buffer, weights_only=True)["features"] == desc
     with pytest.raises(ValueError, match="hama version '0.9'.*pip install hama==0.9"):
         RecogniserExtractor.from_settings({"name": "hama", "settings": {**desc["settings"], "version": "0.9"}},
                                           recogniser=recogniser)
@@ -229,6 +234,8 @@ def test_viseme_labels_dataset(corpus):
     assert item["audio"].shape == (item["visemes"].shape[0], 15)
     assert torch.equal(item["audio"].argmax(1), item["visemes"])
     assert torch.equal(item["audio"].sum(1), torch.ones(item["visemes"].shape[0]))
+    both = VisemeLabels(base, keep_audio=True)             # one-hot, then the base's log-mel
+    assert both.dim == 175 and torch.equal(both[0]["audio"], torch.cat([item["audio"], base[0]["audio"]], 1))
     # frames of the first /p b m/ label segment are one-hot PP
     meta = corpus.meta(item["name"])
     first_pp = next((s, e) for v, s, e in meta["visemes"] if v == "PP")

@@ -145,15 +145,21 @@ class VisemeLabels(Dataset):
     is fed the recogniser's tracks, ``TalkingFaceDataset(corpus, split,
     extractor=dualtalker_lite.recogniser.RecogniserExtractor("visemes"))``, which have the same shape and ids, so
     the decoder never sees the voice itself: a model trained on one synthetic voice runs on anyone's speech
-    (issue 19; ``docs/front-ends.md``). ``dim`` = 15 is the model's ``audio_dim``. Datasets without phoneme timing
-    (real corpora) have all-zero labels: train those on the recogniser's tracks instead.
+    (issue 19; ``docs/front-ends.md``). ``dim`` = 15 is the model's ``audio_dim``. ``keep_audio=True`` appends the
+    base's own features after the one-hot, ``(T, 15 + base dim)``: with log-mel that is what
+    ``RecogniserExtractor("visemes+logmel")`` gives at test time (175). Datasets without phoneme timing (real corpora)
+    have all-``sil`` labels: train those on the recogniser's tracks instead.
     """
 
-    def __init__(self, base: Dataset, n_visemes: int | None = None):
+    def __init__(self, base: Dataset, n_visemes: int | None = None, keep_audio: bool = False):
         from ..face.visemes import VISEMES
 
-        self.base = base
-        self.dim = len(VISEMES) if n_visemes is None else int(n_visemes)
+        self.base, self.keep_audio = base, keep_audio
+        self.n_visemes = len(VISEMES) if n_visemes is None else int(n_visemes)
+        extra = getattr(getattr(base, "extractor", None), "dim", None) if keep_audio else 0
+        if extra is None:
+            extra = int(base[0]["audio"].shape[1]) if len(base) else 0
+        self.dim = self.n_visemes + extra
         inventory = getattr(getattr(base, "corpus", None), "viseme_inventory", None)
         if inventory is not None and list(inventory) != list(VISEMES)[:len(inventory)]:
             raise ValueError(f"corpus viseme inventory {inventory} is not the project's {list(VISEMES)}")
@@ -164,9 +170,10 @@ class VisemeLabels(Dataset):
     def __getitem__(self, index: int) -> dict:
         item = dict(self.base[index])
         ids = torch.as_tensor(item["visemes"], dtype=torch.long)
-        if ids.numel() and (int(ids.min()) < 0 or int(ids.max()) >= self.dim):
-            raise ValueError(f"clip {item.get('name')!r}: viseme ids must lie in [0, {self.dim})")
-        item["audio"] = torch.nn.functional.one_hot(ids, self.dim).float()   # (T, 15)
+        if ids.numel() and (int(ids.min()) < 0 or int(ids.max()) >= self.n_visemes):
+            raise ValueError(f"clip {item.get('name')!r}: viseme ids must lie in [0, {self.n_visemes})")
+        onehot = torch.nn.functional.one_hot(ids, self.n_visemes).float()    # (T, 15)
+        item["audio"] = torch.cat([onehot, item["audio"].float()], dim=1) if self.keep_audio else onehot
         return item
 
     def __repr__(self) -> str:
