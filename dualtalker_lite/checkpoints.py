@@ -12,7 +12,8 @@ A checkpoint (format 2) is a plain dict, loadable with ``torch.load(weights_only
 ``n_vertices``        vertices per frame V
 ``topology``          sha256 of the triangle list (int64, C order) the model was trained on, or None
 ``features``          the audio front-end: ``{"name": "logmel", "settings": {...}}`` (LogMelExtractor's
-                      arguments) or ``{"name": "phonemes", ...}``
+                      arguments), ``{"name": "hama", "settings": {...}}`` (the phoneme recogniser's tracks,
+                      ``recogniser.RecogniserExtractor.settings``) or ``{"name": "phonemes", ...}``
 ``state_dict``        the weights
 ====================  ==========================================================================================
 
@@ -67,7 +68,7 @@ _DECODER_PARTS = ("motion_encoder.", "style.", "ppe.", "layers.", "motion_decode
 _FACEFORMER_SWITCHES = {"dual": False, "speaker_gate": False, "query_from": "decoder", "align_window": 1,
                         "add_style_to_motion": True, "share_enc_dec": False, "scheduled_sampling": 0.0}
 REQUIRED_KEYS = ("model_class", "model_config", "state_dict")
-FEATURE_NAMES = ("logmel", "phonemes")  # the audio front-ends a checkpoint may name (experiments.specs.RunSpec)
+FEATURE_NAMES = ("logmel", "hama", "phonemes")  # the audio front-ends a checkpoint may name (experiments.specs.RunSpec)
 # LogMelExtractor's settings: name -> (accepted types, what a value must satisfy, in words)
 _LOGMEL_INTS = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length")
 _LOGMEL_KEYS = (*_LOGMEL_INTS, "f_min", "f_max", "mean", "std")
@@ -81,7 +82,10 @@ def topology_fingerprint(faces: np.ndarray | None) -> str | None:
 
 
 def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
-    """The audio front-end as plain values; ``None`` -> the default :class:`~dualtalker_lite.audio.LogMelExtractor`."""
+    """The audio front-end as plain values; ``None`` -> the default :class:`~dualtalker_lite.audio.LogMelExtractor`.
+    An extractor that describes itself (``settings()``, e.g. the phoneme recogniser) is recorded as it says."""
+    if extractor is not None and callable(getattr(extractor, "settings", None)):
+        return extractor.settings()
     if name != "logmel":
         return {"name": name, "settings": {}}
     from .audio import LogMelExtractor
@@ -102,9 +106,13 @@ def extractor_from_settings(features: dict | None, source: str = "checkpoint"):
 
     if not features:
         return LogMelExtractor()
+    if features.get("name") == "hama":  # the phoneme recogniser: refuses another hama version or symbol table
+        from .recogniser import RecogniserExtractor
+
+        return RecogniserExtractor.from_settings(features, source)
     if features.get("name") != "logmel":
         raise ValueError(f"{source}: the model was trained on {features.get('name')!r} features, which cannot be "
-                         f"computed from a recording; only 'logmel' models animate audio")
+                         f"computed from a recording; only 'logmel' and 'hama' models animate audio")
     return LogMelExtractor(**features.get("settings", {}))
 
 

@@ -93,6 +93,11 @@ def _train(argv: list[str]) -> Path:
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
                          "default: all)")
+    ap.add_argument("--features", choices=("logmel", "visemes"), default="logmel",
+                    help="audio front-end: logmel (the papers' kind of input; learns this corpus's voices only) or "
+                         "visemes (the phonetic route: trained on the corpus's viseme labels, fed the phoneme "
+                         "recogniser's viseme tracks by evaluate and animate; works on any voice, needs the "
+                         "[phonetic] extra; not for emoface)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="checkpoint file to write (.pt)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint")
@@ -118,6 +123,14 @@ def _train(argv: list[str]) -> Path:
     corpus = Corpus(args.corpus or sample_path())
     spec = specs[args.model]
     paired = spec.data == "pairs"
+    if args.features == "visemes":
+        if paired:
+            raise ValueError("--features visemes: EmoFace reads loudness from the log-mel for its emotion branch; "
+                             "train it with --features logmel")
+        from .recogniser import RecogniserExtractor
+
+        front_end = RecogniserExtractor("visemes")  # what evaluate/animate will feed the model (checked here: hama)
+        spec = dataclasses.replace(spec, features="visemes")
     dataset = _pair_dataset(corpus, args.seed) if paired else TalkingFaceDataset(corpus, "train")
     if args.clips is not None and args.clips < len(dataset):
         dataset_used = Subset(dataset, np.linspace(0, len(dataset) - 1, args.clips).round().astype(int).tolist())
@@ -135,9 +148,12 @@ def _train(argv: list[str]) -> Path:
     loader = (make_pair_loader if paired else make_loader)(train_set, cfg.batch_size, shuffle=True, seed=args.seed)
     history = train(model, loader, cfg)
     model.cpu()
+    if spec.features == "visemes":
+        features = front_end.settings()
+    else:
+        features = extractor_settings(dataset.extractor if spec.features == "logmel" else None, name=spec.features)
     save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,
-                    features=extractor_settings(dataset.extractor if spec.features == "logmel" else None,
-                                                name=spec.features))
+                    features=features)
     print(f"trained {args.model} for {len(history.terms)} epochs on {len(train_set)} clips -> {out}")
     return out
 
@@ -188,8 +204,10 @@ def _evaluate(argv: list[str]) -> dict:
         raise ValueError(f"corpus {corpus.root} has training speakers {corpus.train_speakers}, the checkpoint "
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
     features = ckpt.get("features") or {"name": "logmel"}
-    extractor = extractor_from_settings(features, args.checkpoint) if features.get("name") == "logmel" else None
-    dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor), features["name"],
+    computed = features.get("name") in ("logmel", "hama")  # from the audio (hama: the recogniser's viseme tracks)
+    extractor = extractor_from_settings(features, args.checkpoint) if computed else None
+    dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor),
+                           "logmel" if computed else features["name"],
                            len(corpus.phoneme_inventory))
     out = predict_split(model, dataset)
     from .checks import check_finite

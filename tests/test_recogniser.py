@@ -256,3 +256,50 @@ class _FixedLogProbs:
         return self._lp
 
     spikes = PhonemeRecogniser.spikes
+
+
+# ---- the front-end recorded in a checkpoint, and the phonetic route through the command line -------------------
+def test_a_checkpoint_records_the_recogniser_and_refuses_another_version(tmp_path):
+    from dualtalker_lite.checkpoints import extractor_from_settings, extractor_settings, load_checkpoint, \
+        save_checkpoint
+    from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+
+    front = RecogniserExtractor("visemes")
+    features = extractor_settings(front)
+    assert features == front.settings() and features["name"] == "hama" and features["settings"]["dim"] == 15
+    cfg = FaceFormerConfig.tiny(n_vertices=4, audio_dim=15, n_speakers=2, d_model=8, d_ff=16, audio_hidden=8)
+    save_checkpoint(tmp_path / "m.pt", FaceFormer(cfg), cfg, features=features)
+    _, ckpt = load_checkpoint(tmp_path / "m.pt")
+    again = extractor_from_settings(ckpt["features"], "m.pt")
+    assert isinstance(again, RecogniserExtractor) and (again.output, again.dim) == ("visemes", 15)
+    old = {"name": "hama", "settings": {**features["settings"], "version": "0.9.0"}}
+    with pytest.raises(ValueError, match=r"^m\.pt: trained with hama version '0\.9\.0', this installation has .*"
+                                         r"\(pip install hama==0\.9\.0\)$"):
+        extractor_from_settings(old, "m.pt")
+
+
+def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_path):
+    import subprocess
+    import sys
+
+    script = Path(sys.executable).with_name("dualtalker-lite")
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg", "DUALTALKER_CACHE": str(tmp_path / "cache")}
+
+    def run(*argv):
+        return subprocess.run([str(script), *map(str, argv)], capture_output=True, text=True, env=env, timeout=300)
+
+    ckpt = tmp_path / "vis.pt"
+    proc = run("train", "--model", "faceformer", "--features", "visemes", "--epochs", "1", "--clips", "8",
+               "--out", ckpt)
+    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
+    assert torch.load(ckpt, weights_only=True)["features"]["name"] == "hama"
+    proc = run("evaluate", "--checkpoint", ckpt, "--split", "test_b", "--json", tmp_path / "m.json")
+    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
+    wav = sample_path() / "audio" / "SPK01_s05.flac"
+    proc = run("animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--out", tmp_path / "a",
+               "--format", "npy")
+    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
+    assert np.load(tmp_path / "a" / "vertices.npy").shape[1] == torch.load(ckpt, weights_only=True)["n_vertices"] * 3
+    proc = run("train", "--model", "emoface", "--features", "visemes", "--epochs", "1", "--out", tmp_path / "e.pt")
+    assert proc.returncode == 2 and "error: --features visemes: EmoFace reads loudness" in proc.stderr
+    assert not (tmp_path / "e.pt").exists()

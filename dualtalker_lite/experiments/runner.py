@@ -81,7 +81,12 @@ def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset
         return dataset, int(dataset[0]["audio"].shape[-1])
     if features == "phonemes":
         return PhonemeOneHot(dataset, n_phonemes), n_phonemes
-    raise ValueError(f"unknown features {features!r}; expected 'logmel' or 'phonemes'")
+    if features == "visemes":  # the phonetic route: the corpus's own viseme labels (recogniser tracks at test time)
+        from ..data.dataset import VisemeLabels
+
+        labels = VisemeLabels(dataset)
+        return labels, labels.dim
+    raise ValueError(f"unknown features {features!r}; expected 'logmel', 'phonemes' or 'visemes'")
 
 
 def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
