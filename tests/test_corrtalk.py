@@ -1,8 +1,10 @@
-"""CorrTalk: loss (eqs. 9-11, hand-computed), mask complement and initialisation, cached = uncached generation,
-teacher forcing = generation on its own output, training sanity, seeds, checkpoints, bad inputs."""
+"""CorrTalk: loss (eqs. 9-11, hand-computed), mask complement and initialisation (the FAI mask against a numpy eq. 3),
+F̃^s routed to the strong branch and F̃^w to the weak one (teacher forcing and generation), cached = uncached
+generation, teacher forcing = generation on its own output, training sanity, seeds, checkpoints, bad inputs."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -141,6 +143,84 @@ def test_output_bias_init_gives_mean_motion_whatever_the_mask():
         model.init_output_bias(torch.zeros(5))
 
 
+# ---------------------------------------------------------------- routing: F̃^s to the strong branch, F̃^w to the weak
+def _routed_model():
+    """A perturbed dual-branch model whose two weight generators pick different levels, and an asymmetric mask.
+
+    Every score weight w_l is zeroed and the biases c_l set to +30 for one level and -30 for the others (eq. 4), so
+    eq. 5 gives that level the weight 1 / (1 + 3 e^-60) (1 - 3e-26) and eq. 6 returns it: F̃^s = F^f (the
+    frame level), F̃^w = F^u (the utterance level). The mask runs 0.1 .. 0.9 over the vertices (not 0.5, not
+    symmetric)."""
+    torch.manual_seed(0)
+    model = _perturbed(CorrTalk(_cfg()))
+    with torch.no_grad():
+        for generator, level in ((model.weights_strong, 0), (model.weights_weak, 3)):
+            for i, score in enumerate(generator.score):
+                score.weight.zero_()
+                score.bias.fill_(30.0 if i == level else -30.0)
+    model.init_mask(torch.linspace(0.1, 0.9, V))
+    return model
+
+
+def _branch_inputs(model, batch):
+    """What each branch must be fed, built from the parts, not from ``encode_audio``/``forward``/``_decoding``:
+    (F^f, F^u, style S_n, per-coordinate mask (V*3,): vertex v's value on its x, y, z)."""
+    with torch.no_grad():
+        levels = model.hierarchy(model.extractor(batch["audio"], batch["mask"]), batch["mask"])  # (B, T, 4, d)
+        style = model.style(batch["speaker"])  # (B, d)
+    coord = model.mask.detach()[:, None].expand(V, 3).reshape(3 * V)
+    return levels[:, :, 0], levels[:, :, 3], style, coord
+
+
+def _far(other, want):
+    """``other`` differs from ``want`` by more than 20 % of its norm and by more than 1e-4 somewhere."""
+    return float((other - want).norm() / want.norm()) > 0.2 and float((other - want).abs().max()) > 1e-4
+
+
+def test_forward_feeds_the_strong_features_to_the_strong_branch():
+    model = _routed_model()
+    batch = _batch(b=2, t=14, seed=11)
+    f_frame, f_utt, style, m = _branch_inputs(model, batch)
+    fed = batch["vertices"] - batch["template"][:, None]  # teacher forcing (eval: no past-motion dropout)
+    with torch.no_grad():
+        out = model(batch)
+        strong = lambda f: m * model.strong.teacher_forced(fed, f, style, batch["mask"])  # noqa: E731
+        weak = lambda f: (1 - m) * model.weak.teacher_forced(fed, f, style, batch["mask"])  # noqa: E731
+        want_s, want_w, swapped_s, swapped_w = strong(f_frame), weak(f_utt), strong(f_utt), weak(f_frame)
+    # the test can tell the two routings apart: each swapped part is far (> 20 % of the norm, about 1e4 times the
+    # tolerance) from the right one
+    assert _far(swapped_s, want_s) and _far(swapped_w, want_w)
+    torch.testing.assert_close(out["features"]["strong"], f_frame, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out["features"]["weak"], f_utt, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out["alpha"]["strong"][..., 0], torch.ones(2, 14))
+    torch.testing.assert_close(out["alpha"]["weak"][..., 3], torch.ones(2, 14))
+    torch.testing.assert_close(out["motion_strong"], want_s, atol=1e-8, rtol=0)  # motion ~ 5e-4 m
+    torch.testing.assert_close(out["motion_weak"], want_w, atol=1e-8, rtol=0)
+
+
+@pytest.mark.parametrize("use_cache", [True, False])
+def test_generation_feeds_the_strong_features_to_the_strong_branch(use_cache):
+    # Reference loop written here: frame t of each branch, teacher-forced on the motion generated so far (causal:
+    # frames >= t of the fed motion are not read for frame t), masked and summed (eq. 8), fed back to both branches.
+    model = _routed_model()
+    batch = _batch(b=2, t=10, seed=12)
+    f_frame, f_utt, style, m = _branch_inputs(model, batch)
+
+    def reference(f_strong, f_weak):
+        motion = torch.zeros(2, 10, 3 * V)
+        with torch.no_grad():
+            for t in range(10):
+                s = model.strong.teacher_forced(motion, f_strong, style, batch["mask"])[:, t]
+                w = model.weak.teacher_forced(motion, f_weak, style, batch["mask"])[:, t]
+                motion[:, t] = m * s + (1 - m) * w
+        return motion
+
+    want, swapped = reference(f_frame, f_utt), reference(f_utt, f_frame)
+    assert _far(swapped, want)  # the test can tell the two routings apart
+    gen = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=use_cache)
+    torch.testing.assert_close(gen - batch["template"][:, None], want, atol=1e-8, rtol=0)  # motion ~ 5e-4 m
+
+
 # ---------------------------------------------------------------- generation
 @pytest.mark.parametrize("t,kw", [(1, {}), (31, {}), (47, {}), (47, {"dual_branch": False}),
                                   (33, {"hierarchical": False}), (37, {"n_layers": 2}),
@@ -269,20 +349,60 @@ def _oscillating_batches(t=64, fps=30.0):
     return [b]
 
 
+def _varied_batches(t=64, valid=40, fps=30.0):
+    """Two clips in one padded batch, each vertex with its own frequency and the two clips with opposite amplitude
+    orders, so that the mask depends on which frames are read and how clips are weighted: clip 0 (64 frames) moves
+    vertex v along x by a_v (1 + sin(2 pi f_v t)), clip 1 (40 frames, then padding) by b_v (1 + cos(2 pi f_v t)) along
+    y; a_v = (v + 1) mm, b_v = (V - v) mm, f_v = 1 + 0.4 v Hz; vertex 3 never moves. Random templates."""
+    time = torch.arange(t, dtype=torch.float64)[:, None] / fps
+    v = torch.arange(V, dtype=torch.float64)
+    freq = 1.0 + 0.4 * v
+    a, b = (v + 1) * 1e-3, (V - v) * 1e-3
+    a[3] = b[3] = 0.0
+    batch = _batch(b=2, t=t, seed=8)
+    motion = torch.zeros(2, t, V, 3, dtype=torch.float64)
+    motion[0, ..., 0] = a * (1 + torch.sin(2 * math.pi * freq * time))
+    motion[1, ..., 1] = b * (1 + torch.cos(2 * math.pi * freq * time))
+    batch["mask"][1, valid:] = False
+    motion[1, valid:] = 0.05  # padding: 5 cm, far from anything a clip holds; read, it would change the mask
+    batch["vertices"] = (batch["template"][:, None] + motion.reshape(2, t, 3 * V)).float()
+    return [batch]
+
+
+def _reference_fai_mask(clips, n_fft=32, hop=8, pool_frames=False):
+    """Eq. 3, band "dc", in numpy from the printed formula (module docstring of blocks.fai): d_{t,v} = ||y - h||;
+    frame m covers d[mH .. mH + N - 1]; bin 0 of a non-negative signal is A(0, m) = (sum_n w_n d_{mH+n}) / sum_n w_n,
+    w the periodic Hann window; mean over frames, then over clips; min-max over the vertices. ``clips``: (T, V*3)
+    vertices and (V*3,) templates as numpy arrays. ``pool_frames``: the wrong reading, one mean over every STFT
+    frame of every clip (a long clip counts more)."""
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n_fft) / n_fft)
+    per_clip = []
+    for verts, tpl in clips:
+        d = np.linalg.norm(verts.reshape(len(verts), -1, 3) - tpl.reshape(-1, 3), axis=-1)  # (T, V)
+        frames = [w @ d[s:s + n_fft] / w.sum() for s in range(0, len(d) - n_fft + 1, hop)]  # [(V,)] * M
+        per_clip.append(frames if pool_frames else [np.mean(frames, axis=0)])
+    fai = np.mean([f for frames in per_clip for f in frames], axis=0)
+    return (fai - fai.min()) / (fai.max() - fai.min())
+
+
 def test_fai_mask_initialisation_through_train():
-    from dualtalker_lite.blocks.fai import fai_from_dataset, normalised_fai
     from dualtalker_lite.train import TrainConfig, train
 
-    batches = _oscillating_batches()
+    batches = _varied_batches()
     torch.manual_seed(0)
     model = CorrTalk(_cfg())
+    assert model.cfg.fps == 30.0  # the batches carry no corpus: init_from_data takes cfg.fps (bin 0 ignores it)
     train(model, batches, TrainConfig(epochs=0, mean_init=True, progress=False, validate_every=0))
-    clips = [{"vertices": batches[0]["vertices"][0], "template": batches[0]["template"][0]},
-             {"vertices": batches[0]["vertices"][1, :40], "template": batches[0]["template"][1]}]
-    expected = normalised_fai(fai_from_dataset(clips, fps=30.0))
-    torch.testing.assert_close(model.mask.detach(), expected)
-    assert model.mask[3].item() == 0.0 and model.mask.argmax().item() == V - 1  # static vertex 0, largest 1
-    assert torch.all(model.mask[4:].diff() > 0)  # amplitude order kept
+    verts, tpl = batches[0]["vertices"].double().numpy(), batches[0]["template"].double().numpy()
+    expected = _reference_fai_mask([(verts[0], tpl[0]), (verts[1, :40], tpl[1])])
+    np.testing.assert_allclose(model.mask.detach().numpy(), expected, atol=1e-6, rtol=0)
+    assert model.mask[3].item() == 0.0 and model.mask.max().item() == pytest.approx(1.0)
+    # the expected mask is sensitive to what the code could get wrong: padding read as motion, clips weighted by
+    # their number of STFT frames (5 and 2) instead of equally
+    padded = _reference_fai_mask([(verts[0], tpl[0]), (verts[1], tpl[1])])
+    assert np.abs(padded - expected).max() > 0.1  # 0.30
+    by_frames = _reference_fai_mask([(verts[0], tpl[0]), (verts[1, :40], tpl[1])], pool_frames=True)
+    assert np.abs(by_frames - expected).max() > 0.1  # 0.46
     for kind in ("random", "uniform"):  # other initialisations are left alone by train()
         torch.manual_seed(0)
         other = CorrTalk(_cfg(mask_init=kind))

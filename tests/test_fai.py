@@ -151,6 +151,84 @@ def test_normalised_fai_min_max_hand_case():
     assert out.dtype == torch.float32 and out.tolist() == [0.0, 1.0]
 
 
+# ------------------------------------------------------------------------------------------ a tiny mesh, by hand
+# Four vertices of a tiny mesh (a corner of a cube) and N = 8, hop H = 4. Every expected number below is worked out
+# from eq. 3 as printed in the module docstring, not from the package:
+#   w_n = 1/2 - 1/2 cos(2 pi n / 8) = 1/2 - 1/4 e^{2 pi i n/8} - 1/4 e^{-2 pi i n/8}   (periodic Hann),  sum_n w_n = 4,
+#   so the window's DFT W_k = sum_n w_n e^{-2 pi i k n/8} is W_0 = 4, W_1 = W_7 = -2, W_k = 0 otherwise;
+#   c_0 = c_4 = 1/4, c_1 = c_2 = c_3 = 2/4 = 1/2;
+#   A(k, m) = c_k |X_k(m)|,  X_k(m) = sum_n w_n d_{4m+n} e^{-2 pi i k n/8}.
+TINY_TEMPLATE = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # (V = 4, 3)
+
+
+def tiny_clip(n_frames):
+    """Vertices (T, 4, 3) of the tiny mesh whose distances from the template are, at frame n:
+    v0 5 (offset (3, 0, 4), constant); v1 3 + 2 cos(2 pi 2 n / 8) = 5, 3, 1, 3, ... (a cosine on bin 2, on an offset
+    since a distance is never negative; offset along +y); v2 4 when n = 2 mod 4, else 0 (a pulse every 4 frames,
+    offset along -x); v3 0 (still)."""
+    n = np.arange(n_frames)
+    offsets = np.zeros((n_frames, 4, 3))
+    offsets[:, 0] = [3.0, 0.0, 4.0]
+    offsets[:, 1, 1] = 3.0 + 2.0 * np.cos(2 * np.pi * 2 * n / 8)
+    offsets[:, 2, 0] = -np.where(n % 4 == 2, 4.0, 0.0)
+    return TINY_TEMPLATE + offsets
+
+
+# Every signal has period 4 = H, so every STFT frame reads the same amplitudes. Worked out per vertex (bins k = 0..4):
+#   v0, d = 5:                 X_k = 5 W_k: X_0 = 20, X_1 = -10, rest 0           -> A = (5, 5, 0, 0, 0)
+#                              (bin 1 = 5: the Hann window's leakage of the mean)
+#   v1, d = 3 + 2 cos(pi n/2): X_k = 3 W_k + (W_{k-2} + W_{k+2}):
+#                              X_0 = 12, X_1 = -6 - 2 = -8, X_2 = W_0 = 4, X_3 = W_1 = -2, X_4 = W_2 + W_6 = 0
+#                                                                                  -> A = (3, 4, 2, 1, 0)
+#   v2, pulse (d_2 = d_6 = 4): X_k = 4 w_2 e^{-i pi k/2} + 4 w_6 e^{-3 i pi k/2} = 2 (e^{-i pi k/2} + e^{i pi k/2})
+#                              = 4 cos(pi k / 2): X = (4, 0, -4, 0, 4)            -> A = (1, 0, 2, 0, 1)
+#   v3, d = 0:                                                                     -> A = (0, 0, 0, 0, 0)
+# so FAI (mean over frames of identical values) = dc: bin 0; first: bin 1; dominant: max over bins 1..4:
+TINY_FAI = {"dc": [5.0, 3.0, 1.0, 0.0], "first": [5.0, 4.0, 0.0, 0.0], "dominant": [5.0, 4.0, 2.0, 0.0]}
+# min-max: (FAI - 0) / (5 - 0)
+TINY_MASK = {"dc": [1.0, 0.6, 0.2, 0.0], "first": [1.0, 0.8, 0.0, 0.0], "dominant": [1.0, 0.8, 0.4, 0.0]}
+
+
+@pytest.mark.parametrize("band", BANDS)
+def test_tiny_mesh_fai_hand_computed_for_each_band(band):
+    # T = 18: STFT frames start at 0, 4 and 8 (M = 3); frames 16-17 do not fill a hop and are dropped.
+    # The three readings rank the vertices differently: the pulse v2 is the least active moving vertex by the DC
+    # reading, reads 0 by bin 1 (its odd bins are 0) like the still v3, and twice its DC by the dominant reading
+    # (bin 2). For the cosine v1 "first" and "dominant" agree: a distance is >= 0, so its mean (3) is at least the
+    # cosine's amplitude (2), and the mean's leakage into bin 1 (3 + 2/2 = 4) beats the cosine's own bin (2).
+    verts = tiny_clip(18)
+    fai = facial_activity_intensity([(verts, TINY_TEMPLATE)], fps=30.0, band=band, n_fft=8, hop=4)
+    torch.testing.assert_close(fai, torch.tensor(TINY_FAI[band]), atol=1e-6, rtol=0)
+    torch.testing.assert_close(normalised_fai(fai), torch.tensor(TINY_MASK[band]), atol=1e-6, rtol=0)
+    _, amp = displacement_stft(vertex_displacements(verts, TINY_TEMPLATE), 30.0, n_fft=8, hop=4)
+    assert amp.shape == (5, 3, 4)                                          # F = 8 // 2 + 1 bins, M = 3 frames, V
+    expected = np.array([[5, 5, 0, 0, 0], [3, 4, 2, 1, 0], [1, 0, 2, 0, 1], [0, 0, 0, 0, 0]], dtype=float).T
+    np.testing.assert_allclose(amp.numpy(), np.repeat(expected[:, None, :], 3, axis=1), atol=1e-12)
+
+
+def test_tiny_mesh_two_clips_are_averaged_per_clip_then_min_max():
+    # Clip 1: the clip above (T = 18, 3 STFT frames). Clip 2: T = 8 (1 STFT frame), only v3 moves, a constant
+    # offset (0, 0, 2): its spectrum is (2, 2, 0, 0, 0) (like v0 above, scaled by 2/5), the other vertices read 0.
+    # Equal weight per clip, whatever its number of frames:
+    #   dc:       ((5, 3, 1, 0) + (0, 0, 0, 2)) / 2 = (2.5, 1.5, 0.5, 1);  min 0.5, max 2.5 -> (1, 0.5, 0, 0.25)
+    #   first:    ((5, 4, 0, 0) + (0, 0, 0, 2)) / 2 = (2.5, 2, 0, 1);      min 0,   max 2.5 -> (1, 0.8, 0, 0.4)
+    #   dominant: max over bins 1..4 of the mean spectra  v0 (2.5, 2.5, 0, 0, 0), v1 (1.5, 2, 1, 0.5, 0),
+    #             v2 (0.5, 0, 1, 0, 0.5), v3 (1, 1, 0, 0, 0):  (2.5, 2, 1, 1);  min 1, max 2.5 -> (1, 2/3, 0, 0)
+    # (a mean weighted by STFT frames instead would give dc (3.75, 2.25, 0.75, 0.5), mask (1, 0.54, 0.08, 0)).
+    clip2 = np.tile(TINY_TEMPLATE, (8, 1, 1))
+    clip2[:, 3, 2] += 2.0
+    clips = [{"vertices": tiny_clip(18), "template": TINY_TEMPLATE},
+             {"vertices": clip2.reshape(8, 12), "template": TINY_TEMPLATE.reshape(12)}]   # the flat layout too
+    want = {"dc": ([2.5, 1.5, 0.5, 1.0], [1.0, 0.5, 0.0, 0.25]), "first": ([2.5, 2.0, 0.0, 1.0], [1.0, 0.8, 0.0, 0.4]),
+            "dominant": ([2.5, 2.0, 1.0, 1.0], [1.0, 2 / 3, 0.0, 0.0])}
+    for band, (fai_want, mask_want) in want.items():
+        fai = facial_activity_intensity(clips, fps=30.0, band=band, n_fft=8, hop=4)
+        torch.testing.assert_close(fai, torch.tensor(fai_want), atol=1e-6, rtol=0)
+        torch.testing.assert_close(normalised_fai(fai), torch.tensor(mask_want), atol=1e-6, rtol=0)
+        # the entry point CorrTalk's mask initialisation calls, on the same item dicts
+        torch.testing.assert_close(fai_from_dataset(clips, fps=30.0, band=band, n_fft=8, hop=4), fai)
+
+
 # ------------------------------------------------------------------------------------------ the shipped corpus
 @pytest.fixture(scope="module")
 def corpus():
