@@ -198,7 +198,7 @@ def feature_stats(model: DualTalker, out: dict, batch: dict) -> dict[str, float]
             "norm_y": y[m].norm(dim=-1).mean().item(), "norm_y_fused": yf[m].norm(dim=-1).mean().item(),
             "norm_x": x[m].norm(dim=-1).mean().item(), "norm_x_fused": xf[m].norm(dim=-1).mean().item(),
             "primal": primal_loss(out["vertices"] * 1e3, batch["vertices"] * 1e3, m).item(),
-            "roundtrip_motion": primal_loss(model.decode_motion(y) * 1e3, motion_mm, m).item()}
+            "roundtrip_motion": primal_loss(model.decoder.decode_motion(y) * 1e3, motion_mm, m).item()}
 
 # %% [markdown]
 # ### 4.3 Two runs
