@@ -14,9 +14,11 @@ Extractors are pluggable (:class:`FeatureExtractor`): anything with ``sample_rat
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import struct
+import sys
 import warnings
 from pathlib import Path
 from typing import Protocol, runtime_checkable
@@ -61,7 +63,10 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
     """Read a WAV/FLAC file as float32 ``(N,)`` in [-1, 1] at ``sample_rate``.
 
     ``mono="error"`` (default) refuses multichannel files; ``mono="mean"`` averages the channels.
-    A different file rate is resampled (``resample=True``) or refused. Every error names the file.
+    A different file rate is resampled (``resample=True``) or refused; a rate below ``sample_rate`` is upsampled
+    with a one-line ``warning:`` on stderr (its upper mel bands stay empty). Truncated files are refused: a WAV
+    whose header promises more samples (:func:`check_wav_header`), an MP3 that decodes short of its length header
+    or has none (:func:`check_mp3_length`). Every error names the file.
     """
     import soundfile as sf
 
@@ -73,10 +78,15 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
     if not path.is_file():
         raise FileNotFoundError(f"audio file not found: {path}")
     check_wav_header(path)
+    mp3 = _looks_like_mp3(path)
     try:
-        data, file_sr = sf.read(str(path), dtype="float32", always_2d=True)  # (N, C)
+        with _quiet_stderr(mp3), sf.SoundFile(str(path)) as f:  # mpg123 prints its own warnings on fd 2
+            declared, file_sr, fmt = f.frames, f.samplerate, f.format
+            data = f.read(dtype="float32", always_2d=True)  # (N, C)
     except (sf.SoundFileError, RuntimeError) as e:  # LibsndfileError: corrupt / unsupported format
         raise ValueError(f"could not decode audio file {path} (corrupt or not WAV/FLAC?): {e}") from e
+    if fmt == "MP3":
+        check_mp3_length(path, declared, data.shape[0], file_sr)
     if data.shape[1] > 1:
         if mono != "mean":
             raise ValueError(f"{path} has {data.shape[1]} channels; downmix it to mono "
@@ -99,11 +109,82 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
         if not resample:
             raise ValueError(f"{path} is sampled at {file_sr} Hz, expected {sample_rate} Hz "
                              f"(pass resample=True to resample)")
+        if file_sr < sample_rate:  # upsampled: everything above file_sr / 2 stays empty (one line, not an error)
+            print(f"warning: {path}: sampled at {file_sr} Hz, below {sample_rate} Hz: upsampled, so the mel bands "
+                  f"above {file_sr / 2000:g} kHz are empty; log-mel models were trained on {sample_rate / 1000:g} kHz "
+                  f"speech and may animate it poorly (the recogniser front-end, --features visemes, copes with "
+                  f"telephone audio)", file=sys.stderr)
         wave = _resample(wave, file_sr, sample_rate)
     return np.ascontiguousarray(wave, dtype=np.float32)
 
 
 _resample = resample  # `load_audio` has a parameter called `resample`
+
+
+def _looks_like_mp3(path: Path) -> bool:
+    """An ID3v2 tag or an MPEG audio frame sync at the start of the file."""
+    with open(path, "rb") as f:
+        head = f.read(3)
+    return head[:3] == b"ID3" or (len(head) >= 2 and head[0] == 0xFF and head[1] & 0xE0 == 0xE0)
+
+
+@contextlib.contextmanager
+def _quiet_stderr(active: bool):
+    """Silence file descriptor 2 while libsndfile's MP3 decoder (mpg123) runs: it prints e.g. "Warning: Xing
+    stream size off by more than 1%" itself, which would break the one-line rule; the problems it means are
+    reported by :func:`check_mp3_length` instead."""
+    try:
+        saved = os.dup(2) if active else None
+    except OSError:  # no file descriptor 2 at all: nothing to silence
+        saved = None
+    if saved is None:
+        yield
+        return
+    if sys.stderr is not None:
+        sys.stderr.flush()
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _mp3_declares_length(path: Path) -> bool:
+    """Whether an MP3's first frame carries a length header: Xing/Info with its frame count, or VBRI."""
+    with open(path, "rb") as f:
+        head = f.read(10)
+        start = 0
+        if head[:3] == b"ID3" and len(head) == 10:  # ID3v2: syncsafe size, optional footer
+            start = 10 + (((head[6] & 0x7F) << 21) | ((head[7] & 0x7F) << 14) | ((head[8] & 0x7F) << 7)
+                          | (head[9] & 0x7F)) + (10 if head[5] & 0x10 else 0)
+        f.seek(start)
+        frame = f.read(64)
+    if len(frame) < 40 or frame[0] != 0xFF or frame[1] & 0xE0 != 0xE0:
+        return False
+    for tag in (b"Xing", b"Info"):
+        i = frame.find(tag, 4)
+        if 0 <= i and i + 8 <= len(frame):
+            return bool(frame[i + 7] & 0x01)  # flags: the frame-count field is present
+    return frame[36:40] == b"VBRI"
+
+
+def check_mp3_length(path: str | os.PathLike, declared: int, decoded: int, sample_rate: int) -> None:
+    """Raise ValueError unless an MP3 is whole: its length header (Xing/Info/VBRI) must declare the number of
+    samples, and all of them (within one MPEG frame, 1152 samples) must decode.
+
+    libsndfile decodes whatever frames are there, so a truncated MP3 would otherwise give a shorter animation
+    with exit 0. Without a length header (some streaming encoders) truncation cannot be detected, so such a file
+    is refused too: convert it to WAV or FLAC (e.g. ``ffmpeg -i in.mp3 out.flac``).
+    """
+    path = Path(path)
+    if not _mp3_declares_length(path):
+        raise ValueError(f"{path}: this MP3 has no length header (Xing/Info/VBRI), so a truncated file cannot be "
+                         f"detected; convert it to WAV or FLAC (e.g. ffmpeg -i in.mp3 out.flac)")
+    if decoded < declared - 1152:
+        raise ValueError(f"{path}: MP3 header declares {declared / sample_rate:.2f} s but only "
+                         f"{decoded / sample_rate:.2f} s decode (truncated copy or download?)")
 
 
 def check_wav_header(path: str | os.PathLike) -> None:

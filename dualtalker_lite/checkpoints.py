@@ -130,11 +130,13 @@ def _check_weights(state_dict: dict, source: str) -> None:
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any, train_config: Any = None,
                     history: Any = None, *, speakers: Sequence[str] | None = None, faces: np.ndarray | None = None,
-                    features: dict | None = None) -> Path:
+                    features: dict | None = None, units: str | None = None) -> Path:
     """Atomically write a self-describing checkpoint (0644 under umask 022); refuses non-finite weights.
 
     ``speakers``: training speaker names in style-index order (``corpus.train_speakers``); ``faces``: the
-    topology; ``features``: :func:`extractor_settings` (default: the default log-mel front-end).
+    topology; ``features``: :func:`extractor_settings` (default: the default log-mel front-end); ``units``: the
+    training corpus's vertex units (``metadata.json``'s ``units``; None, as in older checkpoints, means metres):
+    ``animate --template`` checks a mesh against them.
     """
     from . import __version__
 
@@ -152,6 +154,7 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
         "n_vertices": n_vertices,
         "topology": topology_fingerprint(faces),
         "features": features if features is not None else extractor_settings(),
+        **({"units": units} if units is not None else {}),
         "state_dict": state,
     }
     return atomic_torch_save(ckpt, path)
@@ -308,6 +311,9 @@ def validate_fields(ckpt: dict, source: str) -> None:
     topology = ckpt.get("topology")
     if topology is not None and not isinstance(topology, str):
         raise ValueError(f"{source}: 'topology' must be a fingerprint string, found {_type_name(topology)}")
+    units = ckpt.get("units")
+    if units is not None and not (isinstance(units, str) and units):
+        raise ValueError(f"{source}: 'units' must be a non-empty string such as 'm', found {_type_name(units)}")
     _check_features(ckpt.get("features"), source)
 
 

@@ -153,7 +153,7 @@ def _train(argv: list[str]) -> Path:
     else:
         features = extractor_settings(dataset.extractor if spec.features == "logmel" else None, name=spec.features)
     save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,
-                    features=features)
+                    features=features, units=corpus.metadata.get("units", "m"))
     print(f"trained {args.model} for {len(history.terms)} epochs on {len(train_set)} clips -> {out}")
     return out
 

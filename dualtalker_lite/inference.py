@@ -42,7 +42,7 @@ import torch
 
 from .audio import load_audio
 from .checkpoints import describe, extractor_from_settings, load_checkpoint, topology_fingerprint
-from .data.corpus import Corpus
+from .data.corpus import Corpus, check_face_size
 from .streaming import predict_chunks, write_npy_stream
 from .checks import check_finite
 from .files import AtomicOutputDir
@@ -90,8 +90,13 @@ def animate_wav(model: torch.nn.Module, wav_path: str | Path, template: np.ndarr
 
 
 # ------------------------------------------------------------------------------ inputs
-def read_template(path: str | Path, n_vertices: int | None, topology: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """Neutral mesh file (OBJ/PLY) -> (vertices (V*3,) float32, faces (F, 3)), checked against the model."""
+def read_template(path: str | Path, n_vertices: int | None, topology: str | None,
+                  units: str = "m") -> tuple[np.ndarray, np.ndarray]:
+    """Neutral mesh file (OBJ/PLY) -> (vertices (V*3,) float32, faces (F, 3)), checked against the model.
+
+    ``units="m"`` (the checkpoint's training corpus was in metres, as every corpus of this package is): a mesh
+    that is not face-sized in metres, e.g. one in millimetres, is refused like such a corpus (the model adds
+    metre-sized motion, so a millimetre face would move ~1000x too little). Other units are not checked."""
     import trimesh
 
     path = Path(path)
@@ -106,6 +111,8 @@ def read_template(path: str | Path, n_vertices: int | None, topology: str | None
     if len(verts) == 0:
         raise ValueError(f"{path}: the mesh has no vertices")
     check_finite(verts, f"template mesh {path}")
+    if units == "m":
+        check_face_size(verts, f"{path}: the template mesh")
     if n_vertices is not None and len(verts) != n_vertices:
         raise ValueError(f"{path}: the mesh has {len(verts)} vertices but the model was trained on {n_vertices}")
     if topology is not None and topology_fingerprint(faces) != topology:
@@ -307,7 +314,8 @@ def run(args: argparse.Namespace) -> list[Path]:
         _check_corpus(corpus, ckpt)
     speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
     if args.template:
-        template, faces = read_template(args.template, ckpt.get("n_vertices"), ckpt.get("topology"))
+        template, faces = read_template(args.template, ckpt.get("n_vertices"), ckpt.get("topology"),
+                                        units=ckpt.get("units") or "m")
     else:
         if args.speaker not in corpus.speakers:
             raise ValueError(f"corpus {corpus.root} has no face for speaker {args.speaker!r}; pass --template "

@@ -516,3 +516,111 @@ def test_a_folder_as_wav_says_it_is_a_folder(ckpt, tmp_path, capsys):
     refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", tmp_path / "clips", "--out",
                                 tmp_path / "o"], tmp_path / "clips", "is a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clips"]
+
+
+# ------------------------------------------------------------------------- units, rig parameters, audio (issue 23)
+def _template_obj(path: Path, scale: float) -> Path:
+    import trimesh
+
+    corpus = Corpus(sample_path())
+    verts = corpus.template("SPK01").reshape(-1, 3) * scale
+    trimesh.Trimesh(verts, corpus.faces, process=False).export(path)
+    return path
+
+
+def test_a_template_in_millimetres_is_refused(ckpt, wav, tmp_path, capsys):
+    """Was: accepted, and the animation moved ~1000x too little (corpora in mm were already refused)."""
+    from dualtalker_lite.inference import read_template
+
+    mm = _template_obj(tmp_path / "face_mm.obj", 1000.0)
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--template", mm,
+                                "--out", tmp_path / "o", "--overwrite", "--format", "npy"],
+                       mm, "millimetres instead of metres? divide by 1000")
+    assert snapshot(tmp_path) == before
+    m = _template_obj(tmp_path / "face_m.obj", 1.0)  # the same face in metres still loads
+    assert read_template(m, 1558, None)[0].size == 3 * 1558
+    assert read_template(mm, 1558, None, units="as-shipped")[0].size == 3 * 1558  # a corpus in other units: unchecked
+    other = tmp_path / "biwi_like.pt"  # train records the corpus's units; None (older checkpoints) means metres
+    model, info = load_checkpoint(ckpt)
+    save_checkpoint(other, model, DualTalkerConfig(**info["model_config"]), speakers=info["speakers"],
+                    faces=Corpus(sample_path()).faces, units="as-shipped")
+    assert info.get("units") is None and load_checkpoint(other)[1]["units"] == "as-shipped"
+
+
+@pytest.mark.parametrize("case", ["no_shape", "shape_field", "no_n_vertices", "name_only"])
+def test_a_speaker_entry_without_rig_parameters_is_refused(ckpt, wav, tmp_path, capsys, case):
+    """Was: the missing parameters silently took an average head's defaults (a face 16.6 mm off the speaker)."""
+    entries = json.loads((sample_path() / "speakers.json").read_text())
+    entry = entries["SPK01"]
+    if case == "no_shape":
+        del entry["shape"]
+    elif case == "shape_field":
+        del entry["shape"]["jaw_length"]
+    elif case == "no_n_vertices":
+        del entry["n_vertices"]
+    else:
+        entries["SPK01"] = {"name": "SPK01"}
+    root = corpus_copy(tmp_path, replace={"speakers.json": json.dumps(entries).encode()})
+    missing = {"no_shape": "shape", "shape_field": "shape.jaw_length", "no_n_vertices": "n_vertices",
+               "name_only": "shape"}[case]
+    with pytest.raises(ValueError, match="lacks rig parameters"):
+        Corpus(root).template("SPK01")
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    before = snapshot(tmp_path / "o")
+    refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--corpus", root,
+                                "--out", tmp_path / "o", "--overwrite", "--format", "npy"],
+                       root / "speakers.json", "'SPK01'", "lacks rig parameters", missing)
+    assert snapshot(tmp_path / "o") == before
+    Corpus(root).template("SPK02")  # the other, complete entries still load
+
+
+def test_audio_below_16_khz_gets_a_one_line_warning(ckpt, tmp_path, capsys):
+    """Was: 8 kHz (telephone) audio accepted without a word, although half the mel range is empty. Now: one
+    ``warning:`` line saying what it means, and the animation is still written (not an error). Other rates: silent."""
+    from dualtalker_lite.cli import main
+
+    t = np.arange(8000) / 8000
+    sf.write(tmp_path / "phone.wav", 0.2 * np.sin(2 * np.pi * 220 * t), 8000)
+    sf.write(tmp_path / "cd.wav", 0.2 * np.sin(2 * np.pi * 220 * np.arange(44100) / 44100), 44100)
+    capsys.readouterr()
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "phone.wav"), "--speaker", "SPK01",
+          "--out", str(tmp_path / "o8"), "--format", "npy"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: "), lines
+    for fragment in (tmp_path / "phone.wav", "8000 Hz", "above 4 kHz are empty", "log-mel", "visemes"):
+        assert str(fragment) in lines[0], (fragment, lines[0])
+    assert np.load(tmp_path / "o8" / "vertices.npy").shape[0] == 30
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "cd.wav"), "--speaker", "SPK01",
+          "--out", str(tmp_path / "o44"), "--format", "npy"])
+    assert capsys.readouterr().err == ""
+
+
+def test_a_truncated_mp3_is_refused(ckpt, tmp_path, capsys):
+    """Was: a truncated MP3 decoded to a shorter animation with exit 0 (libsndfile decodes the frames that are
+    there). The length header (Xing/Info, as LAME, ffmpeg and libsndfile write it) must be there and be met."""
+    from dualtalker_lite.audio import load_audio
+
+    whole = tmp_path / "speech.mp3"
+    sf.write(whole, 0.2 * np.sin(2 * np.pi * 220 * np.arange(48000) / 16000), 16000, format="MP3")
+    assert load_audio(whole).shape == (48000,)  # an intact MP3 still loads, whole
+    raw = whole.read_bytes()
+    cut = tmp_path / "cut.mp3"
+    cut.write_bytes(raw[:len(raw) // 2])
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    before = snapshot(tmp_path / "o")
+    proc = cli("animate", "--checkpoint", ckpt, "--wav", cut, "--speaker", "SPK01", "--out", tmp_path / "o",
+               "--overwrite", "--format", "npy")  # a real process: mpg123's own warnings on fd 2 must not show
+    refused(proc, cut, "MP3 header declares 3.00 s but only", "truncated")
+    assert snapshot(tmp_path / "o") == before
+    headerless = tmp_path / "headerless.mp3"
+    tag = b"Xing" if b"Xing" in raw[:64] else b"Info"
+    headerless.write_bytes(raw.replace(tag, b"None", 1))
+    refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", headerless, "--speaker", "SPK01", "--out",
+                                tmp_path / "o", "--overwrite", "--format", "npy"],
+                       headerless, "no length header", "convert it to WAV or FLAC")
+    assert snapshot(tmp_path / "o") == before

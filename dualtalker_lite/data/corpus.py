@@ -46,6 +46,15 @@ HEAD_SIZE_M = (0.02, 3.0)  # plausible extent of a face/head template in metres
 MAX_DISPLACEMENT = 0.5     # a vertex farther than this fraction of the face's extent from the template is wrong
 
 
+def check_face_size(points: np.ndarray, what: str) -> None:
+    """Refuse a template whose extent is not a plausible face in metres (``HEAD_SIZE_M``): one ValueError line
+    naming ``what``, with the hint to divide by 1000 for millimetres. Used for corpora and ``animate --template``."""
+    size = _extent(np.asarray(points))
+    if not HEAD_SIZE_M[0] <= size <= HEAD_SIZE_M[1]:
+        hint = " (millimetres instead of metres? divide by 1000)" if size > HEAD_SIZE_M[1] else ""
+        raise ValueError(f"{what} is {size:.4g} units across, not a plausible face size in metres {HEAD_SIZE_M}{hint}")
+
+
 def read_json(path: Path) -> object:
     """JSON file -> object, with a one-line error naming the file and the position of a syntax error."""
     try:
@@ -196,11 +205,8 @@ class Corpus:
                 tpl = self._rig(subject).template
             tpl = np.asarray(tpl, dtype=np.float32).reshape(-1)
             check_finite(tpl, f"template of speaker {subject!r} ({self.root})")
-            size = _extent(tpl)
-            if self.metadata.get("units", "m") == "m" and not HEAD_SIZE_M[0] <= size <= HEAD_SIZE_M[1]:
-                hint = " (millimetres instead of metres? divide by 1000)" if size > HEAD_SIZE_M[1] else ""
-                raise ValueError(f"template of speaker {subject!r} ({self.root}) is {size:.4g} units across, not a "
-                                 f"plausible face size in metres {HEAD_SIZE_M}{hint}")
+            if self.metadata.get("units", "m") == "m":
+                check_face_size(tpl, f"template of speaker {subject!r} ({self.root})")
             n_vertices = self.metadata.get("n_vertices")
             if n_vertices is not None and tpl.size != 3 * n_vertices:
                 raise ValueError(f"template of {subject!r} has {tpl.size // 3} vertices, "
@@ -303,5 +309,9 @@ class Corpus:
                 self._rig_params = read_json(path)
             if subject not in self._rig_params:
                 raise KeyError(f"{path} has no rig parameters for speaker {subject!r}")
-            self._rigs[subject] = FaceRig(Speaker.from_dict(self._rig_params[subject]))
+            try:
+                speaker = Speaker.from_dict(self._rig_params[subject])
+            except (TypeError, ValueError) as e:  # missing rig parameters, unknown or ill-typed fields
+                raise ValueError(f"{path}: speaker {subject!r}: {e}") from e
+            self._rigs[subject] = FaceRig(speaker)
         return self._rigs[subject]

@@ -80,12 +80,33 @@ class Speaker:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Speaker":
+        """A ``speakers.json`` entry -> Speaker; ValueError if it lacks rig parameters (see
+        :func:`missing_rig_parameters`: defaults would silently build another face) or has unknown fields."""
+        missing = missing_rig_parameters(d)
+        if missing:
+            shown = ", ".join(missing[:4]) + (f" and {len(missing) - 4} more" if len(missing) > 4 else "")
+            raise ValueError(f"lacks rig parameters ({shown}); default ones would give another face than the "
+                             f"speaker's: regenerate the corpus or restore the entry")
         d = dict(d)
         d["shape"] = FaceShape(**d.get("shape", {}))
         unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown Speaker fields {sorted(unknown)}")
         return cls(**d)
+
+
+def missing_rig_parameters(d: object) -> list[str]:
+    """The rig parameters a ``speakers.json`` entry lacks (``[]`` if complete): its head proportions (``shape``,
+    every :class:`FaceShape` field) and ``n_vertices``. :meth:`Speaker.from_dict` would fill them with the
+    defaults of an average head, a face up to ~17 mm off the speaker the corpus was made from."""
+    if not isinstance(d, dict):
+        return ["shape", "n_vertices"]
+    shape = d.get("shape")
+    if not isinstance(shape, dict):
+        missing = ["shape"]
+    else:
+        missing = [f"shape.{f.name}" for f in dataclasses.fields(FaceShape) if f.name not in shape]
+    return missing + [k for k in ("n_vertices",) if k not in d]
 
 
 def _r(x: float) -> float:
