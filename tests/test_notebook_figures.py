@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
-NOTEBOOKS = sorted((ROOT / "notebooks").glob("[0-9][0-9]_*.ipynb"))
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("[0-9][0-9]*_*.ipynb"))
 MAX_WIDTH_PX = 1320      # 13 in at the inline backend's 100 dpi (+ the bbox margin)
 MAX_TABLE_COLUMNS = 12
 
@@ -34,7 +34,7 @@ def test_table_columns_are_counted():
     assert table_columns("| a | b |\n|---|---|\n| 1 | 2 |\n\n| x |\n|:-:|\n") == [2, 1]
 
 
-@pytest.mark.parametrize("nb", NOTEBOOKS, ids=lambda p: p.stem[:2])
+@pytest.mark.parametrize("nb", NOTEBOOKS, ids=lambda p: p.stem.split("_")[0])
 def test_figures_and_tables_fit_the_page(nb):
     wide, tables = [], []
     for k, data in outputs(nb):
