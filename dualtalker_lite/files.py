@@ -6,9 +6,11 @@ is complete, and remove their temporaries otherwise.
 """
 from __future__ import annotations
 
+import glob
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 import time
@@ -17,7 +19,8 @@ from typing import Any
 
 import torch
 
-__all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir"]
+__all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir",
+           "temporary_prefix", "sweep_stale"]
 
 
 def repo_root() -> Path:
@@ -33,11 +36,54 @@ def runs_dir(*parts: str) -> Path:
     return path
 
 
+def temporary_prefix(path: Path) -> str:
+    """Name prefix of the temporaries written beside ``path``: hidden, the target's name and this process's id
+    (``.name.<pid>.``), so that a later run can tell the leftovers of a killed run (:func:`sweep_stale`)."""
+    return f".{path.name}.{os.getpid()}."
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def sweep_stale(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporaries a killed run left beside ``path`` (``.name.<pid>.*.tmp`` whose process is gone; a
+    live concurrent run's are kept) and name each on stderr in one ``note:`` line -> the removed paths.
+
+    SIGKILL cannot be caught, so the run it stops leaves its temporary file or folder behind (gigabytes for an hour
+    of audio); every atomic write calls this before it starts, so the next run into the same place cleans up."""
+    path = Path(path)
+    removed = []
+    if not path.parent.is_dir():
+        return removed
+    for leftover in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        pid = leftover.name[len(path.name) + 2:].split(".", 1)[0]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue
+        size = sum(f.stat().st_size for f in leftover.rglob("*") if f.is_file()) if leftover.is_dir() else \
+            leftover.stat().st_size
+        if leftover.is_dir():
+            shutil.rmtree(leftover, ignore_errors=True)
+        else:
+            leftover.unlink(missing_ok=True)
+        print(f"note: removed {leftover} ({size / 1e6:.1f} MB), left by a run (process {pid}) that was killed",
+              file=sys.stderr)
+        removed.append(leftover)
+    return removed
+
+
 def atomic_torch_save(obj: Any, path: str | os.PathLike) -> Path:
     """``torch.save`` to a temporary file in the same folder, then rename: a crash never leaves half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
+    sweep_stale(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     os.close(fd)
     try:
         with _remove_on_signal(tmp) as signals:
@@ -94,7 +140,8 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     """Write a text file via a temporary file in the same folder and a rename (0644 under umask 022)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
+    sweep_stale(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
@@ -136,7 +183,8 @@ class AtomicOutputDir:
         self.tmp: Path | None = None
 
     def __enter__(self) -> Path:
-        self.tmp = Path(tempfile.mkdtemp(dir=self.target.parent, prefix=f".{self.target.name}.", suffix=".tmp"))
+        sweep_stale(self.target)
+        self.tmp = Path(tempfile.mkdtemp(dir=self.target.parent, prefix=temporary_prefix(self.target), suffix=".tmp"))
         self._signals = _remove_on_signal(self.tmp).__enter__()
         return self.tmp
 

@@ -624,3 +624,44 @@ def test_a_truncated_mp3_is_refused(ckpt, tmp_path, capsys):
                                 tmp_path / "o", "--overwrite", "--format", "npy"],
                        headerless, "no length header", "convert it to WAV or FLAC")
     assert snapshot(tmp_path / "o") == before
+
+
+# ---- leftovers of a killed run are swept by the next run into the same place ----------------------------------
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    assert proc.wait() == 0
+    return proc.pid  # finished and reaped: no such process any more
+
+
+def test_the_next_write_sweeps_what_a_killed_run_left_and_names_it(tmp_path, capsys):
+    from dualtalker_lite.files import AtomicOutputDir, atomic_write_text, temporary_prefix
+
+    target, dead = tmp_path / "out", _dead_pid()
+    stale_dir = tmp_path / f".out.{dead}.abc123.tmp"  # an AtomicOutputDir a SIGKILL interrupted
+    (stale_dir / "sub").mkdir(parents=True)
+    (stale_dir / "sub" / "vertices.npy.partial").write_bytes(b"x" * 2_000_000)
+    live = tmp_path / f".out.{os.getpid()}.def456.tmp"  # a concurrent run that is still going: kept
+    live.mkdir()
+    other = tmp_path / f".outer.{dead}.x.tmp"  # another target's leftover: not this write's business
+    other.mkdir()
+    with AtomicOutputDir(target) as tmp:
+        assert tmp.name.startswith(temporary_prefix(target)) and temporary_prefix(target) == f".out.{os.getpid()}."
+        (tmp / "a.txt").write_text("new")
+    err = capsys.readouterr().err
+    assert err == f"note: removed {stale_dir} (2.0 MB), left by a run (process {dead}) that was killed\n"
+    assert not stale_dir.exists() and live.exists() and other.exists() and (target / "a.txt").read_text() == "new"
+    stale_file = tmp_path / f".m.json.{dead}.q1w2.tmp"  # an atomic file write (mkstemp) killed half-way
+    stale_file.write_text("{half")
+    atomic_write_text(tmp_path / "m.json", "{}")
+    assert not stale_file.exists() and "note: removed" in capsys.readouterr().err
+
+
+def test_train_after_a_killed_save_sweeps_the_half_written_checkpoint(tmp_path):
+    dead = _dead_pid()
+    stale = tmp_path / f".m.pt.{dead}.zz9.tmp"
+    stale.write_bytes(b"PK\x03\x04 half a checkpoint")
+    proc = cli("train", "--model", "voca", "--epochs", "1", "--clips", "4", "--out", tmp_path / "m.pt")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines() == [f"note: removed {stale} (0.0 MB), left by a run (process {dead}) that was "
+                                        "killed"]
+    assert not stale.exists() and (tmp_path / "m.pt").is_file()
