@@ -236,7 +236,7 @@ class MotionDecoder(nn.Module):
     def cached_step(self, states: list[dict], token: Tensor, features: Tensor, style: Tensor, t: int,
                     mask: Tensor | None = None) -> Tensor:
         """Frame t from its stream token (B, 1, d) with bounded caches -> m̂_t (B, 1, V*3) (eval-mode computation)."""
-        h = token + self.ppe.encoding(1, offset=t).to(token.dtype)  # (B, 1, d) PPE of frame t, no dropout
+        h = token + self.ppe.table[t % self.ppe.period].to(token.dtype)  # (B, 1, d) PPE of frame t, no dropout
         for layer, state in zip(self.layers, states):
             h = self._layer_step(layer, state, h, features, style, t, mask)
         return self.decode_motion(h)  # (B, 1, V*3)
