@@ -46,7 +46,7 @@ Readings taken (the paper leaves these open):
   (:meth:`EmoFace.init_from_data`), through its own linear map added to W_e H (measured: docs/design-notes.md).
 - Self-growing training (section 3.3.1, Fig. 2, eq. 6): stage one is the whole model teacher-forced (no gradient;
   the paper does not supervise it), stage two feeds each past frame from the ground truth with probability
-  ``train.self_growing_share(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop
+  :func:`self_growing_share` ``(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop
   tells the model the epoch through :meth:`EmoFace.set_epoch`; θ = ``growing_warmup`` x N epochs (untuned).
   ``past_motion`` selects the alternatives compared in notebook 14/15: "teacher_forcing", "scheduled_sampling"
   (constant prediction share ``sampling_p``) and "dropout" (DualTalker's past-motion dropout with ``sampling_p``).
