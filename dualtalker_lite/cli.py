@@ -32,6 +32,7 @@ TRAIN_EXAMPLE = """examples:
   dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt
   dualtalker-lite train --model emoface --epochs 12 --out runs/my_emoface.pt     # on the emotional pseudo-pairs
   dualtalker-lite train --model voca --epochs 1 --clips 16 --out runs/check.pt   # a quick check of the whole path
+  dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt --resume   # continue a killed run
   dualtalker-lite train --corpus vocaset --model faceformer --device cuda --out runs/vocaset_ff.pt"""
 
 EVAL_EXAMPLE = """example:
@@ -64,6 +65,44 @@ def _pair_dataset(corpus, seed: int):
     return PairDataset(corpus, EMOTIONAL_TRAIN, seed=seed)
 
 
+RESUME_FORMAT = "dualtalker-lite train state 1"
+
+
+def _load_resume_state(path: Path) -> dict:
+    """The state a periodic save of ``train`` wrote (``--checkpoint-every``); one ValueError line if absent or
+    corrupt (a CRC-checked archive that ``torch.load(weights_only=True)`` reads, with the expected fields)."""
+    import torch
+
+    from .checkpoints import verify_integrity
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no saved training state to resume (none was saved yet: a run saves one "
+                                f"every --checkpoint-every epochs; or the run completed)")
+    try:
+        verify_integrity(path)
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except ValueError as e:
+        raise ValueError(str(e).replace("corrupt checkpoint", "corrupt training state")) from e
+    except Exception as e:  # noqa: BLE001 - a damaged file can fail in many ways inside torch.load
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:120]
+        raise ValueError(f"{path}: corrupt training state, unreadable ({first}); start over with --overwrite") from e
+    if not (isinstance(state, dict) and state.get("format") == RESUME_FORMAT and isinstance(state.get("args"), dict)
+            and isinstance(state.get("train"), dict)):
+        raise ValueError(f"{path}: not a training state of this version ({RESUME_FORMAT!r}); start over with "
+                         f"--overwrite")
+    return state
+
+
+def _check_resume_args(path: Path, saved: dict, now: dict) -> None:
+    """Refuse (one line) to continue a run with other arguments or another corpus than it was started with."""
+    diff = [k for k in now if saved.get(k) != now[k]]
+    if diff:
+        was = ", ".join(f"{k}={saved.get(k)!r}" for k in diff)
+        asked = ", ".join(f"{k}={now[k]!r}" for k in diff)
+        raise ValueError(f"{path}: saved by a run with {was}, but this run has {asked}; resume with the same "
+                         f"arguments and corpus, or start over with --overwrite")
+
+
 def _train(argv: list[str]) -> Path:
     import dataclasses
     import os
@@ -72,8 +111,11 @@ def _train(argv: list[str]) -> Path:
     import torch
     from torch.utils.data import Subset
 
+    import hashlib
+
     from .checkpoints import extractor_settings, save_checkpoint
     from .data import sample_path
+    from .files import atomic_torch_save, sweep_stale
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset, make_loader
     from .data.pairs import make_pair_loader
@@ -105,9 +147,16 @@ def _train(argv: list[str]) -> Path:
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bar (it is shown only when stderr is a terminal anyway)")
+    ap.add_argument("--checkpoint-every", type=int, default=5, metavar="N",
+                    help="every N epochs save the whole training state to <out>.resume (atomically; removed when "
+                         "training completes), so a killed run continues with --resume; 0: never (default: 5)")
+    ap.add_argument("--resume", action="store_true",
+                    help="continue the run saved in <out>.resume; the other arguments must be that run's")
     args = ap.parse_args(argv)
     if args.epochs < 1:
         raise ValueError(f"--epochs {args.epochs}: must be at least 1")
+    if args.checkpoint_every < 0:
+        raise ValueError(f"--checkpoint-every {args.checkpoint_every}: must be 0 (never) or a number of epochs")
     if args.clips is not None and args.clips < 1:
         raise ValueError(f"--clips {args.clips}: must be at least 1")
     out = Path(args.out)
@@ -116,6 +165,11 @@ def _train(argv: list[str]) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     if not os.access(out.parent, os.W_OK):
         raise PermissionError(f"output folder {out.parent} is not writable")
+    resume_path = out.with_name(out.name + ".resume")
+    resume = _load_resume_state(resume_path) if args.resume else None
+    if resume is None and resume_path.exists() and not args.overwrite:
+        raise FileExistsError(f"{resume_path}: an interrupted run of this --out saved its state here; pass --resume "
+                              f"to continue it, or --overwrite to start over (the state is then replaced)")
     from .inference import resolve_device
 
     device = resolve_device(args.device)
@@ -146,7 +200,19 @@ def _train(argv: list[str]) -> Path:
                            weights=loss_weights(model, spec.loss),
                            progress=not args.no_progress and sys.stderr.isatty())
     loader = (make_pair_loader if paired else make_loader)(train_set, cfg.batch_size, shuffle=True, seed=args.seed)
-    history = train(model, loader, cfg)
+    meta = Path(corpus.root) / "metadata.json"
+    record = {"model": args.model, "corpus": str(Path(corpus.root).resolve()),
+              "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
+              "epochs": args.epochs, "clips": args.clips, "features": args.features, "seed": args.seed,
+              "training_clips": len(train_set)}
+    if resume is not None:
+        _check_resume_args(resume_path, resume["args"], record)
+
+    def on_checkpoint(state: dict) -> None:
+        atomic_torch_save({"format": RESUME_FORMAT, "args": record, "train": state}, resume_path)
+
+    history = train(model, loader, cfg, checkpoint_every=args.checkpoint_every, on_checkpoint=on_checkpoint,
+                    resume=None if resume is None else resume["train"])
     model.cpu()
     if spec.features == "visemes":
         features = front_end.settings()
@@ -154,6 +220,8 @@ def _train(argv: list[str]) -> Path:
         features = extractor_settings(dataset.extractor if spec.features == "logmel" else None, name=spec.features)
     save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,
                     features=features, units=corpus.metadata.get("units", "m"))
+    resume_path.unlink(missing_ok=True)  # the run is complete: its resumable state has served
+    sweep_stale(resume_path)
     print(f"trained {args.model} for {len(history.terms)} epochs on {len(train_set)} clips -> {out}")
     return out
 

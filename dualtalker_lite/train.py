@@ -20,17 +20,19 @@ chosen, with the measurements, is in docs/design-notes.md ("The CPU training rec
 from __future__ import annotations
 
 import math
+import random
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights",
-           "model_loss", "train", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
+           "model_loss", "train", "training_state", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -202,7 +204,9 @@ def model_loss(model: torch.nn.Module, out: dict, batch: dict, weights: Any) -> 
 
 
 def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=None, lip_idx=None, *,
-          on_epoch: Callable[[torch.nn.Module, History], None] | None = None) -> History:
+          on_epoch: Callable[[torch.nn.Module, History], None] | None = None,
+          checkpoint_every: int = 0, on_checkpoint: Callable[[dict], None] | None = None,
+          resume: dict | None = None) -> History:
     """Train ``model`` with its own loss (:func:`model_loss`); returns the per-epoch :class:`History`.
 
     Stops after ``cfg.epochs`` epochs or when a budget (``max_steps``, ``cpu_budget_s``, ``time_budget_s``)
@@ -210,12 +214,19 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
     budget. Same seed, same machine, same thread count, step budget -> identical history (tested).
     ``on_epoch(model, history)`` runs after each epoch (e.g. a benchmark's evaluation); its time is not
     counted in the budgets or in ``history.seconds``/``cpu_seconds``, and it must leave the weights alone.
+
+    Resumable training (optional; ``dualtalker-lite train --checkpoint-every/--resume``): every ``checkpoint_every``
+    epochs (not after the last) ``on_checkpoint(state)`` gets the whole training state (:func:`training_state`:
+    weights, Adam's moments, step counter and budget used, epoch, history, every RNG state including the loader's
+    generator), tensors and plain values only. ``train(..., resume=state)`` continues from such a state and ends
+    with the same weights as an uninterrupted run (same machine, same threads; tested bit for bit).
     """
     threads_before = torch.get_num_threads()
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
     try:
-        return _train(model, train_loader, cfg, val_loader, lip_idx, on_epoch)
+        return _train(model, train_loader, cfg, val_loader, lip_idx, on_epoch, checkpoint_every, on_checkpoint,
+                      resume)
     finally:
         torch.set_num_threads(threads_before)
 
@@ -258,7 +269,58 @@ def mean_motion(data) -> torch.Tensor:
     return (total / frames).float()
 
 
-def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx, on_epoch) -> History:
+def _generators(train_loader) -> dict[str, torch.Generator]:
+    """The loader's and its dataset's own torch generators (shuffle order; crops, pseudo-pair partners)."""
+    gens = {}
+    if isinstance(getattr(train_loader, "generator", None), torch.Generator):
+        gens["loader"] = train_loader.generator
+    dataset = getattr(train_loader, "dataset", None)
+    for i in range(4):  # the dataset, then what it wraps (Subset.dataset, ...)
+        if dataset is None:
+            break
+        if isinstance(getattr(dataset, "generator", None), torch.Generator):
+            gens[f"dataset{i}"] = dataset.generator
+        dataset = getattr(dataset, "dataset", None)
+    return gens
+
+
+def training_state(model, opt, epoch: int, step: int, used: float, hist: History, crop_gen: torch.Generator,
+                   train_loader, wall: float, cpu: float) -> dict:
+    """Everything a resumed run needs to continue exactly (tensors and plain values: ``weights_only`` loads it)."""
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    rng = {"python": random.getstate(), "torch": torch.get_rng_state(), "crop": crop_gen.get_state(),
+           "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                     "has_gauss": int(has_gauss), "gauss": float(gauss)},
+           "generators": {k: g.get_state() for k, g in _generators(train_loader).items()}}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        rng["cuda"] = torch.cuda.get_rng_state_all()
+    return {"epoch": epoch, "step": step, "used": float(used), "wall": float(wall), "cpu": float(cpu),
+            "model": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+            "optimizer": opt.state_dict(), "history": dict(vars(hist)), "rng": rng}
+
+
+def _restore(state: dict, model, opt, crop_gen: torch.Generator, train_loader) -> None:
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    rng = state["rng"]
+    version, internal, gauss = rng["python"]
+    random.setstate((version, tuple(internal), gauss))
+    n = rng["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["gauss"]))
+    torch.set_rng_state(rng["torch"])
+    crop_gen.set_state(rng["crop"])
+    gens = _generators(train_loader)
+    if set(gens) != set(rng["generators"]):
+        raise ValueError(f"resume state: its random generators {sorted(rng['generators'])} are not this loader's "
+                         f"{sorted(gens)} (another kind of data?)")
+    for k, g in gens.items():
+        g.set_state(rng["generators"][k])
+    if "cuda" in rng and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(rng["cuda"])
+
+
+def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx, on_epoch,
+           checkpoint_every: int = 0, on_checkpoint=None, resume: dict | None = None) -> History:
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
@@ -275,8 +337,14 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     if cfg.max_steps is not None:
         total_steps = min(total_steps, cfg.max_steps)
     hist, t0, c0, step, used, done = History(), time.perf_counter(), time.process_time(), 0, 0.0, False
+    first = 0
+    if resume is not None:  # after the initialisation above, which the saved weights then replace
+        _restore(resume, model, opt, gen, train_loader)
+        hist = History(**{k: list(v) for k, v in resume["history"].items()})
+        first, step, used = int(resume["epoch"]), int(resume["step"]), float(resume["used"])
+        t0, c0 = t0 - float(resume["wall"]), c0 - float(resume["cpu"])
     validate = val_loader is not None and lip_idx is not None and cfg.validate_every != 0
-    bar = tqdm(range(cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
+    bar = tqdm(range(first, cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
     set_epoch = getattr(model, "set_epoch", None)  # epoch-dependent models (EmoFace's self-growing schedule)
     for epoch in bar:
         model.train()
@@ -324,6 +392,12 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
             t0, c0 = t0 + time.perf_counter() - w, c0 + time.process_time() - c
         if done:
             break
+        if on_checkpoint is not None and checkpoint_every and (epoch + 1) % checkpoint_every == 0 \
+                and epoch + 1 < cfg.epochs:  # paused clocks, as for on_epoch
+            w, c = time.perf_counter(), time.process_time()
+            on_checkpoint(training_state(model, opt, epoch + 1, step, used, hist, gen, train_loader,
+                                         w - t0, c - c0))
+            t0, c0 = t0 + time.perf_counter() - w, c0 + time.process_time() - c
     model.eval()
     return hist
 

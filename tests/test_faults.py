@@ -665,3 +665,94 @@ def test_train_after_a_killed_save_sweeps_the_half_written_checkpoint(tmp_path):
     assert proc.stderr.splitlines() == [f"note: removed {stale} (0.0 MB), left by a run (process {dead}) that was "
                                         "killed"]
     assert not stale.exists() and (tmp_path / "m.pt").is_file()
+
+
+# ------------------------------------------------------------------ train --checkpoint-every / --resume (issue 23)
+# A real `train` process that stops for a minute after each periodic save of its training state, so the test can
+# SIGKILL it at a known point (right after the first save) instead of racing a 1-second run.
+_PAUSE_AFTER_STATE_SAVE = """
+import sys, time
+from pathlib import Path
+import dualtalker_lite.files as files
+save = files.atomic_torch_save
+def paused(obj, path):
+    out = save(obj, path)
+    if str(path).endswith('.resume'):
+        Path(sys.argv[1]).write_text('saved')
+        time.sleep(60)
+    return out
+files.atomic_torch_save = paused
+from dualtalker_lite.cli import main
+main(sys.argv[2:])
+"""
+
+TRAIN_SMALL = ("train", "--model", "voca", "--epochs", "4", "--clips", "8", "--no-progress")
+
+
+def _train_killed_after_first_state_save(out: Path, *extra) -> None:
+    """Run ``train`` in a real process and SIGKILL it once it has saved its first resumable state."""
+    marker = out.with_name("saved.marker")
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg",
+           "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p)}
+    proc = subprocess.Popen([sys.executable, "-c", _PAUSE_AFTER_STATE_SAVE, str(marker), *TRAIN_SMALL, "--out",
+                             str(out), *extra], env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not marker.exists():
+            assert proc.poll() is None, proc.communicate()[1].decode()[-3000:]
+            assert time.monotonic() < deadline, "train never saved its state"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.communicate()
+    assert proc.returncode == -signal.SIGKILL
+    marker.unlink()
+    assert out.with_name(out.name + ".resume").is_file() and not out.exists()
+
+
+def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path):
+    straight = cli(*TRAIN_SMALL, "--out", tmp_path / "straight.pt", "--checkpoint-every", "0")
+    assert straight.returncode == 0 and straight.stderr == "", straight.stderr
+    assert not (tmp_path / "straight.pt.resume").exists()
+    out = tmp_path / "killed.pt"
+    _train_killed_after_first_state_save(out, "--checkpoint-every", "2")  # killed after epoch 2 of 4
+    state = torch.load(out.with_name("killed.pt.resume"), weights_only=True)
+    assert state["train"]["epoch"] == 2 and len(state["train"]["history"]["terms"]) == 2
+    resumed = cli(*TRAIN_SMALL, "--out", out, "--checkpoint-every", "2", "--resume")
+    assert resumed.returncode == 0 and resumed.stderr == "", resumed.stderr
+    assert "trained voca for 4 epochs" in resumed.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["killed.pt", "straight.pt"]  # the state is removed
+    (_, a), (_, b) = load_checkpoint(tmp_path / "straight.pt"), load_checkpoint(out)
+    assert a["format_version"] == b["format_version"] == 3
+    assert a["state_dict"].keys() == b["state_dict"].keys()
+    for k in a["state_dict"]:  # bit for bit: every RNG and the loader's order are restored
+        assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k
+    assert a["history"]["terms"] == b["history"]["terms"] and a["history"]["steps"] == b["history"]["steps"]
+
+
+def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_path):
+    out = tmp_path / "m.pt"
+    assert refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "no saved training state")
+    _train_killed_after_first_state_save(out, "--checkpoint-every", "1")
+    before = snapshot(tmp_path)
+    for extra, field in ((("--model", "faceformer"), "model="), (("--epochs", "5"), "epochs="),
+                         (("--clips", "6"), "clips="), (("--seed", "1"), "seed=")):
+        argv = list(TRAIN_SMALL)
+        if extra[0] in argv:
+            argv[argv.index(extra[0]) + 1] = extra[1]
+        else:
+            argv += extra
+        refused(cli(*argv, "--out", out, "--resume"), "m.pt.resume", field, "resume with the same arguments")
+    refused(cli(*TRAIN_SMALL, "--out", out), "m.pt.resume", "pass --resume")  # never silently restarted
+    assert snapshot(tmp_path) == before
+    state = out.with_name("m.pt.resume")
+    data = bytearray(state.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    state.write_bytes(bytes(data))
+    before = snapshot(tmp_path)
+    refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "corrupt training state")
+    state.write_bytes(bytes(data[:1000]))
+    before = snapshot(tmp_path)
+    refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "corrupt training state")
+    assert snapshot(tmp_path) == before

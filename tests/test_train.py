@@ -216,3 +216,24 @@ def test_weights_of_another_model_kind_are_refused_with_one_line():
     assert loss_weights(Weighted(), {"alpha": 2.0}) == OtherWeights(alpha=2.0)
     with pytest.raises(TypeError, match="_Line has no loss_weights_cls"):
         loss_weights(_Line(), {"alpha": 2.0})
+
+
+def test_resumed_training_ends_with_the_same_weights_bit_for_bit(data, tmp_path):
+    """4 epochs straight == 2 epochs, the state saved (weights_only round trip), a fresh model resumed to 4:
+    crops (max_frames 20, so the crop generator matters), dropout, shuffle order, Adam and the schedule."""
+    corpus, train_set, val_set = data
+    kw = dict(epochs=4, seed=5, progress=False, weights=LossWeights(), max_frames=20)
+    straight = _model(corpus, 5)
+    h1 = train(straight, make_loader(train_set, 8, shuffle=True, seed=5), TrainConfig.tiny(**kw))
+    saved = []
+    first = _model(corpus, 5)
+    train(first, make_loader(train_set, 8, shuffle=True, seed=5), TrainConfig.tiny(**kw), checkpoint_every=2,
+          on_checkpoint=lambda state: saved.append(torch.save(state, tmp_path / f"s{len(saved)}.pt")))
+    assert len(saved) == 1  # after epoch 2; never after the last epoch
+    state = torch.load(tmp_path / "s0.pt", weights_only=True)
+    assert state["epoch"] == 2 and state["step"] == 4
+    resumed = _model(corpus, 99)  # another initialisation: the state replaces it
+    h2 = train(resumed, make_loader(train_set, 8, shuffle=True, seed=5), TrainConfig.tiny(**kw), resume=state)
+    assert h1.terms == h2.terms and h1.steps == h2.steps
+    for (k, a), b in zip(straight.state_dict().items(), resumed.state_dict().values()):
+        assert torch.equal(a, b), k
