@@ -263,8 +263,8 @@ display(viewer.player(clip_v, colors=A.numpy()))
 # amount everywhere: the regions' means printed above are all about two thirds and differ by less than 0.01, each
 # face in the first figure is nearly one colour, and the map rises and falls over time with the speech features
 # (the second figure: 0.53 to 0.76 over this clip) far more than it varies across the face (asserted above). So
-# this run cannot say where the emotion branch wins. The map of the paper's Fig. 4 (emotion on the brows, eyes
-# and mouth corners) needs the full training: rerun this section with `fit(300)` (about 2 CPU minutes) to watch
+# this run cannot say where the emotion branch wins. The paper's Fig. 4 says the emotion branch matters most on
+# "the eyes, mouth and jaw"; a map with regional structure needs the full training: rerun this section with `fit(300)` (about 2 CPU minutes) to watch
 # it form, or train one with the tables' recipe (`dualtalker-lite train --model emoface --epochs 12 --out
 # runs/emoface.pt`, about 15 CPU minutes). Section 7 shows what the five trained models of the tables do.
 #
@@ -475,8 +475,9 @@ assert ab_lve["w/o self-growing"] == max(ab_lve.values())  # the largest differe
 # %% [markdown]
 # No ablation is measurably worse than the full model at this scale: without Mesh Attention (the plain mean of the
 # branches), without SpiralConv3D (a per-vertex linear map), without self-growing (plain teacher forcing) or without
-# cross-reconstruction, LVE stays within seed noise, and so do the brow and smile errors. The paper's four ablation
-# claims are therefore not reproduced here. The largest difference is self-growing's (LVE +0.14 mm without it; with
+# cross-reconstruction, LVE stays within seed noise, and so do the brow and smile errors. EmoFace's Table 3 has two
+# of these rows, w/o self-growing and w/o Mesh Attention (where the paper *adds* the two branches' offsets; this
+# project takes their mean); neither claim is reproduced here, and the other two rows are the project's additions. The largest difference is self-growing's (LVE +0.14 mm without it; with
 # the first 3 seeds it was just past the 2-standard-error line, with 5 it is not). Mesh Attention costs about twice
 # the plain mean's training time (the `train (s)` column). Seeds 3 and 4 were added with `--reuse`, so only the
 # 8 missing runs were computed.
@@ -524,7 +525,8 @@ assert min(alpha.values()) > 0.5 and min(alpha, key=alpha.get) == "lips"
 # the brows by about 4 mm, "angry 2" lowers them, "happy 2" widens the mouth by about 5 mm, each within a few tenths
 # of a millimetre of what the same speakers do when they really speak that way. Mesh Attention, however, does not
 # split the face into an emotion part and a content part: the emotion branch gets most of every region, the most on
-# the brows, eyes and mouth corners, the least on the lips, where the content branch has the most say. Section 4's
+# the brows, eyes and mouth corners, the least on the lips, where the content branch has the most say. That differs
+# from the paper's Fig. 4, which names "the eyes, mouth and jaw": here the mouth is where emotion has the least say. Section 4's
 # 20-step map (about two thirds everywhere, nearly uniform across the face) was the untrained start of this.
 
 # %%
