@@ -54,7 +54,7 @@ sys.path.insert(0, str(ROOT))
 from dualtalker_lite.audio import LogMelExtractor, load_audio  # noqa: E402
 from dualtalker_lite.data import sample_path  # noqa: E402
 from dualtalker_lite.data.corpus import Corpus, read_json  # noqa: E402
-from dualtalker_lite.data.dataset import (TalkingFaceDataset, VisemeLabels, collate, make_loader,  # noqa: E402
+from dualtalker_lite.data.dataset import (SILENCE_PAD, TalkingFaceDataset, VisemeLabels, collate, make_loader,  # noqa: E402
                                           segments_to_frames)
 from dualtalker_lite.face import FaceRig, Speaker, clip_controls  # noqa: E402
 from dualtalker_lite.face.visemes import VISEMES, phoneme_to_viseme  # noqa: E402
@@ -237,7 +237,7 @@ def prepare(limit: int | None = None) -> dict:
     test = TalkingFaceDataset(corpus, "test_a")
     data = {"corpus": corpus, "subject": subject, "speaker": speaker, "rig": rig, "template": template, "real": real,
             "silence": silence,
-            "failed": failed, "train": {"logmel": train, "labels": VisemeLabels(train),
+            "failed": failed, "train": {"logmel": train, "labels": VisemeLabels(train, pad_silence=SILENCE_PAD),
                                         "e2e": TalkingFaceDataset(corpus, "train", extractor=ex["e2e"])},
             "test": {"logmel": test, "labels": VisemeLabels(test),
                      "visemes": TalkingFaceDataset(corpus, "test_a", extractor=ex["visemes"]),

@@ -232,3 +232,51 @@ def test_shipped_sample_corpus_loads():
     assert tuple(item) == ITEM_KEYS and item["audio"].shape == (n_frames, 160)
     assert item["vertices"].shape == (n_frames, 3 * c.metadata["n_vertices"])
     assert c.phoneme_inventory[0] == "_" and (item["phonemes"] > 0).any()
+
+
+# ------------------------------------------------------------------------------------------- silence padding
+def _tiny_item(ids, extra=None):
+    """A 3-frame item on a 1-vertex 'mesh' (template at 0) with viseme ids ``ids`` (4 classes)."""
+    audio = torch.nn.functional.one_hot(torch.tensor(ids), 4).float()
+    if extra is not None:
+        audio = torch.cat([audio, torch.tensor(extra, dtype=torch.float32)], dim=1)
+    return {"name": "c", "audio": audio, "vertices": torch.tensor([[1.0] * 3, [2.0] * 3, [3.0] * 3]),
+            "template": torch.zeros(3), "speaker": 0, "emotion": 0, "level": 0,
+            "phonemes": torch.tensor([5, 6, 5]), "visemes": torch.tensor(ids)}
+
+
+def test_pad_with_silence_by_hand():
+    """2 frames before, 6 after, ramp 4: weights of the template are k / 5 (k frames from the clip), capped at 1.
+    Before: 0.4 and 0.2 of the way to the template from the first pose 1 -> 0.6, 0.8. After, from the last pose 3:
+    0.2 .. 1.0 of the way -> 2.4, 1.8, 1.2, 0.6, 0, 0. Audio: the sil one-hot; the kept feature: the clip's minimum."""
+    from dualtalker_lite.data.dataset import pad_with_silence
+
+    out = pad_with_silence(_tiny_item([1, 2, 1], extra=[[-3.0], [-1.0], [-2.0]]), 2, 6, n_visemes=4, ramp=4)
+    expected = [0.6, 0.8, 1, 2, 3, 2.4, 1.8, 1.2, 0.6, 0, 0]
+    np.testing.assert_allclose(out["vertices"][:, 0].numpy(), expected, atol=1e-6)
+    assert (out["vertices"] == out["vertices"][:, :1]).all()              # every coordinate alike here
+    np.testing.assert_array_equal(out["visemes"].numpy(), [0, 0, 1, 2, 1, 0, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(out["phonemes"].numpy(), [0, 0, 5, 6, 5, 0, 0, 0, 0, 0, 0])
+    sil = [1, 0, 0, 0, -3]
+    np.testing.assert_array_equal(out["audio"][[0, 1, 5, 10]].numpy(), [sil] * 4)
+    np.testing.assert_array_equal(out["audio"][2:5, :4].argmax(1).numpy(), [1, 2, 1])
+
+
+def test_viseme_labels_pad_silence_lengths_and_refusal():
+    """Clip i gets (7 i) mod (P + 1) frames before and (13 i + 5) mod (P + 1) after; P = 0 leaves clips alone."""
+    from dualtalker_lite.data.dataset import VisemeLabels
+
+    class Base(torch.utils.data.Dataset):
+        def __len__(self):
+            return 3
+
+        def __getitem__(self, i):
+            return _tiny_item([1, 2, 1])
+
+    padded = VisemeLabels(Base(), n_visemes=4, pad_silence=20)
+    # i = 0: 0 and 5; i = 1: 7 and 18; i = 2: 14 and 31 mod 21 = 10
+    assert [padded[i]["audio"].shape[0] for i in range(3)] == [3 + 5, 7 + 3 + 18, 14 + 3 + 10]
+    assert padded[1]["visemes"][:7].tolist() == [0] * 7 and padded[1]["visemes"][7:10].tolist() == [1, 2, 1]
+    assert VisemeLabels(Base(), n_visemes=4)[1]["audio"].shape[0] == 3
+    with pytest.raises(ValueError, match="pad_silence must be >= 0 frames, got -1"):
+        VisemeLabels(Base(), n_visemes=4, pad_silence=-1)

@@ -30,7 +30,8 @@ from torch.utils.data import DataLoader, Dataset
 from ..audio import FeatureExtractor, LogMelExtractor, resample
 from .corpus import Corpus
 
-__all__ = ["ITEM_KEYS", "TalkingFaceDataset", "VisemeLabels", "collate", "make_loader", "segments_to_frames"]
+__all__ = ["ITEM_KEYS", "SILENCE_PAD", "TalkingFaceDataset", "VisemeLabels", "collate", "make_loader",
+           "pad_with_silence", "segments_to_frames"]
 
 ITEM_KEYS = ("name", "audio", "vertices", "template", "speaker", "emotion", "level", "phonemes", "visemes")
 _PER_FRAME = ("audio", "vertices", "phonemes", "visemes")  # keys with a time axis (cropped, padded)
@@ -149,12 +150,25 @@ class VisemeLabels(Dataset):
     base's own features after the one-hot, ``(T, 15 + base dim)``: with log-mel that is what
     ``RecogniserExtractor("visemes+logmel")`` gives at test time (175). Datasets without phoneme timing (real corpora)
     have all-``sil`` labels: train those on the recogniser's tracks instead.
+
+    ``pad_silence`` = P > 0 (the phonetic route trains with :data:`SILENCE_PAD`) surrounds clip ``i`` with
+    ``(7 i) mod (P + 1)`` frames of silence before and ``(13 i + 5) mod (P + 1)`` after (0-P frames, varied so
+    the pauses fall on every phase of the decoder's 30-frame periodic encoding; deterministic, so a run is
+    reproducible and resumable). Silence frames carry the ``sil`` class (``visemes``/``phonemes`` 0), the
+    clip's quietest value per feature for kept audio, and the speaker's neutral ``template`` as motion, reached
+    by a linear ramp of :data:`SILENCE_RAMP` frames from the clip's edge pose. Why: the shipped corpus's clips
+    have almost no silence (0.5 leading and 0.1 trailing frames on average), so a decoder that never saw
+    silence runs its periodic encoding as a 1-s limit cycle on a pause (the lips moved 1.9-2.4 mm on room tone
+    in every trained model). A project addition for real speech, which pauses (issue 19).
     """
 
-    def __init__(self, base: Dataset, n_visemes: int | None = None, keep_audio: bool = False):
+    def __init__(self, base: Dataset, n_visemes: int | None = None, keep_audio: bool = False,
+                 pad_silence: int = 0):
         from ..face.visemes import VISEMES
 
-        self.base, self.keep_audio = base, keep_audio
+        if pad_silence < 0:
+            raise ValueError(f"pad_silence must be >= 0 frames, got {pad_silence}")
+        self.base, self.keep_audio, self.pad_silence = base, keep_audio, int(pad_silence)
         self.n_visemes = len(VISEMES) if n_visemes is None else int(n_visemes)
         extra = getattr(getattr(base, "extractor", None), "dim", None) if keep_audio else 0
         if extra is None:
@@ -174,10 +188,50 @@ class VisemeLabels(Dataset):
             raise ValueError(f"clip {item.get('name')!r}: viseme ids must lie in [0, {self.n_visemes})")
         onehot = torch.nn.functional.one_hot(ids, self.n_visemes).float()    # (T, 15)
         item["audio"] = torch.cat([onehot, item["audio"].float()], dim=1) if self.keep_audio else onehot
+        if "pair_audio" in item:  # a pseudo-pair partner (data.pairs): same sentence, resampled to this clip's T
+            item["pair_audio"] = (torch.cat([onehot, item["pair_audio"].float()], dim=1) if self.keep_audio
+                                  else onehot)
+        if self.pad_silence:
+            p = self.pad_silence + 1
+            item = pad_with_silence(item, (7 * index) % p, (13 * index + 5) % p, self.n_visemes)
         return item
 
     def __repr__(self) -> str:
         return f"VisemeLabels({self.base!r})"
+
+
+SILENCE_PAD = 20    # frames (0.67 s at 30 fps): the most silence VisemeLabels puts on each side in training
+SILENCE_RAMP = 4    # frames (133 ms): edge pose -> neutral template, linearly
+
+
+def pad_with_silence(item: dict, before: int, after: int, n_visemes: int, ramp: int = SILENCE_RAMP) -> dict:
+    """``item`` (audio = one-hot visemes first, then any kept features) with ``before``/``after`` frames of
+    silence: one-hot ``sil``, the quietest value of each kept feature, ids 0, and motion that ramps linearly
+    from the edge frame to the ``template`` over ``ramp`` frames and then holds it; a pseudo-pair partner's
+    ``pair_audio``/``pair_vertices`` likewise. Shapes (T, ...) -> (before + T + after, ...)."""
+    if before == 0 and after == 0:
+        return item
+    out = dict(item)
+    audio, verts, tmpl = item["audio"], item["vertices"], item["template"]
+    sil = audio.new_zeros(audio.shape[1])                               # (D,)
+    sil[0] = 1.0                                                        # the sil class
+    if audio.shape[1] > n_visemes:
+        sil[n_visemes:] = audio[:, n_visemes:].min(0).values            # quietest value per kept feature
+    w_in = torch.clamp(torch.arange(before, 0, -1, dtype=verts.dtype) / (ramp + 1), max=1.0)[:, None]  # (before, 1)
+    w_out = torch.clamp(torch.arange(1, after + 1, dtype=verts.dtype) / (ramp + 1), max=1.0)[:, None]  # (after, 1)
+    lead = (1 - w_in) * verts[:1] + w_in * tmpl                         # (before, V*3): template -> first pose
+    trail = (1 - w_out) * verts[-1:] + w_out * tmpl                     # (after, V*3): last pose -> template
+    out["audio"] = torch.cat([sil.expand(before, -1), audio, sil.expand(after, -1)])
+    out["vertices"] = torch.cat([lead, verts, trail])
+    if "pair_audio" in item:  # a pseudo-pair partner is padded the same way (its own quietest values)
+        partner = pad_with_silence({"audio": item["pair_audio"], "vertices": item["pair_vertices"], "template": tmpl,
+                                    "phonemes": item["phonemes"], "visemes": item["visemes"]},
+                                   before, after, n_visemes, ramp)
+        out["pair_audio"], out["pair_vertices"] = partner["audio"], partner["vertices"]
+    for key in ("phonemes", "visemes"):
+        ids = item[key]
+        out[key] = torch.cat([ids.new_zeros(before), ids, ids.new_zeros(after)])
+    return out
 
 
 def collate(items: list[dict]) -> dict:
