@@ -543,3 +543,35 @@ def test_cli_emotion_errors(emoface_ckpt, tmp_path, capsys):
               "--out", str(tmp_path / "b")])
     assert e.value.code == 2 and "DualTalker model takes no emotion condition" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
+
+
+# ---- the phonetic route (content_dims, issue 19) -------------------------------------------------------------------
+def test_phonetic_route_routes_visemes_to_content_and_the_rest_to_emotion():
+    """content_dims = k: F_c depends on A[..., :k] only, F_e (and the level statistics) on A[..., k:] only."""
+    k = 5
+    model, batch = _model(content_dims=k), _batch(t=10)
+    torch.nn.init.normal_(model.emotion_level_stats.weight, std=1.0)
+    audio = batch["audio"]
+    fc, fe = model.encode(audio)
+    other_rest = audio.clone()
+    other_rest[..., k:] = torch.randn_like(audio[..., k:]) * 3 - 5
+    fc2, fe2 = model.encode(other_rest)
+    torch.testing.assert_close(fc2, fc, atol=0, rtol=0)                   # content: unchanged
+    assert (fe2 - fe).abs().amax() > 0.1                                  # emotion: hears the change
+    other_head = audio.clone()
+    other_head[..., :k] = torch.randn_like(audio[..., :k])
+    fc3, fe3 = model.encode(other_head)
+    torch.testing.assert_close(fe3, fe, atol=0, rtol=0)                   # emotion: unchanged
+    assert (fc3 - fc).abs().amax() > 0.1
+    # the level statistics are those of A[..., k:] (written out here, not taken from the model)
+    rest = audio[..., k:].double()
+    ref = torch.stack([rest.mean(-1), rest.std(-1, unbiased=False)], -1).reshape(-1, 2)
+    model.init_from_data([{"audio": audio, "mask": None}])
+    torch.testing.assert_close(model.level_stats_mean, ref.mean(0).float())
+    out = model(batch)  # the whole training pass runs, partner included
+    assert torch.isfinite(out["vertices"]).all()
+
+
+def test_content_dims_must_leave_audio_for_the_emotion_branch():
+    with pytest.raises(ValueError, match=r"content_dims must lie in \[0, audio_dim = 12\), got 12"):
+        _cfg(content_dims=DA)

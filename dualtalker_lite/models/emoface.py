@@ -58,7 +58,7 @@ Readings taken (the paper leaves these open):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import math
 
@@ -86,6 +86,8 @@ class EmoFaceConfig:
 
     n_vertices: int = 1500
     audio_dim: int = 160  # D_a: log-mel per mesh frame
+    content_dims: int = 0  # > 0: the phonetic route (project addition, issue 19): audio[..., :content_dims] (the
+    #                        viseme one-hot) feeds E_c alone, the rest (log-mel) E_e alone; 0: both read all of A
     n_speakers: int = 8  # speaking styles (one-hot s in R^n)
     n_emotions: int = 5  # N_e: emotion categories (corpus.emotions; 0 = neutral)
     n_levels: int = 2  # emotion levels (one-hot l in R^2)
@@ -125,6 +127,8 @@ class EmoFaceConfig:
         for name in ("n_emotions", "n_levels", "n_speakers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.content_dims < self.audio_dim:
+            raise ValueError(f"content_dims must lie in [0, audio_dim = {self.audio_dim}), got {self.content_dims}")
 
     @classmethod
     def tiny(cls, **overrides) -> "EmoFaceConfig":
@@ -187,7 +191,11 @@ class EmoFace(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor.from_config(cfg)
+        k = cfg.content_dims
+        self.extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=cfg.audio_dim - k, content_dims=0))
+        # phonetic route: E_c gets its own front-end over the viseme one-hot, so the content branch never hears
+        # the voice; the shared front-end above then reads only the log-mel, for E_e
+        self.content_extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=k, content_dims=0)) if k else None
         self.content_encoder = nn.Linear(c, d)  # E_c: per frame (short-term content)
         self.emotion_projection = nn.Linear(c, d)  # E_e, first part
         # E_e also reads the per-frame log-mel mean and std (frame_level_stats) that the front-end's per-frame
@@ -241,16 +249,24 @@ class EmoFace(nn.Module):
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters() if p.requires_grad)
 
+    def emotion_audio(self, audio: Tensor) -> Tensor:
+        """The part of A the emotion branch reads: all of it, or the log-mel after the visemes (``content_dims``)."""
+        return audio[..., self.cfg.content_dims:]
+
     def encode(self, audio: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """Eqs. 12-13: A (B, T, D_a) -> content features F_c, emotion features F_e, each (B, T, d)."""
-        h = self.extractor(audio, mask)  # (B, T, C) shared front-end
-        stats = (frame_level_stats(audio) - self.level_stats_mean) / self.level_stats_std  # (B, T, 2)
+        """Eqs. 12-13: A (B, T, D_a) -> content features F_c, emotion features F_e, each (B, T, d). With
+        ``content_dims`` = k the content branch reads A[..., :k] through its own front-end and the emotion branch
+        A[..., k:]; without, both share one front-end over all of A (the paper)."""
+        k = self.cfg.content_dims
+        h = self.extractor(self.emotion_audio(audio), mask)  # (B, T, C) shared front-end (log-mel only if k)
+        h_c = h if self.content_extractor is None else self.content_extractor(audio[..., :k], mask)  # (B, T, C)
+        stats = (frame_level_stats(self.emotion_audio(audio)) - self.level_stats_mean) / self.level_stats_std
         if mask is not None:
             stats = stats.masked_fill(~mask[..., None], 0.0)
         fe = self.emotion_projection(h) + self.emotion_level_stats(stats)  # (B, T, d)
         for layer in self.emotion_layers:
             fe = layer(fe, key_mask=mask, radius=self.cfg.audio_radius)  # (B, T, d)
-        return self.content_encoder(h), fe
+        return self.content_encoder(h_c), fe
 
     def classify(self, fe: Tensor, mask: Tensor | None = None) -> Tensor:
         """Emotion logits (B, N_e) from the mean and standard deviation of the emotion features over the valid frames
@@ -376,13 +392,16 @@ class EmoFace(nn.Module):
         training frame of :func:`frame_level_stats`, used to standardise them. ``data``: a dataset of clips
         (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``)."""
         items = getattr(data, "items", None)  # the clips of a (Pair|TalkingFace)Dataset: no partner draws used up
+        if self.cfg.content_dims:
+            items = None  # a wrapper's items (e.g. VisemeLabels over a PairDataset) lack the visemes: read its own
+        level = lambda a: frame_level_stats(self.emotion_audio(a).double())  # noqa: E731
         if isinstance(items, list):
-            frames = [frame_level_stats(it["audio"].double()) for it in items]  # (T, 2) each
+            frames = [level(it["audio"]) for it in items]  # (T, 2) each
         elif hasattr(data, "__len__") and hasattr(data, "__getitem__") and not isinstance(data, (list, tuple)):
-            frames = [frame_level_stats(data[i]["audio"].double()) for i in range(len(data))]  # (T, 2) each
+            frames = [level(data[i]["audio"]) for i in range(len(data))]  # (T, 2) each
         else:
-            frames = [frame_level_stats(b["audio"].double())[b["mask"]] if b.get("mask") is not None
-                      else frame_level_stats(b["audio"].double()).reshape(-1, 2) for b in data]
+            frames = [level(b["audio"])[b["mask"]] if b.get("mask") is not None
+                      else level(b["audio"]).reshape(-1, 2) for b in data]
         stats = torch.cat(frames)  # (N frames, 2)
         if stats.shape[0] < 2 or not bool(torch.isfinite(stats).all()):
             raise ValueError(f"EmoFace.init_from_data: need >= 2 finite audio frames, got {stats.shape[0]}")
