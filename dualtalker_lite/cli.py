@@ -29,7 +29,8 @@ __all__ = ["USER_ERRORS", "run_main", "main"]  # the first two re-exported from 
 
 # ------------------------------------------------------------------------------------- train / evaluate
 TRAIN_EXAMPLE = """examples:
-  dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt
+  dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt    # phonetic route: any voice
+  dualtalker-lite train --model dualtalker --features logmel --out runs/logmel.pt # the papers' acoustic input
   dualtalker-lite train --model emoface --epochs 12 --out runs/my_emoface.pt     # on the emotional pseudo-pairs
   dualtalker-lite train --model voca --epochs 1 --clips 16 --out runs/check.pt   # a quick check of the whole path
   dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt --resume   # continue a killed run
@@ -135,11 +136,11 @@ def _train(argv: list[str]) -> Path:
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
                          "default: all)")
-    ap.add_argument("--features", choices=("logmel", "visemes"), default="logmel",
-                    help="audio front-end: logmel (the papers' kind of input; learns this corpus's voices only) or "
-                         "visemes (the phonetic route: trained on the corpus's viseme labels, fed the phoneme "
-                         "recogniser's viseme tracks by evaluate and animate; works on any voice, needs the "
-                         "[phonetic] extra; not for emoface)")
+    ap.add_argument("--features", choices=("logmel", "visemes"), default=None,
+                    help="audio front-end: visemes (the default: the phonetic route, trained on the corpus's viseme "
+                         "labels, fed the phoneme recogniser's viseme tracks by evaluate and animate; works on any "
+                         "voice; emoface's emotion branch also reads the log-mel) or logmel (the papers' kind of "
+                         "input; learns this corpus's voices only)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="checkpoint file to write (.pt)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint")
@@ -177,20 +178,29 @@ def _train(argv: list[str]) -> Path:
     corpus = Corpus(args.corpus or sample_path())
     spec = specs[args.model]
     paired = spec.data == "pairs"
+    if args.features is None:
+        args.features = "visemes"
     if args.features == "visemes":
-        if paired:
-            raise ValueError("--features visemes: EmoFace reads loudness from the log-mel for its emotion branch; "
-                             "train it with --features logmel")
         from .recogniser import RecogniserExtractor
 
-        front_end = RecogniserExtractor("visemes")  # what evaluate/animate will feed the model (checked here: hama)
-        spec = dataclasses.replace(spec, features="visemes")
-    dataset = _pair_dataset(corpus, args.seed) if paired else TalkingFaceDataset(corpus, "train")
+        # EmoFace: visemes for its content branch, log-mel for its emotion branch (emotion is in the sound)
+        phonetic = "visemes+logmel" if paired else "visemes"
+        front_end = RecogniserExtractor(phonetic)  # what evaluate/animate will feed the model (checked here: hama)
+        spec = dataclasses.replace(spec, features=phonetic)
+    if args.features == "visemes" and not paired and not any(corpus.meta(n).get("visemes")
+                                                            for n in corpus.split("train")):
+        # no phoneme timing (e.g. VOCASET in FaceFormer's layout): train on the recogniser's tracks themselves
+        print(f"note: {corpus.root}: no viseme labels in metadata.json; training on the recogniser's viseme tracks "
+              f"of the training audio", file=sys.stderr)
+        dataset = TalkingFaceDataset(corpus, "train", extractor=front_end)
+        spec = dataclasses.replace(spec, features="logmel")  # the dataset already holds the viseme tracks
+    else:
+        dataset = _pair_dataset(corpus, args.seed) if paired else TalkingFaceDataset(corpus, "train")
     if args.clips is not None and args.clips < len(dataset):
         dataset_used = Subset(dataset, np.linspace(0, len(dataset) - 1, args.clips).round().astype(int).tolist())
     else:
         dataset_used = dataset
-    train_set, audio_dim = _features(dataset_used, spec.features, len(corpus.phoneme_inventory))
+    train_set, audio_dim = _features(dataset_used, spec.features, len(corpus.phoneme_inventory), training=True)
     if spec.model == "emoface":  # as many emotion classes as the corpus has
         spec = dataclasses.replace(spec, model_overrides={**spec.model_overrides, "n_emotions": len(corpus.emotions)})
     torch.manual_seed(args.seed)
@@ -214,7 +224,7 @@ def _train(argv: list[str]) -> Path:
     history = train(model, loader, cfg, checkpoint_every=args.checkpoint_every, on_checkpoint=on_checkpoint,
                     resume=None if resume is None else resume["train"])
     model.cpu()
-    if spec.features == "visemes":
+    if args.features == "visemes":
         features = front_end.settings()
     else:
         features = extractor_settings(dataset.extractor if spec.features == "logmel" else None, name=spec.features)

@@ -5,7 +5,10 @@
 
 1. trains the tiny DualTalker and the FaceFormer-style baseline on ``data_samples/`` (the same protocol as the
    ``main`` table of :mod:`dualtalker_lite.experiments`: same features, data and epoch budget), in two worker
-   processes with one torch thread each, and saves their checkpoints;
+   processes with one torch thread each, and saves their checkpoints. The front end is the phonetic route
+   (``--features visemes``, issue 19): trained on the corpus's viseme labels, fed the hama phoneme recogniser's
+   viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``);
+   ``--features logmel`` gives the papers' kind of input, which learns the corpus's synthetic voices only;
 2. evaluates both, plus the static template, on test-A with autoregressive generation;
 3. writes into ``--out``:
 
@@ -38,7 +41,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from .experiments import METRICS, load_data, predict_split, run_specs, split_metrics, table_specs
+from .experiments import (FEATURES, METRICS, TEST_SPLIT, load_data, predict_split, run_specs, split_metrics,
+                          table_specs, test_features)
 
 __all__ = ["MODELS", "main"]
 
@@ -55,6 +59,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="epochs per model, the same for both (default: the recipe's, TrainConfig.tiny())")
     p.add_argument("--time-budget", type=float, default=150.0,
                    help="seconds of training per model after which it stops at the end of the epoch (0 = none)")
+    p.add_argument("--features", choices=FEATURES, default=FEATURES[0],
+                   help="front end: visemes (default: the phonetic route, trained on the corpus's viseme labels "
+                        "and fed the phoneme recogniser's tracks of the test audio, so it works on any voice) or "
+                        "logmel (the papers' kind of input; learns the corpus's synthetic voices only)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--processes", type=int, default=2, help="train the two models in parallel (1 thread each)")
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
@@ -100,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     torch.set_num_threads(1)
 
     # 1-2. train (in parallel) and evaluate: the experiments runner does both and saves the checkpoints
-    rows = {s.row: s for s in table_specs("main")}
+    rows = {s.row: s for s in table_specs("main", features=args.features)}
     jobs = [(rows[row], args.seed) for row, _ in MODELS.values()]
     checkpoints = [None if ckpt is None else str(out / ckpt) for _, ckpt in MODELS.values()]
     order = [2, 1, 0]  # DualTalker (the longest job) first
@@ -117,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     if loader.is_alive():
         loader.join()
     data = load_data(args.corpus, args.quick)
-    corpus, test_set = data["corpus"], data["test"]
+    corpus, test_set = data["corpus"], test_features(data, TEST_SPLIT, args.features)
     pred = {}
     for label, (_, ckpt) in MODELS.items():
         if ckpt is not None:
@@ -164,7 +172,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     table = metrics_markdown(results, command, epochs_done, len(names))
     files["metrics_md"] = out / "metrics.md"
     files["metrics_md"].write_text(table)
-    payload = {"command": command, "epochs_requested": epochs, "epochs_trained": epochs_done,
+    payload = {"command": command, "features": args.features, "epochs_requested": epochs, "epochs_trained": epochs_done,
                "time_budget_s": budget, "seed": args.seed, "quick": args.quick, "corpus": data["path"],
                "n_train_clips": len(data["train"]), "test_clips": names, "figure_clip": clip,
                "models": {label: {k: r[k] for k in ("metrics", "train_seconds", "eval_seconds", "n_parameters",

@@ -236,6 +236,14 @@ def test_viseme_labels_dataset(corpus):
     assert torch.equal(item["audio"].sum(1), torch.ones(item["visemes"].shape[0]))
     both = VisemeLabels(base, keep_audio=True)             # one-hot, then the base's log-mel
     assert both.dim == 175 and torch.equal(both[0]["audio"], torch.cat([item["audio"], base[0]["audio"]], 1))
+    # a pseudo-pair partner (resampled to this clip's frames) gets the clip's own one-hot before its log-mel
+    partner = {**base[0], "pair_audio": base[0]["audio"] * 0 - 7.0, "pair_vertices": base[0]["vertices"]}
+    wrapped = VisemeLabels([partner], keep_audio=True)[0]
+    assert torch.equal(wrapped["pair_audio"], torch.cat([item["audio"], partner["pair_audio"]], 1))
+    padded = VisemeLabels([partner], keep_audio=True, pad_silence=20)[0]  # clip 0: 0 frames before, 5 after
+    assert padded["pair_audio"].shape == padded["audio"].shape == (item["visemes"].shape[0] + 5, 175)
+    assert (padded["pair_audio"][-5:, 15:] == -7.0).all() and (padded["pair_audio"][-5:, 0] == 1).all()
+    assert torch.equal(padded["pair_vertices"][-1], base[0]["template"])   # ramped to the neutral face
     # frames of the first /p b m/ label segment are one-hot PP
     meta = corpus.meta(item["name"])
     first_pp = next((s, e) for v, s, e in meta["visemes"] if v == "PP")
@@ -289,8 +297,7 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
         return subprocess.run([str(script), *map(str, argv)], capture_output=True, text=True, env=env, timeout=300)
 
     ckpt = tmp_path / "vis.pt"
-    proc = run("train", "--model", "faceformer", "--features", "visemes", "--epochs", "1", "--clips", "8",
-               "--out", ckpt)
+    proc = run("train", "--model", "faceformer", "--epochs", "1", "--clips", "8", "--out", ckpt)  # the default
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     assert torch.load(ckpt, weights_only=True)["features"]["name"] == "hama"
     proc = run("evaluate", "--checkpoint", ckpt, "--split", "test_b", "--json", tmp_path / "m.json")
@@ -300,6 +307,13 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
                "--format", "npy")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     assert np.load(tmp_path / "a" / "vertices.npy").shape[1] == torch.load(ckpt, weights_only=True)["n_vertices"] * 3
-    proc = run("train", "--model", "emoface", "--features", "visemes", "--epochs", "1", "--out", tmp_path / "e.pt")
-    assert proc.returncode == 2 and "error: --features visemes: EmoFace reads loudness" in proc.stderr
-    assert not (tmp_path / "e.pt").exists()
+    # EmoFace: visemes for its content branch, log-mel for its emotion branch (175 features, content_dims 15)
+    proc = run("train", "--model", "emoface", "--epochs", "1", "--clips", "8", "--out", tmp_path / "e.pt")
+    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
+    saved = torch.load(tmp_path / "e.pt", weights_only=True)
+    assert (saved["features"]["name"], saved["features"]["settings"]["output"]) == ("hama", "visemes+logmel")
+    assert (saved["model_config"]["audio_dim"], saved["model_config"]["content_dims"]) == (175, 15)
+    proc = run("animate", "--checkpoint", tmp_path / "e.pt", "--wav", wav, "--speaker", "SPK01", "--emotion",
+               "happy", "--level", "2", "--out", tmp_path / "e", "--format", "npy")
+    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
+    assert np.isfinite(np.load(tmp_path / "e" / "vertices.npy")).all()

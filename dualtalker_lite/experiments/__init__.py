@@ -55,12 +55,13 @@ from .evaluation import (COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, Audi
 from .report import (DEFINITIONS, EMOTION_DEFINITIONS, _collapse_note, _compare, _fmt, load_table, summarize,
                      table_markdown, write_table)
 from .runner import (_DATA, _features, _job, _trimmed, _worker_init, build_model, data_split, load_data, run_one,
-                     run_specs, training_set)
-from .specs import (CORRTALK_NOTE, DATA, EMOFACE_NOTE, EMOTION_METRICS, EMOTIONAL_TRAIN, LIP_SYNC_KEYS, METRICS,
-                    PRIMAL_ONLY, QUICK_CLIPS, TABLE_SPLITS, TABLES, TEST_SPLIT, TITLES, RunSpec, table_metrics,
-                    table_specs, table_split)
+                     run_specs, test_features, training_set)
+from .specs import (CORRTALK_NOTE, DATA, EMOFACE_NOTE, EMOTION_METRICS, EMOTIONAL_TRAIN, FEATURES, FRONT_ENDS,
+                    LIP_SYNC_KEYS, METRICS, PRIMAL_ONLY, QUICK_CLIPS, TABLE_SPLITS, TABLES, TEST_SPLIT, TITLES, RunSpec,
+                    table_metrics, table_specs, table_split)
 
-__all__ = ["TABLES", "METRICS", "RunSpec", "table_specs", "phoneme_onehot", "PhonemeOneHot", "over_smoothing_ratio",
+__all__ = ["TABLES", "METRICS", "FEATURES", "RunSpec", "table_specs", "test_features", "phoneme_onehot",
+           "PhonemeOneHot", "over_smoothing_ratio",
            "typical_bandwidth", "swap_partners", "AudioSwapped", "audio_sensitivity", "collapse_reasons",
            "is_collapsed",
            "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",

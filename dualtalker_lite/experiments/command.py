@@ -18,7 +18,7 @@ import torch
 from .evaluation import typical_bandwidth
 from .report import write_table
 from .runner import data_split, load_data, run_specs
-from .specs import TABLES, RunSpec, table_specs, table_split
+from .specs import FEATURES, TABLES, RunSpec, table_specs, table_split
 
 # ------------------------------------------------------------------------------------------- command line
 def _git() -> str:
@@ -55,6 +55,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--epochs", type=int, default=None,
                    help="fixed training budget of every trained model (default: the recipe's, TrainConfig.tiny())")
+    p.add_argument("--features", choices=FEATURES, default=FEATURES[0],
+                   help="front end of every row that does not name its own: visemes (default: the phonetic route, "
+                        "trained on the corpus's viseme labels and tested on the phoneme recogniser's tracks; "
+                        "EmoFace keeps log-mel) or logmel (the papers' kind of input; the tables made before "
+                        "issue 19)")
     p.add_argument("--processes", type=int, default=1, help="worker processes, one torch thread each")
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
@@ -112,7 +117,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     torch.set_num_threads(1)
     data = load_data(args.corpus, args.quick)
     bandwidth = typical_bandwidth(data["train"]) if "sweep" in tables else None
-    specs = {t: table_specs(t, bandwidth) for t in tables}
+    specs = {t: table_specs(t, bandwidth, args.features) for t in tables}
     unique: dict[tuple, tuple[RunSpec, int, str]] = {}
     for t in tables:
         for s in specs[t]:
@@ -133,6 +138,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     by_key = {**taken, **{(r["key"], r["seed"]): r for r in results}}
     meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
             "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
+            "features": args.features,
             "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": _git(),
             "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
             "torch_threads_per_process": 1, "reused_from": reused, "n_runs_reused": len(taken)}

@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from .evaluation import COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, collapse_reasons, is_collapsed
-from .specs import EMOTION_METRICS, METRICS, TABLE_SPLITS, TEST_SPLIT, TITLES, RunSpec, table_metrics
+from .specs import EMOTION_METRICS, FRONT_ENDS, METRICS, TABLE_SPLITS, TEST_SPLIT, TITLES, RunSpec, table_metrics
 
 # ------------------------------------------------------------------------------------------- tables
 def summarize(runs: list[dict]) -> dict:
@@ -64,6 +64,19 @@ def _collapse_note(spec: RunSpec, runs: list[dict], sm: dict) -> str:
     tail = ("ALL runs collapsed: the numbers are theirs" if sm["all_collapsed"]
             else "excluded from mean ± std")
     return f"**{n} of {total} runs collapsed** ({'; '.join(why)}), {tail}"
+
+
+def _front_end_line(specs: list[RunSpec], meta: dict) -> str:
+    """Which front end each row used; tables made before the runner's ``--features`` (issue 19) were log-mel."""
+    used: dict[str, list[str]] = {}
+    for s in specs:
+        if s.model != "template":
+            used.setdefault(s.features, []).append(s.row)
+    parts = [FRONT_ENDS.get(f, f) + ("" if len(used) == 1 else f" ({', '.join(rows)})") for f, rows in used.items()]
+    line = "Front end: " + "; ".join(parts) + "."
+    if "features" not in meta and "logmel" in used:
+        line += " (Made before `--features` existed: today's command for these rows adds `--features logmel`.)"
+    return line
 
 
 def _fmt(s: dict, digits: int) -> str:
@@ -126,7 +139,7 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
         columns = [c for c in columns if c[0] in set(metrics)]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
     lines = [f"# {TITLES[table]}", "",
-             f"Command: `{meta['command']}`", "",
+             f"Command: `{meta['command']}`", "", _front_end_line(specs, meta), "",
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
              f"{split} clips: {meta['n_test_clips']}{quick}; "

@@ -21,6 +21,7 @@ from .evaluation import (AudioSwapped, PhonemeOneHot, audio_sensitivity, collaps
 from .specs import EMOTIONAL_TRAIN, QUICK_CLIPS, TEST_SPLIT, RunSpec
 
 # ------------------------------------------------------------------------------------------- data and models
+PHONETIC = ("visemes", "visemes+logmel")  # trained on the corpus's viseme labels, tested on the recogniser's
 _DATA: dict = {}  # per process: (corpus path, quick) -> data dict (features are computed once per process)
 
 
@@ -63,6 +64,20 @@ def data_split(data: dict, split: str) -> Dataset:
     return data["splits"][split]
 
 
+def test_features(data: dict, split: str, features: str) -> Dataset:
+    """What a row is evaluated on: for the phonetic features the recogniser's per-frame viseme classes of the
+    split's audio (``RecogniserExtractor``, hama; computed once, cached under the user cache dir; "visemes+logmel"
+    appends the log-mel), never the corpus's labels; for the other features :func:`_features` of the log-mel split."""
+    if features not in PHONETIC:
+        return _features(data_split(data, split), features, data["n_phonemes"])[0]
+    from ..data.dataset import TalkingFaceDataset
+
+    cache = data.setdefault("recognised", {})
+    if (split, features) not in cache:
+        cache[split, features] = TalkingFaceDataset(data["view"], split, front_end(features))
+    return cache[split, features]
+
+
 def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
     """The clips a row trains on (``spec.data``) -> (dataset, whether it needs the pair loader)."""
     from torch.utils.data import ConcatDataset
@@ -76,17 +91,30 @@ def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
     return PairDataset(data["view"], EMOTIONAL_TRAIN, extractor=data["train"].extractor, seed=seed), True
 
 
-def _features(dataset: Dataset, features: str, n_phonemes: int) -> tuple[Dataset, int]:
+def _features(dataset: Dataset, features: str, n_phonemes: int, training: bool = False) -> tuple[Dataset, int]:
+    """A log-mel dataset -> (the dataset a row sees, its audio_dim). "visemes": the corpus's own viseme labels,
+    with silence padding when ``training`` (:class:`~dualtalker_lite.data.dataset.VisemeLabels`); at test time
+    the phonetic route is fed the recogniser's tracks instead (:func:`test_features`)."""
     if features == "logmel":
         return dataset, int(dataset[0]["audio"].shape[-1])
     if features == "phonemes":
         return PhonemeOneHot(dataset, n_phonemes), n_phonemes
-    if features == "visemes":  # the phonetic route: the corpus's own viseme labels (recogniser tracks at test time)
-        from ..data.dataset import VisemeLabels
+    if features in PHONETIC:
+        from ..data.dataset import SILENCE_PAD, VisemeLabels
 
-        labels = VisemeLabels(dataset)
+        labels = VisemeLabels(dataset, pad_silence=SILENCE_PAD if training else 0,
+                              keep_audio=features == "visemes+logmel")
         return labels, labels.dim
-    raise ValueError(f"unknown features {features!r}; expected 'logmel', 'phonemes' or 'visemes'")
+    raise ValueError(f"unknown features {features!r}; expected 'logmel', 'phonemes', 'visemes' or 'visemes+logmel'")
+
+
+def front_end(features: str):
+    """The recogniser extractor that feeds a phonetic row at test time and in its checkpoint (None otherwise)."""
+    if features not in PHONETIC:
+        return None
+    from ..recogniser import RecogniserExtractor
+
+    return RecogniserExtractor(features)
 
 
 def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
@@ -114,8 +142,11 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int,
         cfg = CorrTalkConfig.tiny(**sizes, **spec.model_overrides)
         return CorrTalk(cfg), cfg
     if spec.model == "emoface":
+        from ..face.visemes import VISEMES
         from ..models.emoface import EmoFace, EmoFaceConfig
 
+        if spec.features == "visemes+logmel":  # E_c reads the viseme one-hot, E_e the log-mel after it
+            sizes["content_dims"] = len(VISEMES)
         cfg = EmoFaceConfig.tiny(**sizes, **spec.model_overrides)
         return EmoFace(cfg, faces=faces, vertices=vertices), cfg
     raise ValueError(f"unknown model {spec.model!r}")
@@ -144,8 +175,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
     try:
         data = load_data(corpus_path, quick)
         base_train, paired = training_set(data, spec, seed)
-        train_set, audio_dim = _features(base_train, spec.features, data["n_phonemes"])
-        test_set, _ = _features(data_split(data, test_split), spec.features, data["n_phonemes"])
+        train_set, audio_dim = _features(base_train, spec.features, data["n_phonemes"], training=True)
+        test_set = test_features(data, test_split, spec.features)
         set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
         model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"],
                                        faces=data["corpus"].faces)
@@ -161,9 +192,11 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         if checkpoint is not None and model_cfg is not None:
             from ..checkpoints import extractor_settings
 
+            fe = front_end(spec.features)  # phonetic rows: the recogniser, so `animate` feeds any voice its tracks
             save_checkpoint(checkpoint, model, model_cfg, train_cfg, history, speakers=data["corpus"].train_speakers,
                             faces=data["corpus"].faces, features=extractor_settings(
-                                data["train"].extractor if spec.features == "logmel" else None, name=spec.features))
+                                fe or (data["train"].extractor if spec.features == "logmel" else None),
+                                name=spec.features))
         t1 = time.perf_counter()
         out = predict_split(model, test_set)
         corpus = data["corpus"]
@@ -177,7 +210,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
             sentences = [corpus.meta(n).get("sentence_id", n) for n in out["names"]]
             source = None
             if len(set(sentences)) == 1 and test_split != TEST_SPLIT:  # one sentence: borrow test-A's audio
-                source, _ = _features(data["test"], spec.features, data["n_phonemes"])
+                source = test_features(data, TEST_SPLIT, spec.features)
             ids = None if source is None else [corpus.meta(source[i]["name"]).get("sentence_id")
                                                for i in range(len(source))]
             partners = swap_partners(sentences, ids)

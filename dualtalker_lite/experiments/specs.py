@@ -6,7 +6,7 @@ Committed results are reused by key: ``RunSpec.key`` must stay stable (fields at
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 TABLES = ("main", "ablation", "sweep", "corrtalk", "emotion", "emoface")
 TEST_SPLIT = "test_a"  # the default test split (neutral speech, seen speakers)
@@ -68,7 +68,8 @@ class RunSpec:
                                                         # "corrtalk" | "emoface"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
-    features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids)
+    features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids) |
+                                                        # "visemes" (the phonetic route; table_specs sets it)
     data: str = "neutral"                               # training clips: "neutral" (train) | "emotional" (train +
                                                         # train_emo) | "pairs" (the same, each with its pseudo-pair
                                                         # partner: data.pairs.PairDataset, for cross-reconstruction)
@@ -79,9 +80,9 @@ class RunSpec:
     def __post_init__(self):
         if self.data not in DATA:
             raise ValueError(f"RunSpec {self.row!r}: data must be one of {DATA}, got {self.data!r}")
-        if self.data == "pairs" and self.features != "logmel":
-            raise ValueError(f"RunSpec {self.row!r}: data 'pairs' needs features 'logmel' (the partner's audio is "
-                             f"log-mel), got {self.features!r}")
+        if self.data == "pairs" and self.features not in ("logmel", "visemes+logmel"):
+            raise ValueError(f"RunSpec {self.row!r}: data 'pairs' needs features 'logmel' or 'visemes+logmel' (the "
+                             f"emotion branch reads the partner's log-mel), got {self.features!r}")
 
     def key(self, test_split: str = TEST_SPLIT) -> str:
         """Identity of the computation (everything but the label and the notes): equal keys = equal runs.
@@ -102,8 +103,31 @@ EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9
                 "cross-reconstruction on pseudo-pairs; emotion type recognised from the speech, level given")
 
 
-def table_specs(table: str, bandwidth: float | None = None) -> list[RunSpec]:
-    """The rows of ``table``. ``bandwidth`` (metres, the typical median-heuristic σ) sets the sweep's fixed σ's."""
+FEATURES = ("visemes", "logmel")  # the tables' front ends; the first is the default
+FRONT_ENDS = {"visemes": "phonetic route: trained on the corpus's viseme labels, tested on the hama recogniser's "
+                         "viseme tracks of the audio",
+              "logmel": "log-mel (the papers' kind of acoustic input)",
+              "visemes+logmel": "phonetic route for the content branch, log-mel for the emotion branch",
+              "phonemes": "one-hot phoneme labels"}
+
+
+def table_specs(table: str, bandwidth: float | None = None, features: str = "logmel") -> list[RunSpec]:
+    """The rows of ``table``. ``bandwidth`` (metres, the typical median-heuristic σ) sets the sweep's fixed σ's.
+
+    ``features``: the front end of every row that does not name its own ("logmel" as written below). With
+    "visemes" (the phonetic route, the runner's default since issue 19) EmoFace's pair rows get "visemes+logmel"
+    (its content branch reads the visemes, its emotion branch the log-mel: emotion is in the sound, not in the
+    phones), and rows that swap in one-hot phonemes as an ablation keep theirs."""
+    if features not in FEATURES:
+        raise ValueError(f"unknown features {features!r}; choose from {FEATURES}")
+    rows = _rows(table, bandwidth)
+    if features == "logmel":
+        return rows
+    return [replace(s, features="visemes+logmel" if s.data == "pairs" else features) if s.features == "logmel"
+            else s for s in rows]
+
+
+def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
     full = dict(model="dualtalker")
     if table == "main":
         return [

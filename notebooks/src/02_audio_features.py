@@ -344,6 +344,15 @@ plt.show()
 #   wav2vec 2.0 model plugs in through the `FeatureExtractor` protocol (`Wav2Vec2Extractor`).
 # - Phoneme one-hot tracks (T, 72) are the "higher-level features" input for the ablation.
 #
+# ## What each front end can and cannot do
+#
+# | front end | what the decoder sees | works on | cannot |
+# |---|---|---|---|
+# | log-mel (this notebook; `--features logmel`) | the spectrum of this corpus's voices | the synthetic espeak voices it was trained on | carry phonetic identity to other voices: on real people the lips barely close (`results/real_voices.md`: 0.16 of /p b m/ under 1 mm) |
+# | phonetic route (notebook 02a; the default of `make demo`, `train`, `animate` and the tables) | 15 viseme classes: the corpus's labels in training, the hama phoneme recogniser's per-frame classes at test time | any voice the recogniser hears, including telephone audio | see the voice: loudness, emotion and speaker style are gone (EmoFace keeps log-mel for its emotion branch); a phone the recogniser misses is a closure the face misses |
+# | phoneme one-hot (above) | the corpus's own phoneme labels | only clips with phoneme timing | run on audio: no labels exist for a new recording |
+# | wav2vec 2.0 (`Wav2Vec2Extractor`) | learnt speech features, as in the papers | any voice, once a local model is given | run here: no such weights come from PyPI |
+#
 # ## Exercises
 #
 # 1. Replace `align_corners=True` by `False` in a copy of `interpolate_frames`. Where do the 60 Hz frames fall
