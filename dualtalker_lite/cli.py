@@ -185,7 +185,7 @@ def _train(argv: list[str]) -> Path:
 
         # EmoFace: visemes for its content branch, log-mel for its emotion branch (emotion is in the sound)
         phonetic = "visemes+logmel" if paired else "visemes"
-        front_end = RecogniserExtractor(phonetic)  # what evaluate/animate will feed the model (checked here: hama)
+        front_end = RecogniserExtractor(phonetic, fps=corpus.fps)  # what evaluate/animate feed it (checks hama)
         spec = dataclasses.replace(spec, features=phonetic)
     if args.features == "visemes" and not paired and not any(corpus.meta(n).get("visemes")
                                                             for n in corpus.split("train")):

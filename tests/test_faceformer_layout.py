@@ -6,6 +6,7 @@ import os
 import pickle
 
 import numpy as np
+import torch
 import pytest
 import soundfile as sf
 
@@ -205,6 +206,13 @@ def test_console_commands(tmp_path, capsys):
     assert e.value.code == 2 and "already exists" in capsys.readouterr().err
     cli_main(["prepare-dataset", str(root), "--preset", "biwi"])
     assert "4 clips at 25 fps" in capsys.readouterr().out
+    # no phoneme timing: the phonetic route (the default) trains on the recogniser's tracks, at the corpus's 25 fps
+    cli_main(["train", "--corpus", str(root), "--model", "voca", "--epochs", "1", "--out", str(tmp_path / "b.pt"),
+              "--no-progress", "--checkpoint-every", "0"])
+    err = capsys.readouterr().err
+    assert err.startswith("note: ") and "no viseme labels in metadata.json" in err and len(err.splitlines()) == 1
+    features = torch.load(tmp_path / "b.pt", weights_only=True)["features"]
+    assert (features["name"], features["settings"]["fps"], features["settings"]["dim"]) == ("hama", 25, 15)
     for cmd in ("animate", "train", "evaluate", "generate", "convert-templates", "prepare-dataset"):
         with pytest.raises(SystemExit) as e:
             cli_main([cmd, "--help"])

@@ -74,7 +74,7 @@ def test_features(data: dict, split: str, features: str) -> Dataset:
 
     cache = data.setdefault("recognised", {})
     if (split, features) not in cache:
-        cache[split, features] = TalkingFaceDataset(data["view"], split, front_end(features))
+        cache[split, features] = TalkingFaceDataset(data["view"], split, front_end(features, data["corpus"].fps))
     return cache[split, features]
 
 
@@ -108,13 +108,13 @@ def _features(dataset: Dataset, features: str, n_phonemes: int, training: bool =
     raise ValueError(f"unknown features {features!r}; expected 'logmel', 'phonemes', 'visemes' or 'visemes+logmel'")
 
 
-def front_end(features: str):
+def front_end(features: str, fps: int = 30):
     """The recogniser extractor that feeds a phonetic row at test time and in its checkpoint (None otherwise)."""
     if features not in PHONETIC:
         return None
     from ..recogniser import RecogniserExtractor
 
-    return RecogniserExtractor(features)
+    return RecogniserExtractor(features, fps=fps)
 
 
 def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
@@ -192,7 +192,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         if checkpoint is not None and model_cfg is not None:
             from ..checkpoints import extractor_settings
 
-            fe = front_end(spec.features)  # phonetic rows: the recogniser, so `animate` feeds any voice its tracks
+            fe = front_end(spec.features, data["corpus"].fps)  # phonetic rows: the recogniser (animate: any voice)
             save_checkpoint(checkpoint, model, model_cfg, train_cfg, history, speakers=data["corpus"].train_speakers,
                             faces=data["corpus"].faces, features=extractor_settings(
                                 fe or (data["train"].extractor if spec.features == "logmel" else None),
