@@ -10,6 +10,8 @@ the same clips, epochs and seeds. The budget is far below the tables': the train
 speaker's readings of ``--sentences`` only (the neutral one from ``train``, the eight emotional ones from
 ``train_emo``: 72 clips for one sentence, each with its pseudo-pair partners), for ``--epochs`` epochs.
 
+``--render results/spiral.json`` rewrites the Markdown of a stored sweep without training.
+
 Written: ``<out>/spiral.json`` (every run, after each run, so an interrupted sweep keeps what finished) and
 ``<out>/spiral.md``: per row mean ± sample std over seeds of LVE and EVE (Euclidean, mm, the paper's two metrics),
 FDD, the emotion accuracy, parameters and training seconds; each row's LVE and EVE against the adopted row
@@ -71,8 +73,11 @@ def training_clips(corpus: Corpus, sentences: list[str]) -> dict:
 
 
 def difference(a: dict, b: dict) -> tuple[float, str]:
-    """mean(a) - mean(b) and the 2-standard-error verdict: 'higher', 'lower' or 'within seed noise'."""
+    """mean(a) - mean(b) and the 2-standard-error verdict: 'higher', 'lower' or 'within seed noise' (or 'one seed,
+    no error bar' while a sweep is partial)."""
     diff = a["mean"] - b["mean"]
+    if a["n"] < 2 or b["n"] < 2:
+        return diff, "one seed, no error bar"
     se = math.sqrt(a["std"] ** 2 / a["n"] + b["std"] ** 2 / b["n"])
     return diff, ("within seed noise" if abs(diff) <= 2 * se else ("higher" if diff > 0 else "lower"))
 
@@ -140,7 +145,12 @@ def main(argv=None) -> None:
     p.add_argument("--epochs", type=int, default=5)
     p.add_argument("--sentences", nargs="+", default=["s00"], help="training sentences (all speakers' readings)")
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--render", type=Path, default=None, metavar="SPIRAL_JSON",
+                   help="train nothing: rewrite the Markdown of a stored sweep (next to its JSON)")
     args = p.parse_args(argv)
+    if args.render is not None:
+        atomic_write_text(args.render.with_suffix(".md"), markdown(json.loads(args.render.read_text())))
+        return
     torch.set_num_threads(1)
     corpus = Corpus(sample_path())
     clips = training_clips(corpus, args.sentences)
