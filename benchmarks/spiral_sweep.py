@@ -106,7 +106,8 @@ def markdown(payload: dict) -> str:
         if not sm["n_runs"]:
             lines.append("| " + " | ".join(cells + ["—"] * len(METRICS) + ["0", "—", "—", "not run"]) + " |")
             continue
-        cells += [f"{sm[k]['mean']:.{dg}f} ± {sm[k]['std']:.{dg}f}" for k, _, dg in METRICS]
+        cells += [f"{sm[k]['mean']:.{dg}f}" + (f" ± {sm[k]['std']:.{dg}f}" if sm[k]["n"] > 1 else "")
+                  for k, _, dg in METRICS]
         params = next(x["n_parameters"] for x in runs if x["row"] == r)
         note = "reference" if r == ref else "; ".join(
             f"{m} {d:+.3f} mm: {v}" for m, (d, v) in
