@@ -386,3 +386,19 @@ def test_refresh_rewrites_descriptions_not_numbers(tmp_path):
     path.write_text(json.dumps(stale))
     with pytest.raises(ValueError, match="not the current"):
         ex.main(["--refresh", str(path)])
+
+
+def test_trimmed_view_keeps_named_clips_or_the_first_n():
+    """run_one/load_data(clips=...): a benchmark's reduced training set, by count or by clip names."""
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+    from dualtalker_lite.experiments.runner import _trimmed
+
+    corpus = Corpus(sample_path())
+    train = list(corpus.metadata["splits"]["train"])
+    view = _trimmed(corpus, {"train": [train[5], train[2]], "test_a": 3})
+    assert view.metadata["splits"]["train"] == [train[2], train[5]]  # the split's order
+    assert view.metadata["splits"]["test_a"] == list(corpus.metadata["splits"]["test_a"])[:3]
+    assert list(corpus.metadata["splits"]["train"]) == train  # the corpus itself is untouched
+    with pytest.raises(ValueError, match="not in split"):
+        _trimmed(corpus, {"train": ["no_such_clip"]})
