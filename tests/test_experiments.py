@@ -363,3 +363,42 @@ def test_markdown_with_a_few_metrics_fits_and_says_where_the_rest_is():
     assert row.split(" | ")[1] == next(ln for ln in full.splitlines() if ln.startswith("| CorrTalk |")).split(" | ")[2]
     with pytest.raises(ValueError, match="no metric"):
         ex.table_markdown("corrtalk", specs, runs, payload, metrics=["emotion_accuracy"])
+
+
+def test_refresh_rewrites_descriptions_not_numbers(tmp_path):
+    """--refresh: a stored table gets the current notes, claims and definitions back; its runs stay as they were."""
+    stored = json.loads((Path(__file__).parents[1] / "results" / "corrtalk.json").read_text())
+    stale = json.loads(json.dumps(stored))
+    stale["rows"][-1]["expect"], stale["rows"][-1]["note"] = "worse", "an old note"
+    stale["caveat"] = "a warning kept under the title"
+    path = tmp_path / "corrtalk.json"
+    path.write_text(json.dumps(stale))
+    ex.main(["--refresh", str(path)])
+    fresh = json.loads(path.read_text())
+    specs = ex.table_specs("corrtalk")
+    assert [(r["row"], r["note"], r["expect"]) for r in fresh["rows"]] == [(s.row, s.note, s.expect) for s in specs]
+    assert fresh["runs"] == stored["runs"] and fresh["command"] == stored["command"]
+    md = path.with_suffix(".md").read_text()
+    assert "an old note" not in md and "> a warning kept under the title" in md
+    row = md.split("| phoneme one-hot features |")[1].split("\n")[0]
+    assert "not reproduced" not in row and "not a paper row" in row  # the paper never tested phoneme ids
+    stale["rows"][0]["row"] = "renamed"
+    path.write_text(json.dumps(stale))
+    with pytest.raises(ValueError, match="not the current"):
+        ex.main(["--refresh", str(path)])
+
+
+def test_trimmed_view_keeps_named_clips_or_the_first_n():
+    """run_one/load_data(clips=...): a benchmark's reduced training set, by count or by clip names."""
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+    from dualtalker_lite.experiments.runner import _trimmed
+
+    corpus = Corpus(sample_path())
+    train = list(corpus.metadata["splits"]["train"])
+    view = _trimmed(corpus, {"train": [train[5], train[2]], "test_a": 3})
+    assert view.metadata["splits"]["train"] == [train[2], train[5]]  # the split's order
+    assert view.metadata["splits"]["test_a"] == list(corpus.metadata["splits"]["test_a"])[:3]
+    assert list(corpus.metadata["splits"]["train"]) == train  # the corpus itself is untouched
+    with pytest.raises(ValueError, match="not in split"):
+        _trimmed(corpus, {"train": ["no_such_clip"]})

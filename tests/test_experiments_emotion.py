@@ -153,3 +153,14 @@ def test_emotion_split_metrics_hand_computed():
     assert list(per) == ["happy", "angry"] and per["happy"]["n_clips"] == 2
     res_plain, _ = ex.emotion_split_metrics(torch.nn.Module(), data, out, emotions, regions)
     assert "emotion_accuracy" not in res_plain  # no classifier: no accuracy (the table shows "—")
+
+
+def test_paper_claims_only_where_the_paper_has_the_row():
+    """EmoFace's Table 3 has two ablations, its Table 2 compares with FaceFormer; CorrTalk never tested phoneme ids."""
+    assert {s.row: s.expect for s in ex.table_specs("emoface")} == {
+        "EmoFace (full)": "", "w/o Mesh Attention": "worse", "w/o SpiralConv3D": "", "w/o self-growing": "worse",
+        "w/o cross-reconstruction": ""}
+    assert {s.row: s.expect for s in ex.table_specs("emotion")} == {
+        "FaceFormer-style": "worse", "DualTalker": "", "CorrTalk": "", "EmoFace": ""}
+    corrtalk = {s.row: s.expect for s in ex.table_specs("corrtalk")}
+    assert corrtalk["phoneme one-hot features"] == "" and corrtalk["single branch"] == "worse"

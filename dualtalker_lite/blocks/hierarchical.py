@@ -40,11 +40,12 @@ Weight generator (one per decoding branch), reconstruction of eqs. 4-6:
     \alpha^{l}_t = \frac{\exp(e^{l}_t)}{\sum_{k \in \{f, p, w, u\}} \exp(e^{k}_t)}           && (5)\\
     \tilde F_t = \sum_{l \in \{f, p, w, u\}} \alpha^{l}_t F^{l}_t                             && (6)
 
-Eq. 4 names three "linear projection operations" and a hidden size of 32; we read them as an additive
-(Bahdanau-style) scoring network: a projection to 32, tanh, and a projection to one score per frame. Possible
-readings: the three operations shared by the four levels (one scorer) or one per level; tanh or another
-non-linearity. We take **one scorer per level** ("similarly, the importance weights of phoneme-, word- and
-utterance-level features are obtained" with their own statistics) and tanh. The softmax of eq. 5 runs over the
+The text under eq. 4 lists three symbols (lost in the extraction) as "linear projection operation" and gives a
+hidden size of 32; which three is not recoverable. We read eq. 4 as an additive (Bahdanau-style) scoring network,
+which has **two** linear projections around a tanh: W_l, b_l (to 32) and w_l, c_l (to one score per frame); a
+third symbol may be a bias or a query vector. Other readings: one scorer shared by the four levels or one per
+level; tanh or another non-linearity. We take **one scorer per level** ("similarly, the importance weights of
+phoneme-, word- and utterance-level features are obtained" with their own statistics) and tanh. The softmax of eq. 5 runs over the
 four levels at each frame (the weights sum to 1 per frame), and eq. 6 is the per-frame weighted sum. The weights
 are returned for the Fig. 7 analogue (mean weight per level and branch).
 """

@@ -16,7 +16,7 @@ from typing import Sequence
 import torch
 
 from .evaluation import typical_bandwidth
-from .report import write_table
+from .report import refresh_table, write_table
 from .runner import data_split, load_data, run_specs
 from .specs import FEATURES, TABLES, RunSpec, table_specs, table_split
 
@@ -72,6 +72,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "(for `dualtalker-lite animate --checkpoint ...`; reused runs and the static template "
                         "have none)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--refresh", nargs="+", type=Path, default=[], metavar="TABLE_JSON",
+                   help="compute nothing: rewrite these stored tables (JSON and Markdown) with the current row notes, "
+                        "paper claims and definitions, their numbers untouched")
     return p.parse_args(argv)
 
 
@@ -108,6 +111,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     """Run the requested tables and write them; returns {table: (json path, md path)}."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parse_args(argv)
+    if args.refresh:
+        return {Path(p).stem: refresh_table(p) for p in args.refresh}
     tables = list(TABLES) if "all" in args.table else list(dict.fromkeys(args.table))
     if args.epochs is None:
         from ..train import TrainConfig

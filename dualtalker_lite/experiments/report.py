@@ -117,6 +117,31 @@ def load_table(path: str | Path) -> tuple[list[RunSpec], list[dict], dict]:
     return specs, payload["runs"], payload
 
 
+def refresh_table(path: str | Path) -> tuple[Path, Path]:
+    """Rewrite a stored ``<table>.json`` and its ``.md`` with the current row descriptions (note, expect,
+    reference) and definitions, numbers untouched (nothing is recomputed); refused if the rows' labels or run keys
+    differ from :func:`~dualtalker_lite.experiments.specs.table_specs`. A ``caveat`` field of the JSON (a warning
+    added by hand, e.g. rows computed before a fix) is printed under the title. -> (json path, md path)."""
+    from .specs import table_specs, table_split
+
+    path = Path(path)
+    old_specs, runs, payload = load_table(path)
+    table = payload["table"]
+    specs = table_specs(table, payload.get("typical_bandwidth_m"))
+    split = table_split(table)
+    if [(s.row, s.key(split)) for s in specs] != [(s.row, s.key(split)) for s in old_specs]:
+        raise ValueError(f"{path}: its rows are not the current {table!r} rows; recompute it instead")
+    meta = {k: v for k, v in payload.items() if k not in ("table", "title", "rows", "runs", "metric_units",
+                                                          "definitions")}
+    summary = {r["row"]: r["summary"] for r in payload["rows"]}
+    payload["rows"] = [{**asdict(s), "summary": summary[s.row]} for s in specs]
+    payload["definitions"] = list(DEFINITIONS)
+    path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+    md_path = path.with_suffix(".md")
+    md_path.write_text(table_markdown(table, specs, runs, meta))
+    return path, md_path
+
+
 def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dict,
                    metrics: Sequence[str] | None = None) -> str:
     """The Markdown table of :func:`write_table`, from the runs (summaries recomputed with the current collapse
@@ -138,7 +163,8 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
                  f"`results/{table}.md`.")
         columns = [c for c in columns if c[0] in set(metrics)]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
-    lines = [f"# {TITLES[table]}", "",
+    caveat = [f"> {meta['caveat']}", ""] if meta.get("caveat") else []  # e.g. stale rows (kept by refresh_table)
+    lines = [f"# {TITLES[table]}", "", *caveat,
              f"Command: `{meta['command']}`", "", _front_end_line(specs, meta), "",
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
              f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
@@ -194,8 +220,12 @@ DEFINITIONS = (
     "only roughly comparable between rows. params: trainable parameters (tied weights counted once).",
     "Note column: the fixed description of the row, then its LVE (mm) difference from the reference row with "
     "a 2-standard-error rule over seeds (\"within seed noise\" = no measurable effect), and \"not reproduced\" "
-    "when that contradicts the paper's claim for the row (Table I: DualTalker beats the baselines; Table IV: "
-    "every ablated component helps).",
+    "when that contradicts the paper's claim for the row: DualTalker's Table I (it beats VOCA and FaceFormer), "
+    "Table IV and text (each ablated component helps, shared weights hurt) for the main, ablation and sweep "
+    "tables; CorrTalk's Table III (w/o encoder, single branch, random mask) for the CorrTalk table; EmoFace's "
+    "Table 2 (it beats FaceFormer) and Table 3 (w/o self-growing, w/o Mesh Attention) for the emotional tables. "
+    "Rows that the paper does not have carry no claim. Only LVE is judged here; the other columns are for the "
+    "reader.",
 )
 
 
@@ -204,7 +234,8 @@ EMOTION_DEFINITIONS = (
     "shipped corpus; EmoFace's rows draw each clip's pseudo-pair partner for cross-reconstruction), and is evaluated "
     "on `test_emo_a` (seen speakers, an unseen sentence, 4 emotions × 2 levels). The collapse check swaps in test-A "
     "audio (all `test_emo_a` clips read one sentence). EmoFace gets the clip's emotion level (an input of the "
-    "paper's model); the emotion type is recognised from the speech by its classifier.",
+    "paper's model); at test time the emotion type is recognised from the speech by its classifier. In training "
+    "the true type is also an input of its emotion branch (W_type y): a project addition, not the paper's.",
     "emotion acc.: fraction of test clips whose emotion the model's classifier (EmoFace eq. 10, from the speech alone) "
     "names correctly; — for models without one. brow-raise / smile error: per clip, the mean vertical displacement "
     "of the brow vertices and the mean change of the mouth-corner distance from the template (mm), averaged per "

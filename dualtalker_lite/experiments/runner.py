@@ -26,27 +26,37 @@ _DATA: dict = {}  # per process: (corpus path, quick) -> data dict (features are
 
 
 def _trimmed(corpus, counts: dict):
-    """A shallow view of ``corpus`` whose splits keep only their first ``counts[split]`` clips (--quick)."""
+    """A shallow view of ``corpus`` whose splits keep only their first ``counts[split]`` clips (--quick), or, where
+    ``counts[split]`` is a list of clip names, those clips of the split (in the split's order)."""
     view = copy.copy(corpus)
     splits = dict(corpus.metadata["splits"])
     for split, n in counts.items():
-        splits[split] = list(splits[split])[:n]
+        if isinstance(n, int):
+            splits[split] = list(splits[split])[:n]
+        else:
+            missing = sorted(set(n) - set(splits[split]))
+            if missing:
+                raise ValueError(f"clips {missing[:3]} are not in split {split!r}")
+            splits[split] = [c for c in splits[split] if c in set(n)]
     view.metadata = {**corpus.metadata, "splits": splits}
     return view
 
 
-def load_data(corpus_path: str | Path | None = None, quick: bool = False) -> dict:
+def load_data(corpus_path: str | Path | None = None, quick: bool = False, clips: dict | None = None) -> dict:
     """Corpus, train and test-A datasets (log-mel), regions, sizes; cached per process. Other splits:
-    :func:`data_split` (loaded on first use, cached in the same dict)."""
+    :func:`data_split` (loaded on first use, cached in the same dict). ``clips`` ({split: n}, e.g. a benchmark's
+    reduced training set): keep only the first n clips of those splits, or the named clips where n is a list of names
+    (applied after ``quick``'s trim)."""
     from ..data import sample_path
     from ..data.corpus import Corpus
     from ..data.dataset import TalkingFaceDataset
 
     path = str(Path(corpus_path or sample_path()).resolve())
-    key = (path, quick)
+    key = (path, quick, repr(sorted((clips or {}).items())))
     if key not in _DATA:
         corpus = Corpus(path)
         view = _trimmed(corpus, QUICK_CLIPS) if quick else corpus
+        view = _trimmed(view, clips) if clips else view
         train_set, test_set = TalkingFaceDataset(view, "train"), TalkingFaceDataset(view, TEST_SPLIT)
         _DATA[key] = {"corpus": corpus, "view": view, "path": path, "train": train_set, "test": test_set,
                       "splits": {"train": train_set, TEST_SPLIT: test_set},
@@ -154,7 +164,7 @@ def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int,
 
 def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,
             checkpoint: str | Path | None = None, time_budget_s: float | None = None,
-            test_split: str = TEST_SPLIT) -> dict:
+            test_split: str = TEST_SPLIT, clips: dict | None = None) -> dict:
     """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on ``test_split`` -> a result.
 
     The training clips come from ``spec.data`` (:func:`training_set`; "pairs" uses ``data.pairs.make_pair_loader``,
@@ -164,6 +174,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
 
     ``checkpoint``: also save the trained model there. ``time_budget_s`` (the demo only; the tables never use it):
     stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
+    ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
     """
     from ..data.dataset import make_loader
     from ..data.pairs import make_pair_loader
@@ -173,7 +184,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
     threads = torch.get_num_threads()
     try:
-        data = load_data(corpus_path, quick)
+        data = load_data(corpus_path, quick, clips)
         base_train, paired = training_set(data, spec, seed)
         train_set, audio_dim = _features(base_train, spec.features, data["n_phonemes"], training=True)
         test_set = test_features(data, test_split, spec.features)

@@ -75,7 +75,8 @@ class RunSpec:
                                                         # partner: data.pairs.PairDataset, for cross-reconstruction)
     note: str = ""                                      # fixed part of the Markdown note column
     reference: bool = False                             # the row every other row of the table is compared with
-    expect: str = ""                                    # the paper's claim vs the reference: "worse" | "better" | ""
+    expect: str = ""                                    # the paper's claim vs the reference: "worse" | "better" |
+                                                        # "" (the paper has no such row: no claim)
 
     def __post_init__(self):
         if self.data not in DATA:
@@ -100,7 +101,8 @@ class RunSpec:
 PRIMAL_ONLY = {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}  # baselines: the reconstruction loss alone
 CORRTALK_NOTE = "rec. + velocity loss (eqs. 9-11, λ=1, 1), FAI-initialised mask, 4 levels"
 EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9, δ=3), self-growing (θ=0.2 N), "
-                "cross-reconstruction on pseudo-pairs; emotion type recognised from the speech, level given")
+                "cross-reconstruction on pseudo-pairs; emotion type recognised from the speech, level given; "
+                "the type is also an input of the emotion branch (the true label in training): a project addition")
 
 
 FEATURES = ("visemes", "logmel")  # the tables' front ends; the first is the default
@@ -149,9 +151,8 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
             RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
                     note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
             RunSpec("phoneme one-hot features", **ct, features="phonemes",
-                    note="acoustic-feature swap (paper: wavLM -> wav2vec 2.0); here log-mel -> one-hot phoneme ids, "
-                         "the only other front-end usable offline (the rig's own driving signal: an easier input)",
-                    expect="worse"),
+                    note="the project's front-end swap, not a paper row (the paper swaps wavLM -> wav2vec 2.0, never "
+                         "phoneme ids): log-mel -> one-hot phoneme ids, the rig's own driving signal (an easier input)"),
         ]
     if table == "ablation":
         return [
@@ -187,8 +188,10 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
         return [
             RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
                     "input (the emotion must come from the audio)", expect="worse"),
-            RunSpec("DualTalker", **full, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input", expect="worse"),
-            RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input", expect="worse"),
+            RunSpec("DualTalker", **full, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input (not in EmoFace's "
+                    "Table 2: no paper claim)"),
+            RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input (not in EmoFace's "
+                    "Table 2: no paper claim)"),
             RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
         ]
     if table == "emoface":
@@ -196,14 +199,15 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
         return [
             RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
             RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
-                    note="plain sum: the mean of the two branches (the map held at 0.5)", expect="worse"),
-            RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
-                    note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame)",
+                    note="the mean of the two branches (the map held at 0.5); the paper's 'Add' adds them",
                     expect="worse"),
+            RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
+                    note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame); not a "
+                         "row of the paper's Table 3 (its Table 4 varies SpiralConv3D's settings instead)"),
             RunSpec("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
                     note="plain teacher forcing (ground-truth past motion at every epoch)", expect="worse"),
             RunSpec("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
-                    note="same pair loader, no cross pass (λ_cross term 0)", expect="worse"),
+                    note="same pair loader, no cross pass (λ_cross term 0); not a row of the paper's Table 3"),
         ]
     raise ValueError(f"unknown table {table!r}; choose from {TABLES}")
 

@@ -164,6 +164,25 @@ assert low[mouth_v] > 5 * low[forehead_v] and high[mouth_v] > 5 * high[forehead_
 # The package's default $k^\star$ is bin 0 (`band="dc"`), the lowest band of the spectrogram: the text sets "the
 # fundamental frequency band" against "the higher frequency bands". Section 6 compares the other readings.
 # `fai_from_corpus` reads only the vertices; `fai_from_dataset` does the same on a `TalkingFaceDataset`.
+#
+# **Careful with the word "fundamental".** Bin 0 sits at 0 Hz: it is no oscillation, and not a fundamental
+# frequency in the acoustic sense (the lowest frequency of a periodic sound, such as a voice's F0 of about
+# 100-250 Hz, whose harmonics are its multiples). A vertex's motion has no period. With $k = 0$ the exponential of
+# eq. 3 is 1, so bin 0 is the window-weighted mean displacement of each STFT frame,
+# $A_v(0, m) = \sum_n w_n d_{mH+n,v} / \sum_n w_n$: how far the vertex sits from the template on average, large
+# where the face moves a lot. This is our reading (the lowest row of the spectrogram), not something the paper
+# spells out. The other two readings, bin 1 (0.94 Hz, the slowest oscillation, `band="first"`) and each vertex's
+# strongest oscillation (`band="dominant"`), are compared in section 6. The cell below checks the identity.
+
+# %%
+# NBVAL_CHECK_OUTPUT
+w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(N_FFT) / N_FFT)                    # (N,) the periodic Hann window
+d_mouth = disp[:, mouth_v].numpy()                                             # (T,) the mouth vertex of section 1
+windowed_mean = np.array([(w * d_mouth[m * HOP: m * HOP + N_FFT]).sum() / w.sum()
+                          for m in range(amp.shape[1])])                       # (M,) one weighted mean per frame
+np.testing.assert_allclose(amp[0, :, mouth_v].numpy(), windowed_mean, rtol=1e-10)
+print(f"bin 0 is {float(freqs[0]):.1f} Hz, bin 1 {float(freqs[1]):.2f} Hz. Mouth vertex: bin 0 = windowed mean "
+      f"displacement, {1e3 * windowed_mean.mean():.3f} mm over the frames (clip mean {1e3 * d_mouth.mean():.3f} mm)")
 
 # %%
 train_names = corpus.split("train")

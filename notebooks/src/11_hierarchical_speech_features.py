@@ -133,11 +133,13 @@ plt.show()
 #
 # Reconstructed from the text ("the SpeechFormer block is employed to extract phoneme-grained features ...
 # similarly, the process extends to generate word-level and utterance-level features"), each level reads the
-# level below, then a linear projection:
+# level below, then a linear projection. The paper gives the cascade no equation (it is Fig. 4 and the prose of
+# section III-C); its eq. 1 is the whole encoder, acoustic features to the two branches' weighted features
+# $F^s, F^w$, which section 4 of this notebook completes.
 #
 # $$\begin{aligned} F^{f} &= \mathrm{Lin}_f(A'), & F^{p} &= \mathrm{Lin}_p(\mathrm{SFB}_{r_p}(F^{f})), \\
 # F^{w} &= \mathrm{Lin}_w(\mathrm{SFB}_{r_w}(F^{p})), & F^{u} &= \mathrm{Lin}_u(\mathrm{SFB}_{\infty}(F^{w}))
-# \end{aligned} \tag{1, reconstructed}$$
+# \end{aligned} \tag{Fig. 4, reconstructed}$$
 #
 # A SpeechFormer block (SFB) is windowed attention + feed-forward with residuals and layer norms. Below the
 # cascade is re-run by hand from the package's own sub-modules and compared with the package's output.
@@ -196,8 +198,10 @@ plt.show()
 # $$\alpha^{l}_t = \frac{\exp(e^{l}_t)}{\sum_{k \in \{f,p,w,u\}} \exp(e^{k}_t)} \tag{5, reconstructed}$$
 # $$\tilde F_t = \sum_{l \in \{f,p,w,u\}} \alpha^{l}_t F^{l}_t \tag{6, reconstructed}$$
 #
-# The text names "three linear projection operations" for eq. 4; we read them as an additive (Bahdanau-style)
-# scorer with one scorer per level (shared scorers and other non-linearities are the other readings).
+# Under eq. 4 the text lists three symbols (lost in the extraction) as "linear projection operation"; which three
+# is not recoverable. We read eq. 4 as an additive (Bahdanau-style) scorer, one per level, which has **two** linear
+# projections around a tanh: $W_l, \mathbf{b}_l$ (to $h = 32$) and $\mathbf{w}_l, c_l$ (to one score); the third
+# symbol may be a bias or a query vector. Shared scorers and other non-linearities are the other readings.
 
 # %%
 torch.manual_seed(1)

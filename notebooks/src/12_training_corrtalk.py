@@ -465,7 +465,8 @@ display(Markdown(experiments.table_markdown("corrtalk", ct_specs, ct_runs, ct_me
 # How to read it (the definitions under the table): every row is CorrTalk with one component changed, trained and
 # evaluated exactly like the reference row. The note column compares each row's LVE with CorrTalk's using a
 # two-standard-error rule over the seeds: "within seed noise" means the change has no measurable effect here, and
-# "not reproduced" marks a row where the paper's claim (the component helps) does not hold on this corpus. The
+# "not reproduced" marks a row where the paper's claim (its Table III: the component helps) does not hold on this
+# corpus; a row the paper does not have (the phoneme-id swap) carries no claim. The
 # paper reports LVE and FDD only; FDD here is signed (positive = the upper face moves less than the truth), and
 # the corpus's upper face is partly predictable from the speech (stress-driven brows, notebook 01), so the
 # hierarchical encoder has something to find there. The acoustic-feature swap cannot be wavLM against wav2vec 2.0

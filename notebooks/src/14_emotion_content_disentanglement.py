@@ -106,10 +106,13 @@ plt.show()
 #
 # Both encoders read the shared acoustic front-end (our small stand-in for wav2vec 2.0). The content encoder is a
 # per-frame projection (short-term: phonemes); the emotion encoder adds a transformer layer over the whole clip
-# (long-term: emotion lives in the prosody of the whole sentence). The **emotion classifier** averages $F_e$ over the
-# valid frames and predicts the emotion (eq. 10). The emotion branch also gets the **conditions**: the level one-hot
-# $l \in \mathbb R^2$ and the emotion type (in training the label; at generation the classifier's probabilities, or a
-# type the user picks, `--emotion`). The speaking style $s$ is the decoders' style embedding, as in FaceFormer.
+# (long-term: emotion lives in the prosody of the whole sentence). The **emotion classifier** pools $F_e$ over the
+# valid frames into its mean and its standard deviation (concatenated, $2d$ numbers; our reading: eq. 10 gives only
+# the output $p$) and predicts the emotion (eq. 10). The emotion branch also gets the **conditions**. The paper's are
+# the level one-hot $l \in \mathbb R^2$ and the speaking style $s$ (the decoders' style embedding, as in
+# FaceFormer). **The emotion type as an input, $W_{type}\, y$, is this project's addition**, not the paper's (its
+# type is only recognised, eq. 10): in training $y$ is the true label, at generation the classifier's probabilities,
+# or a type the user picks (`--emotion`); without it the type would follow the audio alone.
 
 # %%
 set_seed(0)
@@ -328,7 +331,8 @@ print(f"{emo_name} against its neutral twin: {diff_mm.mean():.2f} mm per vertex 
 # - A pseudo-pair is the same speaker and sentence in two emotions; the corpus lists them, and `PairDataset` hands
 #   each clip a partner, resampled linearly to the clip's length (our reading of the paper's equal-length notation).
 # - The content encoder is per frame, the emotion encoder sees the whole clip, and an emotion classifier (eq. 10)
-#   reads the pooled emotion features. The emotion branch is conditioned on the level (one-hot) and the type.
+#   reads the mean and standard deviation of the emotion features. The emotion branch is conditioned on the level
+#   (one-hot, the paper's) and on the type (this project's addition: the true label in training).
 # - Cross-reconstruction rebuilds the partner from clip 1's content features and the partner's emotion features
 #   (eqs. 15-18); the check in section 3 is exactly that definition.
 # - Eqs. 7-11 weight the branches' intermediate supervision, the fused output, the velocity and the classifier;
