@@ -127,7 +127,7 @@ def refresh_table(path: str | Path) -> tuple[Path, Path]:
     path = Path(path)
     old_specs, runs, payload = load_table(path)
     table = payload["table"]
-    specs = table_specs(table, payload.get("typical_bandwidth_m"))
+    specs = table_specs(table, payload.get("typical_bandwidth_m"), payload.get("features", "logmel"))
     split = table_split(table)
     if [(s.row, s.key(split)) for s in specs] != [(s.row, s.key(split)) for s in old_specs]:
         raise ValueError(f"{path}: its rows are not the current {table!r} rows; recompute it instead")
