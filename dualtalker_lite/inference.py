@@ -343,7 +343,10 @@ def main(argv: list[str] | None = None) -> list[Path]:
     """Command line: one-line errors with exit status 2 (``--debug``: tracebacks), Ctrl-C exits 130."""
     from .console import run_main
 
-    return run_main(lambda a: run(parser().parse_args(a)), argv)
+    from .files import claims_released
+
+    with claims_released():
+        return run_main(lambda a: run(parser().parse_args(a)), argv)
 
 
 if __name__ == "__main__":
