@@ -99,7 +99,8 @@ class Claim:
         try:
             self.lock.parent.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise PermissionError(f"{self.path}: cannot create its folder {self.lock.parent}: {e.strerror}") from e
+            raise PermissionError(f"{self.path}: cannot create the output's parent folder {self.lock.parent}: "
+                                  f"{e.strerror}") from e
         while self.fd is None:  # retried only if the lock file was replaced between open() and flock()
             fd = os.open(self.lock, os.O_RDWR | os.O_CREAT, default_file_mode())
             try:

@@ -1010,3 +1010,52 @@ def test_prepare_dataset_never_reuses_a_stale_templates_npz(tmp_path, capsys):
         for s, tpl in pkl.items():
             assert np.array_equal(npz[s], np.asarray(tpl, np.float32).reshape(-1)), s
     assert Corpus(root).template(VOCASET_TRAIN[0]).mean() == pytest.approx(0.1, abs=1e-3)
+
+
+# --------------------------------------------------------- memory flat in the audio's length (case 27, issue 23)
+# The child's peak RSS from a small parent process: Linux carries the parent's high-water mark into a child's
+# ru_maxrss across fork and exec, so pytest (torch imported) must not be the parent.
+_PEAK_RSS = """import os, subprocess, sys
+proc = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+err = proc.stderr.read()
+_, status, usage = os.wait4(proc.pid, 0)
+sys.stderr.write(err.decode())
+print(os.waitstatus_to_exitcode(status), usage.ru_maxrss // 1024)
+"""
+
+
+def _speech_wav(path: Path, minutes: int) -> Path:
+    """A 16 kHz 16-bit WAV of ``minutes`` of a wobbling tone with noise, written a minute at a time."""
+    rng = np.random.default_rng(0)
+    t = np.arange(60 * 16000) / 16000
+    with sf.SoundFile(str(path), "w", 16000, 1, subtype="PCM_16") as f:
+        for _ in range(minutes):
+            f.write((0.3 * np.sin(2 * np.pi * (180 + 60 * np.sin(2 * t)) * t) * (np.sin(3 * t) > 0)
+                     + 0.01 * rng.standard_normal(t.size)).astype(np.float32))
+    return path
+
+
+def test_animate_memory_is_flat_in_the_audio_length(tmp_path):
+    """Was: the whole wave and all its features held (+0.4 GB per hour: about +65 MB from 1 to 10 minutes). Now
+    the audio is read and featurised block by block and the vertices streamed to disk: 10 minutes peak within
+    25 MB of 1 minute (measured: +5 MB; what remains is the model's encoding of the whole feature sequence)."""
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                                n_speakers=len(corpus.train_speakers))
+    save_checkpoint(tmp_path / "m.pt", DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers,
+                    faces=corpus.faces)
+    peaks = {}
+    for minutes in (1, 10):
+        wav = _speech_wav(tmp_path / f"{minutes}.wav", minutes)
+        proc = subprocess.run([sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "dualtalker_lite.cli",
+                               "animate", "--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out",
+                               tmp_path / f"o{minutes}", "--format", "npy", "--no-progress"],
+                              capture_output=True, text=True, env=_env(), cwd=REPO, timeout=600)
+        status, peak = map(int, proc.stdout.split())
+        assert status == 0 and proc.stderr == "", proc.stderr[-3000:]
+        assert np.load(tmp_path / f"o{minutes}" / "vertices.npy", mmap_mode="r").shape[0] == minutes * 1800
+        peaks[minutes] = peak
+    assert peaks[10] - peaks[1] < 25, peaks  # MB

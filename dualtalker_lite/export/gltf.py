@@ -263,10 +263,14 @@ def write_wav(path, wave: np.ndarray, sample_rate: int):
     import soundfile as sf
 
     path = path if hasattr(path, "write") else Path(path)  # a path or a binary file object (io.BytesIO)
-    wave = np.asarray(wave).reshape(-1)
+    if hasattr(wave, "blocks"):  # an audio.AudioStream: copied block by block, never whole
+        pieces = wave.blocks()
+    else:
+        wave = np.asarray(wave).reshape(-1)
+        pieces = (wave[s:s + (1 << 20)] for s in range(0, len(wave), 1 << 20))
     with sf.SoundFile(path, "w", int(sample_rate), 1, subtype="PCM_16", format="WAV") as f:
-        for s in range(0, len(wave), 1 << 20):
-            f.write(np.clip(np.asarray(wave[s:s + (1 << 20)], np.float32), -1.0, 1.0))
+        for piece in pieces:
+            f.write(np.clip(np.asarray(piece, np.float32), -1.0, 1.0))
     return path
 
 
@@ -347,7 +351,8 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
               "principal_components": K}
     if audio is not None:
         extras["audio"] = {"uri": audio.name, "mimeType": "audio/wav", "sampleRate": int(sample_rate),
-                           "startTime": 0.0, "duration": len(np.asarray(wave).reshape(-1)) / sample_rate}
+                           "startTime": 0.0, "duration": (len(wave) if hasattr(wave, "blocks") else
+                                                         np.asarray(wave).size) / sample_rate}
     gltf = g.GLTF2(
         asset=g.Asset(version="2.0", generator="dualtalker-lite (pygltflib)"),
         scene=0, scenes=[g.Scene(name="speech", nodes=[0], extras=extras)],
