@@ -121,6 +121,16 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
 _resample = resample  # `load_audio` has a parameter called `resample`
 
 
+def _read_blocks(f, n: int):
+    """Blocks of up to ``n`` frames (float32, (n, C)) until the decoder stops: what is really there.
+    (``SoundFile.blocks`` trusts the declared length: a truncated MP3's missing part came back as zeros.)"""
+    while True:
+        data = f.read(n, dtype="float32", always_2d=True)
+        if not len(data):
+            return
+        yield data
+
+
 class AudioStream:
     """A recording read block by block: memory flat in its length (an hour of 16 kHz float32 is 230 MB whole).
 
@@ -142,7 +152,7 @@ class AudioStream:
             raise FileNotFoundError(f"audio file not found: {path}")
         check_wav_header(path)
         self.mp3 = _looks_like_mp3(path)
-        peak, decoded = 0.0, 0
+        peak, decoded, finite = 0.0, 0, True
         try:
             with _quiet_stderr(self.mp3), sf.SoundFile(str(path)) as f:
                 declared, self.file_sr, fmt, channels = f.frames, f.samplerate, f.format, f.channels
@@ -150,10 +160,11 @@ class AudioStream:
                     raise ValueError(f"{path} has {channels} channels; downmix it to mono "
                                      f"(e.g. `sox in.wav -c 1 out.wav`)")
                 self.block = max(1, int(block_s * self.file_sr))
-                for data in f.blocks(blocksize=self.block, dtype="float32", always_2d=True):
+                for data in _read_blocks(f, self.block):
                     if not np.isfinite(data).all():
-                        raise ValueError(f"{path} contains NaN or infinite samples")
-                    peak = max(peak, float(np.abs(data).max())) if len(data) else peak
+                        finite = False  # said after the length checks, in load_audio's order
+                    elif len(data):
+                        peak = max(peak, float(np.abs(data).max()))
                     decoded += len(data)
         except (sf.SoundFileError, RuntimeError) as e:
             raise ValueError(f"could not decode audio file {path} (corrupt or not WAV/FLAC?): {e}") from e
@@ -161,6 +172,8 @@ class AudioStream:
             check_mp3_length(path, declared, decoded, self.file_sr)
         if decoded == 0:
             raise ValueError(f"{path} contains no audio samples")
+        if not finite:
+            raise ValueError(f"{path} contains NaN or infinite samples")
         if peak > MAX_AMPLITUDE:
             raise ValueError(f"{path}: sample amplitudes reach {peak:.3g}, far outside [-1, 1] (a float WAV holding "
                              f"unscaled or corrupt data?); rescale it to [-1, 1]")
@@ -188,7 +201,7 @@ class AudioStream:
 
         with _quiet_stderr(self.mp3), sf.SoundFile(str(self.path)) as f:
             if self.up == self.down:
-                for data in f.blocks(blocksize=self.block, dtype="float32", always_2d=True, frames=self.n_file):
+                for data in _read_blocks(f, self.block):
                     yield np.ascontiguousarray(data[:, 0] / self.peak if self.peak != 1.0 else data[:, 0])
                 return
             # blocks of whole multiples of `down` input samples, each read with `context` samples on both sides

@@ -460,7 +460,8 @@ def test_generate_killed_while_writing_leaves_the_old_corpus(small_corpus, sig, 
     deadline = time.monotonic() + 120
     hidden = []
     while time.monotonic() < deadline and proc.poll() is None:
-        hidden = [p for p in small_corpus.parent.iterdir() if p.name.startswith(f".{small_corpus.name}.")]
+        hidden = [p for p in small_corpus.parent.iterdir()
+                  if p.name.startswith(f".{small_corpus.name}.") and p.name.endswith(".tmp")]  # not the .lock
         if hidden and len(list(hidden[0].rglob("*.flac"))) >= 2:
             break
         time.sleep(0.01)
@@ -1058,4 +1059,26 @@ def test_animate_memory_is_flat_in_the_audio_length(tmp_path):
         assert status == 0 and proc.stderr == "", proc.stderr[-3000:]
         assert np.load(tmp_path / f"o{minutes}" / "vertices.npy", mmap_mode="r").shape[0] == minutes * 1800
         peaks[minutes] = peak
+    print(f"peak RSS, MB: {peaks}")
     assert peaks[10] - peaks[1] < 25, peaks  # MB
+
+
+@pytest.mark.parametrize("rate", [16000, 8000, 22050, 44100, 48000])
+def test_audio_stream_reads_what_load_audio_reads(tmp_path, rate):
+    """The blocks of an AudioStream (here 1 s blocks: several, and a partial last one) join into exactly
+    load_audio's samples, resampled or not; their log-mel features equal the whole wave's."""
+    import warnings
+
+    from dualtalker_lite.audio import AudioStream, LogMelExtractor, load_audio
+
+    wave = 0.3 * np.random.default_rng(rate).standard_normal(int(rate * 3.7))
+    sf.write(tmp_path / "a.wav", wave.astype(np.float32), rate, subtype="FLOAT")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the peak is above 1: both normalise it, and both warn
+        whole, stream = load_audio(tmp_path / "a.wav"), AudioStream(tmp_path / "a.wav", block_s=1.0)
+    blocks = list(stream.blocks())
+    assert len(blocks) >= 4 and len(stream) == len(whole)
+    assert np.array_equal(np.concatenate(blocks), whole)
+    n = int(round(len(whole) * 30 / 16000))
+    ext = LogMelExtractor()
+    assert torch.equal(ext.stream(iter(blocks), len(stream), n), ext(whole, n))
