@@ -183,15 +183,15 @@ def make_cli_inputs(tmp: Path, minutes: list[float]) -> None:
                 f.write(speech(min(60, 60 * m - start)))
 
 
-def cli_case(minutes: float, video: bool, tmp: Path, env: dict) -> dict:
+def cli_case(minutes: float, video: bool, tmp: Path, env: dict, fmt: str = "npy") -> dict:
     """One ``animate`` run as a child process -> wall, CPU (with ffmpeg) and peak RSS.
 
     A child's ``ru_maxrss`` starts at its parent's peak (Linux keeps the high-water mark across fork + exec), so
     the parent must stay small: the inputs are made by another process, and this one imports no torch."""
     ckpt, wav = tmp / "model.pt", tmp / f"speech_{minutes:g}min.wav"
-    out = tmp / f"anim_{minutes:g}min_{'video' if video else 'novideo'}"
+    out = tmp / f"anim_{minutes:g}min_{'video' if video else 'novideo'}_{fmt}"
     cmd = [sys.executable, "-m", "dualtalker_lite.cli", "animate", "--checkpoint", str(ckpt), "--wav", str(wav),
-           "--speaker", "SPK01", "--out", str(out), "--format", "npy,mp4" if video else "npy", "--no-progress"]
+           "--speaker", "SPK01", "--out", str(out), "--format", "npy,mp4" if video else fmt, "--no-progress"]
     log_out, log_err = tmp / "stdout.txt", tmp / "stderr.txt"
     with open(log_out, "wb") as fo, open(log_err, "wb") as fe:
         wall = time.perf_counter()
@@ -206,19 +206,19 @@ def cli_case(minutes: float, video: bool, tmp: Path, env: dict) -> dict:
     for p in out.iterdir():
         p.unlink()
     out.rmdir()
-    return {"minutes": minutes, "video": video, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+    return {"minutes": minutes, "video": video, "format": "npy,mp4" if video else fmt, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
             "peak_rss_mb": usage.ru_maxrss / 1024, "files_mb": {k: v / 1e6 for k, v in files.items()},
             "stdout": stdout.decode().strip()}
 
 
 def cli_report(rows: list[dict]) -> None:
     print("\n`dualtalker-lite animate` end to end (child process; tiny DualTalker, V = 1558, OMP_NUM_THREADS=1)")
-    print(f"{'audio':>7} | {'video':>5} | {'wall s':>7} | {'CPU s':>7} | {'RTF (CPU)':>9} | {'x real time':>11} | "
+    print(f"{'audio':>7} | {'format':>7} | {'wall s':>7} | {'CPU s':>7} | {'RTF (CPU)':>9} | {'x real time':>11} | "
           f"{'peak RSS':>9} | files")
     for r in rows:
         secs = 60 * r["minutes"]
         files = ", ".join(f"{k} {v:.1f} MB" for k, v in sorted(r["files_mb"].items()))
-        print(f"{r['minutes']:>5g} m | {'yes' if r['video'] else 'no':>5} | {r['wall_s']:7.1f} | {r['cpu_s']:7.1f} | "
+        print(f"{r['minutes']:>5g} m | {r['format']:>7} | {r['wall_s']:7.1f} | {r['cpu_s']:7.1f} | "
               f"{r['cpu_s'] / secs:9.4f} | {secs / r['cpu_s']:10.1f}x | {r['peak_rss_mb']:6.0f} MB | {files}")
     print("(CPU = the command plus ffmpeg; RTF = CPU seconds per second of audio; wall time is inflated by "
           "other jobs on a shared machine)")
@@ -278,6 +278,9 @@ def main() -> None:
                     help="instead: time `dualtalker-lite animate` end to end for each --minutes, with --no-video")
     ap.add_argument("--cli-video", type=float, nargs="*", default=[1], metavar="MINUTES",
                     help="with --cli: also run these lengths with the mp4 (default: 1; bare flag: every length)")
+    ap.add_argument("--cli-formats", nargs="+", default=["npy"], choices=["npy", "gltf"],
+                    help="with --cli: the --format of the runs without video (gltf: the engine export, .glb + .wav)")
+    ap.add_argument("--no-cli-video", action="store_true", help="with --cli: no run with the mp4")
     ap.add_argument("--make-cli-inputs", nargs="+", help=argparse.SUPPRESS)  # internal: DIR MINUTES...
     args = ap.parse_args()
     if args.make_cli_inputs:
@@ -286,17 +289,17 @@ def main() -> None:
     if args.cli:
         root = Path(__file__).resolve().parents[1]
         env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-        video = args.minutes if args.cli_video == [] else args.cli_video
-        cases = [(m, False) for m in args.minutes] + [(m, True) for m in video]
+        video = [] if args.no_cli_video else args.minutes if args.cli_video == [] else args.cli_video
+        cases = [(m, False, f) for f in args.cli_formats for m in args.minutes] + [(m, True, "npy") for m in video]
         rows = []
         with tempfile.TemporaryDirectory(prefix="long-audio-cli-") as tmp:
-            lengths = sorted({m for m, _ in cases})
+            lengths = sorted({m for m, _, _ in cases})
             subprocess.run([sys.executable, __file__, "--make-cli-inputs", tmp, *map(str, lengths)], env=env,
                            check=True)
-            for minutes, with_video in cases:
-                rows.append(cli_case(minutes, with_video, Path(tmp), env))
+            for minutes, with_video, fmt in cases:
+                rows.append(cli_case(minutes, with_video, Path(tmp), env, fmt))
                 r = rows[-1]
-                print(f"{minutes:g} min {'with' if with_video else 'without'} video: {r['wall_s']:.1f} s wall, "
+                print(f"{minutes:g} min --format {r['format']}: {r['wall_s']:.1f} s wall, "
                       f"{r['cpu_s']:.1f} s CPU, peak {r['peak_rss_mb']:.0f} MB", flush=True)
         cli_report(rows)
         if args.json:

@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 __all__ = [
     "SAMPLE_RATE", "N_FFT", "WIN_LENGTH", "HOP_LENGTH", "N_MELS", "LOG_EPS",
-    "MAX_AMPLITUDE", "load_audio", "resample", "validate_wave", "check_wav_header", "hz_to_mel", "mel_to_hz",
+    "MAX_AMPLITUDE", "load_audio", "AudioStream", "resample", "validate_wave", "check_wav_header", "hz_to_mel", "mel_to_hz",
     "mel_filterbank",
     "log_mel_spectrogram", "interpolate_frames", "FeatureExtractor", "LogMelExtractor", "Wav2Vec2Extractor",
 ]
@@ -119,6 +119,110 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
 
 
 _resample = resample  # `load_audio` has a parameter called `resample`
+
+
+def _read_blocks(f, n: int):
+    """Blocks of up to ``n`` frames (float32, (n, C)) until the decoder stops: what is really there.
+    (``SoundFile.blocks`` trusts the declared length: a truncated MP3's missing part came back as zeros.)"""
+    while True:
+        data = f.read(n, dtype="float32", always_2d=True)
+        if not len(data):
+            return
+        yield data
+
+
+class AudioStream:
+    """A recording read block by block: memory flat in its length (an hour of 16 kHz float32 is 230 MB whole).
+
+    The same checks and messages as :func:`load_audio` (mono only), made in a first pass over the file that keeps
+    nothing but the peak and the length; :meth:`blocks` then reads it again and yields float32 blocks at
+    ``sample_rate`` (peak-normalised like ``load_audio``; another rate resampled block by block with enough
+    context on both sides for the polyphase filter, so the samples equal ``load_audio``'s up to float rounding).
+    ``len(stream)`` is the number of samples at ``sample_rate``; :meth:`read` joins the blocks (the whole wave).
+    """
+
+    def __init__(self, path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, block_s: float = 60.0):
+        import soundfile as sf
+
+        self.path, self.sample_rate = Path(path), int(sample_rate)
+        path = self.path
+        if path.is_dir():
+            raise IsADirectoryError(f"{path}: is a folder, not an audio file; name a WAV or FLAC file")
+        if not path.is_file():
+            raise FileNotFoundError(f"audio file not found: {path}")
+        check_wav_header(path)
+        self.mp3 = _looks_like_mp3(path)
+        peak, decoded, finite = 0.0, 0, True
+        try:
+            with _quiet_stderr(self.mp3), sf.SoundFile(str(path)) as f:
+                declared, self.file_sr, fmt, channels = f.frames, f.samplerate, f.format, f.channels
+                if channels > 1:
+                    raise ValueError(f"{path} has {channels} channels; downmix it to mono "
+                                     f"(e.g. `sox in.wav -c 1 out.wav`)")
+                self.block = max(1, int(block_s * self.file_sr))
+                for data in _read_blocks(f, self.block):
+                    if not np.isfinite(data).all():
+                        finite = False  # said after the length checks, in load_audio's order
+                    elif len(data):
+                        peak = max(peak, float(np.abs(data).max()))
+                    decoded += len(data)
+        except (sf.SoundFileError, RuntimeError) as e:
+            raise ValueError(f"could not decode audio file {path} (corrupt or not WAV/FLAC?): {e}") from e
+        if fmt == "MP3":
+            check_mp3_length(path, declared, decoded, self.file_sr)
+        if decoded == 0:
+            raise ValueError(f"{path} contains no audio samples")
+        if not finite:
+            raise ValueError(f"{path} contains NaN or infinite samples")
+        if peak > MAX_AMPLITUDE:
+            raise ValueError(f"{path}: sample amplitudes reach {peak:.3g}, far outside [-1, 1] (a float WAV holding "
+                             f"unscaled or corrupt data?); rescale it to [-1, 1]")
+        self.peak = 1.0  # the divisor of every sample, as in load_audio
+        if peak > 1.0:
+            warnings.warn(f"{path}: peak amplitude {peak:.3g} exceeds 1; the audio was peak-normalised to [-1, 1]",
+                          stacklevel=2)
+            self.peak = peak
+        if self.file_sr < self.sample_rate:
+            print(f"warning: {path}: sampled at {self.file_sr} Hz, below {self.sample_rate} Hz: upsampled, so the "
+                  f"mel bands above {self.file_sr / 2000:g} kHz are empty; log-mel models were trained on "
+                  f"{self.sample_rate / 1000:g} kHz speech and may animate it poorly (the recogniser front-end, "
+                  f"--features visemes, copes with telephone audio)", file=sys.stderr)
+        g = math.gcd(self.file_sr, self.sample_rate)
+        self.up, self.down = self.sample_rate // g, self.file_sr // g
+        self.n_file = decoded
+        self.n_samples = -(-decoded * self.up // self.down)  # resample_poly's output length
+
+    def __len__(self) -> int:
+        return self.n_samples
+
+    def blocks(self):
+        """Yield the wave as float32 blocks of about ``block_s`` seconds at ``sample_rate``."""
+        import soundfile as sf
+
+        with _quiet_stderr(self.mp3), sf.SoundFile(str(self.path)) as f:
+            if self.up == self.down:
+                for data in _read_blocks(f, self.block):
+                    yield np.ascontiguousarray(data[:, 0] / self.peak if self.peak != 1.0 else data[:, 0])
+                return
+            # blocks of whole multiples of `down` input samples, each read with `context` samples on both sides
+            # (more than the polyphase filter's half-length, 10 max(up, down) taps at the upsampled rate)
+            step = self.down * max(1, self.block // self.down)
+            context = self.down * (-(-(20 * max(self.up, self.down) // self.up + 64) // self.down))
+            for s in range(0, self.n_file, step):
+                e = min(self.n_file, s + step)
+                lo, hi = max(0, s - context), min(self.n_file, e + context)
+                f.seek(lo)
+                piece = f.read(hi - lo, dtype="float32", always_2d=True)[:, 0]
+                piece = piece / self.peak if self.peak != 1.0 else piece
+                out = resample(piece, self.file_sr, self.sample_rate)
+                first = (s - lo) * self.up // self.down
+                keep = (e - s) * self.up // self.down if e < self.n_file else \
+                    self.n_samples - s * self.up // self.down
+                yield np.ascontiguousarray(out[first:first + keep], dtype=np.float32)
+
+    def read(self) -> np.ndarray:
+        """The whole wave (N,) float32 at ``sample_rate``."""
+        return np.concatenate(list(self.blocks()))
 
 
 def _looks_like_mp3(path: Path) -> bool:
@@ -301,11 +405,16 @@ def log_mel_spectrogram(wave: np.ndarray | torch.Tensor, sample_rate: int = SAMP
         lo, hi = a * hop_length - pad, (b - 1) * hop_length + pad               # samples [lo, hi) of frames a..b-1
         piece = x[max(lo, 0):min(hi, x.shape[0])]
         piece = F.pad(piece, (max(0, -lo), max(0, hi - x.shape[0])))          # zeros outside the wave
-        spec = torch.stft(piece, n_fft, hop_length=hop_length, win_length=win_length,
-                          window=_WIN_CACHE[win_length], center=False, return_complex=True)  # (K, b - a)
-        power = spec.real ** 2 + spec.imag ** 2                                 # |X|^2
-        out[a:b] = torch.log(_FB_CACHE[key] @ power + LOG_EPS).T               # (b - a, M)
+        out[a:b] = _log_mel_piece(piece, n_fft, hop_length, win_length, key)   # (b - a, M)
     return out                                                                  # (L, M)
+
+
+def _log_mel_piece(piece: torch.Tensor, n_fft: int, hop_length: int, win_length: int, key: tuple) -> torch.Tensor:
+    """Frames of one zero-padded slice of the wave (``center=False``) -> their log-mel (frames, M)."""
+    spec = torch.stft(piece, n_fft, hop_length=hop_length, win_length=win_length,
+                      window=_WIN_CACHE[win_length], center=False, return_complex=True)  # (K, frames)
+    power = spec.real ** 2 + spec.imag ** 2                                     # |X|^2
+    return torch.log(_FB_CACHE[key] @ power + LOG_EPS).T                       # (frames, M)
 
 
 def interpolate_frames(x: torch.Tensor, n_out: int) -> torch.Tensor:
@@ -353,15 +462,57 @@ class LogMelExtractor:
 
     def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
         validate_wave(wave, self.sample_rate, expected=self.sample_rate)
-        k = self.frames_per_mesh_frame
-        feats = interpolate_frames(self.log_mel(wave), k * n_frames)   # (k T, n_mels) at k * fps Hz
-        if self.mean is not None:
-            feats = feats - self.mean
-        if self.std is not None:
-            feats = feats / self.std
-        if not bool(torch.isfinite(feats).all()):
-            raise ValueError("log-mel features are not finite (audio amplitudes too large?)")
-        return feats.reshape(n_frames, self.dim)                       # (T, k * n_mels)
+        return self.stream([wave], int(wave.shape[0]), n_frames)
+
+    def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
+        """The features ``(n_frames, dim)`` of a wave of ``n_samples`` given as consecutive blocks (e.g.
+        :meth:`AudioStream.blocks`), holding neither the wave nor its 100 Hz log-mel whole: memory is the result
+        (69 MB per hour) plus one STFT block. The same numbers for one block or many: the log-mel of
+        :func:`log_mel_spectrogram` (the same STFT blocks), linearly interpolated (``align_corners=True``) to
+        ``k * n_frames`` rows, output block by output block."""
+        k, hop, pad = self.frames_per_mesh_frame, self.hop_length, self.n_fft // 2
+        if self.win_length not in _WIN_CACHE:
+            _WIN_CACHE[self.win_length] = torch.hann_window(self.win_length)
+        key = (self.n_fft, self.n_mels, self.sample_rate, self.f_min, self.f_max, False)
+        if key not in _FB_CACHE:
+            _FB_CACHE[key] = mel_filterbank(self.n_fft, self.n_mels, self.sample_rate, self.f_min, self.f_max)
+        n_rows, n_out = 1 + n_samples // hop, k * n_frames                      # 100 Hz rows, k * fps rows
+        src = torch.arange(n_out, dtype=torch.float32) * (
+            torch.tensor(float(n_rows - 1)) / (n_out - 1) if n_out > 1 else torch.tensor(0.0))
+        i0 = src.long().clamp(max=n_rows - 1)                                   # left neighbour of each output
+        lam = (src - i0).clamp(0, 1)[:, None]
+        i1 = (i0 + 1).clamp(max=n_rows - 1)
+        out = torch.empty(n_out, self.n_mels)
+        wave, w0 = torch.empty(0), 0                    # samples [w0, w0 + len(wave)) of the wave
+        rows, r0 = torch.empty(0, self.n_mels), 0       # log-mel rows [r0, r0 + len(rows))
+        blocks, done = iter(blocks), 0                  # outputs written
+        for a in range(0, n_rows, STFT_BLOCK):
+            b = min(n_rows, a + STFT_BLOCK)
+            lo, hi = a * hop - pad, (b - 1) * hop + pad                         # samples [lo, hi) of rows a..b-1
+            while w0 + len(wave) < min(hi, n_samples):
+                block = next(blocks, None)
+                if block is None:
+                    raise ValueError(f"the audio ended after {w0 + len(wave)} of {n_samples} samples")
+                wave = torch.cat([wave, torch.as_tensor(np.asarray(block), dtype=torch.float32).reshape(-1)])
+            piece = wave[max(lo, 0) - w0:min(hi, n_samples) - w0]
+            piece = F.pad(piece, (max(0, -lo), max(0, hi - n_samples)))      # zeros outside the wave
+            rows = torch.cat([rows, _log_mel_piece(piece, self.n_fft, hop, self.win_length, key)])
+            keep = max(0, b * hop - pad)                                        # the next block's first sample
+            wave, w0 = wave[keep - w0:], keep
+            end = n_out if b == n_rows else int(torch.searchsorted(i1, b))     # outputs whose neighbours are in
+            if end > done:
+                feats = (1 - lam[done:end]) * rows[i0[done:end] - r0] + lam[done:end] * rows[i1[done:end] - r0]
+                if self.mean is not None:
+                    feats = feats - self.mean
+                if self.std is not None:
+                    feats = feats / self.std
+                if not bool(torch.isfinite(feats).all()):
+                    raise ValueError("log-mel features are not finite (audio amplitudes too large?)")
+                out[done:end] = feats
+                done = end
+            if done < n_out:
+                rows, r0 = rows[int(i0[done]) - r0:], int(i0[done])
+        return out.reshape(n_frames, self.dim)                                  # (T, k * n_mels)
 
     def band_statistics(self, waves) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-band mean and std ``(n_mels,)`` of the raw log-mel pooled over ``waves`` (for ``mean``/``std``)."""

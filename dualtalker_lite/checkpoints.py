@@ -130,13 +130,14 @@ def _check_weights(state_dict: dict, source: str) -> None:
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any, train_config: Any = None,
                     history: Any = None, *, speakers: Sequence[str] | None = None, faces: np.ndarray | None = None,
-                    features: dict | None = None, units: str | None = None) -> Path:
+                    features: dict | None = None, units: str | None = None, fallback: bool = False) -> Path:
     """Atomically write a self-describing checkpoint (0644 under umask 022); refuses non-finite weights.
 
     ``speakers``: training speaker names in style-index order (``corpus.train_speakers``); ``faces``: the
     topology; ``features``: :func:`extractor_settings` (default: the default log-mel front-end); ``units``: the
     training corpus's vertex units (``metadata.json``'s ``units``; None, as in older checkpoints, means metres):
-    ``animate --template`` checks a mesh against them.
+    ``animate --template`` checks a mesh against them. ``fallback=True`` (trained weights): if ``path``'s disk is
+    full, save to :func:`~dualtalker_lite.files.fallback_dir` and say so in the error (``atomic_torch_save``).
     """
     from . import __version__
 
@@ -157,7 +158,7 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
         **({"units": units} if units is not None else {}),
         "state_dict": state,
     }
-    return atomic_torch_save(ckpt, path)
+    return atomic_torch_save(ckpt, path, fallback=fallback)
 
 
 def model_registry() -> dict[str, tuple[type, type | None]]:

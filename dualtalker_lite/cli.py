@@ -116,7 +116,7 @@ def _train(argv: list[str]) -> Path:
 
     from .checkpoints import extractor_settings, save_checkpoint
     from .data import sample_path
-    from .files import atomic_torch_save, sweep_stale
+    from .files import atomic_torch_save, check_free_space, claim, sweep_stale
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset, make_loader
     from .data.pairs import make_pair_loader
@@ -161,6 +161,7 @@ def _train(argv: list[str]) -> Path:
     if args.clips is not None and args.clips < 1:
         raise ValueError(f"--clips {args.clips}: must be at least 1")
     out = Path(args.out)
+    claim(out)  # a second run into the same --out fails now with one line (released when the command ends)
     if out.exists() and not args.overwrite:
         raise FileExistsError(f"checkpoint {out} already exists; pass --overwrite to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -210,6 +211,8 @@ def _train(argv: list[str]) -> Path:
                            weights=loss_weights(model, spec.loss),
                            progress=not args.no_progress and sys.stderr.isatty())
     loader = (make_pair_loader if paired else make_loader)(train_set, cfg.batch_size, shuffle=True, seed=args.seed)
+    weights = sum(p.numel() * p.element_size() for p in model.parameters())  # checkpoint ~1x, resume state ~3x
+    check_free_space(out, weights * (4 if args.checkpoint_every else 1), "the checkpoint (and its resume state)")
     meta = Path(corpus.root) / "metadata.json"
     record = {"model": args.model, "corpus": str(Path(corpus.root).resolve()),
               "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
@@ -229,7 +232,7 @@ def _train(argv: list[str]) -> Path:
     else:
         features = extractor_settings(dataset.extractor if spec.features == "logmel" else None, name=spec.features)
     save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,
-                    features=features, units=corpus.metadata.get("units", "m"))
+                    features=features, units=corpus.metadata.get("units", "m"), fallback=True)
     resume_path.unlink(missing_ok=True)  # the run is complete: its resumable state has served
     sweep_stale(resume_path)
     print(f"trained {args.model} for {len(history.terms)} epochs on {len(train_set)} clips -> {out}")
@@ -270,6 +273,10 @@ def _evaluate(argv: list[str]) -> dict:
     args = ap.parse_args(argv)
     if args.json and Path(args.json).is_dir():
         raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
+    if args.json:
+        from .files import claim
+
+        claim(args.json)  # held until the command ends (see _dispatch)
     if args.json and Path(args.json).exists():  # checked before the long work; written atomically at the end
         if Path(args.checkpoint).exists() and Path(args.json).samefile(args.checkpoint):
             raise ValueError(f"--json {args.json}: is the checkpoint being evaluated; name another file")
@@ -367,7 +374,10 @@ def _dispatch(argv: list[str]):
         return None
     if argv[0] not in COMMANDS:
         raise ValueError(f"unknown command {argv[0]!r}; commands: {', '.join(COMMANDS)}")
-    return COMMANDS[argv[0]][0](argv[1:])
+    from .files import claims_released
+
+    with claims_released():  # every output a command claimed is released when it ends, however it ends
+        return COMMANDS[argv[0]][0](argv[1:])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

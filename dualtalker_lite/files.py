@@ -6,6 +6,10 @@ is complete, and remove their temporaries otherwise.
 """
 from __future__ import annotations
 
+import atexit
+import contextlib
+import errno
+import fcntl
 import glob
 import os
 import shutil
@@ -20,7 +24,8 @@ from typing import Any
 import torch
 
 __all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir",
-           "temporary_prefix", "sweep_stale"]
+           "temporary_prefix", "sweep_stale", "claim", "Claim", "claims_released",
+           "check_free_space", "fallback_dir", "tensor_bytes"]
 
 
 def repo_root() -> Path:
@@ -78,10 +83,127 @@ def sweep_stale(path: str | os.PathLike) -> list[Path]:
     return removed
 
 
-def atomic_torch_save(obj: Any, path: str | os.PathLike) -> Path:
-    """``torch.save`` to a temporary file in the same folder, then rename: a crash never leaves half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+class Claim:
+    """An exclusive claim on an output ``path`` for the life of one command: ``fcntl.flock`` on the lock file
+    ``.<name>.lock`` beside it, which holds the claimant's process id (for the message a second run prints).
+
+    A second claim of the same path, from another process or this one, raises :class:`FileExistsError` at once
+    (one line naming the target and the holder's pid); nothing waits. The kernel drops the lock when its process
+    dies, so the lock file of a killed run is taken over, with a one-line ``note:``. Released (the lock file
+    removed) by :meth:`release`, on leaving a ``with`` block, and at interpreter exit."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self.lock = self.path.with_name(f".{self.path.name}.lock")
+        self.fd: int | None = None
+        try:
+            self.lock.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise PermissionError(f"{self.path}: cannot create the output's parent folder {self.lock.parent}: "
+                                  f"{e.strerror}") from e
+        while self.fd is None:  # retried only if the lock file was replaced between open() and flock()
+            fd = os.open(self.lock, os.O_RDWR | os.O_CREAT, default_file_mode())
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                raise FileExistsError(f"{self.path}: another run (process {holder}) is writing it now; wait for it "
+                                      f"to finish or choose another output") from None
+            if os.path.exists(self.lock) and os.fstat(fd).st_ino == os.stat(self.lock).st_ino:
+                self.fd = fd
+            else:  # its holder released (and removed) it after we opened it: open the new one
+                os.close(fd)
+        previous = os.pread(self.fd, 32, 0).decode(errors="replace").strip()
+        if previous:
+            print(f"note: {self.path}: took over the claim of a run (process {previous}) that ended without "
+                  f"releasing it (killed?)", file=sys.stderr)
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
+        _CLAIMS.append(self)
+
+    def release(self) -> None:
+        if self.fd is not None:
+            try:
+                self.lock.unlink(missing_ok=True)  # still locked: a newcomer re-checks the inode (see __init__)
+            finally:
+                os.close(self.fd)
+                self.fd = None
+        if self in _CLAIMS:
+            _CLAIMS.remove(self)
+
+    def __enter__(self) -> "Claim":
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.release()
+        return False
+
+
+_CLAIMS: list[Claim] = []
+
+
+def claim(path: str | os.PathLike) -> Claim:
+    """Claim the output ``path`` for this command (:class:`Claim`): ``with claim(out): ...`` before any long
+    work; a concurrent run into the same ``path`` fails at once with one line instead of replacing the result."""
+    return Claim(path)
+
+
+@contextlib.contextmanager
+def claims_released():
+    """Release every :func:`claim` taken inside the block when it ends (success, error, Ctrl-C): the scope of
+    one command, for claims taken without a ``with`` of their own."""
+    held = len(_CLAIMS)
+    try:
+        yield
+    finally:
+        while len(_CLAIMS) > held:
+            _CLAIMS[-1].release()
+
+
+atexit.register(lambda: [c.release() for c in list(_CLAIMS)])
+
+
+def fallback_dir() -> Path:
+    """Where a checkpoint goes when its own folder is full: ``$DUALTALKER_FALLBACK``, else the user's cache
+    (``$XDG_CACHE_HOME`` or ``~/.cache``)``/dualtalker-lite/rescued``."""
+    if os.environ.get("DUALTALKER_FALLBACK"):
+        return Path(os.environ["DUALTALKER_FALLBACK"])
+    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(cache) / "dualtalker-lite" / "rescued"
+
+
+def check_free_space(path: str | os.PathLike, needed: int, what: str = "the output") -> None:
+    """Refuse (one OSError line, ENOSPC) when the file system of ``path``'s folder has less than ``needed`` bytes
+    (plus a 5% and 1 MB margin) free: said before the work, not after it."""
+    folder = Path(path).parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    if free < needed * 1.05 + 1_000_000:
+        raise OSError(errno.ENOSPC, f"{path}: only {free / 1e6:.1f} MB free in {folder}, {what} needs about "
+                                    f"{needed / 1e6:.1f} MB; free some space or choose another place")
+
+
+def tensor_bytes(obj: Any) -> int:
+    """Bytes of the tensors and arrays in nested dicts/lists/tuples: the bulk of what ``torch.save`` writes."""
+    if isinstance(obj, torch.Tensor):
+        return obj.element_size() * obj.nelement()
+    if hasattr(obj, "nbytes") and not isinstance(obj, (str, bytes)):
+        return int(obj.nbytes)
+    if isinstance(obj, dict):
+        return sum(tensor_bytes(v) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return sum(tensor_bytes(v) for v in obj)
+    return 0
+
+
+def _disk_full(e: BaseException) -> bool:
+    """torch.save reports a failed write as RuntimeError ('... file write failed'); others as OSError."""
+    return isinstance(e, OSError) or (isinstance(e, RuntimeError) and "write" in str(e).lower())
+
+
+def _save_aside(obj: Any, path: Path) -> None:
     sweep_stale(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     os.close(fd)
@@ -94,6 +216,39 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike) -> Path:
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def atomic_torch_save(obj: Any, path: str | os.PathLike, fallback: bool = False) -> Path:
+    """``torch.save`` to a temporary file in the same folder, then rename: a crash never leaves half a file.
+
+    A failed write (a full disk: torch's ``RuntimeError`` or an ``OSError``) leaves ``path`` as it was and
+    removes the temporary, then raises one ``OSError`` line. With ``fallback=True`` (weights that cost training)
+    the object is first saved to :func:`fallback_dir`, and the line says where it is."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        if fallback:  # clearly too little room: do not even try (the check's own line is the reason)
+            check_free_space(path, tensor_bytes(obj), "the file")
+        _save_aside(obj, path)
+    except (OSError, RuntimeError) as e:
+        if not _disk_full(e):
+            raise
+        why = os.strerror(e.errno) if isinstance(e, OSError) and e.errno else str(e).strip().splitlines()[0]
+        if isinstance(e, OSError) and str(e).startswith(str(path)):
+            why = str(e).split(": ", 2)[-1].split(";")[0]  # check_free_space's own reason
+        if not fallback:
+            raise OSError(errno.ENOSPC, f"{path}: could not be written ({why}); it is unchanged") from e
+        rescue = fallback_dir() / path.name
+        try:
+            rescue.parent.mkdir(parents=True, exist_ok=True)
+            _save_aside(obj, rescue)
+        except (OSError, RuntimeError) as e2:
+            if not _disk_full(e2):
+                raise
+            raise OSError(errno.ENOSPC, f"{path}: could not be written ({why}), nor the fallback {rescue}; "
+                                        f"the result is lost, free some space and run again") from e2
+        raise OSError(errno.ENOSPC, f"{path}: could not be written ({why}); it is unchanged, and the result "
+                                    f"was saved to {rescue} instead; move it to {path} once there is room") from e
     return path
 
 
@@ -162,15 +317,26 @@ class AtomicOutputDir:
     - an existing, non-empty ``target`` raises :class:`FileExistsError` unless ``overwrite=True``;
     - the parent folder's writability is checked on construction (call it before any long work);
     - on an exception, Ctrl-C or SIGTERM the temporary folder is removed and ``target`` is left as it was;
-    - on success the old ``target`` (if any) is replaced as a whole: never a mix of old and new files.
+    - on success the old ``target`` (if any) is replaced as a whole: never a mix of old and new files;
+    - ``target`` is claimed (:func:`claim`) from construction to the end of the ``with`` block: a concurrent run
+      into the same target fails at construction with one line.
     """
 
     def __init__(self, target: str | os.PathLike, overwrite: bool = False):
         self.target = Path(target)
         self.overwrite = overwrite
+        self.claim = claim(self.target)  # a concurrent run into the same target fails here, at once
+        try:
+            self._check()
+        except BaseException:
+            self.claim.release()
+            raise
+        self.tmp: Path | None = None
+
+    def _check(self) -> None:
         if self.target.exists() and not self.target.is_dir():
             raise FileExistsError(f"output {self.target} exists and is not a folder")
-        if self.target.is_dir() and any(self.target.iterdir()) and not overwrite:
+        if self.target.is_dir() and any(self.target.iterdir()) and not self.overwrite:
             raise FileExistsError(f"output folder {self.target} already exists and is not empty; "
                                   f"pass --overwrite (overwrite=True) to replace it")
         parent = self.target.parent
@@ -180,7 +346,6 @@ class AtomicOutputDir:
             raise PermissionError(f"cannot create the output's parent folder {parent}: {e.strerror}") from e
         if not os.access(parent, os.W_OK | os.X_OK):
             raise PermissionError(f"output folder {parent} is not writable")
-        self.tmp: Path | None = None
 
     def __enter__(self) -> Path:
         sweep_stale(self.target)
@@ -204,4 +369,5 @@ class AtomicOutputDir:
             self._signals.__exit__(None, None, None)
             if self.tmp is not None and self.tmp.exists():
                 shutil.rmtree(self.tmp, ignore_errors=True)
+            self.claim.release()
         return False

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .audio import load_audio
+from .audio import AudioStream, load_audio
 from .checkpoints import describe, extractor_from_settings, load_checkpoint, topology_fingerprint
 from .data.corpus import Corpus, check_face_size
 from .streaming import predict_chunks, write_npy_stream
@@ -211,6 +211,8 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
     the clip's mean frame) and print the morph targets' count and measured max/mean vertex error.
     """
     folder = Path(folder)
+    if hasattr(wave, "blocks") and ({"html", "mp4"} & set(formats)):
+        wave = wave.read()  # the page inlines the sound and the video muxes it: these two take the whole wave
     own = isinstance(verts, (str, Path)) and Path(verts).resolve() == (folder / "vertices.npy").resolve()
     clip = _frames(verts)  # (T, V, 3)
     written = []
@@ -288,7 +290,9 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> list[Path]:
     """The ``animate`` command on parsed arguments; raises on any problem (see :func:`main`)."""
     from .data import sample_path
+    from .streaming import fixed_mmap_threshold
 
+    fixed_mmap_threshold()  # flat memory in the audio's length: freed blocks go back to the system
     formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in
                                   (f.strip().lower() for f in args.format.split(",")) if f))
     unknown = sorted(set(formats) - set(FORMATS))
@@ -322,7 +326,7 @@ def run(args: argparse.Namespace) -> list[Path]:
                              f"mesh.obj (the speaker's neutral face with the model's topology)")
         template, faces = corpus.template(args.speaker), corpus.faces
     extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint))
-    wave = load_audio(args.wav, sample_rate=extractor.sample_rate)
+    wave = AudioStream(args.wav, sample_rate=extractor.sample_rate)  # checked now, read block by block later
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
     conditions = {"emotion": resolve_emotion(args.emotion, corpus), "level": args.level}
@@ -343,7 +347,10 @@ def main(argv: list[str] | None = None) -> list[Path]:
     """Command line: one-line errors with exit status 2 (``--debug``: tracebacks), Ctrl-C exits 130."""
     from .console import run_main
 
-    return run_main(lambda a: run(parser().parse_args(a)), argv)
+    from .files import claims_released
+
+    with claims_released():
+        return run_main(lambda a: run(parser().parse_args(a)), argv)
 
 
 if __name__ == "__main__":

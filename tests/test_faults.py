@@ -286,9 +286,10 @@ def test_corrupt_controls_npz_member(tmp_path):
 
 
 def test_truncated_templates_npz_reused_by_prepare_dataset(tmp_path):
+    """A folder with a templates.npz and no templates.pkl uses the npz as its input: a truncated one is refused.
+    (With a templates.pkl, the npz is rebuilt from it: test_prepare_dataset_never_reuses_a_stale_templates_npz.)"""
     root = tmp_path / "vocaset"
     _vocaset_stub(root)
-    (root / "templates.pkl").write_bytes(pickle.dumps({VOCASET_TRAIN[0]: np.full((5, 3), 0.1)}, protocol=2))
     buf = io.BytesIO()
     np.savez(buf, **{s: np.full(15, 0.1, np.float32) for s in (VOCASET_TRAIN[0], VOCASET_VAL[0], VOCASET_TEST[0])})
     (root / "templates.npz").write_bytes(buf.getvalue()[:-40])  # a stale npz of a killed run, cut short
@@ -459,7 +460,8 @@ def test_generate_killed_while_writing_leaves_the_old_corpus(small_corpus, sig, 
     deadline = time.monotonic() + 120
     hidden = []
     while time.monotonic() < deadline and proc.poll() is None:
-        hidden = [p for p in small_corpus.parent.iterdir() if p.name.startswith(f".{small_corpus.name}.")]
+        hidden = [p for p in small_corpus.parent.iterdir()
+                  if p.name.startswith(f".{small_corpus.name}.") and p.name.endswith(".tmp")]  # not the .lock
         if hidden and len(list(hidden[0].rglob("*.flac"))) >= 2:
             break
         time.sleep(0.01)
@@ -471,9 +473,10 @@ def test_generate_killed_while_writing_leaves_the_old_corpus(small_corpus, sig, 
     left = [p for p in small_corpus.parent.iterdir() if p.name.startswith(".")]
     if sig == signal.SIGTERM:
         assert left == [] and err.strip() == "interrupted; temporary files removed"
-    else:
-        assert [p.name for p in left] == [hidden[0].name]  # only the temporary sibling, never the target
+    else:  # only the temporary sibling and the claim's lock file (taken over by the next run), never the target
+        assert sorted(p.name for p in left) == sorted([hidden[0].name, f".{small_corpus.name}.lock"])
         shutil.rmtree(hidden[0])
+        (small_corpus.parent / f".{small_corpus.name}.lock").unlink()
 
 
 @pytest.mark.parametrize("target", ["data_samples", "data_samples/sub", "."])
@@ -689,7 +692,7 @@ main(sys.argv[2:])
 TRAIN_SMALL = ("train", "--model", "voca", "--epochs", "4", "--clips", "8", "--no-progress")
 
 
-def _train_killed_after_first_state_save(out: Path, *extra) -> None:
+def _train_killed_after_first_state_save(out: Path, *extra) -> int:
     """Run ``train`` in a real process and SIGKILL it once it has saved its first resumable state."""
     marker = out.with_name("saved.marker")
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg",
@@ -709,6 +712,12 @@ def _train_killed_after_first_state_save(out: Path, *extra) -> None:
     assert proc.returncode == -signal.SIGKILL
     marker.unlink()
     assert out.with_name(out.name + ".resume").is_file() and not out.exists()
+    assert out.with_name(f".{out.name}.lock").read_text() == f"{proc.pid}\n"  # its claim: SIGKILL cannot release it
+    return proc.pid
+
+
+def took_over(out: Path, pid: int) -> str:
+    return f"note: {out}: took over the claim of a run (process {pid}) that ended without releasing it (killed?)"
 
 
 def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path):
@@ -716,11 +725,11 @@ def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path
     assert straight.returncode == 0 and straight.stderr == "", straight.stderr
     assert not (tmp_path / "straight.pt.resume").exists()
     out = tmp_path / "killed.pt"
-    _train_killed_after_first_state_save(out, "--checkpoint-every", "2")  # killed after epoch 2 of 4
+    pid = _train_killed_after_first_state_save(out, "--checkpoint-every", "2")  # killed after epoch 2 of 4
     state = torch.load(out.with_name("killed.pt.resume"), weights_only=True)
     assert state["train"]["epoch"] == 2 and len(state["train"]["history"]["terms"]) == 2
     resumed = cli(*TRAIN_SMALL, "--out", out, "--checkpoint-every", "2", "--resume")
-    assert resumed.returncode == 0 and resumed.stderr == "", resumed.stderr
+    assert resumed.returncode == 0 and resumed.stderr.splitlines() == [took_over(out, pid)], resumed.stderr
     assert "trained voca for 4 epochs" in resumed.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["killed.pt", "straight.pt"]  # the state is removed
     (_, a), (_, b) = load_checkpoint(tmp_path / "straight.pt"), load_checkpoint(out)
@@ -734,7 +743,11 @@ def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path
 def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_path):
     out = tmp_path / "m.pt"
     assert refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "no saved training state")
-    _train_killed_after_first_state_save(out, "--checkpoint-every", "1")
+    pid = _train_killed_after_first_state_save(out, "--checkpoint-every", "1")
+    proc = cli(*TRAIN_SMALL, "--out", out)  # never silently restarted
+    assert proc.returncode == 2 and proc.stderr.splitlines()[0] == took_over(out, pid), proc.stderr
+    refused(subprocess.CompletedProcess(proc.args, 2, proc.stdout, proc.stderr.split("\n", 1)[1]), "m.pt.resume",
+            "pass --resume")
     before = snapshot(tmp_path)
     for extra, field in ((("--model", "faceformer"), "model="), (("--epochs", "5"), "epochs="),
                          (("--clips", "6"), "clips="), (("--seed", "1"), "seed=")):
@@ -744,7 +757,7 @@ def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_p
         else:
             argv += extra
         refused(cli(*argv, "--out", out, "--resume"), "m.pt.resume", field, "resume with the same arguments")
-    refused(cli(*TRAIN_SMALL, "--out", out), "m.pt.resume", "pass --resume")  # never silently restarted
+    refused(cli(*TRAIN_SMALL, "--out", out), "m.pt.resume", "pass --resume")
     assert snapshot(tmp_path) == before
     state = out.with_name("m.pt.resume")
     data = bytearray(state.read_bytes())
@@ -756,3 +769,316 @@ def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_p
     before = snapshot(tmp_path)
     refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "corrupt training state")
     assert snapshot(tmp_path) == before
+
+
+# ------------------------------------------------ concurrent runs into the same output: an exclusive claim (case 24)
+_HOLD_CLAIM = """import sys, time
+from dualtalker_lite.files import claim
+c = claim(sys.argv[1])
+print('held', flush=True)
+time.sleep(120)
+"""
+
+
+def _env() -> dict:
+    return {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg",
+            "PYTHONPATH": os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p)}
+
+
+@pytest.fixture
+def holder():
+    """Start a real process that claims a path and keeps it -> its Popen (killed at the end)."""
+    procs = []
+
+    def start(path: Path) -> subprocess.Popen:
+        proc = subprocess.Popen([sys.executable, "-c", _HOLD_CLAIM, str(path)], env=_env(), cwd=REPO,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(proc)
+        assert proc.stdout.readline().strip() == "held", proc.communicate()[1]
+        return proc
+
+    yield start
+    for proc in procs:
+        proc.kill()
+        proc.communicate()
+
+
+def _ff_root(root: Path, value: float = 0.1, n_frames: int = 4) -> Path:
+    """A small real VOCASET folder in FaceFormer's layout that prepare-dataset accepts."""
+    _vocaset_stub(root)
+    subjects = (VOCASET_TRAIN[0], VOCASET_VAL[0], VOCASET_TEST[0])
+    for f in (root / "vertices_npy").iterdir():
+        np.save(f, np.full((n_frames, 5023 * 3), 0.05, np.float32))
+    rng = np.random.default_rng(0)
+    (root / "templates.pkl").write_bytes(pickle.dumps(
+        {s: value + 0.01 * rng.standard_normal((5023, 3)) for s in subjects}, protocol=2))
+    (root / "regions").mkdir(exist_ok=True)
+    (root / "regions" / "lips.txt").write_text("1, 2, 3, 4")
+    return root
+
+
+def _claim_case(case: str, tmp_path: Path, ckpt: Path, wav: Path) -> tuple[list, Path]:
+    """-> (command line, the path it claims)."""
+    if case == "animate":
+        return ["animate", "--checkpoint", ckpt, "--wav", wav, "--out", tmp_path / "anim", "--format", "npy"], \
+            tmp_path / "anim"
+    if case == "evaluate_json":
+        return ["evaluate", "--checkpoint", ckpt, "--json", tmp_path / "m.json"], tmp_path / "m.json"
+    if case == "train":
+        return ["train", "--model", "voca", "--epochs", "1", "--clips", "2", "--out", tmp_path / "m.pt"], \
+            tmp_path / "m.pt"
+    if case == "generate":
+        return ["generate", "--out", tmp_path / "corpus", *SMALL], tmp_path / "corpus"
+    if case == "convert_templates":
+        root = _ff_root(tmp_path / "vocaset")
+        return ["convert-templates", root / "templates.pkl"], root / "templates.npz"
+    if case == "prepare_dataset":
+        root = _ff_root(tmp_path / "vocaset")
+        return ["prepare-dataset", root, "--preset", "vocaset"], root / "metadata.json"
+    raise AssertionError(case)
+
+
+@pytest.mark.parametrize("case", ["animate", "evaluate_json", "train", "generate", "convert_templates",
+                                  "prepare_dataset"])
+def test_a_second_run_into_a_claimed_output_fails_at_once(ckpt, wav, tmp_path, capsys, holder, case):
+    """Was: both runs exit 0 and the last one silently replaces the other's result. Now the output is claimed
+    before any work: a run into an output another live process holds exits 2 with one line naming the target and
+    the holder's pid, and writes nothing."""
+    argv, target = _claim_case(case, tmp_path, ckpt, wav)
+    proc = holder(target)
+    before = snapshot(tmp_path)
+    t0 = time.monotonic()
+    refused_in_process(capsys, argv, target, f"another run (process {proc.pid}) is writing it now")
+    assert time.monotonic() - t0 < 20  # at once: no waiting, no work before the refusal
+    assert snapshot(tmp_path) == before and proc.poll() is None
+
+
+_PAUSE_UNTIL_GO = """import sys, time
+from pathlib import Path
+import dualtalker_lite.files as files
+save, go = files.atomic_torch_save, Path(sys.argv[1])
+def paused(obj, path, **kw):
+    out = save(obj, path, **kw)
+    if str(path).endswith('.resume') and not go.exists():
+        go.with_name('saved').write_text('x')
+        while not go.exists():
+            time.sleep(0.05)
+    return out
+files.atomic_torch_save = paused
+from dualtalker_lite.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def test_two_concurrent_trains_into_one_out(tmp_path):
+    """Two real `train` processes into one --out: the second, started while the first trains, exits 2 with one
+    line naming --out and the first one's pid and writes nothing; the first finishes with exit 0 and its checkpoint;
+    the claim is released (no lock file left), so a later run with --overwrite may replace it."""
+    out, go = tmp_path / "m.pt", tmp_path / "go"
+    first = subprocess.Popen([sys.executable, "-c", _PAUSE_UNTIL_GO, str(go), *TRAIN_SMALL, "--out", str(out),
+                              "--checkpoint-every", "1"], env=_env(), cwd=REPO, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "saved").exists():  # the first run is now in the middle of its training
+            assert first.poll() is None, first.communicate()[1][-3000:]
+            assert time.monotonic() < deadline, "the first train never saved its state"
+            time.sleep(0.05)
+        before = snapshot(tmp_path)
+        second = cli(*TRAIN_SMALL, "--out", out, "--checkpoint-every", "1")
+        refused(second, out, f"another run (process {first.pid}) is writing it now")
+        assert snapshot(tmp_path) == before
+        go.write_text("go")
+        _, err = first.communicate(timeout=120)
+    finally:
+        first.kill()
+    assert first.returncode == 0 and err == "", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["go", "m.pt", "saved"]  # no lock, no state, no temporary
+    load_checkpoint(out)
+
+
+def test_a_killed_runs_claim_is_taken_over_with_a_note(tmp_path, capsys):
+    """A SIGKILLed run cannot release its claim; the kernel drops its lock, and the next run takes the claim over,
+    saying so in one note: line, and releases it at the end (was: no claim at all)."""
+    from dualtalker_lite.cli import main
+
+    root = _ff_root(tmp_path / "vocaset")
+    dead = _dead_pid()
+    (root / ".templates.npz.lock").write_text(f"{dead}\n")  # the lock file of a run killed while converting
+    main(["convert-templates", str(root / "templates.pkl")])
+    assert capsys.readouterr().err == (f"note: {root / 'templates.npz'}: took over the claim of a run (process "
+                                       f"{dead}) that ended without releasing it (killed?)\n")
+    assert (root / "templates.npz").is_file() and not (root / ".templates.npz.lock").exists()
+
+
+# ------------------------------------------------------------------- a full disk while saving the model (case 25)
+def _failing_save(monkeypatch, fail_in: set):
+    """torch.save fails as on a full disk (half a file written, then torch's own RuntimeError) in the folders
+    ``fail_in``; elsewhere it saves."""
+    real = torch.save
+
+    def save(obj, f, *a, **kw):
+        if Path(f).parent in fail_in:
+            Path(f).write_bytes(b"PK\x03\x04 half a checkpoint")
+            raise RuntimeError("[enforce fail at inline_container.cc:603] . PytorchStreamWriter failed writing "
+                               "file data/3: file write failed")
+        return real(obj, f, *a, **kw)
+    monkeypatch.setattr(torch, "save", save)
+
+
+TRAIN_TINY = ["train", "--model", "voca", "--epochs", "1", "--clips", "2", "--checkpoint-every", "0",
+              "--overwrite"]
+
+
+def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(tmp_path, capsys, monkeypatch):
+    """Was: a raw RuntimeError and the trained model lost. Now: the old checkpoint is byte-identical, no temporary
+    is left, the trained model is in the fallback folder (loadable), and one line says where; exit 2."""
+    out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
+    out_dir.mkdir()
+    (out_dir / "m.pt").write_bytes(b"the old checkpoint")
+    monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
+    _failing_save(monkeypatch, {out_dir})
+    before = snapshot(out_dir)
+    refused_in_process(capsys, TRAIN_TINY + ["--out", out_dir / "m.pt"], out_dir / "m.pt",
+                       "could not be written (", "file write failed", "it is unchanged",
+                       f"saved to {rescue / 'm.pt'} instead")
+    assert snapshot(out_dir) == before  # byte-identical, and no temporary or lock file left
+    model, ckpt = load_checkpoint(rescue / "m.pt")
+    assert ckpt["model_class"] and [p.name for p in rescue.iterdir()] == ["m.pt"]
+
+
+def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
+    out_dir.mkdir()
+    (out_dir / "m.pt").write_bytes(b"the old checkpoint")
+    monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
+    _failing_save(monkeypatch, {out_dir, rescue})
+    before = snapshot(out_dir)
+    refused_in_process(capsys, TRAIN_TINY + ["--out", out_dir / "m.pt"], out_dir / "m.pt",
+                       f"nor the fallback {rescue / 'm.pt'}", "free some space")
+    assert snapshot(out_dir) == before and list(rescue.iterdir()) == []
+
+
+def test_too_little_free_space_is_refused_before_training(tmp_path, capsys, monkeypatch):
+    """Free space is checked before training (about 4x the weights with periodic states), not discovered after."""
+    import collections
+
+    import dualtalker_lite.files as files
+    import dualtalker_lite.train as train_module
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(files.shutil, "disk_usage", lambda p: usage(10 ** 9, 10 ** 9 - 500_000, 500_000))
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained despite the full disk"))
+    (tmp_path / "m.pt").write_bytes(b"the old checkpoint")
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, TRAIN_TINY + ["--out", tmp_path / "m.pt"], tmp_path / "m.pt", "only 0.5 MB free",
+                       "the checkpoint (and its resume state) needs about")
+    assert snapshot(tmp_path) == before
+
+
+# ---------------------------------------------------- prepare-dataset writes its outputs as one set (case 26)
+def test_a_failed_prepare_dataset_overwrite_leaves_the_old_set(tmp_path, capsys):
+    """Was: new templates.npz (and regions, faces) next to the old metadata.json, which then trained. A failure
+    half-way (here a region file with an index outside the mesh, read after the templates are converted) leaves
+    all four outputs byte-identical and no temporary."""
+    from dualtalker_lite.cli import main
+
+    root = _ff_root(tmp_path / "vocaset")
+    main(["prepare-dataset", str(root), "--preset", "vocaset"])
+    capsys.readouterr()
+    assert {"metadata.json", "templates.npz", "regions.json"} <= {p.name for p in root.iterdir()}
+    _ff_root(tmp_path / "new", value=0.2)  # new templates: the rerun converts them before it fails
+    shutil.copy(tmp_path / "new" / "templates.pkl", root / "templates.pkl")
+    (root / "regions" / "lips.txt").write_text("1, 2, 99999")
+    before = snapshot(root)
+    refused_in_process(capsys, ["prepare-dataset", root, "--preset", "vocaset", "--overwrite"],
+                       root / "regions" / "lips.txt", "outside the 5023 vertices")
+    assert snapshot(root) == before
+
+
+def test_prepare_dataset_never_reuses_a_stale_templates_npz(tmp_path, capsys):
+    """Was: a templates.npz left by an earlier (failed) run was reused by the next run instead of templates.pkl."""
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.data.faceformer import safe_load_pickle
+
+    root = _ff_root(tmp_path / "vocaset", value=0.1)
+    np.savez(root / "templates.npz", **{s: np.full(5023 * 3, 0.3, np.float32)
+                                        for s in (VOCASET_TRAIN[0], VOCASET_VAL[0], VOCASET_TEST[0])})
+    main(["prepare-dataset", str(root), "--preset", "vocaset"])
+    capsys.readouterr()
+    pkl = safe_load_pickle(root / "templates.pkl")
+    with np.load(root / "templates.npz") as npz:
+        for s, tpl in pkl.items():
+            assert np.array_equal(npz[s], np.asarray(tpl, np.float32).reshape(-1)), s
+    assert Corpus(root).template(VOCASET_TRAIN[0]).mean() == pytest.approx(0.1, abs=1e-3)
+
+
+# --------------------------------------------------------- memory flat in the audio's length (case 27, issue 23)
+# The child's peak RSS from a small parent process: Linux carries the parent's high-water mark into a child's
+# ru_maxrss across fork and exec, so pytest (torch imported) must not be the parent.
+_PEAK_RSS = """import os, subprocess, sys
+proc = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+err = proc.stderr.read()
+_, status, usage = os.wait4(proc.pid, 0)
+sys.stderr.write(err.decode())
+print(os.waitstatus_to_exitcode(status), usage.ru_maxrss // 1024)
+"""
+
+
+def _speech_wav(path: Path, minutes: int) -> Path:
+    """A 16 kHz 16-bit WAV of ``minutes`` of a wobbling tone with noise, written a minute at a time."""
+    rng = np.random.default_rng(0)
+    t = np.arange(60 * 16000) / 16000
+    with sf.SoundFile(str(path), "w", 16000, 1, subtype="PCM_16") as f:
+        for _ in range(minutes):
+            f.write((0.3 * np.sin(2 * np.pi * (180 + 60 * np.sin(2 * t)) * t) * (np.sin(3 * t) > 0)
+                     + 0.01 * rng.standard_normal(t.size)).astype(np.float32))
+    return path
+
+
+def test_animate_memory_is_flat_in_the_audio_length(tmp_path):
+    """Was: the whole wave and all its features held (+0.4 GB per hour: about +65 MB from 1 to 10 minutes). Now
+    the audio is read and featurised block by block and the vertices streamed to disk: 10 minutes peak within
+    25 MB of 1 minute (measured: +5 MB; what remains is the model's encoding of the whole feature sequence)."""
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                                n_speakers=len(corpus.train_speakers))
+    save_checkpoint(tmp_path / "m.pt", DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers,
+                    faces=corpus.faces)
+    peaks = {}
+    for minutes in (1, 10):
+        wav = _speech_wav(tmp_path / f"{minutes}.wav", minutes)
+        proc = subprocess.run([sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "dualtalker_lite.cli",
+                               "animate", "--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out",
+                               tmp_path / f"o{minutes}", "--format", "npy", "--no-progress"],
+                              capture_output=True, text=True, env=_env(), cwd=REPO, timeout=600)
+        status, peak = map(int, proc.stdout.split())
+        assert status == 0 and proc.stderr == "", proc.stderr[-3000:]
+        assert np.load(tmp_path / f"o{minutes}" / "vertices.npy", mmap_mode="r").shape[0] == minutes * 1800
+        peaks[minutes] = peak
+    print(f"peak RSS, MB: {peaks}")
+    assert peaks[10] - peaks[1] < 25, peaks  # MB
+
+
+@pytest.mark.parametrize("rate", [16000, 8000, 22050, 44100, 48000])
+def test_audio_stream_reads_what_load_audio_reads(tmp_path, rate):
+    """The blocks of an AudioStream (here 1 s blocks: several, and a partial last one) join into exactly
+    load_audio's samples, resampled or not; their log-mel features equal the whole wave's."""
+    import warnings
+
+    from dualtalker_lite.audio import AudioStream, LogMelExtractor, load_audio
+
+    wave = 0.3 * np.random.default_rng(rate).standard_normal(int(rate * 3.7))
+    sf.write(tmp_path / "a.wav", wave.astype(np.float32), rate, subtype="FLOAT")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the peak is above 1: both normalise it, and both warn
+        whole, stream = load_audio(tmp_path / "a.wav"), AudioStream(tmp_path / "a.wav", block_s=1.0)
+    blocks = list(stream.blocks())
+    assert len(blocks) >= 4 and len(stream) == len(whole)
+    assert np.array_equal(np.concatenate(blocks), whole)
+    n = int(round(len(whole) * 30 / 16000))
+    ext = LogMelExtractor()
+    assert torch.equal(ext.stream(iter(blocks), len(stream), n), ext(whole, n))

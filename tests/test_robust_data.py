@@ -226,7 +226,8 @@ def test_atomic_output_dir_cleans_up_on_signal(tmp_path, sig):
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env=ENV)
     assert proc.stdout.readline().strip() == b"ready"
-    assert len(list(tmp_path.iterdir())) == 1  # the hidden temporary folder
+    assert sorted(p.name.split(".")[1] + "." + p.name.rsplit(".", 1)[1] for p in tmp_path.iterdir()) == \
+        ["out.lock", "out.tmp"]  # the hidden temporary folder and the claim's lock file
     proc.send_signal(sig)
     proc.wait(timeout=30)
     assert proc.returncode != 0

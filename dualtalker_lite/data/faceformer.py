@@ -43,6 +43,8 @@ import math
 import os
 import pickle
 import re
+import shutil
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -388,21 +390,46 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
     """Write ``metadata.json``, ``templates.npz``, ``regions.json`` and ``faces.npy`` into a FaceFormer folder.
 
     Afterwards ``Corpus(root)`` reads it (vertices subsampled by ``mesh_stride``). Returns the metadata.
+
+    The outputs are one set: ``root/metadata.json`` is claimed (a concurrent run fails at once), all four are
+    built in a hidden temporary folder inside ``root`` and moved into place only when every one is complete
+    (``metadata.json`` last), so a failure, Ctrl-C or SIGTERM leaves the old ones byte-identical. ``templates.npz``
+    is rebuilt from ``templates.pkl`` on every run (a stale one of an earlier run is never reused); a folder with
+    only a ``templates.npz`` (e.g. from ``convert-templates``) uses that one as it is.
     """
-    from ..checks import load_npy, load_npz
-    from ..files import atomic_write_text
+    from ..files import _remove_on_signal, claim, sweep_stale, temporary_prefix
 
     root = Path(root)
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; known: {sorted(PRESETS)}")
-    p = PRESETS[preset]
     for sub in ("wav", "vertices_npy"):
         if not (root / sub).is_dir():
             raise FileNotFoundError(f"{root / sub} not found: {root} is not in FaceFormer's layout "
                                     f"(wav/, vertices_npy/, templates.pkl)")
     meta_path = root / "metadata.json"
-    if meta_path.exists() and not overwrite:
-        raise FileExistsError(f"{meta_path} already exists; pass --overwrite to rebuild it")
+    with claim(meta_path):
+        if meta_path.exists() and not overwrite:
+            raise FileExistsError(f"{meta_path} already exists; pass --overwrite to rebuild it")
+        sweep_stale(meta_path)
+        tmp = Path(tempfile.mkdtemp(dir=root, prefix=temporary_prefix(meta_path), suffix=".tmp"))
+        try:
+            with _remove_on_signal(tmp) as signals:
+                meta = _build_dataset(root, preset, tmp)
+                signals.check()
+                for name in ("templates.npz", "regions.json", "faces.npy", "metadata.json"):  # metadata last
+                    if (tmp / name).exists():
+                        os.replace(tmp / name, root / name)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return meta
+
+
+def _build_dataset(root: Path, preset: str, out: Path) -> dict:
+    """:func:`prepare_dataset`'s work: read ``root``, write the outputs into the folder ``out``."""
+    from ..checks import load_npy, load_npz
+    from ..files import default_file_mode
+
+    p = PRESETS[preset]
     wavs = {w.stem for w in (root / "wav").glob("*.wav")}
     verts = {v.stem for v in (root / "vertices_npy").glob("*.npy")}
     names = sorted(wavs & verts)
@@ -414,14 +441,17 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
     if empty:
         raise ValueError(f"{root}: FaceFormer's {preset} split(s) {empty} match no clip (subject names or "
                          f"sentence numbers differ from the preset?)")
-    npz = root / "templates.npz"
-    if not npz.exists() or overwrite:
-        convert_templates(root / "templates.pkl", npz, overwrite=True)
+    npz, pkl = root / "templates.npz", root / "templates.pkl"
+    if pkl.exists() or not npz.exists():  # derived from the pickle, every run: never a stale npz
+        convert_templates(pkl, out / "templates.npz", overwrite=True)
+        t_source, t_name = out / "templates.npz", pkl
+    else:
+        t_source, t_name = npz, npz
     subjects = {parse_clip_name(c)[0] for c in used}
-    t = load_npz(npz, sorted(subjects))
+    t = load_npz(t_source, sorted(subjects))
     missing = sorted(subjects - set(t))
     if missing:
-        raise ValueError(f"{npz} has no template for subject(s) {missing}")
+        raise ValueError(f"{t_name} has no template for subject(s) {missing}")
     sizes = {t[s].size // 3 for s in subjects}
     if sizes != {p.n_vertices}:
         raise ValueError(f"{root}: templates have {sorted(sizes)} vertices, the {preset} preset expects "
@@ -436,15 +466,12 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
             if region not in regions and all(k in masks for k in parts):
                 regions[region] = sorted({int(i) for k in parts for i in np.asarray(masks[k]).reshape(-1)})
     if regions:
-        atomic_write_text(root / "regions.json", json.dumps(regions))
+        (out / "regions.json").write_text(json.dumps(regions))
     mesh = root / p.render_mesh
     if mesh.is_file():
         import trimesh
 
-        faces = np.asarray(trimesh.load(mesh, process=False, force="mesh").faces, np.int64)
-        tmp = root / ".faces.npy.tmp.npy"
-        np.save(tmp, faces)
-        os.replace(tmp, root / "faces.npy")
+        np.save(out / "faces.npy", np.asarray(trimesh.load(mesh, process=False, force="mesh").faces, np.int64))
     clips = {}
     for name in used:
         subject, sentence = parse_clip_name(name)
@@ -458,7 +485,9 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
             "max_frame_mismatch": 5, "speakers": sorted({c["subject"] for c in clips.values()}),
             "train_speakers": train_subjects, "emotions": ["neutral"], "splits": splits, "clips": clips,
             "skipped": sorted((wavs | verts) - set(used))}
-    atomic_write_text(meta_path, json.dumps(meta, indent=1))
+    (out / "metadata.json").write_text(json.dumps(meta, indent=1))
+    for f in out.iterdir():
+        os.chmod(f, default_file_mode())
     return meta
 
 
@@ -473,7 +502,10 @@ def convert_templates_main(argv: list[str] | None = None) -> Path:
     ap.add_argument("--out", default=None, help="output .npz (default: beside the pickle)")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
-    out = convert_templates(args.pickle, args.out, args.overwrite)
+    from ..files import claim
+
+    with claim(args.out or Path(args.pickle).with_suffix(".npz")):
+        out = convert_templates(args.pickle, args.out, args.overwrite)
     with np.load(out, allow_pickle=False) as npz:
         print(f"{len(npz.files)} templates ({npz[npz.files[0]].size // 3} vertices) -> {out}")
     return out

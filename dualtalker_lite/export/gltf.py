@@ -157,26 +157,28 @@ def morph_basis(clip, base: np.ndarray, tol: float = 1e-4, block: int = 2048, sk
     while True:
         Q, exact = _subspace(clip, base, l, block, power_iters, seed)
         n = Q.shape[1]
-        M = np.empty((T, n), np.float32)
+        H = np.zeros((n, n))  # Q^T D^T D Q, summed block by block: nothing of length T (issue 23)
         for s, D in _offsets(clip, base, block):
-            M[s:s + len(D)] = D @ Q
-        H = M.T.astype(np.float64) @ M.astype(np.float64)  # (n, n) = Q^T D^T D Q
+            M = (D @ Q).astype(np.float64)  # (n_b, n)
+            H += M.T @ M
         lam, R = np.linalg.eigh(H)
         order = np.argsort(lam)[::-1]
         lam, R = np.clip(lam[order], 0, None), R[:, order].astype(np.float32)
         B = (Q @ R).T.copy()  # (n, 3V) principal directions, orthonormal rows
-        C = M @ R  # (T, n) coefficients
-        del M, Q
-        K = _select_k(clip, base, B, C, tol, block)
+        del Q
+        K = _select_k(clip, base, B, tol, block)
         if K is not None:
-            return MorphBasis(base, B[:K].copy(), np.ascontiguousarray(C[:, :K]), np.sqrt(lam[:K]), tol, n, exact)
+            C = np.empty((T, K), np.float32)  # (T, K) coefficients, the only array of length T
+            for s, D in _offsets(clip, base, block):
+                C[s:s + len(D)] = D @ B[:K].T
+            return MorphBasis(base, B[:K].copy(), C, np.sqrt(lam[:K]), tol, n, exact)
         if exact or n >= min(T, N) or l >= max_sketch:
             raise ValueError(f"{n} principal components do not reach {tol * 1e3:.3g} mm at every vertex "
                              f"(subspace limit {max_sketch}); raise the tolerance or max_sketch")
         l = min(2 * l, max_sketch, T, N)
 
 
-def _select_k(clip, base, B, C, tol, block) -> int | None:
+def _select_k(clip, base, B, tol, block) -> int | None:
     """Smallest K (>= 1) such that every block's max vertex error with K components is < tol; None if K = l fails.
 
     Blocks are visited in order; K only grows: a block is first tried at the K found so far (one product per
@@ -190,7 +192,7 @@ def _select_k(clip, base, B, C, tol, block) -> int | None:
 
     K = 1
     for s, D in _offsets(clip, base, block):
-        Cb = C[s:s + len(D)]
+        Cb = D @ B.T  # (n_b, n) the block's coefficients
         if block_max(D, Cb, K) < tol:
             continue
         if block_max(D, Cb, n) >= tol:
@@ -263,10 +265,14 @@ def write_wav(path, wave: np.ndarray, sample_rate: int):
     import soundfile as sf
 
     path = path if hasattr(path, "write") else Path(path)  # a path or a binary file object (io.BytesIO)
-    wave = np.asarray(wave).reshape(-1)
+    if hasattr(wave, "blocks"):  # an audio.AudioStream: copied block by block, never whole
+        pieces = wave.blocks()
+    else:
+        wave = np.asarray(wave).reshape(-1)
+        pieces = (wave[s:s + (1 << 20)] for s in range(0, len(wave), 1 << 20))
     with sf.SoundFile(path, "w", int(sample_rate), 1, subtype="PCM_16", format="WAV") as f:
-        for s in range(0, len(wave), 1 << 20):
-            f.write(np.clip(np.asarray(wave[s:s + (1 << 20)], np.float32), -1.0, 1.0))
+        for piece in pieces:
+            f.write(np.clip(np.asarray(piece, np.float32), -1.0, 1.0))
     return path
 
 
@@ -347,7 +353,8 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
               "principal_components": K}
     if audio is not None:
         extras["audio"] = {"uri": audio.name, "mimeType": "audio/wav", "sampleRate": int(sample_rate),
-                           "startTime": 0.0, "duration": len(np.asarray(wave).reshape(-1)) / sample_rate}
+                           "startTime": 0.0, "duration": (len(wave) if hasattr(wave, "blocks") else
+                                                         np.asarray(wave).size) / sample_rate}
     gltf = g.GLTF2(
         asset=g.Asset(version="2.0", generator="dualtalker-lite (pygltflib)"),
         scene=0, scenes=[g.Scene(name="speech", nodes=[0], extras=extras)],
