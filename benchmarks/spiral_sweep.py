@@ -165,7 +165,17 @@ def main(argv=None) -> None:
                "configs": [list(c) for c in configs], "rows": rows,
                "paper_table4": [{"config": list(c), "lve": v[0], "eve": v[1]} for c, v in PAPER.items()], "runs": []}
     jobs = [(c, s) for s in args.seeds for c in configs]  # seed-major: an interrupted sweep has whole seeds
+    stored = args.out / "spiral.json"
+    if stored.is_file():  # an interrupted sweep with the same arguments: keep its runs, compute the rest
+        old = json.loads(stored.read_text())
+        if old.get("argv") == argv:
+            payload["runs"] = old["runs"]
+            payload["resumed_from"] = {"git": old.get("git"), "created": old.get("created"),
+                                       "n_runs": len(old["runs"])}
+    done = {(r["row"], r["seed"]) for r in payload["runs"]}
     for i, (cfg, seed) in enumerate(jobs):
+        if (label(cfg), seed) in done:
+            continue
         t0 = time.perf_counter()
         res = run_one(spec(cfg), seed, args.epochs, test_split=SPLIT, clips=clips)
         payload["runs"].append({k: v for k, v in res.items() if k not in ("model_config", "train_config")})

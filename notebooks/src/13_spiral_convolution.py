@@ -421,7 +421,7 @@ ours = {}  # (dilation, L, delta) -> {metric: the values of the seeds that finis
 for cfg, row in zip(map(tuple, sweep["configs"]), sweep["rows"]):
     runs = [r["metrics"] for r in sweep["runs"] if r["row"] == row]
     ours[cfg] = {m: np.array([r[m] for r in runs]) for m in ("lve_euclidean", "eve_euclidean")}
-assert all(len(v["lve_euclidean"]) >= 1 for v in ours.values())  # every row has at least seed 0
+assert sweep["status"] == "Complete." and all(len(v["lve_euclidean"]) == 3 for v in ours.values())  # 3 seeds a row
 print(f"{sweep['epochs']} epochs on {sweep['n_train_clips']} clips; {len(sweep['runs'])} of "
       f"{len(sweep['configs']) * len(sweep['seeds'])} runs stored")
 
@@ -435,6 +435,9 @@ for cfg, v in ours.items():
 seed0 = {cfg: (float(v["lve_euclidean"][0]), float(v["eve_euclidean"][0])) for cfg, v in ours.items()}
 assert abs(seed0[adopted][0] - 5.452) < 5e-4  # the stored seed-0 LVE of the adopted row (results/spiral.md)
 assert max(e for _, e in seed0.values()) - min(e for _, e in seed0.values()) < 0.05  # EVE barely differs
+lve = {cfg: v["lve_euclidean"] for cfg, v in ours.items()}
+assert lve[(1, 9, 3)].mean() < lve[(1, 5, 3)].mean()  # the one reading reproduced on LVE (results/spiral.md)
+assert min(lve, key=lambda c: lve[c].mean()) != adopted  # the adopted row is not the lowest LVE here
 
 # %%
 labels = [f"d{c[0]} L{c[1]} δ{c[2]}" for c in ours]
@@ -456,15 +459,14 @@ fig.suptitle("EmoFace Table 4 analogue (grey: the adopted configuration)")
 plt.show()
 
 # %% [markdown]
-# **What the stored sweep says: not much yet.** Only seed 0 finished for every row (the file's status line says
-# why), so there is no error bar and no verdict; `results/spiral.md` checks the paper's three readings with a
-# 2-standard-error rule once the other seeds are in. Two things are visible already. EVE hardly differs between
-# the rows (asserted above): at this budget (56 optimiser steps) the upper face stays near the mean-motion start, so the
-# sweep can only speak about LVE. And on LVE the seed-0 order is not the paper's: the longest kernel is no better
-# than $L = 9$, dilation 1 is lower than 2, and one frame ($\delta = 1$, SpiralConv2D) is lower than three. The
-# paper's own Table 4 is not monotone either: its LVE is lowest for dilation 1 (row 3), while the adopted row 4 has the
-# lowest EVE. A tiny model trained for two minutes is far from the paper's setting; read this as the recipe to rerun, not as a
-# result.
+# **What the stored sweep says.** Three seeds per row (`results/spiral.md` has the error bars and checks the
+# paper's three readings with a 2-standard-error rule). Only one reading reproduces on LVE: a kernel of 9 beats 5
+# (rows 1-2, -0.15 mm). Every other difference, dilation 2 against 1 or 4 and three frames against one or two, is
+# within seed noise, and the adopted row 4 does not have the lowest LVE (dilation 1 with $L = 18$ does, as in the
+# paper's own Table 4, whose LVE is lowest in row 3 while row 4 has the lowest EVE). EVE hardly differs between the
+# rows (asserted above): at this budget (8 epochs on 56 clips) the upper face stays near the mean-motion start, so
+# the sweep can only speak about LVE. A tiny model trained for a minute is far from the paper's setting; read this
+# as the recipe to rerun at a larger budget, not as a verdict on the paper.
 
 # %% [markdown]
 # ## Summary
@@ -481,7 +483,7 @@ plt.show()
 # - Mesh Attention turns the two branches' features into a per-vertex, per-frame weight $A \in [0,1]$ and fuses
 #   the offsets as $A\,\Delta M^e + (1-A)\,\Delta M^c$.
 # - EmoFace's Table 4 (kernel size, dilation, duration) has a tiny-scale benchmark, `benchmarks/spiral_sweep.py`;
-#   its stored run is partial (one seed per row) and gives no verdict yet.
+#   at this scale (3 seeds) only "a kernel of 9 beats 5" reproduces on LVE; the rest is within seed noise.
 #
 # ## Exercises
 #
