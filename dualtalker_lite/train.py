@@ -275,12 +275,13 @@ def _generators(train_loader) -> dict[str, torch.Generator]:
     if isinstance(getattr(train_loader, "generator", None), torch.Generator):
         gens["loader"] = train_loader.generator
     dataset = getattr(train_loader, "dataset", None)
-    for i in range(4):  # the dataset, then what it wraps (Subset.dataset, ...)
+    for i in range(4):  # the dataset, then what it wraps (Subset.dataset, VisemeLabels.base, ...)
         if dataset is None:
             break
         if isinstance(getattr(dataset, "generator", None), torch.Generator):
             gens[f"dataset{i}"] = dataset.generator
-        dataset = getattr(dataset, "dataset", None)
+        inner = getattr(dataset, "dataset", None)
+        dataset = getattr(dataset, "base", None) if inner is None else inner
     return gens
 
 

@@ -237,3 +237,25 @@ def test_resumed_training_ends_with_the_same_weights_bit_for_bit(data, tmp_path)
     assert h1.terms == h2.terms and h1.steps == h2.steps
     for (k, a), b in zip(straight.state_dict().items(), resumed.state_dict().values()):
         assert torch.equal(a, b), k
+
+
+def test_resume_state_finds_the_generator_under_viseme_labels():
+    """The phonetic route wraps the training set (VisemeLabels(...).base): its own generator (pseudo-pair partners,
+    crops) must still be saved and restored by --resume."""
+    from torch.utils.data import DataLoader, Dataset
+
+    from dualtalker_lite.data.dataset import VisemeLabels
+    from dualtalker_lite.train import _generators
+
+    class Pairs(Dataset):
+        generator = torch.Generator().manual_seed(3)
+
+        def __len__(self):
+            return 1
+
+        def __getitem__(self, i):
+            raise AssertionError("not read")
+
+    base = Pairs()
+    gens = _generators(DataLoader(VisemeLabels(base, n_visemes=15), generator=torch.Generator()))
+    assert set(gens) == {"loader", "dataset1"} and gens["dataset1"] is base.generator
