@@ -182,11 +182,11 @@ def _train(argv: list[str]) -> Path:
     if args.features is None:
         args.features = "visemes"
     if args.features == "visemes":
-        from .recogniser import RecogniserExtractor
+        from .experiments.runner import front_end as recogniser_front_end
 
         # EmoFace: visemes for its content branch, log-mel for its emotion branch (emotion is in the sound)
         phonetic = "visemes+logmel" if paired else "visemes"
-        front_end = RecogniserExtractor(phonetic, fps=corpus.fps)  # what evaluate/animate feed it (checks hama)
+        front_end = recogniser_front_end(phonetic, corpus.fps)  # what evaluate/animate feed it (checks hama)
         spec = dataclasses.replace(spec, features=phonetic)
     if args.features == "visemes" and not paired and not any(corpus.meta(n).get("visemes")
                                                             for n in corpus.split("train")):
