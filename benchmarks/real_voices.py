@@ -34,7 +34,9 @@ split; training uses only the shipped corpus.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gzip
+import io
 import json
 import multiprocessing as mp
 import os
@@ -66,6 +68,7 @@ SOUNDS = Path("/usr/share/asterisk/sounds/en_US_f_Allison")
 PROMPTS = Path("/usr/share/doc/asterisk-core-sounds-en/core-sounds-en.txt.gz")
 OUT = ROOT / "runs" / "real_voices"
 CACHE = ROOT / "runs" / "cache" / "recogniser"
+ALIGN_CACHE = ROOT / "runs" / "cache" / "pocketsphinx"
 
 ARPA_TO_ESPEAK = {
     "AA": "A:", "AE": "a", "AH": "@", "AO": "O:", "AW": "aU", "AY": "aI", "EH": "E", "ER": "3:", "EY": "eI",
@@ -117,15 +120,44 @@ def read_prompts(max_s: float = 12.0, min_s: float = 0.8) -> list[dict]:
         words = [w for w in words if w]
         if not words or any(lookup.lookup_word(w) is None for w in words):
             continue
-        wave = load_audio(path)                                   # 8 kHz -> 16 kHz
+        with contextlib.redirect_stderr(io.StringIO()):           # its one-line 8 kHz warning, said once below
+            wave = load_audio(path)                               # 8 kHz -> 16 kHz
         if not min_s <= len(wave) / 16000 <= max_s:
             continue
         out.append({"name": name, "text": text, "words": words, "wave": wave})
+    print(f"real voices: {len(out)} usable prompts (8 kHz telephone recordings, upsampled to 16 kHz)", flush=True)
     return sorted(out, key=lambda p: p["name"])
 
 
+def _cached(kind: str, wave: np.ndarray, extra: str, compute):
+    """``compute()`` once per (kind, wave samples, extra, pocketsphinx version): its JSON result is kept under
+    ``runs/cache/pocketsphinx/`` (content-hashed, written atomically), so re-running the benchmark does not redo
+    the alignments (minutes of CPU). None results (failed alignments) are cached too."""
+    import hashlib
+    from importlib.metadata import version
+
+    h = hashlib.sha256(f"{kind}|{version('pocketsphinx')}|{extra}|".encode())
+    h.update(np.ascontiguousarray(wave, dtype=np.float32).tobytes())
+    path = ALIGN_CACHE / kind / f"{h.hexdigest()[:32]}.json"
+    if path.is_file():
+        try:
+            return json.loads(path.read_text())["result"]
+        except (ValueError, KeyError, OSError):
+            pass                                                  # damaged entry: recompute and overwrite
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"result": result}))
+    os.replace(tmp, path)
+    return result
+
+
 def align(wave: np.ndarray, words: list[str]) -> list[list] | None:
-    """pocketsphinx forced alignment -> [[espeak phoneme, start_s, end_s]] (None if it fails)."""
+    """pocketsphinx forced alignment -> [[espeak phoneme, start_s, end_s]] (None if it fails); cached."""
+    return _cached("align", wave, " ".join(words), lambda: _align(wave, words))
+
+
+def _align(wave: np.ndarray, words: list[str]) -> list[list] | None:
     from pocketsphinx import Decoder
 
     d = Decoder(samprate=16000, loglevel="ERROR", bestpath=False)
@@ -148,7 +180,11 @@ def align(wave: np.ndarray, words: list[str]) -> list[list] | None:
 
 def allphone(wave: np.ndarray) -> list[list]:
     """The alternative recogniser: pocketsphinx's phone loop (its English acoustic model and phone language model,
-    no transcript) -> [[espeak phoneme, start_s, end_s]]."""
+    no transcript) -> [[espeak phoneme, start_s, end_s]]; cached."""
+    return _cached("allphone", wave, "en-us-phone.lm.bin", lambda: _allphone(wave))
+
+
+def _allphone(wave: np.ndarray) -> list[list]:
     from pocketsphinx import Decoder, get_model_path
 
     d = Decoder(samprate=16000, loglevel="ERROR", bestpath=False,
