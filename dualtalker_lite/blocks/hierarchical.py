@@ -115,6 +115,12 @@ class HierarchicalFeatureExtractor(nn.Module):
     def n_levels(self) -> int:
         return 1 + len(self.blocks)
 
+    def receptive_field(self) -> int | None:
+        """Frames on each side of t that can change any level at t: the cascade's radii add up (the frame level
+        and the projections are per frame); None when a level attends to the whole clip."""
+        radii = [block.radius for block in self.blocks]
+        return None if None in radii else sum(radii)
+
     def forward(self, acoustic: Tensor, mask: Tensor | None = None) -> Tensor:
         """A' (B, T, C), mask (B, T) -> the levels stacked (B, T, L, d) in the order of ``LEVELS``."""
         h = self.frame(acoustic)  # (B, T, d) F^f
