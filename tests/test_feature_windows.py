@@ -151,3 +151,48 @@ def test_single_decoder_models_need_the_whole_receptive_field(name, monkeypatch)
     monkeypatch.setattr(model.extractor, "receptive_field", lambda: 9)
     got = torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, chunk=CHUNK)), dim=1)
     assert _far(got, want)
+
+
+def _corrtalk(**kw):
+    torch.manual_seed(0)
+    cfg = CorrTalkConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, d_model=32, d_ff=64, encoder_ff=64,
+                              audio_hidden=32, motion_dropout=0.0, motion_scale=1.0, audio_radius=6, utterance_radius=5,
+                              period=8,
+                              **kw)
+    return _perturbed(CorrTalk(cfg))
+
+
+def _corrtalk_reference(model, audio, template, speaker, mask):
+    """The old path: both branches' features of the whole clip, the reference loop, eq. 8 summed."""
+    with torch.no_grad():
+        audio = zero_padding(audio, mask)
+        enc = model.encode_audio(audio, mask)
+        decoders = [b for b in (model.strong, model.weak) if b is not None]
+        feats = [enc["strong"], enc["weak"]][:len(decoders)]
+        combine = lambda t, raw: model.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # noqa: E731
+        style = model.speaker_style(speaker)
+        return autoregressive_reference(decoders, feats, [style] * len(decoders), template, combine, mask)
+
+
+@pytest.mark.parametrize("kw", [{}, {"dual_branch": False}])
+def test_corrtalk_block_wise_equals_the_whole_clip(kw):
+    model = _corrtalk(**kw)
+    audio, template, speaker, mask = _inputs()
+    assert model.receptive_field() == 10 + 3 + 15 + 5  # front-end, then phoneme, word, utterance bands
+    want = _corrtalk_reference(model, audio, template, speaker, mask)
+    got = torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, chunk=CHUNK)), dim=1)
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("kw", [{}, {"dual_branch": False}])
+def test_corrtalk_needs_the_whole_receptive_field(kw, monkeypatch):
+    # Through four stacked bands a frame at the edge of the receptive field moves the output by ~1e-9 only: float64
+    # makes that visible (the block-wise result is within 1e-15 of the whole clip's there).
+    model = _corrtalk(**kw).double()
+    audio, template, speaker, mask = _inputs()
+    audio, template = audio.double(), template.double()
+    want = _corrtalk_reference(model, audio, template, speaker, mask)
+    run = lambda: torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, chunk=CHUNK)), 1)  # noqa
+    torch.testing.assert_close(run(), want, atol=1e-12, rtol=0)
+    monkeypatch.setattr(model, "receptive_field", lambda: 32)  # one frame short of 33
+    assert float((run() - want).abs().amax()) > 1e-10
