@@ -196,3 +196,59 @@ def test_corrtalk_needs_the_whole_receptive_field(kw, monkeypatch):
     torch.testing.assert_close(run(), want, atol=1e-12, rtol=0)
     monkeypatch.setattr(model, "receptive_field", lambda: 32)  # one frame short of 33
     assert float((run() - want).abs().amax()) > 1e-10
+
+
+def _grid_faces(rows=4, cols=5):
+    """A flat (rows x cols) grid, two triangles per square: V = 20 vertices."""
+    faces = []
+    for i in range(rows - 1):
+        for j in range(cols - 1):
+            a, b, c, d = i * cols + j, i * cols + j + 1, (i + 1) * cols + j, (i + 1) * cols + j + 1
+            faces += [(a, b, d), (a, d, c)]
+    return torch.tensor(faces).numpy()
+
+
+def _emoface(fusion="mesh_attention", **kw):
+    torch.manual_seed(0)
+    cfg = EmoFaceConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, n_emotions=NE, d_model=32, d_ff=64,
+                             audio_hidden=32, motion_scale=1.0, fusion=fusion, audio_radius=6, period=8, **kw)
+    return _perturbed(EmoFace(cfg, faces=_grid_faces() if fusion == "mesh_attention" else None))
+
+
+EMOFACE = [("mesh_attention", None, {}), ("sum", 3, {}), ("mesh_attention", None, {"content_dims": 4}),
+           ("sum", None, {"emotion_layers": 2})]
+
+
+@pytest.mark.parametrize("fusion,emotion,kw", EMOFACE)
+def test_emoface_block_wise_equals_the_whole_clip(fusion, emotion, kw):
+    model = _emoface(fusion, **kw)
+    audio, template, speaker, mask = _inputs()
+    rf = 10 + 6 * model.cfg.emotion_layers  # F_e: front-end + one band per emotion layer (F_c: 10)
+    assert model.receptive_field() == rf
+    want = model.generate(audio, template, speaker, emotion=emotion, level=2, mask=mask, use_cache=False)
+    got = torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, emotion=emotion, level=2,
+                                               chunk=CHUNK)), dim=1)
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=0)
+
+
+def test_emoface_recognises_the_same_emotion_in_a_streaming_pass():
+    model = _emoface()
+    audio, _, _, mask = _inputs()
+    whole = model.emotion_logits(audio, mask)  # (B, N_e): F_e of the whole clip, pooled
+    streamed = model.emotion_logits(audio, mask, chunk=CHUNK)
+    torch.testing.assert_close(streamed, whole, atol=1e-5, rtol=0)
+    assert torch.equal(streamed.argmax(-1), whole.argmax(-1))
+    assert (whole.softmax(-1).amax(-1) < 0.99).all()  # a real distribution: p conditions the emotion branch
+
+
+@pytest.mark.parametrize("fusion,emotion,kw", EMOFACE[:2])
+def test_emoface_needs_the_whole_receptive_field(fusion, emotion, kw, monkeypatch):
+    model = _emoface(fusion, **kw).double()
+    audio, template, speaker, mask = _inputs()
+    audio, template = audio.double(), template.double()
+    run = lambda: torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, emotion=emotion,  # noqa
+                                                       chunk=CHUNK)), 1)
+    want = model.generate(audio, template, speaker, emotion=emotion, mask=mask, use_cache=False)
+    torch.testing.assert_close(run(), want, atol=1e-12, rtol=0)
+    monkeypatch.setattr(model, "receptive_field", lambda: 15)  # one frame short of 16
+    assert float((run() - want).abs().amax()) > 1e-10
