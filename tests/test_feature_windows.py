@@ -252,3 +252,12 @@ def test_emoface_needs_the_whole_receptive_field(fusion, emotion, kw, monkeypatc
     torch.testing.assert_close(run(), want, atol=1e-12, rtol=0)
     monkeypatch.setattr(model, "receptive_field", lambda: 15)  # one frame short of 16
     assert float((run() - want).abs().amax()) > 1e-10
+
+
+def test_voca_style_block_wise_equals_forward():
+    torch.manual_seed(0)
+    model = _perturbed(VocaStyle(VocaConfig.tiny(n_vertices=V, n_speakers=NS, audio_dim=DA)))
+    audio, template, speaker, mask = _inputs()
+    want = model({"audio": audio, "template": template, "speaker": speaker, "mask": mask})["vertices"]
+    got = torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, chunk=CHUNK)), dim=1)
+    torch.testing.assert_close(got, want, atol=1e-6, rtol=0)
