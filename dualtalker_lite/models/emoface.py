@@ -39,7 +39,9 @@ Readings taken (the paper leaves these open):
 - Level: the corpus numbers intensities 0 (neutral clips), 1 (normal), 2 (strong); the paper's 2-level one-hot
   gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
 - The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
-  and standard deviation over the valid frames, as emotion is a property of the whole sentence.
+  and standard deviation over the valid frames, as emotion is a property of the whole sentence. For long audio
+  generation recognises it in a first streaming pass (running sums of F_e and F_e^2), then encodes the features
+  block by block (``blocks.feature_windows``): the same numbers as the whole clip's, to rounding.
 - Loudness for the emotion branch: the shared front-end's per-frame LayerNorm divides out each frame's level and
   spectral spread, the volume and range of emotional prosody (wav2vec 2.0 normalises per utterance instead). E_e
   therefore also reads :func:`frame_level_stats`, standardised with the training frames' statistics
