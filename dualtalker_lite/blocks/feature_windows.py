@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from typing import Callable, Iterator, Sequence
 
+import torch
 from torch import Tensor
 
 __all__ = ["Encode", "encoder_window", "FeatureWindows"]
@@ -86,15 +87,22 @@ class FeatureWindows:
         lo = max(0, start - max(left, self.left))
         hi = min(self.length, stop + max(right, self.right))
         if self._whole is None and self.margin is None:  # a global encoder: the whole clip, once
-            self._whole = list(self.encode(self.audio, self.mask))
+            with self._full_precision():
+                self._whole = list(self.encode(self.audio, self.mask))
         if self._whole is not None:
             feats = [f[:, lo:hi] for f in self._whole]  # views
         else:
             a, b = encoder_window(lo, hi, self.length, self.margin, self.period)
             mask = None if self.mask is None else self.mask[:, a:b]  # (B, b - a)
-            feats = [f[:, lo - a:hi - a] for f in self.encode(self.audio[:, a:b], mask)]  # (B, hi - lo, ...) each
+            with self._full_precision():
+                feats = [f[:, lo - a:hi - a] for f in self.encode(self.audio[:, a:b], mask)]  # (B, hi - lo, ...)
         self.offset, self.current = lo, feats
         return lo, feats
+
+    def _full_precision(self):
+        """The encoder runs outside the caller's autocast (``animate --amp`` wraps each block): in the model's own
+        dtype, as when the features were computed before the first block."""
+        return torch.autocast(self.audio.device.type, enabled=False)
 
     def frames(self, lo: int, hi: int) -> list[Tensor]:
         """Absolute frames [lo, hi) of the block loaded last -> [(B, hi - lo, ...), ...] (views)."""
