@@ -19,7 +19,8 @@ from .spiral import SpiralConv3D, k_rings, spiral_indices, spiral_mask
 from .windowed import SlidingKVCache, banded_attention, banded_multi_head_attention, dropped_mass_bound
 
 __all__ = ["AudioFeatureExtractor", "TransformerEncoderLayer", "MotionDecoder", "autoregressive_chunks",
-           "autoregressive_reference", "FeatureWindows", "encoder_window", "scaled_dot_product_attention", "multi_head_attention", "MultiHeadAttention",
+           "autoregressive_reference", "FeatureWindows", "encoder_window", "scaled_dot_product_attention",
+           "multi_head_attention", "MultiHeadAttention",
            "KVCache", "FeedForward",
            "PeriodicPositionalEncoding", "alibi_slopes", "alibi_causal_bias", "alignment_mask",
            "SpeakerAwareGate", "DualIntegration", "CrossModalFusion", "DualFusionLayer",
