@@ -25,7 +25,9 @@ Training clips are a few seconds long: for any clip of at most ``radius + 1`` fr
 pair and the encoding is *exactly* whole-clip attention. Receptive field of the output at frame t, in
 frames: +-(conv_layers * (kernel_size // 2)) from the convolutions, plus +-radius per transformer layer:
 +-(conv_layers * (kernel_size // 2) + n_layers * radius) (+-454 frames, about 15 s, for ``tiny()``).
-``radius=None`` restores whole-clip attention (quadratic memory).
+``radius=None`` restores whole-clip attention (quadratic memory). Being local, the extractor can run on a window of
+the clip: frames at least ``receptive_field()`` from a window edge (that is not a clip edge) get their whole-clip
+values, provided the window starts at a multiple of the PPE period (``blocks.feature_windows``, what generation does).
 """
 from __future__ import annotations
 

@@ -19,10 +19,14 @@ Three ways to run it, all computing the same numbers (the tests pin that):
 - :meth:`MotionDecoder.prefix_step`: the reference autoregressive step, re-running the layers on the whole prefix;
 - :meth:`MotionDecoder.cached_step`: one frame with bounded key/value caches (``blocks.windowed``): the self-attention
   keeps the last ``window`` tokens, the integration only the frames its alignment mask admits, so an hour of audio
-  decodes in constant memory per frame.
+  decodes in constant memory per frame. It reads block-local features: X of frames [offset, offset + n) and their
+  K/V projections (:meth:`MotionDecoder.load_features`), at least the alignment window of t
+  (:meth:`MotionDecoder.feature_margins`; FaceFormer's centred window reads w//2 frames *after* t).
 
 :func:`autoregressive_chunks` and :func:`autoregressive_reference` are the generation loops for one or several
 decoders whose outputs are combined into one motion (CorrTalk's mask, EmoFace's Mesh Attention) and fed back to all.
+The chunked loop takes the features whole or as a :class:`~.feature_windows.FeatureWindows`, which encodes the audio
+of each block's window only (exact for a local encoder): memory is then flat in the clip length.
 
 Motion enters and leaves the decoder in mm (``motion_scale`` = 1000): in metres the encoder/decoder weights would
 have to reach ~1e3 / ~1e-3, far from Adam's step size. The scale is folded into the weights (no extra pass over the
@@ -40,6 +44,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .attention import merge_heads, scaled_dot_product_attention, split_heads
+from .feature_windows import FeatureWindows
 from .fusion import DualFusionLayer, QueryFrom
 from .positional import PeriodicPositionalEncoding
 from .windowed import SlidingKVCache, alibi_lag_bias
@@ -218,27 +223,49 @@ class MotionDecoder(nn.Module):
             h, _ = layer(h, features, style, "primal", key_mask=mask)
         return self.decode_motion(h[:, -1:])  # (B, 1, V*3)
 
-    def new_state(self, features: Tensor, window: int | None) -> list[dict]:
-        """Bounded caches of every layer for :meth:`cached_step` (features X (B, T, d) of the whole clip)."""
-        states = []
+    def feature_margins(self) -> tuple[int, int]:
+        """Frames (before, after) t whose features frame t reads: FaceFormer's centred alignment window of w frames,
+        ((w-1)//2, w//2), over the layers; (0, 0) when the query is the audio frame X_t itself (eq. 6)."""
+        left = right = 0
         for layer in self.layers:
             integ = layer.integration
+            if not integ.query_is_given:
+                left, right = max(left, (integ.window - 1) // 2), max(right, integ.window // 2)
+        return left, right
+
+    def new_state(self, features: Tensor | None, window: int | None, offset: int = 0) -> list[dict]:
+        """Bounded caches of every layer for :meth:`cached_step`; ``features`` X of frames offset.. (B, n, d) (the
+        whole clip, or None to :meth:`load_features` block by block)."""
+        states = []
+        for layer in self.layers:
             state = {"self": SlidingKVCache(window), "bias": None}
-            if integ.query_is_given:
-                state["integration"] = SlidingKVCache(integ.window)  # Ȳ_{t-w+1..t}: all the alignment admits
-            else:
-                _, k_proj, v_proj, _ = integ.projections("primal")
-                state["k"] = split_heads(k_proj(features), layer.n_heads)  # (B, H, T, d_h)
-                state["v"] = split_heads(v_proj(features), layer.n_heads)
+            if layer.integration.query_is_given:
+                state["integration"] = SlidingKVCache(layer.integration.window)  # Ȳ_{t-w+1..t}: all it admits
             states.append(state)
+        if features is not None:
+            self.load_features(states, features, offset)
         return states
 
+    def load_features(self, states: list[dict], features: Tensor, offset: int = 0) -> None:
+        """The integration keys/values of features X of frames [offset, offset + n) (B, n, d): per layer reading
+        X as keys (FaceFormer), its K/V projections (B, H, n, d_h). Per frame, so a block's projections are those
+        of the whole clip's: :meth:`cached_step` then needs only the block (plus its alignment window)."""
+        for layer, state in zip(self.layers, states):
+            if not layer.integration.query_is_given:
+                _, k_proj, v_proj, _ = layer.integration.projections("primal")
+                state["k"] = split_heads(k_proj(features), layer.n_heads)  # (B, H, n, d_h)
+                state["v"] = split_heads(v_proj(features), layer.n_heads)
+
     def cached_step(self, states: list[dict], token: Tensor, features: Tensor, style: Tensor, t: int,
-                    mask: Tensor | None = None) -> Tensor:
-        """Frame t from its stream token (B, 1, d) with bounded caches -> m̂_t (B, 1, V*3) (eval-mode computation)."""
+                    mask: Tensor | None = None, offset: int = 0) -> Tensor:
+        """Frame t from its stream token (B, 1, d) with bounded caches -> m̂_t (B, 1, V*3) (eval-mode computation).
+
+        ``features`` (B, n, d) hold frames [offset, offset + n) (the states' features likewise): at least t's
+        alignment window clipped to the clip, [t - (w-1)//2, t + w//2] ∩ [0, T) (:meth:`feature_margins`); ``mask``
+        (B, T) is the whole clip's."""
         h = token + self.ppe.table[t % self.ppe.period].to(token.dtype)  # (B, 1, d) PPE of frame t, no dropout
         for layer, state in zip(self.layers, states):
-            h = self._layer_step(layer, state, h, features, style, t, mask)
+            h = self._layer_step(layer, state, h, features, style, t, mask, offset)
         return self.decode_motion(h)  # (B, 1, V*3)
 
     @staticmethod
@@ -252,9 +279,10 @@ class MotionDecoder(nn.Module):
         return bias[..., bias.shape[-1] - n:]
 
     def _layer_step(self, layer: DualFusionLayer, state: dict, h: Tensor, x: Tensor, style: Tensor, t: int,
-                    mask: Tensor | None) -> Tensor:
+                    mask: Tensor | None, offset: int = 0) -> Tensor:
         """One frame of one fusion layer (primal): the computation of ``layer(h, x, style, offset=t)`` in eval mode,
-        with the self-attention keys limited to the sliding window and the integration keys to the alignment."""
+        with the self-attention keys limited to the sliding window and the integration keys to the alignment;
+        x (B, n, d) holds frames offset..offset+n-1."""
         fusion, integ, n_heads = layer.primal, layer.integration, layer.n_heads
         mha = fusion.self_attn
         q = split_heads(mha.q_proj(h), n_heads)  # (B, H, 1, d_h)
@@ -267,14 +295,14 @@ class MotionDecoder(nn.Module):
         q_proj, k_proj, v_proj, out_proj = integ.projections("primal")
         key_mask = None
         if integ.query_is_given:  # DualTalker eq. 6: query X_t, keys Ȳ_{t-w+1..t}
-            query = x[:, t:t + 1]  # (B, 1, d)
+            query = x[:, t - offset:t - offset + 1]  # (B, 1, d) X_t
             k, v = state["integration"].append(split_heads(k_proj(gated), n_heads),
                                                split_heads(v_proj(gated), n_heads))
         else:  # FaceFormer: query Ȳ_t, keys X_j in the centred window
             query = gated
-            lo = max(0, t - (integ.window - 1) // 2)
-            hi = min(x.shape[1], t + integ.window // 2 + 1)
-            k, v = state["k"][:, :, lo:hi], state["v"][:, :, lo:hi]  # (B, H, <= w, d_h)
+            lo = max(offset, t - (integ.window - 1) // 2)  # absolute frames [lo, hi): the window within the clip
+            hi = min(offset + x.shape[1], t + integ.window // 2 + 1)
+            k, v = state["k"][:, :, lo - offset:hi - offset], state["v"][:, :, lo - offset:hi - offset]  # (B,H,<=w,d_h)
             key_mask = None if mask is None else mask[:, None, None, lo:hi]
         q = split_heads(q_proj(query), n_heads)  # (B, H, 1, d_h)
         if key_mask is None:  # every key admissible: the plain softmax
@@ -293,23 +321,34 @@ def _only(t: int, raw: list[Tensor]) -> Tensor:
 
 
 @torch.no_grad()
-def autoregressive_chunks(decoders: Sequence[MotionDecoder], features: Sequence[Tensor], styles: Sequence[Tensor],
-                          template: Tensor, combine: Combine = _only, mask: Tensor | None = None,
-                          window: int | None = None, chunk: int = 900) -> Iterator[Tensor]:
+def autoregressive_chunks(decoders: Sequence[MotionDecoder], features: Sequence[Tensor] | FeatureWindows,
+                          styles: Sequence[Tensor], template: Tensor, combine: Combine = _only,
+                          mask: Tensor | None = None, window: int | None = None, chunk: int = 900) -> Iterator[Tensor]:
     """Eq. 1 frame by frame with bounded caches, yielding vertices in consecutive (B, <= chunk, V*3) blocks.
 
     Each decoder reads its own features (B, T, d) and style (B, d); at frame t their outputs are combined into one
-    motion m̂_t (``combine``; one decoder: its output), and m̂_t is fed back to every decoder."""
-    b, t_total = features[0].shape[:2]
-    states = [dec.new_state(f, window) for dec, f in zip(decoders, features)]
+    motion m̂_t (``combine``; one decoder: its output), and m̂_t is fed back to every decoder.
+
+    ``features``: the whole clip's, one tensor per decoder, or a :class:`~.feature_windows.FeatureWindows` that
+    encodes them block by block. Either way each block of frames [start, stop) loads only the features of
+    [start - left, stop + right) (the decoders' alignment windows, :meth:`MotionDecoder.feature_margins`) and their
+    K/V projections, so memory beyond the input is O(chunk + margins), and the numbers are those of the whole clip."""
+    stream = features if isinstance(features, FeatureWindows) else FeatureWindows.precomputed(features)
+    margins = [dec.feature_margins() for dec in decoders]
+    left, right = max(m[0] for m in margins), max(m[1] for m in margins)
+    b, t_total = template.shape[0], stream.length
+    states = [dec.new_state(None, window) for dec in decoders]
     tokens = [s[:, None, :] for s in styles]  # (B, 1, d) start token S_n
     for start in range(0, t_total, chunk):
         n = min(chunk, t_total - start)
+        offset, feats = stream.load(start, start + n, left, right)  # frames offset.. of each decoder's features
+        for dec, st, f in zip(decoders, states, feats):
+            dec.load_features(st, f, offset)  # the block's integration K/V
         block = template.new_empty(b, n, template.shape[1])  # (B, n, V*3)
         for r in range(n):
             t = start + r
-            raw = [dec.cached_step(st, tok, f, s, t, mask)
-                   for dec, st, tok, f, s in zip(decoders, states, tokens, features, styles)]  # (B, 1, V*3) each
+            raw = [dec.cached_step(st, tok, f, s, t, mask, offset)
+                   for dec, st, tok, f, s in zip(decoders, states, tokens, feats, styles)]  # (B, 1, V*3) each
             m_t = combine(t, raw)  # (B, 1, V*3)
             block[:, r] = template + m_t[:, 0]
             tokens = [dec.feedback(m_t, s) for dec, s in zip(decoders, styles)]

@@ -25,6 +25,9 @@ r = ceil((duration * fps - 1) / 2): at 30 fps the phoneme band is +-3 frames (7 
 band +-15 frames (31 frames, 1.03 s); at 25 fps +-2 (200 ms) and +-12 (1 s). (:func:`window_radius`.)
 The utterance level attends to the whole clip; for hour-long audio its band is capped (``utterance_radius``,
 450 frames = 15 s each side by default, like the audio encoder), exact for clips of at most radius + 1 frames.
+With every band finite the extractor is local: the level features at t depend on frames t +- (sum of the three
+radii) only (:meth:`HierarchicalFeatureExtractor.receptive_field`, 3 + 15 + 450 = 468 at 30 fps), which is what
+lets generation encode long audio in overlapping windows (``blocks.feature_windows``).
 
 Causal or not: **not causal** (centred windows). The encoder sees the whole clip in the paper: the acoustic
 feature extractor (wavLM) is a bidirectional transformer, and "utterance duration is set to its input sequence
@@ -114,6 +117,12 @@ class HierarchicalFeatureExtractor(nn.Module):
     @property
     def n_levels(self) -> int:
         return 1 + len(self.blocks)
+
+    def receptive_field(self) -> int | None:
+        """Frames on each side of t that can change any level at t: the cascade's radii add up (the frame level
+        and the projections are per frame); None when a level attends to the whole clip."""
+        radii = [block.radius for block in self.blocks]
+        return None if None in radii else sum(radii)
 
     def forward(self, acoustic: Tensor, mask: Tensor | None = None) -> Tensor:
         """A' (B, T, C), mask (B, T) -> the levels stacked (B, T, L, d) in the order of ``LEVELS``."""

@@ -127,18 +127,24 @@ class VocaStyle(nn.Module):
             nn.init.zeros_(self.decoder.bias)
 
     # ------------------------------------------------------------------ pieces
-    def windows(self, audio: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """(B, T, D_a) -> (B, T, D_a, 2W+1): the audio window of every mesh frame, edges padded by replication.
-        With a (B, T) mask of valid prefixes, padded frames repeat each clip's last valid frame, so a clip's
-        output does not depend on how much padding the batch added."""
+    def windows(self, audio: torch.Tensor, mask: torch.Tensor | None = None, start: int = 0,
+                stop: int | None = None) -> torch.Tensor:
+        """(B, T, D_a) -> (B, n, D_a, 2W+1): the audio window of every mesh frame start..stop-1 (default all T),
+        edges padded by replication. With a (B, T) mask of valid prefixes, padded frames repeat each clip's last
+        valid frame, so a clip's output does not depend on how much padding the batch added.
+
+        Frame p of the padded sequence is A[clamp(p, 0, last)], last = the clip's last valid frame: one gather of
+        the n + 2W frames the block needs (O(n) memory, not a padded copy of the whole clip)."""
         B, T, D = audio.shape
-        if mask is not None:
-            last = mask.long().sum(1).clamp(min=1) - 1                 # (B,) index of the last valid frame
-            idx = torch.minimum(torch.arange(T, device=audio.device)[None, :], last[:, None])  # (B, T)
-            audio = audio.gather(1, idx[..., None].expand(B, T, D))
+        stop = T if stop is None else stop
         W = self.cfg.window
-        x = F.pad(audio.transpose(1, 2), (W, W), mode="replicate")     # (B, D_a, T + 2W)
-        return x.unfold(2, 2 * W + 1, 1).permute(0, 2, 1, 3)           # (B, T, D_a, 2W+1)
+        last = torch.full((B,), T - 1, device=audio.device)  # (B,) index of the last valid frame
+        if mask is not None:
+            last = mask.long().sum(1).clamp(min=1) - 1
+        p = torch.arange(start - W, stop + W, device=audio.device)  # (n + 2W,) frames the block's windows cover
+        idx = torch.minimum(p.clamp(min=0)[None, :], last[:, None])  # (B, n + 2W)
+        x = audio.gather(1, idx[..., None].expand(B, idx.shape[1], D))  # (B, n + 2W, D_a)
+        return x.unfold(1, 2 * W + 1, 1)  # (B, n, D_a, 2W+1)
 
     def speaker_code(self, speaker: torch.Tensor, batch_size: int) -> torch.Tensor:
         """(B,) long -> (B, n_speakers) one-hot; unseen (-1) or out-of-range indices are an error."""
@@ -198,10 +204,10 @@ class VocaStyle(nn.Module):
         check_shape(audio, (B, T, self.cfg.audio_dim), "audio")
         _check_vertices(template, self.cfg.n_vertices, "template")
         check_shape(template, (B, self.cfg.n_vertices * 3), "template")
-        w = self.windows(audio, mask)                                   # (B, T, D_a, 2W+1), a strided view
         code = self.speaker_code(speaker, B)                            # (B, n_speakers)
         for start in range(0, T, chunk):
-            yield template[:, None, :] + self._motion(w[:, start:start + chunk], code)  # (B, n, V*3)
+            w = self.windows(audio, mask, start, min(T, start + chunk))  # (B, n, D_a, 2W+1) this block's only
+            yield template[:, None, :] + self._motion(w, code)           # (B, n, V*3)
 
     @torch.no_grad()
     def init_output_bias(self, mean_motion: torch.Tensor) -> None:

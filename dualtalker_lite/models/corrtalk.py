@@ -69,6 +69,7 @@ from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressi
                               check_window, lookup_style, training_inputs,
                               zero_padding)
 from ..blocks.fai import fai_from_dataset, normalised_fai
+from ..blocks.feature_windows import FeatureWindows
 from ..blocks.hierarchical import HierarchicalFeatureExtractor, WeightGenerator, window_radius
 from ..losses.corrtalk import CorrTalkWeights, corrtalk_loss
 
@@ -277,9 +278,10 @@ class CorrTalk(nn.Module):
 
     # ---- inference -------------------------------------------------------------------------------
     def _decoding(self, audio: Tensor, mask: Tensor | None, speaker: Tensor):
-        """Branches, their features and styles for the generation loops, and eq. 8 as their ``combine``."""
+        """Branches, their features (of the whole clip; None for ``audio=None``) and styles for the generation loops,
+        and eq. 8 as their ``combine``."""
         style = self.speaker_style(speaker)  # (B, d)
-        enc = self.encode_audio(audio, mask)
+        enc = {"strong": None, "weak": None} if audio is None else self.encode_audio(audio, mask)  # None: no features
         branches = [(b, enc[k]) for b, k in ((self.strong, "strong"), (self.weak, "weak")) if b is not None]
         combine = lambda t, raw: self.combine(raw[0], raw[1] if len(raw) > 1 else None)[0]  # noqa: E731 eq. 8
         return [b for b, _ in branches], [f for _, f in branches], [style] * len(branches), combine
@@ -302,10 +304,20 @@ class CorrTalk(nn.Module):
                         window: int | None | str = "config", chunk: int = 900):
         """Yield the vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (each branch's
         self-attention keeps the last ``window`` tokens, its cross-attention the diagonal); the summed motion of
-        eq. 8 is fed back to both branches."""
+        eq. 8 is fed back to both branches. The features are encoded block by block within
+        :meth:`receptive_field` (``blocks.feature_windows``, exact): memory beyond A is flat in the clip length."""
         self._check(audio, template, speaker)
         window = check_window(window, self.cfg.decoder_window)
         audio = zero_padding(audio, mask)
         with torch.no_grad():
-            decoders, feats, styles, combine = self._decoding(audio, mask, speaker)
+            decoders, _, styles, combine = self._decoding(None, mask, speaker)
+        branches = ("strong", "weak")[:len(decoders)]
+        feats = FeatureWindows(lambda a, m: [self.encode_audio(a, m)[k] for k in branches], audio, mask,
+                               self.receptive_field(), self.extractor.ppe.period)  # F̃^s, F̃^w block by block
         return autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)
+
+    def receptive_field(self) -> int | None:
+        """Audio frames on each side of t that F̃^s_t, F̃^w_t depend on: the front-end's, then the hierarchy's
+        cascade of bands (the weight generators are per frame); None when a level sees the whole clip."""
+        parts = [self.extractor.receptive_field(), self.hierarchy.receptive_field()]
+        return None if None in parts else sum(parts)

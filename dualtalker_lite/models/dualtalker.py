@@ -31,6 +31,8 @@ Readings taken (the paper leaves these open; ``blocks.fusion`` has the reading o
   the motion head at the training set's mean motion (initialisation only; VOCA does the same).
 - Long audio: the extractor's self-attention is banded (+-``audio_radius`` frames) and ``generate`` decodes with
   bounded caches (``decoder_window`` tokens): exact for clips within both sizes, ``blocks.windowed`` bounds the rest.
+  ``generate_chunks`` encodes the audio block by block within the extractor's receptive field (exact:
+  ``blocks.feature_windows``), so nothing of length T but the input features is held.
 """
 from __future__ import annotations
 
@@ -41,6 +43,7 @@ import torch.nn as nn
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
+from ..blocks.feature_windows import FeatureWindows
 from ..blocks.decoder import (MotionDecoder, TransposedLinear, autoregressive_chunks, autoregressive_reference,
                               check_inputs, check_window, training_inputs, zero_padding)
 from ..losses.dualtalker import LossWeights, joint_loss, rbf_kernel_weights
@@ -246,12 +249,16 @@ class DualTalker(nn.Module):
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
                         window: int | None | str = "config", chunk: int = 900):
         """Yield the vertices of eq. 1 in consecutive (B, <= chunk, V*3) blocks with bounded caches
-        (``blocks.decoder.autoregressive_chunks``): an hour of audio decodes in constant memory per frame.
-        Inputs are checked here, before the first block is asked for."""
+        (``blocks.decoder.autoregressive_chunks``): an hour of audio decodes in constant memory per frame, and the
+        audio features are encoded per block (``blocks.feature_windows``). Inputs are checked here, before the first
+        block is asked for."""
         check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker)
         window = check_window(window, self.cfg.decoder_window)
         audio = zero_padding(audio, mask)
         with torch.no_grad():
             style = self.decoder.speaker_style(speaker)  # (B, d)
-            x = self.encode_audio(audio, mask)  # (B, T, d), banded attention: linear memory
-        return autoregressive_chunks([self.decoder], [x], [style], template, mask=mask, window=window, chunk=chunk)
+        # X (B, T, d) never whole: each block's frames are encoded from the audio within the extractor's receptive
+        # field around them (blocks.feature_windows; exact), so memory beyond A is flat in the clip length
+        x = FeatureWindows(lambda a, m: [self.encode_audio(a, m)], audio, mask,
+                           self.extractor.receptive_field(), self.extractor.ppe.period)
+        return autoregressive_chunks([self.decoder], x, [style], template, mask=mask, window=window, chunk=chunk)

@@ -39,7 +39,9 @@ Readings taken (the paper leaves these open):
 - Level: the corpus numbers intensities 0 (neutral clips), 1 (normal), 2 (strong); the paper's 2-level one-hot
   gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
 - The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
-  and standard deviation over the valid frames, as emotion is a property of the whole sentence.
+  and standard deviation over the valid frames, as emotion is a property of the whole sentence. For long audio
+  generation recognises it in a first streaming pass (running sums of F_e and F_e^2), then encodes the features
+  block by block (``blocks.feature_windows``): the same numbers as the whole clip's, to rounding.
 - Loudness for the emotion branch: the shared front-end's per-frame LayerNorm divides out each frame's level and
   spectral spread, the volume and range of emotional prosody (wav2vec 2.0 normalises per utterance instead). E_e
   therefore also reads :func:`frame_level_stats`, standardised with the training frames' statistics
@@ -70,6 +72,7 @@ from torch import Tensor
 from ..blocks.audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
 from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
                               check_window, training_inputs, zero_padding)
+from ..blocks.feature_windows import FeatureWindows
 from ..blocks.mesh_attention import MeshAttention
 from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
 from ..losses.emoface import EmoFaceWeights, emoface_loss
@@ -410,21 +413,68 @@ class EmoFace(nn.Module):
 
     # ---- inference ---------------------------------------------------------------------------------
     @torch.no_grad()
-    def emotion_logits(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
-        """Eq. 10's classifier on the speech alone: A (B, T, D_a) -> logits (B, N_e) (the runner's accuracy)."""
+    def emotion_logits(self, audio: Tensor, mask: Tensor | None = None, chunk: int | None = None) -> Tensor:
+        """Eq. 10's classifier on the speech alone: A (B, T, D_a) -> logits (B, N_e) (the runner's accuracy).
+
+        ``chunk``: encode F_e in blocks of that many frames (:meth:`streamed_emotion_logits`) instead of whole."""
         audio = zero_padding(audio, mask)
+        if chunk is not None:
+            return self.streamed_emotion_logits(audio, mask, chunk)
         return self.classify(self.encode(audio, mask)[1], mask)
 
+    def receptive_field(self) -> int | None:
+        """Audio frames on each side of t that F_c and F_e at t depend on: the shared front-end's plus one band
+        (``audio_radius``) per emotion layer for F_e, the content front-end's for F_c (phonetic route); None when any
+        of them sees the whole clip. (The frame-level statistics are per frame; the classifier's pooling is not
+        local, hence the separate pass of :meth:`streamed_emotion_logits`.)"""
+        fe, radius = self.extractor.receptive_field(), self.cfg.audio_radius
+        if fe is None or (len(self.emotion_layers) and radius is None):
+            return None
+        fe += len(self.emotion_layers) * (radius or 0)
+        fc = fe if self.content_extractor is None else self.content_extractor.receptive_field()
+        return None if fc is None else max(fe, fc)
+
+    def _feature_windows(self, encode, audio: Tensor, mask: Tensor | None, left: int = 0) -> FeatureWindows:
+        """``encode`` (audio window, mask window -> per-frame features) run block by block within
+        :meth:`receptive_field` (``blocks.feature_windows``): exact, memory flat in the clip length."""
+        return FeatureWindows(encode, audio, mask, self.receptive_field(), self.extractor.ppe.period, left=left)
+
+    @torch.no_grad()
+    def streamed_emotion_logits(self, audio: Tensor, mask: Tensor | None = None, chunk: int = 900) -> Tensor:
+        """Eq. 10's classifier in one streaming pass: A (B, T, D_a) (padding zeroed) -> logits (B, N_e).
+
+        The classifier pools F_e over the whole clip (mean and std over valid frames), which no window can
+        see. The pass encodes F_e block by block and accumulates, per clip and channel, n = sum_t m_t,
+        S1 = sum_t m_t F_e,t and S2 = sum_t m_t F_e,t^2 (float64); then mean = S1 / n and
+        std = sqrt(S2 / n - mean^2 + 1e-6), :meth:`classify`'s numbers to rounding, with one window in memory."""
+        stream = self._feature_windows(lambda a, m: [self.encode(a, m)[1]], audio, mask)
+        s1 = s2 = n = 0.0
+        for start, (fe,) in stream.blocks(chunk):  # (B, n_b, d) F_e of frames start..start+n_b-1
+            m = (torch.ones_like(fe[..., :1]) if mask is None
+                 else mask[:, start:start + fe.shape[1], None].to(fe.dtype)).double()  # (B, n_b, 1)
+            f = fe.double() * m
+            s1, s2, n = s1 + f.sum(1), s2 + (f * f).sum(1), n + m.sum(1)  # (B, d), (B, d), (B, 1)
+        n = n.clamp(min=1)
+        mean = s1 / n  # (B, d)
+        std = ((s2 / n - mean.square()).clamp(min=0) + 1e-6).sqrt()  # (B, d)
+        return self.classifier(torch.cat([mean, std], dim=-1).to(self.classifier.weight.dtype))  # (B, N_e)
+
     def _conditions(self, audio: Tensor, mask: Tensor | None, emotion, level) -> tuple[Tensor, Tensor]:
-        """Encode and condition for generation: emotion None -> classifier probabilities; int/(B,) -> one-hot."""
-        b = audio.shape[0]
+        """Encode the whole clip and condition for generation -> (F_c, conditioned F_e), each (B, T, d)."""
         fc, fe_raw = self.encode(audio, mask)
+        emo, lvl = self._condition_inputs(audio, mask, emotion, level, lambda: self.classify(fe_raw, mask))
+        return fc, self.condition(fe_raw, emo, lvl)
+
+    def _condition_inputs(self, audio: Tensor, mask: Tensor | None, emotion, level, logits) -> tuple[Tensor, Tensor]:
+        """(emotion, level) for :meth:`condition`: emotion None -> the classifier's probabilities p (``logits()``,
+        called only then) (B, N_e); int/(B,) -> indices (B,); level (B,) (default 1)."""
+        b = audio.shape[0]
         if emotion is None:
-            emo = torch.softmax(self.classify(fe_raw, mask), dim=-1)  # (B, N_e) p
+            emo = torch.softmax(logits(), dim=-1)  # (B, N_e) p
         else:
             emo = torch.as_tensor(emotion, device=audio.device).long().reshape(-1).expand(b)  # (B,)
         lvl = torch.as_tensor(1 if level is None else level, device=audio.device).long().reshape(-1).expand(b)
-        return fc, self.condition(fe_raw, emo, lvl)
+        return emo, lvl
 
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, emotion=None, level=None,
@@ -441,13 +491,15 @@ class EmoFace(nn.Module):
                                                        level=level)), dim=1)
         audio = zero_padding(audio, mask)
         decoders, feats, styles, combine = self._decoding(audio, mask, speaker, emotion, level, context=None)
-        return autoregressive_reference(decoders, feats, styles, template, combine, mask)
+        return autoregressive_reference(decoders, feats.current, styles, template, combine, mask)
 
     @torch.no_grad()
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
                         emotion=None, level=None, window: int | None | str = "config", chunk: int = 900):
         """Yield the vertices in consecutive (B, <= chunk, V*3) blocks, both decoders with bounded caches
-        (``blocks.decoder.autoregressive_chunks``), fused frame by frame, the fused motion fed back to both.
+        (``blocks.decoder.autoregressive_chunks``), fused frame by frame, the fused motion fed back to both. The
+        features are encoded block by block within :meth:`receptive_field` (``blocks.feature_windows``, exact), the
+        recognised emotion (``emotion=None``) from a first streaming pass: memory beyond A is flat in the length.
 
         Inputs and conditions are checked here, before the first block is asked for (not a generator itself)."""
         self._check(audio, template, speaker)
@@ -465,11 +517,28 @@ class EmoFace(nn.Module):
             if lv.dtype.is_floating_point or bool(((lv < 0) | (lv > self.cfg.n_levels)).any()):
                 raise ValueError(f"level {lv.tolist()}: expected 1..{self.cfg.n_levels} (0 = neutral counts as 1)")
 
-    def _decoding(self, audio: Tensor, mask: Tensor | None, speaker: Tensor, emotion, level, context: int | None):
-        """Decoders D_e, D_c, their features and styles for the generation loops, and the fusion ε as ``combine``:
-        it keeps the last ``context`` raw offsets of each branch (None: all) and fuses them frame by frame."""
-        fc, fe = self._conditions(audio, mask, emotion, level)
+    def _decoding(self, audio: Tensor, mask: Tensor | None, speaker: Tensor, emotion, level, context: int | None,
+                  chunk: int | None = None):
+        """Decoders D_e, D_c, their features [F_e, F_c] as a :class:`FeatureWindows` and styles for the generation
+        loops, and the fusion ε as ``combine``: it keeps the last ``context`` raw offsets of each branch (None: all)
+        and fuses them frame by frame with the features of the same frames.
+
+        ``chunk`` None (or no finite ``context``/receptive field): the features of the whole clip. Otherwise they are
+        encoded block by block (the block's frames, ``context - 1`` before them for ε, the receptive field around
+        that), after a first streaming pass that recognises the emotion (:meth:`streamed_emotion_logits`)."""
         decoders = [self.emotion_decoder, self.content_decoder]
+        if chunk is None or context is None or self.receptive_field() is None:
+            fc, fe = self._conditions(audio, mask, emotion, level)  # (B, T, d) each
+            feats = FeatureWindows.precomputed([fe, fc])
+        else:
+            emo, lvl = self._condition_inputs(audio, mask, emotion, level,
+                                              lambda: self.streamed_emotion_logits(audio, mask, chunk))
+
+            def encode(a: Tensor, m: Tensor | None) -> list[Tensor]:
+                fc, fe_raw = self.encode(a, m)  # (B, n, d) each
+                return [self.condition(fe_raw, emo, lvl), fc]
+
+            feats = self._feature_windows(encode, audio, mask, left=context - 1)
         history: list[list[Tensor]] = [[], []]  # raw ΔM^e_t, ΔM^c_t (B, 1, V*3) so far
 
         def combine(t: int, raw: list[Tensor]) -> Tensor:
@@ -477,18 +546,18 @@ class EmoFace(nn.Module):
                 past.append(r)
                 if context is not None and len(past) > context:
                     past.pop(0)
-            lo = t + 1 - len(history[0])
-            fused, _ = self.fuse(fe[:, lo:t + 1], fc[:, lo:t + 1], torch.cat(history[0], 1), torch.cat(history[1], 1))
+            fe, fc = feats.frames(t + 1 - len(history[0]), t + 1)  # (B, <= context, d) the frames of the history
+            fused, _ = self.fuse(fe, fc, torch.cat(history[0], 1), torch.cat(history[1], 1))
             return fused[:, -1:]  # (B, 1, V*3) ΔM_t
 
-        return decoders, [fe, fc], [dec.speaker_style(speaker) for dec in decoders], combine
+        return decoders, feats, [dec.speaker_style(speaker) for dec in decoders], combine
 
     @torch.no_grad()
     def _chunks(self, audio, template, speaker, mask, emotion, level, window, chunk):
         window = check_window(window, self.cfg.decoder_window)
         audio = zero_padding(audio, mask)
         decoders, feats, styles, combine = self._decoding(audio, mask, speaker, emotion, level,
-                                                          context=self._fusion_context())
+                                                          context=self._fusion_context(), chunk=chunk)
         yield from autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)
 
     def _fusion_context(self) -> int | None:

@@ -27,6 +27,7 @@ import torch.nn as nn
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
+from ..blocks.feature_windows import FeatureWindows
 from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
                               check_window, training_inputs, zero_padding)
 from ..losses.dualtalker import LossWeights, joint_loss
@@ -142,11 +143,14 @@ class FaceFormer(nn.Module):
 
     def generate_chunks(self, audio: Tensor, template: Tensor, speaker: Tensor, mask: Tensor | None = None,
                         window: int | None | str = "config", chunk: int = 900):
-        """Vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (constant memory per frame)."""
+        """Vertices in consecutive (B, <= chunk, V*3) blocks with bounded caches (constant memory per frame); the audio
+        is encoded block by block in overlapping windows (``blocks.feature_windows``, exact), so memory beyond A is
+        flat in the clip length."""
         check_inputs(self.cfg.n_vertices, self.cfg.audio_dim, audio, template, speaker)
         window = check_window(window, self.cfg.decoder_window)
         audio = zero_padding(audio, mask)
         with torch.no_grad():
             style = self.decoder.speaker_style(speaker)  # (B, d)
-            x = self.encode_audio(audio, mask)  # (B, T, d)
-        return autoregressive_chunks([self.decoder], [x], [style], template, mask=mask, window=window, chunk=chunk)
+        x = FeatureWindows(lambda a, m: [self.encode_audio(a, m)], audio, mask,  # X block by block, exact
+                           self.extractor.receptive_field(), self.extractor.ppe.period)
+        return autoregressive_chunks([self.decoder], x, [style], template, mask=mask, window=window, chunk=chunk)
