@@ -417,3 +417,44 @@ def test_streamed_bad_blocks_and_cache_entries(corpus, tmp_path):
         assert torch.equal(ex.stream(lambda: halves, n, T), expected) and entry.read_bytes() == good
     silent = ex.stream(lambda: [np.zeros(16000, np.float32)] * 2, 32000, 60)
     assert torch.equal(silent.argmax(1), torch.zeros(60, dtype=torch.long))
+
+
+def test_animate_on_the_phonetic_route_with_bad_audio(tmp_path, capsys, monkeypatch):
+    """Through the streamed recogniser, in ``animate``: digital silence gives an animation (and the all-"sil"
+    track), 8 kHz speech one ``warning:`` line and an animation, a truncated WAV one ``error:`` line (exit 2);
+    never a traceback."""
+    import soundfile as sf
+
+    from dualtalker_lite.audio import AudioStream
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = FaceFormerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=15,
+                                n_speakers=len(corpus.train_speakers))
+    save_checkpoint(tmp_path / "m.pt", FaceFormer(cfg).eval(), cfg, speakers=corpus.train_speakers,
+                    faces=corpus.faces, features=RecogniserExtractor("visemes", cache=False).settings())
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "cache"))
+    sf.write(tmp_path / "silence.wav", np.zeros(32000, np.float32), 16000)
+    sf.write(tmp_path / "phone.wav", corpus.wave(corpus.split("test_a")[0])[::2], 8000)
+    sf.write(tmp_path / "whole.wav", corpus.wave(corpus.split("test_a")[1]), 16000, subtype="PCM_16")
+    data = (tmp_path / "whole.wav").read_bytes()
+    (tmp_path / "cut.wav").write_bytes(data[:len(data) // 2])
+    capsys.readouterr()
+    for name in ("silence", "phone"):
+        main(["animate", "--checkpoint", str(tmp_path / "m.pt"), "--wav", str(tmp_path / f"{name}.wav"),
+              "--speaker", "SPK01", "--out", str(tmp_path / name), "--format", "npy"])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert lines == [] if name == "silence" else (len(lines) == 1 and lines[0].startswith("warning: ")), lines
+        assert np.isfinite(np.load(tmp_path / name / "vertices.npy")).all()
+    with pytest.raises(SystemExit) as e:
+        main(["animate", "--checkpoint", str(tmp_path / "m.pt"), "--wav", str(tmp_path / "cut.wav"),
+              "--speaker", "SPK01", "--out", str(tmp_path / "cut"), "--format", "npy"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "Traceback" not in err and "truncated" in err, err
+    assert sum(line.startswith("error: ") for line in err.splitlines()) == 1, err
+    silent = RecogniserExtractor("visemes", cache=False).stream(AudioStream(tmp_path / "silence.wav").blocks,
+                                                                32000, 60)
+    assert torch.equal(silent.argmax(1), torch.zeros(60, dtype=torch.long))
