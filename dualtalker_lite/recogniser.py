@@ -22,6 +22,9 @@ Pieces, bottom up (each usable alone):
   :func:`default_cache_dir`. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one call at a
   time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s calls
   in the model.
+  :meth:`PhonemeRecogniser.stream_log_probs` does the same for a wave given as blocks (``AudioStream.blocks``),
+  never holding it whole: each call's samples come from a rolling buffer of blocks, the cache key is hashed block
+  by block, the cache entry is written and read block by block.
 * :data:`SYMBOL_TO_VISEME` -- every one of hama's 191 output symbols mapped to a viseme of
   :data:`~dualtalker_lite.face.visemes.VISEMES`, or to ``None`` for symbols that are not phones (tones, length
   and diacritic marks, punctuation, ``<wb>``, ``<blank>``; :data:`NON_PHONES`). Diphthongs map to their first
@@ -44,6 +47,8 @@ Pieces, bottom up (each usable alone):
                                 visemes drop, e.g. EmoFace's emotion; train on ``VisemeLabels(base, keep_audio=True)``)
   =====================  =====  ================================================================================
 
+  :meth:`RecogniserExtractor.stream` gives the same features, exactly, from blocks (what ``animate`` uses: an
+  hour of audio is never in memory whole; the ``"visemes"`` outputs keep only the spikes).
   :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "hama", "settings": {...}}``)
   and :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
 
