@@ -465,11 +465,11 @@ class LogMelExtractor:
         return self.stream([wave], int(wave.shape[0]), n_frames)
 
     def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
-        """The features ``(n_frames, dim)`` of a wave of ``n_samples`` given as consecutive blocks (e.g.
-        :meth:`AudioStream.blocks`), holding neither the wave nor its 100 Hz log-mel whole: memory is the result
-        (69 MB per hour) plus one STFT block. The same numbers for one block or many: the log-mel of
-        :func:`log_mel_spectrogram` (the same STFT blocks), linearly interpolated (``align_corners=True``) to
-        ``k * n_frames`` rows, output block by output block."""
+        """The features ``(n_frames, dim)`` of a wave of ``n_samples`` given as consecutive blocks (an iterable, or
+        a zero-argument callable returning one, e.g. :meth:`AudioStream.blocks` itself), holding neither the wave
+        nor its 100 Hz log-mel whole: memory is the result (69 MB per hour) plus one STFT block. The same numbers
+        for one block or many: the log-mel of :func:`log_mel_spectrogram` (the same STFT blocks), linearly
+        interpolated (``align_corners=True``) to ``k * n_frames`` rows, output block by output block."""
         k, hop, pad = self.frames_per_mesh_frame, self.hop_length, self.n_fft // 2
         if self.win_length not in _WIN_CACHE:
             _WIN_CACHE[self.win_length] = torch.hann_window(self.win_length)
@@ -485,7 +485,7 @@ class LogMelExtractor:
         out = torch.empty(n_out, self.n_mels)
         wave, w0 = torch.empty(0), 0                    # samples [w0, w0 + len(wave)) of the wave
         rows, r0 = torch.empty(0, self.n_mels), 0       # log-mel rows [r0, r0 + len(rows))
-        blocks, done = iter(blocks), 0                  # outputs written
+        blocks, done = iter(blocks() if callable(blocks) else blocks), 0   # outputs written
         for a in range(0, n_rows, STFT_BLOCK):
             b = min(n_rows, a + STFT_BLOCK)
             lo, hi = a * hop - pad, (b - 1) * hop + pad                         # samples [lo, hi) of rows a..b-1

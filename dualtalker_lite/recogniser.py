@@ -22,6 +22,9 @@ Pieces, bottom up (each usable alone):
   :func:`default_cache_dir`. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one call at a
   time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s calls
   in the model.
+  :meth:`PhonemeRecogniser.stream_log_probs` does the same for a wave given as blocks (``AudioStream.blocks``),
+  never holding it whole: each call's samples come from a rolling buffer of blocks, the cache key is hashed block
+  by block, the cache entry is written and read block by block.
 * :data:`SYMBOL_TO_VISEME` -- every one of hama's 191 output symbols mapped to a viseme of
   :data:`~dualtalker_lite.face.visemes.VISEMES`, or to ``None`` for symbols that are not phones (tones, length
   and diacritic marks, punctuation, ``<wb>``, ``<blank>``; :data:`NON_PHONES`). Diphthongs map to their first
@@ -44,6 +47,8 @@ Pieces, bottom up (each usable alone):
                                 visemes drop, e.g. EmoFace's emotion; train on ``VisemeLabels(base, keep_audio=True)``)
   =====================  =====  ================================================================================
 
+  :meth:`RecogniserExtractor.stream` gives the same features, exactly, from blocks (what ``animate`` uses: an
+  hour of audio is never in memory whole; the ``"visemes"`` outputs keep only the spikes).
   :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "hama", "settings": {...}}``)
   and :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
 
@@ -164,6 +169,54 @@ def _dist_version(name: str) -> str | None:
         return None
 
 
+def _block(block) -> np.ndarray:
+    """One block of a streamed wave as float32 (n,), checked like :func:`~dualtalker_lite.audio.validate_wave`."""
+    block = block.detach().cpu().numpy() if isinstance(block, torch.Tensor) else np.asarray(block)
+    block = np.ascontiguousarray(block, dtype=np.float32).reshape(-1)
+    if block.size:
+        validate_wave(block, SAMPLE_RATE)
+    return block
+
+
+def _count_blocks(blocks, n: int, hasher=None) -> None:
+    """Read every block (``hasher``: fed their float32 bytes, as :func:`wave_hash` reads the whole wave); raise
+    ValueError unless they hold exactly ``n`` samples."""
+    seen = 0
+    for block in blocks:
+        block = _block(block)
+        if hasher is not None:
+            hasher.update(block.tobytes())
+        seen += block.size
+        if seen > n:
+            raise ValueError(f"the audio holds more than the announced {n} samples")
+    if seen < n:
+        raise ValueError(f"the audio ended after {seen} of {n} samples")
+
+
+def _pieces(blocks, n: int, jobs: list, hasher=None) -> Iterator[np.ndarray]:
+    """``wave[lo:hi]`` for each job ``(first, last, lo, hi)`` (``lo`` and ``hi`` never decrease), cut from a rolling
+    buffer of the blocks: samples before the current call's ``lo`` are dropped. Pulled once more after the last
+    job, it checks that no samples are left (``hasher`` sees every block, in order)."""
+    blocks = iter(blocks)
+    buf, w0 = np.empty(0, np.float32), 0                               # samples [w0, w0 + len(buf)) of the wave
+    for _, _, lo, hi in jobs:
+        while w0 + buf.size < hi:
+            block = next(blocks, None)
+            if block is None:
+                raise ValueError(f"the audio ended after {w0 + buf.size} of {n} samples")
+            block = _block(block)
+            if hasher is not None:
+                hasher.update(block.tobytes())
+            keep = max(0, lo - w0)                                     # no later call starts before lo
+            buf, w0 = np.concatenate([buf[keep:], block]), w0 + keep
+        if w0 + buf.size > n:
+            raise ValueError(f"the audio holds more than the announced {n} samples")
+        yield buf[lo - w0:hi - w0]
+    for block in blocks:                                               # nothing may follow the last sample
+        if _block(block).size:
+            raise ValueError(f"the audio holds more than the announced {n} samples")
+
+
 class PhonemeRecogniser:
     """hama's CTC phoneme recogniser: 16 kHz mono wave (N,) -> log-probs (1 + N // 320, 191) at 50 Hz.
 
@@ -204,12 +257,9 @@ class PhonemeRecogniser:
                                              {"waveform": wav, "waveform_lengths": np.array([wav.shape[1]])})
         return np.asarray(lp[0, :int(np.asarray(lengths).reshape(-1)[0])], dtype=np.float32)
 
-    def iter_log_probs(self, wave: np.ndarray | torch.Tensor) -> Iterator[tuple[int, np.ndarray]]:
-        """Yield ``(first_frame, block)`` with ``block`` (<= core frames, 191) float16, covering every frame
-        ``0 .. 1 + N // 320 - 1`` in order. Each call sees ``context_s`` of audio before and after its core."""
-        wave = wave.detach().cpu().numpy() if isinstance(wave, torch.Tensor) else np.asarray(wave)
-        validate_wave(wave, SAMPLE_RATE)
-        n = wave.shape[0]
+    def _jobs(self, n: int) -> list[tuple[int, int, int, int]]:
+        """``(first, last, lo, hi)`` per call for a wave of ``n`` samples: frames ``[first, last)`` are kept from
+        the call on samples ``[lo, hi)`` (its core plus ``context`` on each side, cut at the wave's ends)."""
         total = n_recogniser_frames(n)
         core_frames = self.core // FRAME_SAMPLES
         jobs = []
@@ -218,10 +268,14 @@ class PhonemeRecogniser:
             lo = max(0, first * FRAME_SAMPLES - self.context)          # a multiple of 320: frames line up
             hi = min(n, last * FRAME_SAMPLES + self.context)
             jobs.append((first, last, lo, hi))
+        return jobs
 
-        def run(job):
+    def _stitch(self, jobs: list, pieces: Iterator[np.ndarray]) -> Iterator[tuple[int, np.ndarray]]:
+        """Run hama on each job's samples (``pieces`` yields ``wave[lo:hi]`` job by job, pulled ``threads`` at a
+        time) and yield ``(first, block)``: the core's frames, float16, in order."""
+        def run(job, piece):
             first, last, lo, hi = job
-            out = self._run(wave[lo:hi])
+            out = self._run(piece)
             offset = (first * FRAME_SAMPLES - lo) // FRAME_SAMPLES
             block = out[offset:offset + (last - first)]
             if block.shape[0] < last - first:                          # the wave's last frame: repeat (rare)
@@ -230,13 +284,124 @@ class PhonemeRecogniser:
 
         if self.threads == 1 or len(jobs) == 1:
             for job in jobs:
-                yield run(job)
+                yield run(job, next(pieces))
             return
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(self.threads) as pool:                 # ``threads`` calls in flight, in order
             for a in range(0, len(jobs), self.threads):
-                yield from pool.map(run, jobs[a:a + self.threads])
+                batch = jobs[a:a + self.threads]
+                yield from pool.map(run, batch, [next(pieces) for _ in batch])
+
+    def iter_log_probs(self, wave: np.ndarray | torch.Tensor) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(first_frame, block)`` with ``block`` (<= core frames, 191) float16, covering every frame
+        ``0 .. 1 + N // 320 - 1`` in order. Each call sees ``context_s`` of audio before and after its core."""
+        wave = wave.detach().cpu().numpy() if isinstance(wave, torch.Tensor) else np.asarray(wave)
+        validate_wave(wave, SAMPLE_RATE)
+        jobs = self._jobs(wave.shape[0])
+        yield from self._stitch(jobs, (wave[lo:hi] for _, _, lo, hi in jobs))
+
+    def cache_path(self, key: str) -> Path:
+        """Where the log-probs of the wave with :func:`wave_hash` ``key`` are cached (a ``.npy`` file)."""
+        return self.cache_dir / f"{NAME}-{self.version}" / key[:2] / f"{key[2:34]}.npy"
+
+    def stream_log_probs(self, blocks, n_samples: int) -> Iterator[tuple[int, np.ndarray]]:
+        """:meth:`iter_log_probs` of a wave of ``n_samples`` given as consecutive blocks, never holding it whole.
+
+        ``blocks``: a zero-argument callable returning a fresh iterator of the blocks each time (e.g.
+        :meth:`AudioStream.blocks <dualtalker_lite.audio.AudioStream.blocks>`), or a plain iterable of them.
+        A callable is read once to hash the wave (the cache key of :meth:`log_probs`): on a hit the entry is read
+        block by block from the file (plain reads of one core's rows: a memory map's pages would stay in the
+        process's resident memory); on a miss it is read once more for the recogniser. A plain iterable is read
+        once, hashed on the way, so it can fill the cache but never hit it.
+
+        The recogniser takes each call's samples (core + context, the same ranges as :meth:`iter_log_probs`) from
+        a rolling buffer of the blocks, so the blocks are bit-identical to :meth:`iter_log_probs`'s on the joined
+        wave, with ``threads`` calls in flight as there. Memory: those calls' samples (28 s each) plus one block.
+        The cache entry is written as the blocks come (same path and ``.npy`` bytes as :meth:`log_probs`), under
+        a temporary name renamed when complete, and removed if the stream stops early.
+        """
+        n = int(n_samples)
+        if n < 1:
+            raise ValueError("wave is empty")
+        settings, key, path = self.settings(), None, None
+        source = blocks
+        if callable(blocks):
+            if self.cache:
+                hasher = hashlib.sha256()
+                _count_blocks(blocks(), n, hasher)
+                hasher.update(json.dumps(settings, sort_keys=True).encode())
+                key = hasher.hexdigest()
+                path = self.cache_path(key)
+                cached = self._read_cached(path, n)
+                if cached is not None:
+                    yield from cached
+                    return
+            source = blocks()
+        hasher = hashlib.sha256() if self.cache and key is None else None
+        jobs = self._jobs(n)
+        pieces = _pieces(source, n, jobs, hasher)
+        tmp = f = None
+        if self.cache:
+            folder = self.cache_dir / f"{NAME}-{self.version}"
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f"stream.{os.getpid()}.{id(pieces):x}.tmp"
+            f = open(tmp, "wb")
+            np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float16)),
+                                                     "fortran_order": False,
+                                                     "shape": (n_recogniser_frames(n), len(self.symbols))})
+        try:
+            for first, block in self._stitch(jobs, pieces):
+                if f is not None:
+                    f.write(np.ascontiguousarray(block).tobytes())
+                yield first, block
+            next(pieces, None)                                         # the rest of the blocks: none may be left
+            if f is not None:
+                f.close()
+                if key is None:
+                    hasher.update(json.dumps(settings, sort_keys=True).encode())
+                    path = self.cache_path(hasher.hexdigest())
+                path.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(tmp, path)                                  # atomic: readers never see half a file
+        finally:
+            if f is not None:
+                f.close()
+            if tmp is not None and tmp.exists():
+                tmp.unlink()
+
+    def _read_cached(self, path: Path, n: int):
+        """The cache entry at ``path`` as an iterator of ``(first, block)`` (one core's rows per read), or None
+        when there is none, or it is unreadable or of another shape (then it is recomputed and overwritten)."""
+        if not path.is_file():
+            return None
+        try:
+            f = open(path, "rb")
+        except OSError:
+            return None
+        try:
+            version = np.lib.format.read_magic(f)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            shape, fortran, dtype = read_header(f) if read_header else (None, True, None)
+            rows, width = n_recogniser_frames(n), len(self.symbols)
+            if shape != (rows, width) or fortran or dtype.hasobject or \
+                    os.fstat(f.fileno()).st_size != f.tell() + rows * width * dtype.itemsize:
+                f.close()
+                return None
+        except (ValueError, OSError):
+            f.close()
+            return None
+
+        def read():
+            with f:
+                step = self.core // FRAME_SAMPLES
+                for first in range(0, rows, step):
+                    count = min(step, rows - first)
+                    block = np.fromfile(f, dtype=dtype, count=count * width)
+                    if block.size != count * width:
+                        raise OSError(f"{path}: the cache entry ended early (changed while being read?)")
+                    yield first, block.reshape(count, width)
+        return read()
 
     def log_probs(self, wave: np.ndarray | torch.Tensor) -> np.ndarray:
         """(1 + N // 320, 191) float16 log-probs of the whole wave, from the cache when there (memory-mapped)."""
@@ -244,8 +409,7 @@ class PhonemeRecogniser:
         validate_wave(wave, SAMPLE_RATE)
         path = None
         if self.cache:
-            key = wave_hash(wave, self.settings())
-            path = self.cache_dir / f"{NAME}-{self.version}" / key[:2] / f"{key[2:34]}.npy"
+            path = self.cache_path(wave_hash(wave, self.settings()))
             if path.is_file():
                 try:
                     cached = np.load(path, mmap_mode="r", allow_pickle=False)
@@ -357,7 +521,10 @@ class RecogniserExtractor:
 
     def log_probs(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
         """(T, 191) float32: log-probs linearly interpolated at the mesh frame times + ``lag_s``."""
-        lp = self.recogniser.log_probs(wave)                            # (L, 191) float16, maybe memory-mapped
+        return self._interpolate(self.recogniser.log_probs(wave), n_frames)  # (L, 191) float16, maybe mapped
+
+    def _interpolate(self, lp: np.ndarray, n_frames: int) -> torch.Tensor:
+        """(L, 191) log-probs at 50 Hz -> (T, 191) float32 at the mesh frame times + ``lag_s``."""
         pos = np.clip((np.arange(n_frames) / self.fps + self.lag_s) * RATE, 0, lp.shape[0] - 1)   # (T,) in frames
         i0 = np.floor(pos).astype(np.int64)
         i1 = np.minimum(i0 + 1, lp.shape[0] - 1)
@@ -379,6 +546,46 @@ class RecogniserExtractor:
             feats = self.log_probs(wave, n_frames)
         if self._logmel is not None:
             feats = torch.cat([feats, self._logmel(wave, n_frames)], dim=1)
+        return feats
+
+    def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
+        """:meth:`__call__` of a wave of ``n_samples`` given as consecutive blocks, never holding it whole: the
+        same numbers, exactly.
+
+        ``blocks``: a zero-argument callable returning a fresh iterator of the blocks each time it is called (what
+        ``streaming.predict_chunks`` passes: ``AudioStream.blocks``), or a plain iterable of blocks (read once: no
+        cache lookup, and refused for the ``+logmel`` outputs, which read the audio a second time). The
+        recogniser's passes are :meth:`PhonemeRecogniser.stream_log_probs` (a hash pass for the cache, then the
+        recogniser on a miss; a hit reads the cache entry block by block). Memory for an hour: ``"visemes"``
+        keeps only the spikes (a few hundred KB) and the (T, 15) one-hot (6.5 MB); ``"visemes+logmel"`` adds
+        :meth:`LogMelExtractor.stream <dualtalker_lite.audio.LogMelExtractor.stream>` (69 MB, one more pass);
+        ``"logprobs"`` outputs hold the whole (L, 191) float16 log-probs (69 MB, not the wave) before
+        interpolating them (the result is 82 MB).
+        """
+        if n_frames < 1:
+            raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+        if self._logmel is not None and not callable(blocks):
+            raise ValueError(f"output {self.output!r} reads the audio twice (recogniser, log-mel): pass a callable "
+                             f"returning the blocks, e.g. AudioStream(path).blocks, not an iterator")
+        lp_blocks = self.recogniser.stream_log_probs(blocks, n_samples)
+        if self.output.startswith("visemes"):
+            frames, vis = [np.empty(0, np.int64)], [np.empty(0, np.int64)]   # the spikes, block by block
+            for first, block in lp_blocks:
+                f, v = self.recogniser.spikes(block, self.blank_bias)
+                frames.append(first + f)
+                vis.append(v)
+            ids = spike_track(np.concatenate(frames) / RATE - self.lag_s, np.concatenate(vis), n_frames, self.fps,
+                              self.window_s)
+            feats = torch.nn.functional.one_hot(torch.from_numpy(ids), len(VISEMES)).float()
+        else:
+            lp = None
+            for first, block in lp_blocks:
+                if lp is None:
+                    lp = np.empty((n_recogniser_frames(n_samples), block.shape[1]), dtype=block.dtype)
+                lp[first:first + block.shape[0]] = block
+            feats = self._interpolate(lp, n_frames)
+        if self._logmel is not None:
+            feats = torch.cat([feats, self._logmel.stream(blocks, n_samples, n_frames)], dim=1)
         return feats
 
     def __repr__(self) -> str:

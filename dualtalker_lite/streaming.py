@@ -127,8 +127,9 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     :func:`animate_wave_to_npy` and the ``animate`` command stream them to disk). All input checks run here,
     before the first block (bad wave, non-finite template, wrong vertex count, speaker outside the style
     table, missing CUDA); memory beyond the model is the wave, its features (T x D_a) and one block. ``wave``
-    may be an :class:`~dualtalker_lite.audio.AudioStream` (what ``animate`` passes): log-mel features are then
-    computed block by block and the wave is never in memory whole.
+    may be an :class:`~dualtalker_lite.audio.AudioStream` (what ``animate`` passes): features are then computed
+    block by block by the extractor's ``stream`` method (log-mel and the phoneme recogniser have one) and the
+    wave is never in memory whole.
     ``device="cuda"`` runs on the GPU, ``amp=True`` adds float16 autocast there. A block with a NaN/inf raises
     :class:`~dualtalker_lite.checks.NonFiniteError` naming its first bad frame.
     """
@@ -171,9 +172,10 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
         dev = next(model.parameters(), torch.empty(0)).device
     n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
     with torch.no_grad():
-        if streamed and hasattr(extractor, "stream"):  # log-mel: never the whole wave in memory
-            audio = extractor.stream(wave.blocks(), len(wave), n_frames)[None]  # (1, T, D_a)
-        else:  # other front-ends (the recogniser) take the whole wave
+        if streamed and hasattr(extractor, "stream"):  # log-mel, the recogniser: never the whole wave in memory
+            # the callable, not an iterator: the recogniser reads the file more than once (cache key, then hama)
+            audio = extractor.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)
+        else:  # front-ends without a stream method (wav2vec 2.0) take the whole wave
             audio = extractor(wave.read() if streamed else wave, n_frames)[None]
     model.eval().to(dev)
 

@@ -1063,6 +1063,49 @@ def test_animate_memory_is_flat_in_the_audio_length(tmp_path):
     assert peaks[10] - peaks[1] < 25, peaks  # MB
 
 
+def test_animate_memory_is_flat_in_the_audio_length_on_the_phonetic_route(tmp_path):
+    """Was: with a recogniser checkpoint (the default ``--features visemes``) animate read the whole wave and
+    spiked the whole (L, 191) log-probs in float32 (measured, cache hit: 319 MB for 1 minute, 350 MB for 10). Now
+    ``RecogniserExtractor.stream`` hashes the file block by block and reads the cache entry block by block (measured:
+    318 and 321 MB). The entry is made up here (one PP spike every 140 ms) so hama never runs: the recogniser's own
+    calls are a fixed 28 s each, measured by hand in docs/faults.md (case 27)."""
+    pytest.importorskip("hama", reason="the [phonetic] extra (hama) is not installed")
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+    from dualtalker_lite.recogniser import PhonemeRecogniser, RecogniserExtractor, n_recogniser_frames, wave_hash
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    recogniser = PhonemeRecogniser(cache_dir=tmp_path / "cache")
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=15,
+                                n_speakers=len(corpus.train_speakers))
+    save_checkpoint(tmp_path / "m.pt", DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers,
+                    faces=corpus.faces, features=RecogniserExtractor("visemes", recogniser=recogniser).settings())
+    peaks = {}
+    for minutes in (1, 10):
+        wav = _speech_wav(tmp_path / f"{minutes}.wav", minutes)
+        wave = load_audio(wav)
+        log_probs = np.full((n_recogniser_frames(wave.shape[0]), 191), -20.0, dtype=np.float16)
+        log_probs[:, recogniser.blank_id] = 0.0
+        log_probs[::7, recogniser.symbols.index("m")] = 1.0
+        entry = recogniser.cache_path(wave_hash(wave, recogniser.settings()))
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        np.save(entry, log_probs)
+        del wave, log_probs
+        proc = subprocess.run([sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "dualtalker_lite.cli",
+                               "animate", "--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out",
+                               tmp_path / f"o{minutes}", "--format", "npy", "--no-progress"], capture_output=True,
+                              text=True, env={**_env(), "DUALTALKER_CACHE": str(tmp_path / "cache")}, cwd=REPO,
+                              timeout=600)
+        status, peak = map(int, proc.stdout.split())
+        assert status == 0 and proc.stderr == "", proc.stderr[-3000:]
+        assert np.load(tmp_path / f"o{minutes}" / "vertices.npy", mmap_mode="r").shape[0] == minutes * 1800
+        assert len(list((tmp_path / "cache").rglob("*.npy"))) == 1 + (minutes == 10)   # hit: nothing new
+        peaks[minutes] = peak
+    print(f"peak RSS, MB: {peaks}")
+    assert peaks[10] - peaks[1] < 15, peaks  # MB
+
+
 @pytest.mark.parametrize("rate", [16000, 8000, 22050, 44100, 48000])
 def test_audio_stream_reads_what_load_audio_reads(tmp_path, rate):
     """The blocks of an AudioStream (here 1 s blocks: several, and a partial last one) join into exactly

@@ -317,3 +317,144 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
                "happy", "--level", "2", "--out", tmp_path / "e", "--format", "npy")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     assert np.isfinite(np.load(tmp_path / "e" / "vertices.npy")).all()
+
+
+# ---- streaming: the recogniser front end never holds the whole wave (issues 19 and 23) -------------------------
+@pytest.fixture(scope="module")
+def long_file(corpus, tmp_path_factory):
+    """55 s of corpus speech (more than two 24 s cores, ending off the 20 ms grid) as a 16 kHz WAV."""
+    import soundfile as sf
+
+    names = corpus.split("long") + corpus.split("test_a")
+    wave = np.concatenate([corpus.wave(n) for n in names[:12]])
+    assert wave.shape[0] > 55 * 16000
+    path = tmp_path_factory.mktemp("long") / "speech.wav"
+    sf.write(path, wave[:55 * 16000 + 123], 16000, subtype="FLOAT")
+    return path
+
+
+def _entries(root: Path) -> dict:
+    """{path under the cache folder: bytes} of every cache entry; no temporary file may be left."""
+    assert not list(root.rglob("*.tmp"))
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*.npy"))}
+
+
+def test_streamed_features_equal_the_whole_wave_on_a_long_recording(long_file, recogniser, tmp_path):
+    """A 55 s file read as 7 s AudioStream blocks (so calls straddle blocks): the streamed "visemes" and
+    "visemes+logmel" features equal the whole-wave ones exactly, computed (cache miss) or read from the cache
+    (hit); the entry the stream writes is the file ``log_probs`` writes, byte for byte, at the same path."""
+    from dualtalker_lite.audio import AudioStream, load_audio
+
+    wave, stream = load_audio(long_file), AudioStream(long_file, block_s=7.0)
+    n, T = len(stream), int(round(len(stream) * 30 / 16000))
+    assert n == wave.shape[0] and len(recogniser._jobs(n)) == 3
+    whole = {out: RecogniserExtractor(out, recogniser=recogniser)(wave, T) for out in ("visemes", "visemes+logmel")}
+    fresh = PhonemeRecogniser(cache_dir=tmp_path, threads=1)
+    miss = RecogniserExtractor("visemes", recogniser=fresh).stream(stream.blocks, n, T)
+    assert torch.equal(miss, whole["visemes"]) and miss[:, 0].mean() < 0.6       # speech: not all silence
+    mine = _entries(tmp_path)
+    assert len(mine) == 1 and mine == {k: v for k, v in _entries(recogniser.cache_dir).items() if k in mine}
+    hit = RecogniserExtractor("visemes+logmel", recogniser=fresh)
+    fresh.model = None                                                           # a hit never runs hama
+    assert torch.equal(hit.stream(stream.blocks, n, T), whole["visemes+logmel"])
+
+
+@pytest.mark.parametrize("rate", [22050, 8000])
+def test_streamed_features_equal_the_whole_wave_when_resampled(corpus, tmp_path, rate):
+    """A file at another rate, resampled block by block by AudioStream (1 s blocks), short cores (4 s + 1 s
+    context: several calls on 12 s), two calls in flight: every output equals the whole wave's, miss or hit; a
+    one-shot iterator (no cache lookup) gives the same and writes the same entry."""
+    import soundfile as sf
+
+    from dualtalker_lite.audio import AudioStream, load_audio, resample
+
+    wave16 = np.concatenate([corpus.wave(n) for n in corpus.split("test_a")[:8]])[:12 * 16000]
+    sf.write(tmp_path / "a.wav", resample(wave16, 16000, rate), rate, subtype="FLOAT")
+    wave, stream = load_audio(tmp_path / "a.wav"), AudioStream(tmp_path / "a.wav", block_s=1.0)
+    n, T = len(stream), int(round(len(stream) * 30 / 16000))
+    assert n == wave.shape[0]
+
+    def rec(name, threads=2):
+        return PhonemeRecogniser(core_s=4, context_s=1, cache_dir=tmp_path / name, threads=threads)
+
+    ref, streamed = rec("whole", threads=1), rec("stream")
+    assert len(ref._jobs(n)) >= 3
+    for out in ("visemes", "visemes+logmel", "logprobs", "logprobs+logmel"):   # the first misses, the rest hit
+        expected = RecogniserExtractor(out, recogniser=ref)(wave, T)
+        assert torch.equal(RecogniserExtractor(out, recogniser=streamed).stream(stream.blocks, n, T), expected), out
+    once = rec("once")
+    assert torch.equal(RecogniserExtractor("visemes", recogniser=once).stream(stream.blocks(), n, T),
+                       RecogniserExtractor("visemes", recogniser=ref)(wave, T))
+    assert _entries(tmp_path / "whole") == _entries(tmp_path / "stream") == _entries(tmp_path / "once")
+
+
+def test_streamed_bad_blocks_and_cache_entries(corpus, tmp_path):
+    """At the stream's boundary: blocks short of or beyond the announced length, a NaN block, a one-shot iterator
+    where two passes are needed: one-line ValueErrors, no cache entry or temporary file left. A truncated or
+    foreign cache entry is recomputed and overwritten; silence gives an all-"sil" track."""
+    wave = corpus.wave(corpus.split("test_a")[0])
+    n, T = wave.shape[0], int(round(wave.shape[0] * 30 / 16000))
+    rec = PhonemeRecogniser(core_s=4, context_s=1, cache_dir=tmp_path / "c")
+    ex = RecogniserExtractor("visemes", recogniser=rec)
+    halves = [wave[:n // 2], wave[n // 2:]]
+    for blocks, n_samples, message in ((lambda: halves, n + 1, f"ended after {n} of {n + 1}"),
+                                       (halves, n + 1, f"ended after {n} of {n + 1}"),
+                                       (lambda: halves, n - 1, f"more than the announced {n - 1}"),
+                                       (iter(halves), n - 1, f"more than the announced {n - 1}"),
+                                       (lambda: [wave[:5], wave[5:] * np.nan], n, "NaN"),
+                                       ([wave[:5], wave[5:] * np.nan], n, "NaN"),
+                                       ([], 0, "empty")):
+        with pytest.raises(ValueError, match=message):
+            ex.stream(blocks, n_samples, T)
+        assert _entries(tmp_path / "c") == {} if (tmp_path / "c").exists() else True
+    with pytest.raises(ValueError, match="reads the audio twice.*callable"):
+        RecogniserExtractor("visemes+logmel", recogniser=rec).stream(iter(halves), n, T)
+    expected = ex(wave, T)
+    entry = rec.cache_path(wave_hash(wave, rec.settings()))
+    good = entry.read_bytes()
+    for bad in (good[:len(good) // 2], good[:80] + b"x" * (len(good) - 80), b""):
+        entry.write_bytes(bad)
+        assert torch.equal(ex.stream(lambda: halves, n, T), expected) and entry.read_bytes() == good
+    silent = ex.stream(lambda: [np.zeros(16000, np.float32)] * 2, 32000, 60)
+    assert torch.equal(silent.argmax(1), torch.zeros(60, dtype=torch.long))
+
+
+def test_animate_on_the_phonetic_route_with_bad_audio(tmp_path, capsys, monkeypatch):
+    """Through the streamed recogniser, in ``animate``: digital silence gives an animation (and the all-"sil"
+    track), 8 kHz speech one ``warning:`` line and an animation, a truncated WAV one ``error:`` line (exit 2);
+    never a traceback."""
+    import soundfile as sf
+
+    from dualtalker_lite.audio import AudioStream
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = FaceFormerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=15,
+                                n_speakers=len(corpus.train_speakers))
+    save_checkpoint(tmp_path / "m.pt", FaceFormer(cfg).eval(), cfg, speakers=corpus.train_speakers,
+                    faces=corpus.faces, features=RecogniserExtractor("visemes", cache=False).settings())
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "cache"))
+    sf.write(tmp_path / "silence.wav", np.zeros(32000, np.float32), 16000)
+    sf.write(tmp_path / "phone.wav", corpus.wave(corpus.split("test_a")[0])[::2], 8000)
+    sf.write(tmp_path / "whole.wav", corpus.wave(corpus.split("test_a")[1]), 16000, subtype="PCM_16")
+    data = (tmp_path / "whole.wav").read_bytes()
+    (tmp_path / "cut.wav").write_bytes(data[:len(data) // 2])
+    capsys.readouterr()
+    for name in ("silence", "phone"):
+        main(["animate", "--checkpoint", str(tmp_path / "m.pt"), "--wav", str(tmp_path / f"{name}.wav"),
+              "--speaker", "SPK01", "--out", str(tmp_path / name), "--format", "npy"])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert lines == [] if name == "silence" else (len(lines) == 1 and lines[0].startswith("warning: ")), lines
+        assert np.isfinite(np.load(tmp_path / name / "vertices.npy")).all()
+    with pytest.raises(SystemExit) as e:
+        main(["animate", "--checkpoint", str(tmp_path / "m.pt"), "--wav", str(tmp_path / "cut.wav"),
+              "--speaker", "SPK01", "--out", str(tmp_path / "cut"), "--format", "npy"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "Traceback" not in err and "truncated" in err, err
+    assert sum(line.startswith("error: ") for line in err.splitlines()) == 1, err
+    silent = RecogniserExtractor("visemes", cache=False).stream(AudioStream(tmp_path / "silence.wav").blocks,
+                                                                32000, 60)
+    assert torch.equal(silent.argmax(1), torch.zeros(60, dtype=torch.long))
