@@ -469,7 +469,17 @@ class LogMelExtractor:
         a zero-argument callable returning one, e.g. :meth:`AudioStream.blocks` itself), holding neither the wave
         nor its 100 Hz log-mel whole: memory is the result (69 MB per hour) plus one STFT block. The same numbers
         for one block or many: the log-mel of :func:`log_mel_spectrogram` (the same STFT blocks), linearly
-        interpolated (``align_corners=True``) to ``k * n_frames`` rows, output block by output block."""
+        interpolated (``align_corners=True``) to ``k * n_frames`` rows, output block by output block
+        (:meth:`stream_rows`)."""
+        out = torch.empty(self.frames_per_mesh_frame * n_frames, self.n_mels)
+        for done, feats in self.stream_rows(blocks, n_samples, n_frames):
+            out[done:done + len(feats)] = feats
+        return out.reshape(n_frames, self.dim)                                  # (T, k * n_mels)
+
+    def stream_rows(self, blocks, n_samples: int, n_frames: int):
+        """:meth:`stream` without the result: yields ``(first, rows)``, consecutive pieces of its ``(k * n_frames,
+        n_mels)`` rows before the final reshape (row-major, so their bytes in order are those of the
+        ``(n_frames, dim)`` features); for writers that keep nothing whole (``streaming.SpooledFeatures``)."""
         k, hop, pad = self.frames_per_mesh_frame, self.hop_length, self.n_fft // 2
         if self.win_length not in _WIN_CACHE:
             _WIN_CACHE[self.win_length] = torch.hann_window(self.win_length)
@@ -482,7 +492,6 @@ class LogMelExtractor:
         i0 = src.long().clamp(max=n_rows - 1)                                   # left neighbour of each output
         lam = (src - i0).clamp(0, 1)[:, None]
         i1 = (i0 + 1).clamp(max=n_rows - 1)
-        out = torch.empty(n_out, self.n_mels)
         wave, w0 = torch.empty(0), 0                    # samples [w0, w0 + len(wave)) of the wave
         rows, r0 = torch.empty(0, self.n_mels), 0       # log-mel rows [r0, r0 + len(rows))
         blocks, done = iter(blocks() if callable(blocks) else blocks), 0   # outputs written
@@ -508,11 +517,10 @@ class LogMelExtractor:
                     feats = feats / self.std
                 if not bool(torch.isfinite(feats).all()):
                     raise ValueError("log-mel features are not finite (audio amplitudes too large?)")
-                out[done:end] = feats
+                yield done, feats                                               # (end - done, n_mels)
                 done = end
             if done < n_out:
                 rows, r0 = rows[int(i0[done]) - r0:], int(i0[done])
-        return out.reshape(n_frames, self.dim)                                  # (T, k * n_mels)
 
     def band_statistics(self, waves) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-band mean and std ``(n_mels,)`` of the raw log-mel pooled over ``waves`` (for ``mean``/``std``)."""

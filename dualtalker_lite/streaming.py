@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "predict_chunks", "animate_wave_to_npy",
-           "fixed_mmap_threshold"]
+__all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "SpooledFeatures", "predict_chunks",
+           "animate_wave_to_npy", "fixed_mmap_threshold"]
 
 
 def fixed_mmap_threshold(nbytes: int = 4 << 20) -> bool:
@@ -114,6 +114,73 @@ def generate_to_npy(model: torch.nn.Module, audio: torch.Tensor, template: torch
     return write_npy_stream(path, chunks, audio.shape[1], template.shape[1])
 
 
+class SpooledFeatures:
+    """The features A (1, T, D) of a long recording kept in an anonymous temporary file, read back a window of
+    frames at a time: with them, memory no longer grows with the audio length (69 MB per hour of log-mel).
+
+    The models' ``generate_chunks`` never need A whole: they check its shape, then encode it block by block in
+    overlapping windows (:class:`~dualtalker_lite.blocks.feature_windows.FeatureWindows`, which slices
+    ``A[:, a:b]``). So this object offers only what they use of a (1, T, D) float32 CPU tensor: ``shape``,
+    ``dim()``, ``dtype``, ``device``, ``to()`` (CPU only) and ``[:, a:b]`` (or ``[0, a:b]``), which returns a real
+    tensor read from the file (``os.pread``, no memory map: mapped pages would count as resident once read).
+    The file is unlinked at creation (``tempfile.TemporaryFile``): nothing is left behind, even after SIGKILL.
+
+        spool = SpooledFeatures.write(extractor.stream_rows(wave.blocks, len(wave), T), T, extractor.dim)
+        spool[:, 100:200]   # (1, 100, D) float32 tensor, the same numbers as extractor(wave, T)[None, 100:200]
+    """
+
+    def __init__(self, file, n_frames: int, dim: int):
+        self.file, self.n_frames, self.n_values = file, int(n_frames), int(dim)
+        self.shape = torch.Size((1, self.n_frames, self.n_values))
+        self.dtype, self.device = torch.float32, torch.device("cpu")
+
+    @classmethod
+    def write(cls, pieces, n_frames: int, dim: int, directory: str | os.PathLike | None = None) -> "SpooledFeatures":
+        """Spool consecutive (first_row, rows) pieces (e.g. ``LogMelExtractor.stream_rows``), whose bytes in
+        order are the (n_frames, dim) float32 features; fewer or more bytes than that is an error."""
+        import tempfile
+
+        f = tempfile.TemporaryFile(dir=directory)
+        try:
+            for _, rows in pieces:
+                f.write(np.ascontiguousarray(np.asarray(rows), dtype=np.float32).tobytes())
+            f.flush()
+            if f.tell() != 4 * n_frames * dim:
+                raise ValueError(f"spooled {f.tell() // 4} feature values, expected {n_frames} x {dim}")
+        except BaseException:
+            f.close()
+            raise
+        return cls(f, n_frames, dim)
+
+    def dim(self) -> int:
+        return 3
+
+    def to(self, device=None, *args, **kwargs) -> "SpooledFeatures":
+        if device is not None and torch.device(device).type != "cpu":
+            raise ValueError("SpooledFeatures live on the CPU; read a window and move that")
+        return self
+
+    def __getitem__(self, index) -> torch.Tensor:
+        batch, frames = index if isinstance(index, tuple) else (index, slice(None))
+        if not isinstance(frames, slice) or frames.step not in (None, 1) or \
+                not (batch == slice(None) or batch == 0 or batch == -1):
+            raise IndexError("SpooledFeatures supports [:, a:b] and [0, a:b] only")
+        a, b, _ = frames.indices(self.n_frames)
+        b = max(a, b)
+        nbytes = 4 * self.n_values * (b - a)
+        data = os.pread(self.file.fileno(), nbytes, 4 * self.n_values * a) if nbytes else b""
+        if len(data) != nbytes:
+            raise OSError(f"spooled features: read {len(data)} of {nbytes} bytes")
+        rows = torch.from_numpy(np.frombuffer(bytearray(data), dtype=np.float32).reshape(b - a, self.n_values))
+        return rows[None] if batch == slice(None) else rows  # (1, b - a, D) or (b - a, D)
+
+    def close(self) -> None:
+        self.file.close()
+
+    def __repr__(self) -> str:
+        return f"SpooledFeatures(1 x {self.n_frames} frames x {self.n_values})"
+
+
 def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
                    sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
                    amp: bool = False, chunk: int = 900, fps: int = 30, conditions: dict | None = None):
@@ -129,7 +196,9 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     table, missing CUDA); memory beyond the model is the wave, its features (T x D_a) and one block. ``wave``
     may be an :class:`~dualtalker_lite.audio.AudioStream` (what ``animate`` passes): features are then computed
     block by block by the extractor's ``stream`` method (log-mel and the phoneme recogniser have one) and the
-    wave is never in memory whole.
+    wave is never in memory whole; on the CPU, log-mel features (``stream_rows``) go straight to a
+    :class:`SpooledFeatures` file, so neither are they (the models read them window by window). With all three,
+    memory no longer grows with the audio length beyond the recogniser's small (T, 15) viseme track.
     ``device="cuda"`` runs on the GPU, ``amp=True`` adds float16 autocast there. A block with a NaN/inf raises
     :class:`~dualtalker_lite.checks.NonFiniteError` naming its first bad frame.
     """
@@ -172,7 +241,10 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
         dev = next(model.parameters(), torch.empty(0)).device
     n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
     with torch.no_grad():
-        if streamed and hasattr(extractor, "stream"):  # log-mel, the recogniser: never the whole wave in memory
+        if streamed and hasattr(extractor, "stream_rows") and dev.type == "cpu":  # log-mel: not even A whole
+            audio = SpooledFeatures.write(extractor.stream_rows(wave.blocks, len(wave), n_frames), n_frames,
+                                          extractor.dim)  # (1, T, D_a) on disk, read window by window
+        elif streamed and hasattr(extractor, "stream"):  # the recogniser: never the whole wave in memory
             # the callable, not an iterator: the recogniser reads the file more than once (cache key, then hama)
             audio = extractor.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)
         else:  # front-ends without a stream method (wav2vec 2.0) take the whole wave

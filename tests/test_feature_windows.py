@@ -3,8 +3,12 @@ equals the whole-clip encoding + reference decoding loop when the encoder window
 margin one frame short, or windows not aligned to the positional encoding's period, change the numbers.
 
 Small encoder radii (6 frames) and blocks (16 frames) over ~100 frames: many windows, interior and at both edges."""
+import numpy as np
 import pytest
+import soundfile as sf
 import torch
+
+from dualtalker_lite.audio import AudioStream, LogMelExtractor, load_audio
 
 from dualtalker_lite.blocks.audio_encoder import AudioFeatureExtractor
 from dualtalker_lite.blocks.decoder import autoregressive_reference, zero_padding
@@ -14,6 +18,7 @@ from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
 from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+from dualtalker_lite.streaming import SpooledFeatures, predict_chunks
 
 V, DA, NS, NE = 20, 12, 3, 5
 T, CHUNK = 100, 16
@@ -261,3 +266,55 @@ def test_voca_style_block_wise_equals_forward():
     want = model({"audio": audio, "template": template, "speaker": speaker, "mask": mask})["vertices"]
     got = torch.cat(list(model.generate_chunks(audio, template, speaker, mask=mask, chunk=CHUNK)), dim=1)
     torch.testing.assert_close(got, want, atol=1e-6, rtol=0)
+
+
+# ---- the input features on disk (streaming.SpooledFeatures): what `animate` feeds the models ------------------
+def _wav(tmp_path, seconds=4.0):
+    t = np.arange(int(seconds * 16000)) / 16000
+    noise = np.random.default_rng(0).standard_normal(t.size)
+    wave = (0.3 * np.sin(2 * np.pi * 180 * t) * (np.sin(2 * np.pi * 3 * t) > 0) + 0.01 * noise).astype(np.float32)
+    path = tmp_path / "speech.wav"
+    sf.write(path, wave, 16000, subtype="PCM_16")
+    return path
+
+
+def test_spooled_features_read_back_the_stream(tmp_path):
+    path, n = _wav(tmp_path), 120
+    ex, stream = LogMelExtractor(n_mels=DA // 2), AudioStream(path)
+    want = ex.stream(stream.blocks, len(stream), n)  # (T, 12) in memory
+    spool = SpooledFeatures.write(ex.stream_rows(stream.blocks, len(stream), n), n, ex.dim, directory=tmp_path)
+    assert list(tmp_path.iterdir()) == [path]  # the file is unlinked at creation: nothing to leave behind
+    assert tuple(spool.shape) == (1, n, DA) and spool.dim() == 3 and spool.to("cpu") is spool
+    assert torch.equal(spool[:, 0:n], want[None]) and torch.equal(spool[0, 17:45], want[17:45])
+    assert tuple(spool[:, n - 2:n + 5].shape) == (1, 2, DA) and tuple(spool[:, 50:40].shape) == (1, 0, DA)
+    with pytest.raises(IndexError, match="only"):
+        spool[:, ::2]
+    with pytest.raises(ValueError, match="CPU"):
+        spool.to("cuda")
+    with pytest.raises(ValueError, match=f"expected 121 x {DA}"):
+        SpooledFeatures.write(ex.stream_rows(stream.blocks, len(stream), n), 121, ex.dim, directory=tmp_path)
+    assert list(tmp_path.iterdir()) == [path]
+
+
+SPOOLED = {"dualtalker": _dualtalker, "faceformer": _faceformer, "corrtalk": _corrtalk,
+           "emoface (emotion recognised)": _emoface, "emoface (sum, content dims)": lambda: _emoface("sum",
+                                                                                                   content_dims=4),
+           "voca": lambda: _perturbed(VocaStyle(VocaConfig.tiny(n_vertices=V, n_speakers=NS, audio_dim=DA)))}
+
+
+@pytest.mark.parametrize("name", list(SPOOLED))
+def test_animate_from_spooled_features_equals_in_memory(tmp_path, name, monkeypatch):
+    """A recording read as an AudioStream: its log-mel goes to disk and the model reads it window by window;
+    the vertices are those of the in-memory wave and features, bit for bit."""
+    model, path = SPOOLED[name](), _wav(tmp_path)
+    ex = LogMelExtractor(n_mels=DA // 2)
+    template = np.random.default_rng(1).normal(0, 0.1, V * 3).astype(np.float32)
+    spooled, write = [], SpooledFeatures.write.__func__
+    monkeypatch.setattr(SpooledFeatures, "write", classmethod(lambda cls, *a, **k: spooled.append(1) or
+                                                                write(cls, *a, **k)))
+    n, blocks = predict_chunks(model, AudioStream(path), template, 1, extractor=ex, chunk=CHUNK)
+    got = np.concatenate(list(blocks))
+    assert spooled == [1]
+    n_mem, blocks = predict_chunks(model, load_audio(path), template, 1, extractor=ex, chunk=CHUNK)
+    assert spooled == [1] and n == n_mem == 120 and got.shape == (120, V * 3)
+    np.testing.assert_array_equal(got, np.concatenate(list(blocks)))

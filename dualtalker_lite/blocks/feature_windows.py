@@ -56,9 +56,10 @@ class FeatureWindows:
     """Per-frame features of a clip of T frames, computed for one block of frames at a time.
 
     ``encode``: audio window (B, n, D_a), mask (B, n) or None -> list of features (B, n, ...) (e.g. [X] or
-    [F_strong, F_weak]); ``audio`` A (B, T, D_a); ``mask`` (B, T) True on valid frames; ``margin``: frames encoded
-    on each side of what is asked for, the encoder's receptive field (None: encode the whole clip once);
-    ``period``: of the encoder's periodic positional encoding (window starts are multiples of it); ``left``/
+    [F_strong, F_weak]); ``audio`` A (B, T, D_a): a tensor or anything sliced ``A[:, a:b]`` into one (the
+    ``animate`` command's on-disk ``streaming.SpooledFeatures``); ``mask`` (B, T) True on valid frames; ``margin``:
+    frames encoded on each side of what is asked for, the encoder's receptive field (None: encode the whole clip
+    once); ``period``: of the encoder's periodic positional encoding (window starts are multiples of it); ``left``/
     ``right``: frames before/after each block that the consumer reads (e.g. a fusion over the last frames).
     """
 
@@ -88,7 +89,8 @@ class FeatureWindows:
         hi = min(self.length, stop + max(right, self.right))
         if self._whole is None and self.margin is None:  # a global encoder: the whole clip, once
             with self._full_precision():
-                self._whole = list(self.encode(self.audio, self.mask))
+                self._whole = list(self.encode(self.audio[:, :self.length], self.mask))  # a tensor even if A
+                # is a window reader (streaming.SpooledFeatures)
         if self._whole is not None:
             feats = [f[:, lo:hi] for f in self._whole]  # views
         else:

@@ -143,7 +143,10 @@ class VocaStyle(nn.Module):
             last = mask.long().sum(1).clamp(min=1) - 1
         p = torch.arange(start - W, stop + W, device=audio.device)  # (n + 2W,) frames the block's windows cover
         idx = torch.minimum(p.clamp(min=0)[None, :], last[:, None])  # (B, n + 2W)
-        x = audio.gather(1, idx[..., None].expand(B, idx.shape[1], D))  # (B, n + 2W, D_a)
+        lo = min(max(0, start - W), int(last.min()))  # every index lies in [lo, hi): read only those frames
+        hi = min(T, stop + W)  # (a clip shorter than the block start repeats its last frame: lo reaches back to it)
+        near = audio[:, lo:hi]  # (B, hi - lo, D_a); also from an on-disk streaming.SpooledFeatures
+        x = near.gather(1, (idx - lo)[..., None].expand(B, idx.shape[1], D))  # (B, n + 2W, D_a)
         return x.unfold(1, 2 * W + 1, 1)  # (B, n, D_a, 2W+1)
 
     def speaker_code(self, speaker: torch.Tensor, batch_size: int) -> torch.Tensor:
