@@ -97,6 +97,32 @@ def test_gltf_file_holds_template_targets_weights_and_names_its_audio(clip, tmp_
     assert report.bytes / (len(verts) / 30 / 60) < 5e6
 
 
+def test_glb_is_written_piece_by_piece_as_pygltflib_writes_it(clip, tmp_path):
+    """write_gltf streams the GLB (header, JSON chunk, BIN chunk) without joining the buffer in memory; pygltflib,
+    the reference, loads it and saves it again to the very same bytes."""
+    import pygltflib
+
+    verts, template, faces, wave = clip
+    write_gltf(tmp_path / "a.glb", verts[:100], faces, template, wave=wave[:len(wave) * 100 // len(verts)])
+    data = (tmp_path / "a.glb").read_bytes()
+    assert data[:4] == b"glTF" and int.from_bytes(data[8:12], "little") == len(data)
+    n_json = int.from_bytes(data[12:16], "little")
+    assert data[16:20] == b"JSON" and (20 + n_json) % 4 == 0 and data[24 + n_json:28 + n_json] == b"BIN\0"
+    pygltflib.GLTF2.load_binary(str(tmp_path / "a.glb")).save_binary(str(tmp_path / "b.glb"))
+    assert (tmp_path / "b.glb").read_bytes() == data
+
+
+def test_split_signed_by_hand():
+    """Two components: c_0 in [-1, 2] gives a '+' target 2 B_0 and a '-' target -1 B_0; c_1 >= 0 only '+'."""
+    components = np.array([[1.0, 0.0], [0.0, 1.0]], np.float32)
+    coeffs = np.array([[2.0, 0.5], [-1.0, 0.0], [1.0, 0.25]], np.float32)  # (T, K)
+    targets, weights, names = split_signed(components, coeffs)
+    assert names == ["pc00+", "pc00-", "pc01+"] and weights.dtype == np.float32
+    np.testing.assert_array_equal(targets, [[2, 0], [-1, 0], [0, 0.5]])
+    np.testing.assert_array_equal(weights, [[1, 0, 1], [0, 1, 0], [0.5, 0, 0.5]])
+    np.testing.assert_allclose(weights @ targets, coeffs @ components)
+
+
 def test_bad_input_is_one_clear_error_and_leaves_no_file(clip, tmp_path):
     verts, template, faces, _ = clip
     bad = np.array(verts[:30])

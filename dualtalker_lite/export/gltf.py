@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -206,27 +207,27 @@ def _select_k(clip, base, B, tol, block) -> int | None:
 
 
 def split_signed(components: np.ndarray, coeffs: np.ndarray):
-    """Signed PCA -> non-negative morph targets: (targets (J, 3V), weights (T, J) in [0, 1], names, source index).
+    """Signed PCA -> non-negative morph targets: (targets (J, 3V), weights (T, J) float32 in [0, 1], names).
 
     Component k yields ``+max(c_k) B_k`` (weight ``max(c, 0) / max(c_k)``) if any coefficient is positive and
     ``min(c_k) B_k`` (weight ``min(c, 0) / min(c_k)``) if any is negative; ``targets.T @ weights`` equals
     ``components.T @ coeffs`` at every frame. J <= 2K.
     """
-    targets, columns, names = [], [], []
+    his, los = coeffs.max(0), coeffs.min(0)  # (K,) each
+    kept = []  # (k, the extreme coefficient that scales its target): +max first, then min, per component
     for k in range(components.shape[0]):
-        c = coeffs[:, k]
-        hi, lo = float(c.max()), float(c.min())
-        if hi > 0:
-            targets.append(components[k] * hi)
-            columns.append(np.clip(c / hi, 0.0, 1.0))
-            names.append(f"pc{k:02d}+")
-        if lo < 0:
-            targets.append(components[k] * lo)
-            columns.append(np.clip(c / lo, 0.0, 1.0))
-            names.append(f"pc{k:02d}-")
-    if not targets:  # a motionless clip: one zero target keeps the animation valid
-        targets, columns, names = [np.zeros_like(components[0])], [np.zeros(len(coeffs), np.float32)], ["pc00+"]
-    return (np.asarray(targets, np.float32), np.ascontiguousarray(np.stack(columns, 1), np.float32), names)
+        kept += [(k, float(his[k]))] if his[k] > 0 else []
+        kept += [(k, float(los[k]))] if los[k] < 0 else []
+    if not kept:  # a motionless clip: one zero target keeps the animation valid
+        return (np.zeros((1, components.shape[1]), np.float32), np.zeros((len(coeffs), 1), np.float32), ["pc00+"])
+    targets = np.empty((len(kept), components.shape[1]), np.float32)  # (J, 3V)
+    weights = np.empty((len(coeffs), len(kept)), np.float32)  # (T, J), filled column by column: no second copy
+    names = []
+    for j, (k, ext) in enumerate(kept):
+        targets[j] = components[k] * ext
+        np.clip(coeffs[:, k] / ext, 0.0, 1.0, out=weights[:, j], casting="unsafe")
+        names.append(f"pc{k:02d}{'+' if ext > 0 else '-'}")
+    return targets, weights, names
 
 
 def _check_written(clip, base, targets, weights, block) -> tuple[float, float]:
@@ -319,10 +320,9 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
     pieces, views = [], []
 
     def add_view(data: np.ndarray, target: int | None) -> int:
-        offset = sum(len(p) for p in pieces)
-        raw = np.ascontiguousarray(data).tobytes()
-        pieces.append(raw + b"\0" * (-len(raw) % 4))
-        views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw), target=target))
+        offset = sum(p.nbytes + (-p.nbytes % 4) for p in pieces)  # each view starts 4-byte aligned
+        pieces.append(data)  # written to the file by _write_glb, block by block: never joined in memory
+        views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=data.nbytes, target=target))
         return len(views) - 1
 
     accessors = []
@@ -343,10 +343,9 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
     times = (np.arange(T, dtype=np.float64) / fps).astype("<f4")
     v_time = add_view(times, None)
     a_time = add_accessor(v_time, _FLOAT, T, g.SCALAR, 0, [float(times[0])], [float(times[-1])])
-    v_w = add_view(weights.astype("<f4"), None)
+    v_w = add_view(np.asarray(weights, "<f4"), None)  # (T, J): the only part that grows with T
     a_w = add_accessor(v_w, _FLOAT, T * J, g.SCALAR)
-    blob = b"".join(pieces)
-    del pieces
+    n_bin = sum(p.nbytes + (-p.nbytes % 4) for p in pieces)
 
     audio = path.with_suffix(AUDIO_SUFFIX) if wave is not None else None
     extras = {"fps": fps, "frames": T, "morph_max_error_m": max_err, "morph_mean_error_m": mean_err,
@@ -368,14 +367,12 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
                                 samplers=[g.AnimationSampler(input=a_time, output=a_w, interpolation="LINEAR")],
                                 channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(
                                     node=0, path="weights"))])],
-        accessors=accessors, bufferViews=views, buffers=[g.Buffer(byteLength=len(blob))])
-    gltf.set_binary_blob(blob)
-    del blob
+        accessors=accessors, bufferViews=views, buffers=[g.Buffer(byteLength=n_bin)])
     partial = path.with_name(path.name + ".partial")
     try:
         if audio is not None:
             write_wav(audio.with_name(audio.name + ".partial.wav"), wave, sample_rate)
-        gltf.save_binary(str(partial))
+        _write_glb(partial, gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8"), pieces, n_bin)
         os.replace(partial, path)
         if audio is not None:
             os.replace(audio.with_name(audio.name + ".partial.wav"), audio)
@@ -384,6 +381,25 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
             if p is not None and p.exists():
                 p.unlink()
     return GltfReport(path, audio, T, K, J, max_err, mean_err, path.stat().st_size, extras)
+
+
+def _write_glb(path: Path, json_blob: bytes, pieces: list[np.ndarray], n_bin: int, block: int = 1 << 22) -> None:
+    """A binary glTF (GLB 2.0) file: the 12-byte header, the JSON chunk (padded with spaces so that the binary
+    data starts 4-byte aligned in the file), then the BIN chunk: ``pieces`` in order, each padded with zeros to
+    4 bytes, ``n_bin`` bytes in all, written ``block`` bytes at a time (the same bytes as pygltflib's
+    ``save_binary``, without its copies of the whole buffer: for hours of animation the weights are most of it)."""
+    json_blob += b" " * (-(12 + len(json_blob)) % 4)
+    with open(path, "wb") as f:
+        f.write(b"glTF" + struct.pack("<II", 2, 12 + 8 + len(json_blob) + 8 + n_bin))
+        f.write(struct.pack("<I", len(json_blob)) + b"JSON" + json_blob)
+        f.write(struct.pack("<I", n_bin) + b"BIN\0")
+        for piece in pieces:
+            flat = np.ascontiguousarray(piece).reshape(-1).view(np.uint8)
+            for a in range(0, flat.size, block):
+                f.write(flat[a:a + block].data)
+            f.write(b"\0" * (-flat.size % 4))
+        if f.tell() != 12 + 8 + len(json_blob) + 8 + n_bin:
+            raise RuntimeError(f"{path}: wrote {f.tell()} bytes, announced {12 + 16 + len(json_blob) + n_bin}")
 
 
 def read_gltf_animation(path: str | os.PathLike) -> dict:
