@@ -211,30 +211,45 @@ def split_signed(components: np.ndarray, coeffs: np.ndarray):
 
     Component k yields ``+max(c_k) B_k`` (weight ``max(c, 0) / max(c_k)``) if any coefficient is positive and
     ``min(c_k) B_k`` (weight ``min(c, 0) / min(c_k)``) if any is negative; ``targets.T @ weights`` equals
-    ``components.T @ coeffs`` at every frame. J <= 2K.
+    ``components.T @ coeffs`` at every frame. J <= 2K. (:func:`signed_targets` then :func:`signed_weights`, which
+    :func:`write_gltf` runs block by block.)
     """
-    his, los = coeffs.max(0), coeffs.min(0)  # (K,) each
+    targets, kept, names = signed_targets(components, coeffs.max(0), coeffs.min(0))
+    return targets, signed_weights(coeffs, kept), names
+
+
+def signed_targets(components: np.ndarray, his: np.ndarray, los: np.ndarray):
+    """The targets of :func:`split_signed` from each coefficient's largest and smallest value over the clip
+    (``his``, ``los``: (K,)) -> (targets (J, 3V) float32, kept [(k, extreme)] per target, names)."""
     kept = []  # (k, the extreme coefficient that scales its target): +max first, then min, per component
     for k in range(components.shape[0]):
         kept += [(k, float(his[k]))] if his[k] > 0 else []
         kept += [(k, float(los[k]))] if los[k] < 0 else []
-    if not kept:  # a motionless clip: one zero target keeps the animation valid
-        return (np.zeros((1, components.shape[1]), np.float32), np.zeros((len(coeffs), 1), np.float32), ["pc00+"])
+    if not kept:  # a motionless clip: one zero target (weight 0) keeps the animation valid
+        return np.zeros((1, components.shape[1]), np.float32), [(0, 0.0)], ["pc00+"]
     targets = np.empty((len(kept), components.shape[1]), np.float32)  # (J, 3V)
-    weights = np.empty((len(coeffs), len(kept)), np.float32)  # (T, J), filled column by column: no second copy
-    names = []
     for j, (k, ext) in enumerate(kept):
         targets[j] = components[k] * ext
-        np.clip(coeffs[:, k] / ext, 0.0, 1.0, out=weights[:, j], casting="unsafe")
-        names.append(f"pc{k:02d}{'+' if ext > 0 else '-'}")
-    return targets, weights, names
+    return targets, kept, [f"pc{k:02d}{'+' if ext > 0 else '-'}" for k, ext in kept]
+
+
+def signed_weights(coeffs: np.ndarray, kept) -> np.ndarray:
+    """Coefficients (n, K) of some frames -> their morph weights (n, J) float32 in [0, 1] (``kept`` from
+    :func:`signed_targets`; an extreme of 0 is the motionless clip's zero target)."""
+    weights = np.zeros((len(coeffs), len(kept)), np.float32)
+    for j, (k, ext) in enumerate(kept):
+        if ext:
+            np.clip(coeffs[:, k] / ext, 0.0, 1.0, out=weights[:, j], casting="unsafe")
+    return weights
 
 
 def _check_written(clip, base, targets, weights, block) -> tuple[float, float]:
-    """Max and mean vertex error (metres) of ``base + weights @ targets`` (float32, as players compute it)."""
+    """Max and mean vertex error (metres) of ``base + weights @ targets`` (float32, as players compute it);
+    ``weights``: (T, J) or a function of (first frame, n) -> the (n, J) weights of those frames."""
     worst, total, count = 0.0, 0.0, 0
     for s, D in _offsets(clip, base, block):
-        err = _vertex_error(D - weights[s:s + len(D)] @ targets)
+        w = weights(s, len(D)) if callable(weights) else weights[s:s + len(D)]  # (n_b, J)
+        err = _vertex_error(D - w @ targets)
         worst, total, count = max(worst, float(err.max())), total + float(err.sum()), count + err.size
     return worst, total / count
 
@@ -305,7 +320,9 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
         raise ValueError("template has non-finite vertices")
     for search_tol in (tol, tol / 2, tol / 4):  # a tighter search only in the rare non-monotone case
         basis = morph_basis(clip, base, tol=search_tol, block=block)
-        targets, weights, names = split_signed(basis.components, basis.coeffs)
+        C = basis.coeffs  # (T, K) float32: what stays of length T (K floats per frame)
+        targets, kept, names = signed_targets(basis.components, C.max(0), C.min(0))
+        weights = lambda s, n, C=C, kept=kept: signed_weights(C[s:s + n], kept)  # noqa: E731 (n, J) on demand
         max_err, mean_err = _check_written(clip, base, targets, weights, block)
         if max_err < tol:
             break
@@ -343,7 +360,8 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
     times = (np.arange(T, dtype=np.float64) / fps).astype("<f4")
     v_time = add_view(times, None)
     a_time = add_accessor(v_time, _FLOAT, T, g.SCALAR, 0, [float(times[0])], [float(times[-1])])
-    v_w = add_view(np.asarray(weights, "<f4"), None)  # (T, J): the only part that grows with T
+    v_w = add_view(_Blocks(T * J * 4, lambda: (weights(a, min(block, T - a)) for a in range(0, T, block))),
+                   None)  # (T, J) float32 weights, computed and written block by block
     a_w = add_accessor(v_w, _FLOAT, T * J, g.SCALAR)
     n_bin = sum(p.nbytes + (-p.nbytes % 4) for p in pieces)
 
@@ -383,7 +401,14 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
     return GltfReport(path, audio, T, K, J, max_err, mean_err, path.stat().st_size, extras)
 
 
-def _write_glb(path: Path, json_blob: bytes, pieces: list[np.ndarray], n_bin: int, block: int = 1 << 22) -> None:
+@dataclass
+class _Blocks:
+    """A buffer view whose data comes as consecutive arrays (``blocks()``), ``nbytes`` in all: never whole."""
+    nbytes: int
+    blocks: object
+
+
+def _write_glb(path: Path, json_blob: bytes, pieces: list, n_bin: int, block: int = 1 << 22) -> None:
     """A binary glTF (GLB 2.0) file: the 12-byte header, the JSON chunk (padded with spaces so that the binary
     data starts 4-byte aligned in the file), then the BIN chunk: ``pieces`` in order, each padded with zeros to
     4 bytes, ``n_bin`` bytes in all, written ``block`` bytes at a time (the same bytes as pygltflib's
@@ -394,10 +419,11 @@ def _write_glb(path: Path, json_blob: bytes, pieces: list[np.ndarray], n_bin: in
         f.write(struct.pack("<I", len(json_blob)) + b"JSON" + json_blob)
         f.write(struct.pack("<I", n_bin) + b"BIN\0")
         for piece in pieces:
-            flat = np.ascontiguousarray(piece).reshape(-1).view(np.uint8)
-            for a in range(0, flat.size, block):
-                f.write(flat[a:a + block].data)
-            f.write(b"\0" * (-flat.size % 4))
+            for part in (piece.blocks() if isinstance(piece, _Blocks) else [piece]):
+                flat = np.ascontiguousarray(part, "<f4" if part.dtype.kind == "f" else None).reshape(-1).view(np.uint8)
+                for a in range(0, flat.size, block):
+                    f.write(flat[a:a + block].data)
+            f.write(b"\0" * (-piece.nbytes % 4))
         if f.tell() != 12 + 8 + len(json_blob) + 8 + n_bin:
             raise RuntimeError(f"{path}: wrote {f.tell()} bytes, announced {12 + 16 + len(json_blob) + n_bin}")
 
