@@ -211,8 +211,8 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
     the clip's mean frame) and print the morph targets' count and measured max/mean vertex error.
     """
     folder = Path(folder)
-    if hasattr(wave, "blocks") and ({"html", "mp4"} & set(formats)):
-        wave = wave.read()  # the page inlines the sound and the video muxes it: these two take the whole wave
+    if hasattr(wave, "blocks") and "html" in formats:
+        wave = wave.read()  # the page inlines the sound: it takes the whole wave (the mp4 copies it block by block)
     own = isinstance(verts, (str, Path)) and Path(verts).resolve() == (folder / "vertices.npy").resolve()
     clip = _frames(verts)  # (T, V, 3)
     written = []

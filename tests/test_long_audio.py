@@ -170,6 +170,26 @@ def test_render_video_from_a_memory_mapped_npy(tmp_path, sphere):
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.mp4"]  # no temporary folder left
 
 
+@pytest.mark.parametrize("seconds", [0.5, 1.0, 2.5])  # shorter than, exactly, longer than the video's 1 s
+def test_video_audio_from_a_stream_equals_the_whole_wave(tmp_path, seconds):
+    """The mp4's audio track is written from an AudioStream block by block (never whole): the same WAV bytes as
+    from the wave in memory, trimmed or zero-padded to the video's duration."""
+    import soundfile as sf
+
+    from dualtalker_lite.viz.animate import _write_wav
+
+    wave = (0.5 * np.sin(np.arange(int(seconds * 16000)) * 0.05)).astype(np.float32)
+    sf.write(tmp_path / "in.wav", wave, 16000, subtype="PCM_16")
+    stream = A.AudioStream(tmp_path / "in.wav", block_s=0.3)  # several blocks
+    _write_wav(tmp_path / "a.wav", stream, 16000, n_samples=16000)
+    _write_wav(tmp_path / "b.wav", stream.read(), 16000, n_samples=16000)
+    assert (tmp_path / "a.wav").read_bytes() == (tmp_path / "b.wav").read_bytes()
+    back, sr = sf.read(tmp_path / "a.wav", dtype="float32")
+    n = min(len(wave), 16000)
+    assert sr == 16000 and len(back) == 16000 and not back[n:].any()
+    np.testing.assert_allclose(back[:n], stream.read()[:n], atol=1 / 32767)
+
+
 def test_render_video_failure_leaves_no_temporary_folder(tmp_path, sphere, monkeypatch):
     if ffmpeg_exe() is None:
         pytest.skip("no ffmpeg")

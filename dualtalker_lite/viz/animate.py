@@ -188,7 +188,8 @@ def render_video(vertices, faces: np.ndarray, path: str | Path, wave: np.ndarray
                  sample_rate: int = 16000, fps: float = 30, size: int = 256, progress: bool = True,
                  renderer: str = "raster", preset: str = "veryfast", **kwargs) -> ClipAnimation:
     """An mp4 of a predicted clip, for long clips: ``vertices`` (T, V*3) or (T, V, 3), an array, a tensor or
-    the path of a ``.npy`` (memory-mapped, never loaded whole); the speech ``wave`` is muxed in (AAC).
+    the path of a ``.npy`` (memory-mapped, never loaded whole); the speech ``wave`` (an array or an
+    ``audio.AudioStream``, read block by block) is muxed in (AAC).
 
     Fast defaults (Pillow renderer, x264 ``veryfast``) and a progress bar; ``kwargs`` go to :func:`animate_clip`
     (``view``, ``colors``, ``crf``...). The temporary folder is removed on failure and on interruption.
@@ -224,12 +225,21 @@ def _write_video(path: Path, frames, size: tuple[int, int], fps: float, crf: int
 
 
 def _write_wav(path: Path, wave: np.ndarray, sample_rate: int, n_samples: int) -> None:
-    """The speech trimmed or zero-padded to exactly the video's duration, 16-bit PCM."""
+    """The speech trimmed or zero-padded to exactly the video's duration, 16-bit PCM. ``wave``: an array, or
+    anything with a ``blocks()`` method (an ``audio.AudioStream``: copied block by block, never whole)."""
     import soundfile as sf
 
-    wave = np.asarray(wave, dtype=np.float32).ravel()[:n_samples]
-    wave = np.pad(wave, (0, n_samples - len(wave)))
-    sf.write(str(path), np.clip(wave, -1.0, 1.0), sample_rate, subtype="PCM_16")
+    pieces = wave.blocks() if hasattr(wave, "blocks") else [np.asarray(wave, dtype=np.float32).ravel()]
+    written = 0
+    with sf.SoundFile(str(path), "w", sample_rate, 1, subtype="PCM_16", format="WAV") as f:
+        for piece in pieces:
+            piece = np.asarray(piece, dtype=np.float32).ravel()[:n_samples - written]
+            f.write(np.clip(piece, -1.0, 1.0))
+            written += len(piece)
+            if written == n_samples:
+                break
+        if written < n_samples:
+            f.write(np.zeros(n_samples - written, np.float32))
 
 
 def _mux(exe: str, video: Path, audio: Path, out: Path) -> None:
