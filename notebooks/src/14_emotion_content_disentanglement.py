@@ -298,9 +298,8 @@ plt.show()
 # yet at this budget (in this run emotion is read from $F_c$ about as well as from $F_e$, or better: printed above),
 # and sentence still explains more of either space than emotion does: the separation eqs. 7-10 aim for has started,
 # not finished; this notebook shows the machinery. With the
-# tables' budget (840 steps, notebook 15 section 7) the same classifier names the emotion of half the test-emo-A clips
-# (0.50 over 5 seeds, `benchmarks/emoface_classifier.py --checkpoints`; those tables were computed before the
-# eq. 15 reading of section 3 was corrected, results/emotion.md says so).
+# tables' budget (840 steps, notebook 15 section 7) the same classifier names the emotion of fewer than half the
+# test-emo-A clips (0.45 ± 0.06 over 5 seeds, the "emotion acc." column of `results/emotion.md`).
 
 # %% [markdown]
 # ## 6. A pseudo-pair in 3D
