@@ -11,6 +11,7 @@ import torch
 from dualtalker_lite.checkpoints import load_checkpoint, model_registry, save_checkpoint
 from dualtalker_lite.losses.corrtalk import CorrTalkWeights, corrtalk_loss, reconstruction_loss, velocity_loss
 from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
+from builders import perturbed as _perturbed
 
 V, DA, NS = 12, 8, 3
 
@@ -29,15 +30,6 @@ def _batch(b=2, t=20, seed=0):
     motion = torch.cumsum(torch.randn(b, t, V * 3, generator=g) * 1e-4, dim=1)  # metres, smooth-ish
     return {"audio": torch.randn(b, t, DA, generator=g), "vertices": template[:, None] + motion,
             "template": template, "speaker": torch.arange(b) % NS, "mask": torch.ones(b, t, dtype=torch.bool)}
-
-
-def _perturbed(model, scale=0.05, seed=0):
-    """An untrained model has zero decoders (it outputs the template): give every weight some value."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * scale)
-    return model.eval()
 
 
 # ---------------------------------------------------------------- loss, hand-computed

@@ -9,6 +9,7 @@ from dualtalker_lite.losses.emoface import (EmoFaceWeights, classification_loss,
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig, frame_level_stats
 from dualtalker_lite.models.emoface import self_growing_share
 from dualtalker_lite.train import TrainConfig, train
+from builders import grid_faces as _grid_faces
 
 V, DA, NS, NE = 20, 12, 3, 5  # tiny sizes keep the tests fast
 
@@ -103,16 +104,6 @@ def _cfg(**kw):
     kw = {"motion_scale": 1.0, "fusion": "sum", **kw}
     return EmoFaceConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=NS, n_emotions=NE, d_model=32, d_ff=64,
                               audio_hidden=32, **kw)
-
-
-def _grid_faces(rows=4, cols=5):
-    """A flat (rows x cols) grid, two triangles per square, consistently oriented: V = 20 vertices."""
-    faces = []
-    for i in range(rows - 1):
-        for j in range(cols - 1):
-            a, b, c, d = i * cols + j, i * cols + j + 1, (i + 1) * cols + j, (i + 1) * cols + j + 1
-            faces += [(a, b, d), (a, d, c)]
-    return torch.tensor(faces).numpy()
 
 
 def _model(seed=0, **kw):

@@ -19,6 +19,7 @@ from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig
 from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
 from dualtalker_lite.streaming import SpooledFeatures, predict_chunks
+from builders import grid_faces as _grid_faces, perturbed as _perturbed
 
 V, DA, NS, NE = 20, 12, 3, 5
 T, CHUNK = 100, 16
@@ -33,15 +34,6 @@ def _inputs(b=2, t=T, seed=0, pad=9):
     mask[1:, t - pad:] = False
     return (torch.randn(b, t, DA, generator=g), torch.randn(b, V * 3, generator=g) * 0.1,
             torch.arange(b) % NS, mask)
-
-
-def _perturbed(model, scale=0.05, seed=0):
-    """Untrained decoders are zero (every frame the template): give every weight some value."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * scale)
-    return model.eval()
 
 
 def _far(a, b):
@@ -201,16 +193,6 @@ def test_corrtalk_needs_the_whole_receptive_field(kw, monkeypatch):
     torch.testing.assert_close(run(), want, atol=1e-12, rtol=0)
     monkeypatch.setattr(model, "receptive_field", lambda: 32)  # one frame short of 33
     assert float((run() - want).abs().amax()) > 1e-10
-
-
-def _grid_faces(rows=4, cols=5):
-    """A flat (rows x cols) grid, two triangles per square: V = 20 vertices."""
-    faces = []
-    for i in range(rows - 1):
-        for j in range(cols - 1):
-            a, b, c, d = i * cols + j, i * cols + j + 1, (i + 1) * cols + j, (i + 1) * cols + j + 1
-            faces += [(a, b, d), (a, d, c)]
-    return torch.tensor(faces).numpy()
 
 
 def _emoface(fusion="mesh_attention", **kw):
