@@ -4,6 +4,8 @@ Usage (repository root; about 20-30 CPU minutes in all, two worker processes of 
 
     apt-get install -y asterisk-core-sounds-en-wav asterisk-core-sounds-en   # recordings + their prompt texts
     .venv/bin/python benchmarks/real_voices.py --tune         # choose lag/window on the synthetic corpus (prints)
+    .venv/bin/python -m dualtalker_lite.experiments --table emotion emoface --seeds 0 1 2 --epochs 12 \
+        --out results/phonetic/ --save-models runs/emotional_tables_phonetic     # EmoFace's checkpoints (optional)
     .venv/bin/python benchmarks/real_voices.py --seeds 3      # train, evaluate -> results/real_voices.md/.json
 
 Real voices. Debian's ``asterisk-core-sounds-en-wav`` (CC-BY-SA 3.0, "Allison", one professional US voice, 8 kHz
@@ -28,7 +30,9 @@ Rows. The rig reference itself; "rig driven by the recogniser" (its per-frame vi
 segments and coarticulated by the rig, no learning); tiny DualTalker and FaceFormer-style models trained on log-mel
 (today's default); the same trained on the corpus's viseme labels (``data.dataset.VisemeLabels``) and fed the
 recogniser's classes at test time (the phonetic route); DualTalker end to end on the recogniser's log-probs +
-log-mel. Nothing is tuned on the real recordings: lag and window come from ``--tune`` on the synthetic training
+log-mel; EmoFace on the phonetic route, not trained here but read from the experiment runner's checkpoints of the
+emotional tables (:data:`CHECKPOINT_ROWS`: it needs the emotional corpus; a seed without a checkpoint is skipped
+with one line). Nothing is tuned on the real recordings: lag and window come from ``--tune`` on the synthetic training
 split; training uses only the shipped corpus.
 """
 from __future__ import annotations
@@ -95,8 +99,17 @@ MODELS = {  # row -> (architecture, training input, test input)
     "CorrTalk, phonetic (labels -> recogniser visemes)": ("corrtalk", "labels", "visemes"),
     "DualTalker, end to end (recogniser log-probs + log-mel)": ("dualtalker", "e2e", "e2e"),
 }
+# Rows not trained here: the experiment runner's saved checkpoints, evaluated the same way. EmoFace learns its
+# emotion branch from the emotional corpus (560 clips of 4 emotions x 3 levels, 12 epochs), so the runner's
+# emotional tables train it (`--table emotion emoface --save-models DIR`); its content branch reads the viseme
+# one-hot, its emotion branch the log-mel after it ("visemes+logmel"). Row -> (checkpoint pattern, test input).
+CHECKPOINT_ROWS = {
+    "EmoFace, phonetic (labels -> recogniser visemes; emotion branch: log-mel)":
+        ("runs/emotional_tables_phonetic/EmoFace_seed{seed}.pt", "visemes+logmel"),
+}
 BASELINE = "rig driven by the recogniser's classes (no learning)"
 DIMS = {"logmel": 160, "labels": 15, "visemes": 15, "e2e": 351}
+CEILING = {"visemes": "labels", "visemes+logmel": "labels+logmel"}  # test input -> the same with the true labels
 
 
 # ------------------------------------------------------------------------------------------- real recordings
@@ -246,7 +259,8 @@ def prepare(limit: int | None = None) -> dict:
     template = corpus.template(subject)
     recogniser = PhonemeRecogniser(cache_dir=CACHE)
     ex = {"logmel": LogMelExtractor(), "visemes": RecogniserExtractor("visemes", recogniser=recogniser),
-          "e2e": RecogniserExtractor("logprobs+logmel", recogniser=recogniser)}
+          "e2e": RecogniserExtractor("logprobs+logmel", recogniser=recogniser),
+          "visemes+logmel": RecogniserExtractor("visemes+logmel", recogniser=recogniser)}
     t0 = time.time()
     prompts = read_prompts()[:limit]
     real, failed = [], []
@@ -272,11 +286,13 @@ def prepare(limit: int | None = None) -> dict:
     train = TalkingFaceDataset(corpus, "train")
     test = TalkingFaceDataset(corpus, "test_a")
     data = {"corpus": corpus, "subject": subject, "speaker": speaker, "rig": rig, "template": template, "real": real,
-            "silence": silence,
+            "silence": silence, "extractors": ex,
             "failed": failed, "train": {"logmel": train, "labels": VisemeLabels(train, pad_silence=SILENCE_PAD),
                                         "e2e": TalkingFaceDataset(corpus, "train", extractor=ex["e2e"])},
             "test": {"logmel": test, "labels": VisemeLabels(test),
+                     "labels+logmel": VisemeLabels(test, keep_audio=True),
                      "visemes": TalkingFaceDataset(corpus, "test_a", extractor=ex["visemes"]),
+                     "visemes+logmel": TalkingFaceDataset(corpus, "test_a", extractor=ex["visemes+logmel"]),
                      "e2e": TalkingFaceDataset(corpus, "test_a", extractor=ex["e2e"])}}
     return data
 
@@ -320,8 +336,8 @@ def evaluate(model, test_feature: str) -> dict:
             gts.append(batch["vertices"][i, :n].numpy())
             segs.append(d["corpus"].meta(batch["name"][i])["phonemes"])
     res["synthetic"] = lip_metrics(preds, gts, segs, lip_mid)
-    if test_feature == "visemes":                         # the same model fed the true labels: the route's ceiling
-        preds = predict_all(model, make_loader(d["test"]["labels"], 16, shuffle=False))
+    if test_feature in CEILING:                           # the same model fed the true labels: the route's ceiling
+        preds = predict_all(model, make_loader(d["test"][CEILING[test_feature]], 16, shuffle=False))
         res["synthetic_labels"] = lip_metrics(preds, gts, segs, lip_mid)
     return res
 
@@ -379,6 +395,39 @@ def run_one(job: tuple[str, int]) -> dict:
     print(f"{row} seed {seed}: trained in {cpu:.0f} CPU s; real closure<2 {res['real']['closure_2mm']:.2f} "
           f"<1 {res['real']['closure_1mm']:.2f} shut {res['real']['vowel_shut']:.3f} r {res['real']['r']:.2f}",
           flush=True)
+    return res
+
+
+def run_checkpoint(job: tuple[str, int]) -> dict | None:
+    """Evaluate one (row, seed) of :data:`CHECKPOINT_ROWS` from its saved checkpoint (None when it is not there);
+    cached as runs/real_voices/<slug>_s<seed>.json next to the trained rows, keyed by the checkpoint's bytes."""
+    import hashlib
+
+    from dualtalker_lite.checkpoints import load_checkpoint
+
+    row, seed = job
+    pattern, test_feature = CHECKPOINT_ROWS[row]
+    ckpt_path = ROOT / pattern.format(seed=seed)
+    if not ckpt_path.is_file():
+        print(f"{row} seed {seed}: no checkpoint at {ckpt_path.relative_to(ROOT)}, row skipped", flush=True)
+        return None
+    digest = hashlib.sha256(ckpt_path.read_bytes()).hexdigest()[:16]
+    slug = re.sub(r"[^a-z0-9]+", "-", row.lower()).strip("-")
+    path = OUT / f"{slug}_s{seed}.json"
+    if path.is_file():
+        res = json.loads(path.read_text())
+        if res.get("checkpoint_sha256") == digest:
+            return res
+    torch.set_num_threads(1)
+    model, ckpt = load_checkpoint(ckpt_path)
+    if ckpt.get("features") != DATA["extractors"][test_feature].settings():
+        raise SystemExit(f"{ckpt_path}: its front end {ckpt.get('features')} is not this row's "
+                         f"{DATA['extractors'][test_feature].settings()}")
+    res = {"row": row, "seed": seed, "train_cpu_s": None, "checkpoint": str(ckpt_path.relative_to(ROOT)),
+           "checkpoint_sha256": digest, **evaluate(model, test_feature), "silence": silence_motion(model, test_feature)}
+    path.write_text(json.dumps(res, indent=1))
+    print(f"{row} seed {seed}: real closure<2 {res['real']['closure_2mm']:.2f} <1 {res['real']['closure_1mm']:.2f} "
+          f"shut {res['real']['vowel_shut']:.3f} r {res['real']['r']:.2f}", flush=True)
     return res
 
 
@@ -564,7 +613,7 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
     for name, r in rows.items():
         cells = [f"{r['real'][k]:.2f}" for k, _ in keys] + [f"{r['synthetic'][k]:.2f}" for k, _ in keys]
         lines.append(f"| {name} | - | " + " | ".join(cells) + " |")
-    for row in MODELS:
+    for row in (*MODELS, *CHECKPOINT_ROWS):
         rs = [r for r in runs if r["row"] == row]
         if not rs:
             continue
@@ -582,7 +631,7 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
     for name, r in rows.items():
         lines.append(f"| {name} | {r['real']['closure_2mm_exact']:.2f} | {r['real']['closure_1mm_exact']:.2f} "
                      "| - | - |")
-    for row in MODELS:
+    for row in (*MODELS, *CHECKPOINT_ROWS):
         rs = [r for r in runs if r["row"] == row]
         if rs:
             lines.append(f"| {row} | {_ms([r['real']['closure_2mm_exact'] for r in rs])} | "
@@ -625,12 +674,17 @@ def main(argv=None) -> None:
     for name, row in rows.items():
         print(name, json.dumps(row["real"]), flush=True)
     DATA["epochs"] = args.epochs
-    jobs = [(row, s) for s in range(args.seeds) for row in (args.rows or MODELS)]
+    unknown = [r for r in args.rows or () if r not in MODELS and r not in CHECKPOINT_ROWS]
+    if unknown:
+        raise SystemExit(f"unknown row(s) {unknown}; rows: {[*MODELS, *CHECKPOINT_ROWS]}")
+    jobs = [(row, s) for s in range(args.seeds) for row in (args.rows or MODELS) if row in MODELS]
     if args.workers > 1:
         with mp.get_context("fork").Pool(args.workers) as pool:
             runs = pool.map(run_one, jobs, chunksize=1)
     else:
         runs = [run_one(j) for j in jobs]
+    runs += [r for r in (run_checkpoint((row, s)) for s in range(args.seeds) for row in CHECKPOINT_ROWS
+                         if args.rows is None or row in args.rows) if r is not None]
     import subprocess
 
     commit = subprocess.run(["git", "log", "-1", "--format=%h", "--", "benchmarks/real_voices.py",  # the code's
