@@ -79,6 +79,23 @@ def test_compare_note():
     assert "within seed noise" in ex._compare(row, {"lve_euclidean": {"mean": 5.05, "std": 0.1, "n": 3}}, "ref")
 
 
+def test_compare_note_judges_bilabial_closure_too():
+    # LVE: 5.0 vs 4.0, se = sqrt(0.01/3 + 0.01/3) = 0.0816 -> worse. Closure: 0.30 vs 0.50 with std 0.05 and 0.10
+    # over 3 seeds: se = sqrt(0.0025/3 + 0.01/3) = 0.0645, |diff| 0.20 > 0.129 -> worse (higher is better).
+    row = {"lve_euclidean": {"mean": 5.0, "std": 0.1, "n": 3},
+           "bilabial_closure_1mm": {"mean": 0.30, "std": 0.05, "n": 3}}
+    ref = {"lve_euclidean": {"mean": 4.0, "std": 0.1, "n": 3},
+           "bilabial_closure_1mm": {"mean": 0.50, "std": 0.10, "n": 3}}
+    assert ex._compare(row, ref, "ref") == "LVE +1.000 mm vs ref: worse; closed <1 mm -0.200: worse"
+    # the reverse: LVE better, closure better; the paper's claim is judged on LVE only
+    assert ex._compare(ref, row, "ref", "better") == "LVE -1.000 mm vs ref: better; closed <1 mm +0.200: better"
+    # 0.40 vs 0.50: |diff| 0.10 <= 2 se = 0.129 -> within seed noise
+    near = {**row, "bilabial_closure_1mm": {"mean": 0.40, "std": 0.05, "n": 3}}
+    assert ex._compare(near, ref, "ref").endswith("closed <1 mm -0.100: within seed noise")
+    # a table without the lip-sync metric keeps the LVE-only note
+    assert ex._compare({"lve_euclidean": row["lve_euclidean"]}, ref, "ref") == "LVE +1.000 mm vs ref: worse"
+
+
 # ------------------------------------------------------------------------------ the runner
 def test_tables_written_with_every_row(quick_tables):
     for table in ex.TABLES:
