@@ -419,3 +419,13 @@ def test_trimmed_view_keeps_named_clips_or_the_first_n():
     assert list(corpus.metadata["splits"]["train"]) == train  # the corpus itself is untouched
     with pytest.raises(ValueError, match="not in split"):
         _trimmed(corpus, {"train": ["no_such_clip"]})
+
+
+def test_swapped_in_rows_name_the_front_end_they_replace():
+    """On the phonetic default the one-hot phoneme rows replace the recogniser's classes, not log-mel."""
+    for table in ("ablation", "corrtalk"):
+        logmel = {s.row: s for s in ex.table_specs(table, features="logmel")}["phoneme one-hot features"]
+        phon = {s.row: s for s in ex.table_specs(table, features="visemes")}["phoneme one-hot features"]
+        assert phon.features == logmel.features == "phonemes"
+        assert "log-mel" in logmel.note and "log-mel" not in phon.note
+        assert phon.note == logmel.note.replace("log-mel", "the recogniser's viseme classes")

@@ -125,8 +125,9 @@ def table_specs(table: str, bandwidth: float | None = None, features: str = "log
     rows = _rows(table, bandwidth)
     if features == "logmel":
         return rows
+    # the swapped-in rows' notes name the front end they replace
     return [replace(s, features="visemes+logmel" if s.data == "pairs" else features) if s.features == "logmel"
-            else s for s in rows]
+            else replace(s, note=s.note.replace("log-mel", "the recogniser's viseme classes")) for s in rows]
 
 
 def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
