@@ -102,10 +102,14 @@ MODELS = {  # row -> (architecture, training input, test input)
 # Rows not trained here: the experiment runner's saved checkpoints, evaluated the same way. EmoFace learns its
 # emotion branch from the emotional corpus (560 clips of 4 emotions x 3 levels, 12 epochs), so the runner's
 # emotional tables train it (`--table emotion emoface --save-models DIR`); its content branch reads the viseme
-# one-hot, its emotion branch the log-mel after it ("visemes+logmel"). Row -> (checkpoint pattern, test input).
+# one-hot, its emotion branch the log-mel after it ("visemes+logmel"). At test time EmoFace recognises the emotion
+# type from the speech (the paper's model); the second row gives it "neutral" instead, as `animate --emotion
+# neutral` does. Row -> (checkpoint pattern, test input, emotion given or None = recognised).
 CHECKPOINT_ROWS = {
     "EmoFace, phonetic (labels -> recogniser visemes; emotion branch: log-mel)":
-        ("runs/emotional_tables_phonetic/EmoFace_seed{seed}.pt", "visemes+logmel"),
+        ("runs/emotional_tables_phonetic/EmoFace_seed{seed}.pt", "visemes+logmel", None),
+    "... the same models told the emotion: neutral (animate --emotion neutral)":
+        ("runs/emotional_tables_phonetic/EmoFace_seed{seed}.pt", "visemes+logmel", "neutral"),
 }
 BASELINE = "rig driven by the recogniser's classes (no learning)"
 DIMS = {"logmel": 160, "labels": 15, "visemes": 15, "e2e": 351}
@@ -398,6 +402,18 @@ def run_one(job: tuple[str, int]) -> dict:
     return res
 
 
+class GivenEmotion(torch.nn.Module):
+    """EmoFace with its emotion type given instead of recognised from the speech (``generate(emotion=...)``)."""
+    generation_conditions = ("level",)
+
+    def __init__(self, model: torch.nn.Module, emotion: int):
+        super().__init__()
+        self.model, self.emotion = model, emotion
+
+    def generate(self, audio, template, speaker, **kw):
+        return self.model.generate(audio, template, speaker, emotion=torch.full_like(speaker, self.emotion), **kw)
+
+
 def run_checkpoint(job: tuple[str, int]) -> dict | None:
     """Evaluate one (row, seed) of :data:`CHECKPOINT_ROWS` from its saved checkpoint (None when it is not there);
     cached as runs/real_voices/<slug>_s<seed>.json next to the trained rows, keyed by the checkpoint's bytes."""
@@ -406,7 +422,7 @@ def run_checkpoint(job: tuple[str, int]) -> dict | None:
     from dualtalker_lite.checkpoints import load_checkpoint
 
     row, seed = job
-    pattern, test_feature = CHECKPOINT_ROWS[row]
+    pattern, test_feature, emotion = CHECKPOINT_ROWS[row]
     ckpt_path = ROOT / pattern.format(seed=seed)
     if not ckpt_path.is_file():
         print(f"{row} seed {seed}: no checkpoint at {ckpt_path.relative_to(ROOT)}, row skipped", flush=True)
@@ -423,8 +439,19 @@ def run_checkpoint(job: tuple[str, int]) -> dict | None:
     if ckpt.get("features") != DATA["extractors"][test_feature].settings():
         raise SystemExit(f"{ckpt_path}: its front end {ckpt.get('features')} is not this row's "
                          f"{DATA['extractors'][test_feature].settings()}")
+    emotions = DATA["corpus"].emotions
+    if emotion is not None:
+        model = GivenEmotion(model, emotions.index(emotion))
+        recognised = None
+    else:                                              # what the classifier (eq. 10) hears in the real voices
+        recognised = dict.fromkeys(emotions, 0)
+        for batch in _real_batches(DATA["real"], test_feature, DATA["template"]):
+            with torch.no_grad():
+                for i in model.emotion_logits(batch["audio"], batch["mask"]).argmax(-1).tolist():
+                    recognised[emotions[i]] += 1
     res = {"row": row, "seed": seed, "train_cpu_s": None, "checkpoint": str(ckpt_path.relative_to(ROOT)),
-           "checkpoint_sha256": digest, **evaluate(model, test_feature), "silence": silence_motion(model, test_feature)}
+           "checkpoint_sha256": digest, "recognised_emotions_real": recognised, **evaluate(model, test_feature),
+           "silence": silence_motion(model, test_feature)}
     path.write_text(json.dumps(res, indent=1))
     print(f"{row} seed {seed}: real closure<2 {res['real']['closure_2mm']:.2f} <1 {res['real']['closure_1mm']:.2f} "
           f"shut {res['real']['vowel_shut']:.3f} r {res['real']['r']:.2f}", flush=True)
@@ -642,6 +669,14 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
               f"median {meta['real_lag']['median_ms']:.0f} ms (mean {meta['real_lag']['mean_ms']:.0f} ms, "
               f"{meta['real_lag']['n']} spikes); the extractor's lag is {meta['lag_s'] * 1000:.0f} ms "
               f"(chosen on the synthetic corpus). Training CPU seconds per model: {meta['train_cpu_s']}.", ""]
+    heard = [r for r in runs if r.get("recognised_emotions_real")]
+    if heard:
+        lines[-1:] = [f"EmoFace's rows are not trained here: its checkpoints come from the experiment runner's "
+                      f"emotional tables (560 clips, 12 epochs; {', '.join(sorted({r['checkpoint'] for r in heard}))}"
+                      "). The emotion its classifier (eq. 10) recognises in the real prompts, per seed: "
+                      + "; ".join(f"seed {r['seed']}: " + ", ".join(f"{k} {v}" for k, v in
+                                                                   r["recognised_emotions_real"].items() if v)
+                                  for r in heard) + ".", ""]
     (results / "real_voices.md").write_text("\n".join(lines))
     print("\n".join(lines))
 
