@@ -28,7 +28,7 @@ reference is the corpus's own ground truth and the phones are its labels.
 
 Rows. The rig reference itself; "rig driven by the recogniser" (its per-frame viseme classes turned into
 segments and coarticulated by the rig, no learning); tiny DualTalker and FaceFormer-style models trained on log-mel
-(today's default); the same trained on the corpus's viseme labels (``data.dataset.VisemeLabels``) and fed the
+(the papers' kind of input); the same trained on the corpus's viseme labels (``data.dataset.VisemeLabels``) and fed the
 recogniser's classes at test time (the phonetic route); DualTalker end to end on the recogniser's log-probs +
 log-mel; EmoFace on the phonetic route, not trained here but read from the experiment runner's checkpoints of the
 emotional tables (:data:`CHECKPOINT_ROWS`: it needs the emotional corpus; a seed without a checkpoint is skipped
@@ -692,6 +692,9 @@ def main(argv=None) -> None:
     ap.add_argument("--epochs", type=int, default=None, help="training epochs (default: TrainConfig.tiny()'s)")
     ap.add_argument("--no-report", action="store_true", help="do not write results/ (smoke runs)")
     args = ap.parse_args(argv)
+    unknown = [r for r in args.rows or () if r not in MODELS and r not in CHECKPOINT_ROWS]
+    if unknown:
+        raise SystemExit(f"unknown row(s) {unknown}; rows: {[*MODELS, *CHECKPOINT_ROWS]}")
     if args.cost:
         OUT.mkdir(parents=True, exist_ok=True)
         (OUT / "cost.json").write_text(json.dumps(cost(), indent=1))
@@ -709,9 +712,6 @@ def main(argv=None) -> None:
     for name, row in rows.items():
         print(name, json.dumps(row["real"]), flush=True)
     DATA["epochs"] = args.epochs
-    unknown = [r for r in args.rows or () if r not in MODELS and r not in CHECKPOINT_ROWS]
-    if unknown:
-        raise SystemExit(f"unknown row(s) {unknown}; rows: {[*MODELS, *CHECKPOINT_ROWS]}")
     jobs = [(row, s) for s in range(args.seeds) for row in (args.rows or MODELS) if row in MODELS]
     if args.workers > 1:
         with mp.get_context("fork").Pool(args.workers) as pool:
