@@ -1,7 +1,7 @@
 """The ``dualtalker-lite`` console script: one entry point for users' own recordings and datasets.
 
     dualtalker-lite animate   --checkpoint M.pt --wav me.wav --speaker SPK01 --out runs/me   # a recording -> a face
-    dualtalker-lite train     --model dualtalker --epochs 45 --out runs/my_model.pt          # train on a corpus
+    dualtalker-lite train     --model dualtalker --epochs 100 --out runs/my_model.pt         # train on a corpus
     dualtalker-lite evaluate  --checkpoint runs/my_model.pt --split test_a                   # metrics on a split
     dualtalker-lite generate  --out runs/corpus --speakers 6 --sentences 20                  # synthesize a corpus
     dualtalker-lite convert-templates vocaset/templates.pkl                                  # safe pickle -> npz
@@ -29,11 +29,11 @@ __all__ = ["USER_ERRORS", "run_main", "main"]  # the first two re-exported from 
 
 # ------------------------------------------------------------------------------------- train / evaluate
 TRAIN_EXAMPLE = """examples:
-  dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt    # phonetic route: any voice
+  dualtalker-lite train --model dualtalker --epochs 100 --out runs/my_model.pt   # phonetic route: any voice
   dualtalker-lite train --model dualtalker --features logmel --out runs/logmel.pt # the papers' acoustic input
   dualtalker-lite train --model emoface --epochs 12 --out runs/my_emoface.pt     # on the emotional pseudo-pairs
   dualtalker-lite train --model voca --epochs 1 --clips 16 --out runs/check.pt   # a quick check of the whole path
-  dualtalker-lite train --model dualtalker --epochs 45 --out runs/my_model.pt --resume   # continue a killed run
+  dualtalker-lite train --model dualtalker --epochs 100 --out runs/my_model.pt --resume  # continue a killed run
   dualtalker-lite train --corpus vocaset --model faceformer --device cuda --out runs/vocaset_ff.pt"""
 
 EVAL_EXAMPLE = """example:
