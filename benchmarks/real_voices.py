@@ -24,7 +24,9 @@ closure < 2 / < 1 mm = fraction of /p b m/ phones whose minimum predicted lip di
 under the threshold; vowel frames shut = fraction of all frames inside vowel phones whose predicted lip distance
 is under 1 mm (a mouth closed as for /p b m/); r = mean over clips of the Pearson correlation of the predicted
 and reference lip-distance curves. The same metrics on the synthetic held-out sentences (``test_a``), where the
-reference is the corpus's own ground truth and the phones are its labels.
+reference is the corpus's own ground truth and the phones are its labels, plus the lip vertex error (LVE, mm,
+the tables' Euclidean reading) against the static template's; and each phonetic model's fit to its own training
+clips (fed their true labels), which tells under-fitting from a transfer problem.
 
 Rows. The rig reference itself; "rig driven by the recogniser" (its per-frame viseme classes turned into segments
 and coarticulated by the rig, no learning); tiny DualTalker and FaceFormer-style models trained on log-mel (the
@@ -66,7 +68,7 @@ from dualtalker_lite.data.dataset import (SILENCE_PAD, TalkingFaceDataset, Visem
 from dualtalker_lite.face import FaceRig, Speaker, clip_controls  # noqa: E402
 from dualtalker_lite.face.visemes import VISEMES, phoneme_to_viseme  # noqa: E402
 from dualtalker_lite.metrics import (BILABIALS, closure_rate, curve_correlation, lip_distance,  # noqa: E402
-                                     segment_extrema, segment_frames)
+                                     lve_euclidean, segment_extrema, segment_frames)
 from dualtalker_lite.recogniser import LAG_S, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track  # noqa: E402
 
 SOUNDS = Path("/usr/share/asterisk/sounds/en_US_f_Allison")
@@ -86,6 +88,7 @@ VOWELS = {ARPA_TO_ESPEAK[p] for p in ("AA AE AH AO AW AY EH ER EY IH IY OW OY UH
 VISEME_PHONE = {"sil": "_", "PP": "p", "FF": "f", "TH": "T", "DD": "d", "KK": "k", "CH": "S", "SS": "s",
                 "RR": "r", "WW": "w", "aa": "a", "E": "E", "I": "I", "O": "O:", "U": "u:"}
 SHUT_MM = 1.0
+LVE_KEY = ("lve_mm", "LVE mm")
 # pocketsphinx's phones are 10 ms-grained and often only 30 ms long (its 3-state minimum, shorter than a 33 ms mesh
 # frame), so on real voices a bilabial's window is widened by one mesh frame on each side for the timing
 # uncertainty of the alignment (fixed before any model was evaluated). The synthetic labels are exact: no widening
@@ -337,9 +340,14 @@ def evaluate(model, test_feature: str) -> dict:
     real = d["real"]
     preds = predict_all(model, _real_batches(real, test_feature, d["template"]))
     res = {"real": lip_metrics(preds, [r["ref"] for r in real], [r["segments"] for r in real], lip_mid, REAL_TOL)}
-    res["synthetic"] = corpus_metrics(model, d["test"][test_feature])
-    if test_feature in CEILING:                           # the same model fed the true labels: the route's ceiling
-        res["synthetic_labels"] = corpus_metrics(model, d["test"][CEILING[test_feature]])
+    return {**res, **synthetic_metrics(model, test_feature)}
+
+
+def synthetic_metrics(model, test_feature: str) -> dict:
+    """test_a with the row's test input, and (phonetic rows) with the true labels: the route's ceiling."""
+    res = {"synthetic": corpus_metrics(model, DATA["test"][test_feature])}
+    if test_feature in CEILING:
+        res["synthetic_labels"] = corpus_metrics(model, DATA["test"][CEILING[test_feature]])
     return res
 
 
@@ -352,8 +360,14 @@ def corpus_metrics(model, dataset, truth: bool = False) -> dict:
     gts = [b["vertices"][i, :n].numpy() for b in batches for i, n in enumerate(b["lengths"].tolist())]
     segs = [corpus.meta(name)["phonemes"] for b in batches for name in b["name"]]
     lip_mid = tuple(corpus.regions["lip_midpoints"])
-    res = lip_metrics(preds, gts, segs, lip_mid)
+    res = {**lip_metrics(preds, gts, segs, lip_mid), "lve_mm": lve(preds, gts)}
     return {**res, "ground_truth": lip_metrics(gts, gts, segs, lip_mid)} if truth else res
+
+
+def lve(preds, gts) -> float:
+    """Lip vertex error (mm): per frame the largest Euclidean error over the corpus's lip region, averaged over
+    all frames (``metrics.lve_euclidean``, the tables' "LVE, mm")."""
+    return lve_euclidean(preds, gts, DATA["corpus"].regions["lips"])
 
 
 def silence_motion(model, test_feature: str) -> dict:
@@ -397,12 +411,21 @@ def run_one(job: tuple[str, int]) -> dict:
     path = OUT / f"{slug}_s{seed}{'' if own or epochs is None else f'_e{epochs}'}.json"
     if path.is_file():
         res = json.loads(path.read_text())
-        later = {"silence": lambda m: silence_motion(m, test_feature),     # added later: from the saved weights
-                 **({"train_labels": training_fit} if train_feature == "labels" else {})}
-        if any(k not in res for k in later) and path.with_suffix(".pt").is_file():
+        later = {"silence": lambda m: {"silence": silence_motion(m, test_feature)},  # added later: from the weights
+                 "lve_mm": lambda m: synthetic_metrics(m, test_feature)}
+        if train_feature == "labels":
+            later["train_labels"] = lambda m: {"train_labels": training_fit(m)}
+        todo = [f for k, f in later.items() if k not in res and k not in res["synthetic"]]
+        if todo and path.with_suffix(".pt").is_file():
             model = build_model(arch, DIMS[train_feature], seed)
-            model.load_state_dict(torch.load(path.with_suffix(".pt"), weights_only=True))
-            res.update({k: f(model) for k, f in later.items() if k not in res})
+            try:
+                model.load_state_dict(torch.load(path.with_suffix(".pt"), weights_only=True))
+            except RuntimeError:                      # saved by an older layout of the model: those figures stay "-"
+                print(f"{row} seed {seed}: {path.with_suffix('.pt').name} no longer loads (an older model layout); "
+                      "the metrics added since are left out", flush=True)
+                return res
+            for f in todo:
+                res.update(f(model))
             path.write_text(json.dumps(res, indent=1))
         return res
     torch.set_num_threads(1)
@@ -453,7 +476,7 @@ def run_checkpoint(job: tuple[str, int]) -> dict | None:
     path = OUT / f"{slug}_s{seed}.json"
     if path.is_file():
         res = json.loads(path.read_text())
-        if res.get("checkpoint_sha256") == digest:
+        if res.get("checkpoint_sha256") == digest and "lve_mm" in res["synthetic"]:
             return res
     torch.set_num_threads(1)
     model, ckpt = load_checkpoint(ckpt_path)
@@ -500,11 +523,11 @@ def rig_rows() -> dict:
                                      c.wave(item["name"])))
         syn_gt.append(item["vertices"].numpy())
         syn_segs.append(meta["phonemes"])
-    rows["rig reference (pocketsphinx phones; synthetic: ground truth)"]["synthetic"] = lip_metrics(
-        syn_gt, syn_gt, syn_segs, lip_mid)
+    rows["rig reference (pocketsphinx phones; synthetic: ground truth)"]["synthetic"] = {
+        **lip_metrics(syn_gt, syn_gt, syn_segs, lip_mid), "lve_mm": 0.0}
     rows[BASELINE] = {
         "real": lip_metrics(recog, refs, segs, lip_mid, REAL_TOL),
-        "synthetic": lip_metrics(syn_pred, syn_gt, syn_segs, lip_mid)}
+        "synthetic": {**lip_metrics(syn_pred, syn_gt, syn_segs, lip_mid), "lve_mm": lve(syn_pred, syn_gt)}}
     # the alternative recogniser, same use: pocketsphinx's phone loop (the reference's own acoustic model: favoured)
     alt = [rig_vertices(allphone(r["wave"]), r["ref"].shape[0], d["speaker"], d["rig"], r["wave"]) for r in real]
     alt_syn = []
@@ -515,7 +538,11 @@ def rig_rows() -> dict:
         alt_syn.append(rig_vertices(allphone(wave), item["audio"].shape[0], sp, FaceRig(sp), wave))
     rows["rig driven by pocketsphinx's phone loop (alternative recogniser, no transcript)"] = {
         "real": lip_metrics(alt, refs, segs, lip_mid, REAL_TOL),
-        "synthetic": lip_metrics(alt_syn, syn_gt, syn_segs, lip_mid)}
+        "synthetic": {**lip_metrics(alt_syn, syn_gt, syn_segs, lip_mid), "lve_mm": lve(alt_syn, syn_gt)}}
+    static = [np.broadcast_to(item["template"].numpy().reshape(1, -1), g.shape) for item, g in
+              zip(d["test"]["visemes"].items, syn_gt)]                     # the static template: LVE's yardstick
+    rows["static template (no motion)"] = {"real": None, "synthetic": {**lip_metrics(static, syn_gt, syn_segs, lip_mid),
+                                                                       "lve_mm": lve(static, syn_gt)}}
     return rows
 
 
@@ -630,6 +657,13 @@ def cost(minutes: float = 5.0) -> dict:
 
 
 # ------------------------------------------------------------------------------------------- report
+def lip_extent() -> dict:
+    """Width (x) and height (y) of the lip region on the first training speaker's template, mm."""
+    lips = DATA["template"].reshape(-1, 3)[np.asarray(DATA["corpus"].regions["lips"])] * 1000.0
+    width, height = (lips.max(0) - lips.min(0))[:2]
+    return {"width": float(width), "height": float(height)}
+
+
 def _ms(values) -> str:
     v = np.array([x for x in values if x is not None and np.isfinite(x)], dtype=float)
     if v.size == 0:
@@ -658,28 +692,43 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
              "<= 0.06, r >= 0.7. Nothing was tuned on the real recordings (the recogniser's lag and window: `--tune`, "
              "synthetic training split). Vowel frames shut: lip distance < 1 mm inside a vowel.",
              "", "| row | seeds | real: " + " | real: ".join(k[1] for k in keys) + " | synthetic: "
-             + " | synthetic: ".join(k[1] for k in keys) + " |", "|---|---|" + "---|" * (2 * len(keys))]
+             + " | synthetic: ".join(k[1] for k in (*keys, LVE_KEY)) + " |", "|---|---|" + "---|" * (2 * len(keys) + 1)]
+    syn_keys = (*keys, LVE_KEY)
     for name, r in rows.items():
-        cells = [f"{r['real'][k]:.2f}" for k, _ in keys] + [f"{r['synthetic'][k]:.2f}" for k, _ in keys]
+        cells = [f"{r['real'][k]:.2f}" if r["real"] else "-" for k, _ in keys] + [f"{r['synthetic'][k]:.2f}"
+                                                                                   for k, _ in syn_keys]
         lines.append(f"| {name} | - | " + " | ".join(cells) + " |")
     for row in (*MODELS, *CHECKPOINT_ROWS):
         rs = [r for r in runs if r["row"] == row]
         if not rs:
             continue
-        cells = [_ms([r["real"][k] for r in rs]) for k, _ in keys] + [_ms([r["synthetic"][k] for r in rs])
-                                                                    for k, _ in keys]
+        cells = [_ms([r["real"][k] for r in rs]) for k, _ in keys] + [_ms([r["synthetic"].get(k) for r in rs])
+                                                                    for k, _ in syn_keys]
         lines.append(f"| {row} | {len(rs)} | " + " | ".join(cells) + " |")
         if "synthetic_labels" in rs[0]:
-            cells = ["-"] * len(keys) + [_ms([r["synthetic_labels"][k] for r in rs]) for k, _ in keys]
+            cells = ["-"] * len(keys) + [_ms([r["synthetic_labels"].get(k) for r in rs]) for k, _ in syn_keys]
             lines.append(f"| ... the same models fed the true labels (ceiling) | {len(rs)} | " + " | ".join(cells)
                          + " |")
+    h, w = meta["lip_extent_mm"]["height"], meta["lip_extent_mm"]["width"]
+    static = rows["static template (no motion)"]["synthetic"]["lve_mm"]
+    lines += ["", "Synthetic LVE (mm): per frame the largest Euclidean error over the lip region's vertices, averaged "
+              "over test_a's frames (the tables' \"LVE, mm\"). The issue's target, LVE <= 0.35 x the template's "
+              "lip-region size, is read here with the lip region's height, its smaller extent in the face's plane "
+              f"({h:.1f} mm on the first training speaker's template, width {w:.1f} mm): <= {0.35 * h:.2f} mm. With "
+              f"the width ({0.35 * w:.1f} mm) even the static template ({static:.2f} mm) would pass. The stricter "
+              "yardstick of `benchmarks/time_to_quality.py`, 0.35 x the static template's LVE, is "
+              f"{0.35 * static:.2f} mm."]
+    if any("lve_mm" not in r["synthetic"] for r in runs):
+        lines[-1] += (" A \"-\" in the LVE column: the row's cached run predates the column and its saved weights "
+                      "predate the current model layout, so LVE would need the row trained again.")
     lines += ["", "Real voices with the exact aligned-phone windows (no widening), and 6 s of room tone (-50 dBFS "
               "white noise): range and mean of the predicted lip distance (a still mouth has range ~0).", "",
               "| row | real: closure < 2 mm, exact | < 1 mm, exact | room tone: lip range mm | lip mean mm |",
               "|---|---|---|---|---|"]
     for name, r in rows.items():
-        lines.append(f"| {name} | {r['real']['closure_2mm_exact']:.2f} | {r['real']['closure_1mm_exact']:.2f} "
-                     "| - | - |")
+        if r["real"]:
+            lines.append(f"| {name} | {r['real']['closure_2mm_exact']:.2f} | {r['real']['closure_1mm_exact']:.2f} "
+                         "| - | - |")
     for row in (*MODELS, *CHECKPOINT_ROWS):
         rs = [r for r in runs if r["row"] == row]
         if rs:
@@ -764,7 +813,7 @@ def main(argv=None) -> None:
             "n_real_bilabials": rows[BASELINE]["real"]["n_bilabials"],
             "n_real_vowel_frames": rows[BASELINE]["real"]["n_vowel_frames"],
             "n_syn_bilabials": rows[BASELINE]["synthetic"]["n_bilabials"],
-            "real_lag": real_lag(), "lag_s": LAG_S,
+            "real_lag": real_lag(), "lag_s": LAG_S, "lip_extent_mm": lip_extent(),
             "train_cpu_s": ", ".join(f"{k}: {v} s" for k, v in cpu.items() if v != "-"),
             "clips": [x["name"] for x in DATA["real"]]}
     if args.no_report:
