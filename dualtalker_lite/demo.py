@@ -7,7 +7,9 @@
    ``main`` table of :mod:`dualtalker_lite.experiments`: same features, data and epoch budget), in two worker
    processes with one torch thread each, and saves their checkpoints. The front end is the phonetic route
    (``--features visemes``, issue 19): trained on the corpus's viseme labels, fed the hama phoneme recogniser's
-   viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``);
+   viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``; at this
+   budget they close the lips on most but not all of a real voice's /p b m/: ``dualtalker-lite train --epochs 100``
+   is the checkpoint for your own recordings, ``docs/front-ends.md``);
    ``--features logmel`` gives the papers' kind of input, which learns the corpus's synthetic voices only;
 2. evaluates both, plus the static template, on test-A with autoregressive generation;
 3. writes into ``--out``:
