@@ -411,11 +411,13 @@ def run_one(job: tuple[str, int]) -> dict:
     path = OUT / f"{slug}_s{seed}{'' if own or epochs is None else f'_e{epochs}'}.json"
     if path.is_file():
         res = json.loads(path.read_text())
-        later = {"silence": lambda m: {"silence": silence_motion(m, test_feature)},  # added later: from the weights
-                 "lve_mm": lambda m: synthetic_metrics(m, test_feature)}
-        if train_feature == "labels":
-            later["train_labels"] = lambda m: {"train_labels": training_fit(m)}
-        todo = [f for k, f in later.items() if k not in res and k not in res["synthetic"]]
+        todo = []                                   # metrics added after the run was cached: from its saved weights
+        if "silence" not in res:
+            todo.append(lambda m: {"silence": silence_motion(m, test_feature)})
+        if "lve_mm" not in res["synthetic"]:
+            todo.append(lambda m: synthetic_metrics(m, test_feature))
+        if train_feature == "labels" and "train_labels" not in res:
+            todo.append(lambda m: {"train_labels": training_fit(m)})
         if todo and path.with_suffix(".pt").is_file():
             model = build_model(arch, DIMS[train_feature], seed)
             try:
