@@ -95,7 +95,7 @@ LVE_KEY = ("lve_mm", "LVE mm")
 # there. Both are in the JSON (``*_exact``). Such short phones also keep the reference rig itself from closing
 # fully on about a third of the real bilabials: its own row shows it.
 REAL_TOL = 1
-# row -> (architecture, training input, test input[, epochs]); without epochs: TrainConfig.tiny()'s (or --epochs).
+# row -> (architecture, training input, test input[, epochs]); without epochs: TrainConfig.tiny()'s.
 # The "100 epochs" rows are the budget check: the tiny recipe's 37 epochs leave the phonetic decoders under-fit at
 # the lips (fed the true labels, they close test_a's bilabials < 1 mm 0.58 of the time and the *training* clips'
 # about as seldom, where the ground truth closes 0.89-0.94), so the same rows are trained 2.7x longer.
@@ -359,15 +359,17 @@ def corpus_metrics(model, dataset, truth: bool = False) -> dict:
     preds = predict_all(model, batches)
     gts = [b["vertices"][i, :n].numpy() for b in batches for i, n in enumerate(b["lengths"].tolist())]
     segs = [corpus.meta(name)["phonemes"] for b in batches for name in b["name"]]
-    lip_mid = tuple(corpus.regions["lip_midpoints"])
-    res = {**lip_metrics(preds, gts, segs, lip_mid), "lve_mm": lve(preds, gts)}
-    return {**res, "ground_truth": lip_metrics(gts, gts, segs, lip_mid)} if truth else res
+    res = synthetic_lip_metrics(preds, gts, segs)
+    return {**res, "ground_truth": synthetic_lip_metrics(gts, gts, segs)} if truth else res
 
 
-def lve(preds, gts) -> float:
-    """Lip vertex error (mm): per frame the largest Euclidean error over the corpus's lip region, averaged over
-    all frames (``metrics.lve_euclidean``, the tables' "LVE, mm")."""
-    return lve_euclidean(preds, gts, DATA["corpus"].regions["lips"])
+def synthetic_lip_metrics(preds, gts, segs) -> dict:
+    """:func:`lip_metrics` on corpus clips (exact label windows) plus the lip vertex error ``lve_mm``: per frame the
+    largest Euclidean error over the corpus's lip region, averaged over all frames (``metrics.lve_euclidean``, the
+    tables' "LVE, mm")."""
+    regions = DATA["corpus"].regions
+    return {**lip_metrics(preds, gts, segs, tuple(regions["lip_midpoints"])),
+            "lve_mm": lve_euclidean(preds, gts, regions["lips"])}
 
 
 def silence_motion(model, test_feature: str) -> dict:
@@ -407,8 +409,8 @@ def run_one(job: tuple[str, int]) -> dict:
     row, seed = job
     arch, train_feature, test_feature, *own = MODELS[row]
     slug = re.sub(r"[^a-z0-9]+", "-", row.lower()).strip("-")
-    epochs = own[0] if own else DATA.get("epochs")
-    path = OUT / f"{slug}_s{seed}{'' if own or epochs is None else f'_e{epochs}'}.json"
+    epochs = own[0] if own else None
+    path = OUT / f"{slug}_s{seed}.json"
     if path.is_file():
         res = json.loads(path.read_text())
         todo = []                                   # metrics added after the run was cached: from its saved weights
@@ -525,11 +527,11 @@ def rig_rows() -> dict:
                                      c.wave(item["name"])))
         syn_gt.append(item["vertices"].numpy())
         syn_segs.append(meta["phonemes"])
-    rows["rig reference (pocketsphinx phones; synthetic: ground truth)"]["synthetic"] = {
-        **lip_metrics(syn_gt, syn_gt, syn_segs, lip_mid), "lve_mm": 0.0}
+    rows["rig reference (pocketsphinx phones; synthetic: ground truth)"]["synthetic"] = synthetic_lip_metrics(
+        syn_gt, syn_gt, syn_segs)
     rows[BASELINE] = {
         "real": lip_metrics(recog, refs, segs, lip_mid, REAL_TOL),
-        "synthetic": {**lip_metrics(syn_pred, syn_gt, syn_segs, lip_mid), "lve_mm": lve(syn_pred, syn_gt)}}
+        "synthetic": synthetic_lip_metrics(syn_pred, syn_gt, syn_segs)}
     # the alternative recogniser, same use: pocketsphinx's phone loop (the reference's own acoustic model: favoured)
     alt = [rig_vertices(allphone(r["wave"]), r["ref"].shape[0], d["speaker"], d["rig"], r["wave"]) for r in real]
     alt_syn = []
@@ -540,11 +542,10 @@ def rig_rows() -> dict:
         alt_syn.append(rig_vertices(allphone(wave), item["audio"].shape[0], sp, FaceRig(sp), wave))
     rows["rig driven by pocketsphinx's phone loop (alternative recogniser, no transcript)"] = {
         "real": lip_metrics(alt, refs, segs, lip_mid, REAL_TOL),
-        "synthetic": {**lip_metrics(alt_syn, syn_gt, syn_segs, lip_mid), "lve_mm": lve(alt_syn, syn_gt)}}
+        "synthetic": synthetic_lip_metrics(alt_syn, syn_gt, syn_segs)}
     static = [np.broadcast_to(item["template"].numpy().reshape(1, -1), g.shape) for item, g in
               zip(d["test"]["visemes"].items, syn_gt)]                     # the static template: LVE's yardstick
-    rows["static template (no motion)"] = {"real": None, "synthetic": {**lip_metrics(static, syn_gt, syn_segs, lip_mid),
-                                                                       "lve_mm": lve(static, syn_gt)}}
+    rows["static template (no motion)"] = {"real": None, "synthetic": synthetic_lip_metrics(static, syn_gt, syn_segs)}
     return rows
 
 
@@ -772,7 +773,6 @@ def main(argv=None) -> None:
     ap.add_argument("--rows", nargs="*", default=None, help="model rows to run (default: all)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--limit", type=int, default=None, help="use only the first N prompts (smoke runs)")
-    ap.add_argument("--epochs", type=int, default=None, help="training epochs (default: TrainConfig.tiny()'s)")
     ap.add_argument("--no-report", action="store_true", help="do not write results/ (smoke runs)")
     args = ap.parse_args(argv)
     unknown = [r for r in args.rows or () if r not in MODELS and r not in CHECKPOINT_ROWS]
@@ -794,7 +794,6 @@ def main(argv=None) -> None:
     rows = rig_rows()
     for name, row in rows.items():
         print(name, json.dumps(row["real"]), flush=True)
-    DATA["epochs"] = args.epochs
     jobs = [(row, s) for s in range(args.seeds) for row in (args.rows or MODELS) if row in MODELS]
     if args.workers > 1:
         with mp.get_context("fork").Pool(args.workers) as pool:
