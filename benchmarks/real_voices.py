@@ -243,8 +243,13 @@ def viseme_segments(ids: np.ndarray, fps: float = 30.0) -> list[list]:
 def lip_metrics(preds, refs, segments, lip_mid, tolerance_frames: int = 0) -> dict:
     """closure < 2 / < 1 mm at /p b m/ (the phone's frames widened by ``tolerance_frames`` on each side; the
     ``*_exact`` keys without widening), vowel frames shut (< 1 mm), r with the reference; plus counts."""
-    curves = [lip_distance(p, *lip_mid) for p in preds]
-    ref_curves = [lip_distance(r, *lip_mid) for r in refs]
+    return curve_metrics([lip_distance(p, *lip_mid) for p in preds], [lip_distance(r, *lip_mid) for r in refs],
+                         segments, tolerance_frames)
+
+
+def curve_metrics(curves, ref_curves, segments, tolerance_frames: int = 0) -> dict:
+    """:func:`lip_metrics` from the lip-distance curves (mm, one (T,) array per clip) of the predictions and the
+    references."""
     exact = np.concatenate([segment_extrema(c, s, BILABIALS, reduce="min") for c, s in zip(curves, segments)])
     mins = np.concatenate([segment_extrema(c, s, BILABIALS, reduce="min", tolerance_frames=tolerance_frames)
                            for c, s in zip(curves, segments)])
@@ -257,7 +262,7 @@ def lip_metrics(preds, refs, segments, lip_mid, tolerance_frames: int = 0) -> di
             "closure_2mm_exact": closure_rate(exact, 2.0), "closure_1mm_exact": closure_rate(exact, 1.0),
             "bilabial_min_mm": float(mins.mean()), "vowel_shut": shut / max(vowel_frames, 1),
             "r": curve_correlation(curves, ref_curves), "n_bilabials": int(mins.size),
-            "n_vowel_frames": int(vowel_frames), "n_clips": len(preds)}
+            "n_vowel_frames": int(vowel_frames), "n_clips": len(curves)}
 
 
 # ------------------------------------------------------------------------------------------- data (parent process)

@@ -46,12 +46,24 @@ import torch
 from .experiments import (FEATURES, METRICS, TEST_SPLIT, load_data, predict_split, run_specs, split_metrics,
                           table_specs, test_features)
 
-__all__ = ["MODELS", "main"]
+__all__ = ["MODELS", "budget_notes", "main"]
 
 # label -> (row of the experiments' "main" table, checkpoint file name or None)
 MODELS = {"Static template": ("Static template", None),
           "FaceFormer-style": ("FaceFormer-style", "faceformer.pt"),
           "DualTalker": ("DualTalker", "dualtalker.pt")}
+
+
+def budget_notes(results: dict, epochs: int, budget: float | None) -> dict[str, str]:
+    """One line per trained model that the wall-clock budget stopped before the recipe's last epoch ({} if none):
+    such a model is half-trained (its lips may not close), and the demo says so instead of shipping it silently."""
+    notes = {}
+    for label, r in results.items():
+        if r.get("model_config") is not None and r["epochs"] < epochs:
+            notes[label] = (f"{label} stopped after {r['epochs']} of {epochs} epochs: the --time-budget of {budget or 0:.0f} "
+                            f"wall seconds ran out (a busy machine); its checkpoint is under-trained. Re-run with "
+                            f"--time-budget 0, or train it with dualtalker-lite train")
+    return notes
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -171,11 +183,16 @@ def main(argv: Sequence[str] | None = None) -> dict:
             files[f"checkpoint_{label}"] = out / ckpt
 
     epochs_done = {label: r["epochs"] for label, r in results.items()}
+    truncated = budget_notes(results, epochs, budget)
+    for line in truncated.values():
+        print(f"warning: {line}", file=sys.stderr)
     table = metrics_markdown(results, command, epochs_done, len(names))
     files["metrics_md"] = out / "metrics.md"
     files["metrics_md"].write_text(table)
     payload = {"command": command, "features": args.features, "epochs_requested": epochs, "epochs_trained": epochs_done,
-               "time_budget_s": budget, "seed": args.seed, "quick": args.quick, "corpus": data["path"],
+               "time_budget_s": budget, "truncated": truncated,
+               "train_cpu_seconds": {label: r.get("train_cpu_seconds", 0.0) for label, r in results.items()},
+               "seed": args.seed, "quick": args.quick, "corpus": data["path"],
                "n_train_clips": len(data["train"]), "test_clips": names, "figure_clip": clip,
                "models": {label: {k: r[k] for k in ("metrics", "train_seconds", "eval_seconds", "n_parameters",
                                                     "model_config", "loss_history")}

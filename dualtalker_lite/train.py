@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights",
-           "model_loss", "train", "training_state", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
+           "model_loss", "motion_basis", "train", "training_state", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -40,6 +40,7 @@ class TrainConfig:
     epochs: int = 20
     batch_size: int = 8
     lr: float = 1e-3                   # peak learning rate (after the warm-up)
+    betas: tuple[float, float] = (0.9, 0.999)  # Adam's moment decay rates
     seed: int = 0
     max_frames: int | None = 90        # random crop length during training (None = whole clips)
     grad_clip: float = 1.0             # max global gradient norm (0 = no clipping)
@@ -51,6 +52,8 @@ class TrainConfig:
     time_budget_s: float | None = None  # stop once this many wall-clock seconds have passed (checked every step)
     threads: int | None = None         # torch CPU threads inside train() (restored after); None = leave as is
     mean_init: bool = False            # model.init_output_bias(mean training motion) (and init_from_data(data)) first
+    pca_init: int = 0                  # k > 0: model.init_output_basis(top-k principal directions of the training
+                                       # motion, scaled by their std; VOCA's output-layer init) first; 0: off
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
@@ -269,6 +272,52 @@ def mean_motion(data) -> torch.Tensor:
     return (total / frames).float()
 
 
+@torch.no_grad()
+def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.Tensor:
+    """The top ``k`` principal directions of the training motion, each scaled by its standard deviation -> (k, V*3)
+    float32, metres (VOCA's output-layer initialisation; :meth:`MotionDecoder.init_output_basis`).
+
+    Motion = vertices - template over every valid frame (``data`` as for :func:`mean_motion`), centred on its mean.
+    At most ``max_frames`` frames enter the decomposition (evenly spaced over all of them: the directions of a
+    corpus's motion are found within a few thousand frames), and it is a randomised SVD
+    (``torch.svd_lowrank``, 4 power iterations, its own generator seeded by ``seed``): about a second on one CPU
+    thread for the sample's 1558 vertices, against ~50 s for an exact SVD of every frame. Rows are ordered by
+    decreasing variance; directions carry an arbitrary sign (either sign spans the same motion)."""
+    if k < 1:
+        raise ValueError(f"motion_basis: k must be at least 1, got {k}")
+    if hasattr(data, "__len__") and hasattr(data, "__getitem__") and not isinstance(data, (list, tuple)):
+        batches = ({**data[i], "mask": None} for i in range(len(data)))
+    else:
+        batches = iter(data)
+    frames = []
+    for b in batches:
+        motion = b["vertices"] - b["template"].unsqueeze(-2)  # (T, V*3) or (B, T, V*3)
+        if b.get("mask") is not None:
+            motion = motion[b["mask"]]
+        frames.append(motion.reshape(-1, motion.shape[-1]).float())
+    if not frames:
+        raise ValueError("motion_basis: the training set has no frames")
+    x = torch.cat(frames)  # (N, V*3)
+    if not bool(torch.isfinite(x).all()):
+        from .checks import NonFiniteError
+
+        raise NonFiniteError("training data: non-finite vertices or template; nothing was trained")
+    n = x.shape[0]
+    if n > max_frames:
+        x = x[torch.linspace(0, n - 1, max_frames).round().long()]
+    x = x - x.mean(0)
+    q = min(k + 8, *x.shape)
+    state = torch.get_rng_state()  # svd_lowrank draws from the global generator: leave the training's RNG alone
+    try:
+        torch.manual_seed(seed)
+        _, s, v = torch.svd_lowrank(x.double(), q=q, niter=4)  # x ~ U diag(s) V^T, V: (V*3, q)
+    finally:
+        torch.set_rng_state(state)
+    k = min(k, q)
+    std = s[:k] / max(x.shape[0] - 1, 1) ** 0.5  # (k,) metres
+    return (v[:, :k].T * std[:, None]).float()  # (k, V*3)
+
+
 def _generators(train_loader) -> dict[str, torch.Generator]:
     """The loader's and its dataset's own torch generators (shuffle order; crops, pseudo-pair partners)."""
     gens = {}
@@ -328,12 +377,19 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     init = getattr(model, "init_output_bias", None)
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
+    init_basis = getattr(model, "init_output_basis", None)
+    if cfg.pca_init:
+        if not callable(init_basis):
+            raise TypeError(f"TrainConfig.pca_init: {type(model).__name__} has no init_output_basis(basis)")
+        init_basis(motion_basis(getattr(train_loader, "dataset", train_loader), cfg.pca_init, seed=cfg.seed))
     init_data = getattr(model, "init_from_data", None)  # e.g. CorrTalk's FAI-initialised mask
     if cfg.mean_init and callable(init_data):
         init_data(getattr(train_loader, "dataset", train_loader))
     weights = _check_weights(model, cfg.weights)
     model.to(cfg.device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    # foreach: one fused update over all ~90 parameter tensors instead of a Python loop (about 3 ms of a ~100 ms
+    # CPU step on the tiny DualTalker; the same arithmetic)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, betas=tuple(cfg.betas), foreach=True)
     total_steps = cfg.epochs * len(train_loader)
     if cfg.max_steps is not None:
         total_steps = min(total_steps, cfg.max_steps)
@@ -362,7 +418,7 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
             _guard_finite(total, "loss", epoch, n_steps, batch)
             opt.zero_grad(set_to_none=True)
             total.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip or math.inf)
+            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip or math.inf, foreach=True)
             _guard_finite(grad_norm, "gradient norm", epoch, n_steps, batch)
             opt.step()
             for k, v in terms.items():

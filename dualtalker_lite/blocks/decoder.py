@@ -204,6 +204,25 @@ class MotionDecoder(nn.Module):
             raise ValueError(f"mean_motion: expected shape ({v3},), got {tuple(mean_motion.shape)}")
         self.motion_decoder.bias.copy_(mean_motion.to(self.motion_decoder.bias) * self.motion_scale)
 
+    @torch.no_grad()
+    def init_output_basis(self, basis: Tensor) -> None:
+        """Motion head weights = a basis of the training motion (VOCA's output-layer initialisation): ``basis``
+        (k, V*3), metres, row j the j-th principal direction scaled by its standard deviation
+        (``train.motion_basis``). Column j of the head then maps feature j to that direction, so a unit of
+        feature j moves the face by one standard deviation of the j-th mode; the first k <= d columns are set,
+        the rest zeroed. With a zero head (the default) no gradient reaches the fusion layers until the head
+        has grown; with this one the whole network learns from the first step."""
+        v3 = 3 * self.n_vertices
+        if not isinstance(self.motion_decoder, nn.Linear):
+            raise ValueError("init_output_basis: the motion head is tied to the motion encoder (tie_output); "
+                             "it has no weights of its own to initialise")
+        if basis.dim() != 2 or basis.shape[1] != v3:
+            raise ValueError(f"basis: expected shape (k, {v3}), got {tuple(basis.shape)}")
+        weight = self.motion_decoder.weight  # (V*3, d)
+        k = min(basis.shape[0], weight.shape[1])
+        weight.zero_()
+        weight[:, :k] = basis[:k].T.to(weight) * self.motion_scale  # (V*3, k) in mm per unit feature
+
     # ---- the three ways to run it ---------------------------------------------------------------------------
     def teacher_forced(self, past_motion: Tensor, features: Tensor, style: Tensor, mask: Tensor | None = None,
                        weights: list | None = None) -> Tensor:

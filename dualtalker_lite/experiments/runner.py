@@ -233,6 +233,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
                   "epochs": len(history.terms) if history else 0,
                   "metrics": metrics, "collapsed": bool(reasons), "collapse_reasons": reasons,
                   "train_seconds": train_seconds, "eval_seconds": time.perf_counter() - t1,
+                  "train_cpu_seconds": history.cpu_seconds[-1] if history and history.cpu_seconds else 0.0,
+                  "steps": history.steps[-1] if history and history.steps else 0,
                   "n_parameters": sum(p.numel() for p in model.parameters() if p.requires_grad),
                   "model_config": asdict(model_cfg) if model_cfg is not None else None,
                   "train_config": {k: v for k, v in asdict(train_cfg).items()},

@@ -220,6 +220,15 @@ class VocaStyle(nn.Module):
         self.decoder.bias.copy_(mean_motion.to(self.decoder.bias))
 
     @torch.no_grad()
+    def init_output_basis(self, basis: torch.Tensor) -> None:
+        """``train``'s PCA initialisation (``TrainConfig.pca_init``): D's first k columns = the training motion's
+        principal directions scaled by their standard deviations (k, V*3), metres; the rest zero."""
+        check_shape(basis, (basis.shape[0], self.cfg.n_vertices * 3), "basis")
+        k = min(basis.shape[0], self.cfg.latent)
+        self.decoder.weight.zero_()
+        self.decoder.weight[:, :k] = basis[:k].T.to(self.decoder.weight)
+
+    @torch.no_grad()
     def init_decoder_pca(self, motion: torch.Tensor) -> torch.Tensor:
         """VOCA's decoder init: rows of D = the top ``latent`` principal directions of training motion (N, V*3),
         scaled by their standard deviation, bias = the mean motion. Returns the explained-variance ratios."""

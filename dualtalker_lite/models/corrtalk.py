@@ -250,6 +250,13 @@ class CorrTalk(nn.Module):
             if branch is not None:
                 branch.init_output_bias(mean_motion)
 
+    @torch.no_grad()
+    def init_output_basis(self, basis: Tensor) -> None:
+        """Both motion decoders' heads = the training motion's principal directions (k, V*3), metres."""
+        for branch in (self.strong, self.weak):
+            if branch is not None:
+                branch.init_output_basis(basis)
+
     # ---- training: teacher forcing -----------------------------------------------------------------
     def forward(self, batch: dict) -> dict:
         """Eqs. 1-8 with teacher forcing on a batch (``docs/design.md``) -> dict.

@@ -185,6 +185,11 @@ class DualTalker(nn.Module):
         """Data-dependent init (``train`` calls it): motion head bias = the training set's mean motion (V*3,)."""
         self.decoder.init_output_bias(mean_motion)
 
+    def init_output_basis(self, basis: Tensor) -> None:
+        """Data-dependent init (``train`` calls it when ``TrainConfig.pca_init``): motion head weights = the
+        training motion's principal directions (k, V*3) (:meth:`MotionDecoder.init_output_basis`)."""
+        self.decoder.init_output_basis(basis)
+
     def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
         """The joint loss of section III-F, λ1 L_primal + λ2 L_dual + λ3 L_DR + λ4 L_CCRL (``losses.joint_loss``)
         on :meth:`forward`'s output -> (total, detached terms). The training loop calls this, not the loss module.

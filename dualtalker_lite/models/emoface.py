@@ -390,6 +390,12 @@ class EmoFace(nn.Module):
         self.content_decoder.init_output_bias(mean_motion)
 
     @torch.no_grad()
+    def init_output_basis(self, basis: Tensor) -> None:
+        """Both decoders' heads = the training motion's principal directions (k, V*3), metres (VOCA's init)."""
+        self.emotion_decoder.init_output_basis(basis)
+        self.content_decoder.init_output_basis(basis)
+
+    @torch.no_grad()
     def init_from_data(self, data) -> None:
         """Data-dependent init (``train`` calls it when ``mean_init``): the mean and standard deviation over every
         training frame of :func:`frame_level_stats`, used to standardise them. ``data``: a dataset of clips

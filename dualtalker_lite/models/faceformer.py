@@ -128,6 +128,10 @@ class FaceFormer(nn.Module):
         """Motion head bias = the training set's mean motion (V*3,), metres."""
         self.decoder.init_output_bias(mean_motion)
 
+    def init_output_basis(self, basis: Tensor) -> None:
+        """Motion head weights = the training motion's principal directions (k, V*3), metres (VOCA's init)."""
+        self.decoder.init_output_basis(basis)
+
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
                  mask: Tensor | None = None, window: int | None | str = "config") -> Tensor:
