@@ -19,7 +19,9 @@ shortest training sentences with every emotion and level (EmoFace's pseudo-pairs
 speaker and sentence, is in ``train``); ``test_emo_a`` = the same speakers on the ``emotion_test_sentences``
 shortest test sentences, every emotion and level (neutral twins in ``test_a``); ``test_emo_b`` = the unseen
 speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence neutral clips of 10-30 s
-(sentences outside ``train``), for length generalisation and speed.
+(sentences outside ``train``), for length generalisation and speed. Sentences per split: ``--val-sentences`` and
+``--test-sentences`` (4 and 10 of the default 48; on the command line, fewer for a smaller corpus, in proportion:
+:func:`held_out_sentences`), the rest for ``train``.
 
 Output. The corpus is built in a hidden temporary folder beside ``--out`` and moved into place when complete
 (:class:`~dualtalker_lite.files.AtomicOutputDir`): a failure, Ctrl-C or kill leaves an existing corpus untouched. An
