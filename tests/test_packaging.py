@@ -103,3 +103,12 @@ def test_test_tools_names_each_missing_tool_and_passes_the_exit_status_through(t
     assert len(missing) == (3 if recordings else 4)
     assert lines[-1] == ("test tools: required (fail instead of skipping): "
                          + ("DUALTALKER_REQUIRE_REAL_VOICES=1" if recordings else "none"))
+
+
+def test_readme_examples_write_distinct_folders():
+    """README's commands run one after the other as written: no two `generate`s into the same --out (the second
+    would be refused), and no command writes the shipped sample."""
+    text = (ROOT / "README.md").read_text()
+    outs = re.findall(r"dualtalker-lite generate --out (\S+)", text)
+    assert len(outs) >= 3 and len(set(outs)) == len(outs), outs
+    assert not [o for o in outs if o.startswith("data_samples")]
