@@ -380,7 +380,7 @@ def _emotion_list(text: str) -> tuple[str, ...]:
 
 
 GENERATE_EXAMPLE = """examples:
-  {prog} --out runs/corpus --speakers 6 --sentences 20 --processes 2
+  {prog} --out runs/my_corpus --speakers 6 --sentences 20 --processes 2   # 443 clips, ~460 MB
   {prog} --out runs/mine --sentences-file my_sentences.txt --speakers 4     # one sentence per line"""
 
 
