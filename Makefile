@@ -1,7 +1,9 @@
 # dualtalker-lite: every target creates/reuses the virtual environment .venv itself.
 #   make lab    open JupyterLab on notebooks/         (main job, interactive)
 #   make demo   headless end-to-end run -> runs/demo/ (main job, no browser)
-#   make test   unit tests + nbval over every notebook (what CI runs)
+#   make test   every test CI runs: installs the test tools it can first (make test-tools), then the unit tests, the
+#               tests that need those tools and nbval over every notebook; lists every skipped test at the end
+#   make unit   the quick check: tests/ without the notebooks and without the tests that need test tools
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -9,7 +11,7 @@ STAMP  := $(VENV)/.installed
 export OMP_NUM_THREADS ?= 2
 export MPLBACKEND ?= Agg
 
-.PHONY: lab demo test unit nbval env sample bench clean katex
+.PHONY: lab demo test test-tools unit nbval env sample bench clean katex
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -31,17 +33,28 @@ lab: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m dualtalker_lite.demo --out runs/demo
 
+# What CI runs (.ci/run is `make test`). tools/test_tools.sh installs the test tools this machine allows (npm
+# packages into the checkout; chromium and the real recordings with apt-get, as root only), prints one line per tool
+# still missing with the command that installs it, and runs pytest with DUALTALKER_REQUIRE_*=1 for every tool present
+# (those tests then fail instead of skipping). pytest's summary (-ra, pyproject.toml) lists every skipped test with its
+# reason; any pytest failure, "no tests collected" (status 5) included, fails make.
 test: $(STAMP)
-	$(PY) -m pytest tests notebooks --nbval-lax --durations=15
+	bash tools/test_tools.sh $(PY) -m pytest tests notebooks --nbval-lax --durations=15
 
+test-tools:
+	bash tools/test_tools.sh
+
+# The quick check while editing: no notebooks, no installs, none of the tests marked `tools` (the glTF validator,
+# three.js, KaTeX, the browser and the real recordings; pyproject.toml's markers).
 unit: $(STAMP)
-	$(PY) -m pytest tests
+	$(PY) -m pytest tests -m "not tools"
 
 nbval: $(STAMP)
 	$(PY) -m pytest notebooks --nbval-lax
 
 # KaTeX (pinned by tools/katex/package-lock.json, ~1 MB) for tests/test_notebook_math.py, which renders every
-# formula of the notebooks as JupyterLab's KaTeX would; without it that test is skipped (CI requires it).
+# formula of the notebooks as JupyterLab's KaTeX would; without it that test is skipped (make test-tools installs it
+# with the other test tools; CI requires it).
 katex:
 	npm ci --prefix tools/katex --no-audit --no-fund --loglevel=error
 

@@ -3,7 +3,7 @@
     dualtalker-lite animate   --checkpoint M.pt --wav me.wav --speaker SPK01 --out runs/me   # a recording -> a face
     dualtalker-lite train     --model dualtalker --epochs 100 --out runs/my_model.pt         # train on a corpus
     dualtalker-lite evaluate  --checkpoint runs/my_model.pt --split test_a                   # metrics on a split
-    dualtalker-lite generate  --out runs/corpus --speakers 6 --sentences 20                  # synthesize a corpus
+    dualtalker-lite generate  --out runs/my_corpus --speakers 6 --sentences 20               # synthesize a corpus
     dualtalker-lite convert-templates vocaset/templates.pkl                                  # safe pickle -> npz
     dualtalker-lite prepare-dataset vocaset --preset vocaset                                 # -> a loadable corpus
 

@@ -15,10 +15,10 @@
 3. writes into ``--out``:
 
    ==================  ================================================================================
-   ``metrics.md``      the metrics table (units in the header), also printed
+   ``metrics.md``      the metrics table (units in the header) and a legend, one line per column, also printed
    ``metrics.json``    the same numbers, the command, epochs actually trained, timings, file paths
    ``lip_distance.png`` DualTalker Fig. 5: upper-to-lower lip distance of one test-A clip, GT vs both
-                       models, with the phoneme track
+                       models, with the clip's phones in IPA (``data.speech.to_ipa``; a caption says so)
    ``error_map.png``   per-vertex mean Euclidean error of DualTalker over test-A on the mesh (mm)
    ``side_by_side.mp4`` ground truth | FaceFormer-style | DualTalker, with the speech audio
    ``dualtalker.pt``, ``faceformer.pt``  checkpoints (``train.load_checkpoint``)
@@ -46,7 +46,8 @@ import torch
 from .experiments import (FEATURES, METRICS, TEST_SPLIT, load_data, predict_split, run_specs, split_metrics,
                           table_specs, test_features)
 
-__all__ = ["MODELS", "budget_notes", "main"]
+__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "metrics_markdown", "lip_distance_figure", "budget_notes",
+           "main"]
 
 # label -> (row of the experiments' "main" table, checkpoint file name or None)
 MODELS = {"Static template": ("Static template", None),
@@ -60,10 +61,45 @@ def budget_notes(results: dict, epochs: int, budget: float | None) -> dict[str, 
     notes = {}
     for label, r in results.items():
         if r.get("model_config") is not None and r["epochs"] < epochs:
-            notes[label] = (f"{label} stopped after {r['epochs']} of {epochs} epochs: the --time-budget of {budget or 0:.0f} "
-                            f"wall seconds ran out (a busy machine); its checkpoint is under-trained. Re-run with "
+            notes[label] = (f"{label} stopped after {r['epochs']} of {epochs} epochs: the --time-budget of "
+                            f"{budget or 0:.0f} wall seconds ran out (a busy machine); its checkpoint is under-trained. "
+                            f"Re-run with "
                             f"--time-budget 0, or train it with dualtalker-lite train")
     return notes
+
+
+# metrics.md's legend: per column, what it measures, its unit and which direction is better (definitions:
+# dualtalker_lite.metrics and the experiments' tables). Keys: the metric keys of experiments.METRICS and the other
+# columns' headers.
+COLUMN_LEGEND = {
+    "model": "the trained model, or the static template (the mean face, no motion: the floor to beat).",
+    "lve_published": "lip vertex error as in the published tables: mean over all test frames of the largest squared "
+                     "error over the lip vertices; mm²; lower is better.",
+    "lve_euclidean": "the same with the Euclidean error (the papers' text); mm; lower is better.",
+    "fdd_published": "upper-face dynamics deviation: per clip, the temporal std of the upper-face displacement "
+                     "(squared norm), ground truth minus prediction, averaged over clips; mm²; signed (positive = "
+                     "the prediction moves less), closer to 0 is better.",
+    "fdd_paper": "the same with the plain displacement norm; mm; signed, closer to 0 is better.",
+    "eve_published": "eye-region vertex error: LVE_pub on the eyes, brows and forehead; mm²; lower is better.",
+    "smoothing_lips": "lip motion ratio: how much the lips move, prediction / ground truth (temporal std of the "
+                      "displacement); no unit; 1 = as lively as the ground truth, < 1 over-smoothed; closer to 1 "
+                      "is better.",
+    "smoothing_upper": "the same ratio on the upper face; no unit; closer to 1 is better.",
+    "bilabial_closure_2mm": "fraction of the /p b m/ segments where the predicted lips come closer than 2 mm; "
+                            "0 to 1; higher is better (the rig's rest gap is about 2 mm: read it with the 1 mm "
+                            "column).",
+    "bilabial_closure_1mm": "the same under 1 mm; 0 to 1; higher is better.",
+    "bilabial_min_mm": "mean over /p b m/ segments of the smallest predicted lip distance; mm; lower is better "
+                       "(ground truth about 0.3).",
+    "open_vowel_max_mm": "mean over open-vowel segments (/æ ɑ ʌ aɪ aʊ .../) of the largest predicted lip distance; "
+                         "mm; closer to the ground truth's (about 13.6 on the sample's test-A) is better.",
+    "lip_distance_corr": "Pearson correlation of the predicted and true lip-distance curves, mean over clips; -1 "
+                         "to 1; higher is better.",
+    "epochs": "epochs trained: the recipe's budget, fewer where --time-budget stopped the model early.",
+    "train (s)": "wall-clock seconds of training, one torch thread (a busy machine makes it longer); lower is "
+                 "cheaper, not better.",
+    "params": "trainable parameters (tied weights counted once); fewer is cheaper, not better.",
+}
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -85,26 +121,48 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+PHONE_CAPTION = ("Shaded bands: the clip's phones, in IPA (espeak-ng's timing; e.g. ŋ sing, ɔ off, j the linking y "
+                 "of the apple). The lips should close at p b m.")
+
+
+def lip_distance_figure(times_s: np.ndarray, curves: dict, clip: str, meta: dict):
+    """DualTalker's Fig. 5 for one clip: the lip-distance ``curves`` (mm) over ``times_s``, with the clip's phones
+    (``meta["phonemes"]``, espeak-ng symbols) written in IPA and a caption saying so (:data:`PHONE_CAPTION`)."""
+    from .data.speech import to_ipa
+    from .viz import plot_lip_distance
+
+    phones = [[to_ipa(p), s, e] for p, s, e in meta["phonemes"]] if meta.get("phonemes") else None
+    fig = plot_lip_distance(times_s, curves, phonemes=phones,
+                            title=f"Lip distance, test-A clip {clip} (\"{meta.get('text', '')}\")")
+    if phones:
+        fig.supxlabel(PHONE_CAPTION, fontsize=8, color="0.3")
+    return fig
+
+
 def metrics_markdown(results: dict, command: str, epochs: dict, n_test: int) -> str:
-    """One row per model: the metrics of the experiments' tables, epochs trained, seconds and parameters."""
+    """One row per model: the metrics of the experiments' tables, epochs trained, seconds and parameters; then the
+    legend, one line per column (:data:`COLUMN_LEGEND`: what it measures, its unit, which direction is better)."""
+    columns = [("model", "model"), *((key, header) for key, header, _ in METRICS),
+               ("epochs", "epochs"), ("train (s)", "train (s)"), ("params", "params")]
     lines = [f"# Demo: test-A metrics ({n_test} clips, autoregressive generation)", "",
              f"Command: `{command}`", "",
-             "| model | " + " | ".join(h for _, h, _ in METRICS) + " | epochs | train (s) | params |",
-             "|---" * (len(METRICS) + 4) + "|"]
+             "| " + " | ".join(header for _, header in columns) + " |",
+             "|---" * len(columns) + "|"]
     for label, r in results.items():
         cells = [f"{r['metrics'][k]:.{d}f}" for k, _, d in METRICS]
         cells += [str(epochs[label]), f"{r['train_seconds']:.0f}", f"{r['n_parameters']:,}"]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", "Units and definitions: see `dualtalker_lite/experiments/` (LVE_pub and FDD_pub are squared "
-              "lengths, mm²; FDD is signed, ground truth minus prediction; motion ratio < 1 = over-smoothed).", ""]
-    return "\n".join(lines)
+    lines += ["", "Columns (↓ lower is better, ↑ higher, →0 / →1 / →GT closer to that value; definitions in "
+              "`dualtalker_lite/metrics/`):", ""]
+    lines += [f"- `{header}`: {COLUMN_LEGEND[key]}" for key, header in columns]
+    return "\n".join(lines + [""])
 
 
 def main(argv: Sequence[str] | None = None) -> dict:
     """Run the demo; returns {"metrics": ..., "files": {name: path}}."""
     from .metrics import lip_distance, mean_vertex_error
     from .train import load_checkpoint
-    from .viz import animate_clip, plot_lip_distance, plot_vertex_map
+    from .viz import animate_clip, plot_vertex_map
 
     t_start = time.perf_counter()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -160,9 +218,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
     up, lo = (int(j) for j in corpus.regions["lip_midpoints"])
     times = np.arange(len(clips["ground truth"])) / corpus.fps
-    fig = plot_lip_distance(times, {k: lip_distance(v, up, lo) for k, v in clips.items()},
-                            phonemes=meta.get("phonemes"),
-                            title=f"Lip distance, test-A clip {clip} (\"{meta.get('text', '')}\")")
+    fig = lip_distance_figure(times, {k: lip_distance(v, up, lo) for k, v in clips.items()}, clip, meta)
     files["lip_distance"] = out / "lip_distance.png"
     fig.savefig(files["lip_distance"], dpi=120)
 

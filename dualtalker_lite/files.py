@@ -338,7 +338,7 @@ class AtomicOutputDir:
             raise FileExistsError(f"output {self.target} exists and is not a folder")
         if self.target.is_dir() and any(self.target.iterdir()) and not self.overwrite:
             raise FileExistsError(f"output folder {self.target} already exists and is not empty; "
-                                  f"pass --overwrite (overwrite=True) to replace it")
+                                  f"pass --overwrite to replace it, or choose another --out")
         parent = self.target.parent
         try:
             parent.mkdir(parents=True, exist_ok=True)

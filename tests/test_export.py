@@ -7,7 +7,8 @@
   screenshot is left in ``runs/screenshots/`` for a human to look at.
 
 The validator and three.js come from ``npm ci --prefix tools/node`` and chromium from ``apt-get install chromium``
-(both done by ``.ci/run``); the tests that need them are skipped, saying what to install, where they are absent.
+(both done by ``make test-tools``, which ``make test`` runs first); the tests that need them are skipped, saying
+what to install, where they are absent.
 """
 import base64
 import json
@@ -149,7 +150,7 @@ def test_motionless_and_single_frame_clips_still_export(clip, tmp_path):
 
 # ------------------------------------------------------------------------------------------ Khronos validator
 def _absent(message: str):
-    """Skip with ``message``, or fail where CI installed the tools (.ci/run sets DUALTALKER_REQUIRE_EXPORT_TOOLS)."""
+    """Skip with ``message``, or fail where CI installed the tools (tools/test_tools.sh sets DUALTALKER_REQUIRE_EXPORT_TOOLS)."""
     if os.environ.get("DUALTALKER_REQUIRE_EXPORT_TOOLS"):
         pytest.fail("DUALTALKER_REQUIRE_EXPORT_TOOLS is set but " + message)
     pytest.skip(message)
@@ -160,10 +161,11 @@ def _validator():
     module = NODE_MODULES / "gltf-validator"
     if node is None or not module.is_dir():
         _absent("the Khronos glTF validator is not installed: `npm ci --prefix tools/node` (node >= 18; "
-                    ".ci/run does it)")
+                    "make test-tools does it)")
     return node, module
 
 
+@pytest.mark.tools
 def test_khronos_gltf_validator_reports_no_error(clip, tmp_path):
     node, module = _validator()
     verts, template, faces, wave = clip
@@ -176,11 +178,12 @@ def test_khronos_gltf_validator_reports_no_error(clip, tmp_path):
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
 
 
+@pytest.mark.tools
 def test_vendored_three_js_is_npm_three_0_170_0():
     """The committed files are byte-identical to npm's three@0.170.0 (tools/node/package-lock.json pins it)."""
     npm = NODE_MODULES / "three"
     if not npm.is_dir():
-        _absent("npm three is not installed: `npm ci --prefix tools/node` (.ci/run does it)")
+        _absent("npm three is not installed: `npm ci --prefix tools/node` (make test-tools does it)")
     assert json.loads((npm / "package.json").read_text())["version"] == "0.170.0"
     sources = {"three.module.min.js": "build", "GLTFLoader.js": "examples/jsm/loaders",
                "OrbitControls.js": "examples/jsm/controls", "BufferGeometryUtils.js": "examples/jsm/utils",
@@ -204,7 +207,7 @@ def test_html_page_inlines_everything(clip, tmp_path):
 def _chromium():
     exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
-        _absent("no chromium: `apt-get install chromium` (Debian; .ci/run does it) or set DTL_CHROMIUM")
+        _absent("no chromium: `apt-get install chromium` (Debian; make test-tools does it as root) or set DTL_CHROMIUM")
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
@@ -212,6 +215,7 @@ def _chromium():
     return exe, sync_playwright
 
 
+@pytest.mark.tools
 def test_html_plays_with_sound_in_headless_chromium(clip, tmp_path):
     """Open the page from file://, press Play: the audio clock advances, the morph weights and the pixels change,
     the lips follow the audio clock, the scrub bar seeks; no request leaves the page. Screenshot in runs/."""

@@ -7,8 +7,8 @@ import soundfile as sf
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.data.generate import (MAX_SENTENCE_CHARS, SPLITS, CorpusSpec, generate_corpus, main,
-                                          n_frames_for, plan_corpus, read_sentences)
+from dualtalker_lite.data.generate import (MAX_SENTENCE_CHARS, SPLITS, CorpusSpec, generate_corpus,
+                                          held_out_sentences, main, n_frames_for, plan_corpus, read_sentences)
 from dualtalker_lite.data.sentences import SENTENCES
 from dualtalker_lite.metrics import lip_distance
 
@@ -236,3 +236,32 @@ def test_cli_generates_a_corpus_from_my_sentences(tmp_path, capsys):
         assert set(group) == {"neutral", "happy1", "happy2"}
     assert corpus.metadata["generator"]["sentences_file"] == str(path)
     assert "wrote 16 clips" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("sentences, held_out", [(48, (4, 10)), (60, (4, 10)), (30, (2, 6)), (20, (2, 4)),
+                                                 (6, (1, 1)), (3, (1, 1))])
+def test_small_corpora_keep_most_sentences_for_training(sentences, held_out):
+    assert held_out_sentences(sentences) == held_out
+
+
+def test_cli_scales_the_held_out_sentences_to_a_small_corpus(tmp_path, capsys, monkeypatch):
+    """`generate --speakers 6 --sentences 20` (README): 56 training clips against 16 in test-A (it was 24 against 40).
+    The plan is checked without synthesizing: generate_corpus is replaced by one that returns the planned splits."""
+    import dualtalker_lite.data.generate as gen
+
+    def planned(spec, out, **kwargs):
+        plans = plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)])
+        return {"splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS}, "clips": plans,
+                "n_vertices": spec.vertices, "spec": spec}
+
+    monkeypatch.setattr(gen, "generate_corpus", planned)
+    main(["--out", str(tmp_path / "c"), "--speakers", "6", "--sentences", "20"])
+    out = capsys.readouterr().out
+    assert out.startswith("note: 20 sentences: 2 for validation and 4 for test-A, 14 for training")
+    assert "'train': 56, 'val': 8, 'test_a': 16, 'test_b': 8" in out
+    main(["--out", str(tmp_path / "d"), "--speakers", "6", "--sentences", "20", "--test-sentences", "10"])
+    out = capsys.readouterr().out                  # an explicit count is kept (only the other one is scaled)
+    assert "2 for validation and 10 for test-A, 8 for training" in out and "'train': 32, 'val': 8, 'test_a': 40" in out
+    main(["--out", str(tmp_path / "e"), "--speakers", "6", "--sentences", "48"])
+    out = capsys.readouterr().out                  # the default corpus: nothing scaled, no note
+    assert not out.startswith("note:") and "'train': 136, 'val': 16, 'test_a': 40" in out

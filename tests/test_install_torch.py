@@ -45,3 +45,18 @@ def test_this_environment_is_kept_as_it_is():
     """The script on the project's own venv (torch already there): exit 0, nothing installed."""
     proc = subprocess.run([sys.executable, str(Path(it.__file__))], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and proc.stdout.startswith("install_torch: torch 2.13.0") and proc.stderr == ""
+
+
+def test_numpy_is_installed_before_torch(monkeypatch, capsys):
+    """torch imported without numpy warns 'Failed to initialize NumPy': main() installs numpy first, and only then
+    torch (with the plan's index arguments, which must not apply to numpy)."""
+    calls = []
+    monkeypatch.setattr(it, "installed_version", lambda: None)
+    monkeypatch.setattr(it, "plan", lambda *a: (["--index-url", "https://mirror.example/cpu"], "installing"))
+    monkeypatch.setattr(it.subprocess, "call", lambda cmd: calls.append(cmd[3:]) or 1)  # fails: stops after numpy
+    assert it.main() == 1 and calls == [["install", "--quiet", "numpy>=1.26"]]
+    calls.clear()
+    monkeypatch.setattr(it.subprocess, "call", lambda cmd: calls.append(cmd[3:]) or 0)
+    assert it.main() == 0
+    assert calls == [["install", "--quiet", "numpy>=1.26"],
+                     ["install", "--quiet", "--index-url", "https://mirror.example/cpu", "torch==2.13.0"]]

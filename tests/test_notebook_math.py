@@ -5,7 +5,7 @@ JupyterLab shows a formula KaTeX cannot parse as red error text (e.g. "Multiple 
 (``$...$``, ``$$...$$``, ``\\begin{env}...\\end{env}``; code spans and fenced code left out) and rendered by
 ``tools/katex/render_math.js`` with ``throwOnError``. Needs node and ``make katex`` (``npm ci --prefix
 tools/katex``); without them the test is skipped with the reason, except where ``DUALTALKER_REQUIRE_KATEX=1``
-(``.ci/run`` sets it), where it fails.
+(``tools/test_tools.sh``, run by ``make test``, sets it where KaTeX is installed), where it fails.
 """
 import json
 import os
@@ -103,6 +103,7 @@ def test_math_is_found_as_jupyter_finds_it():
     assert math_spans("$x\n\ny$") == [] and math_spans("it costs $5.") == []  # a blank line ends inline math
 
 
+@pytest.mark.tools
 def test_the_renderer_fails_on_what_jupyterlab_shows_in_red():
     bad = [{"where": "two tags", "tex": "a \\tag{1} \\\\ b \\tag{2}", "display": True},
            {"where": "underscore in text", "tex": "\\text{lip_dist}", "display": True},
@@ -114,6 +115,7 @@ def test_the_renderer_fails_on_what_jupyterlab_shows_in_red():
     assert "Multiple \\tag" in failed["two tags"]
 
 
+@pytest.mark.tools
 def test_every_notebook_formula_renders_in_katex():
     items = notebook_math()
     assert len(NOTEBOOKS) >= 16 and len(items) > 300  # the notebooks are full of equations

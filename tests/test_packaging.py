@@ -52,3 +52,63 @@ def test_readme_quick_start_has_exactly_two_commands():
 
 def test_ci_runs_the_readme_test_command():
     assert "make test" in (ROOT / ".ci" / "run").read_text()
+
+
+def test_ci_is_make_test_and_make_test_installs_the_test_tools():
+    """CI runs exactly what a developer's `make test` runs: the tools' set-up lives in the Makefile's script."""
+    ci = [ln for ln in (ROOT / ".ci" / "run").read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    assert ci == ["set -euo pipefail", 'cd "$(dirname "$0")/.."', "make test"]
+    makefile = (ROOT / "Makefile").read_text()
+    recipe = makefile.split("\ntest: $(STAMP)\n", 1)[1].splitlines()[0].strip()
+    assert recipe == "bash tools/test_tools.sh $(PY) -m pytest tests notebooks --nbval-lax --durations=15"
+    assert makefile.split("\nunit: $(STAMP)\n", 1)[1].splitlines()[0].strip() == '$(PY) -m pytest tests -m "not tools"'
+    script = (ROOT / "tools" / "test_tools.sh").read_text()
+    for variable in ("DUALTALKER_REQUIRE_EXPORT_TOOLS", "DUALTALKER_REQUIRE_KATEX", "DUALTALKER_REQUIRE_REAL_VOICES"):
+        assert f"export {variable}=" in script
+    assert script.rstrip().endswith('exec "$@"  # the command\'s exit status is the script\'s (pytest\'s 5, "no tests", '
+                                     'included)')
+
+
+def test_the_tools_marker_is_registered():
+    markers = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["markers"]
+    assert [m.split(":")[0] for m in markers] == ["tools"]
+
+
+def test_test_tools_names_each_missing_tool_and_passes_the_exit_status_through(tmp_path):
+    """On a machine without node, npm, chromium or apt-get (PATH holds only the shell's basics): one line per missing
+    tool with the command that installs it, and the wrapped command's status (pytest's 5 here) unchanged."""
+    import os
+    import shutil
+    import subprocess
+
+    (tmp_path / "repo" / "tools" / "node").mkdir(parents=True)
+    (tmp_path / "repo" / "tools" / "katex").mkdir()
+    shutil.copy(ROOT / "tools" / "test_tools.sh", tmp_path / "repo" / "tools")
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for name in ("bash", "env", "grep", "sort", "tr", "id", "dirname"):
+        (bin_dir / name).symlink_to(shutil.which(name))
+    env = {"PATH": str(bin_dir), "HOME": str(tmp_path)}
+    proc = subprocess.run(["bash", "tools/test_tools.sh", "bash", "-c", "exit 5"], cwd=tmp_path / "repo", env=env,
+                          capture_output=True, text=True, timeout=60, executable=bin_dir / "bash")
+    assert proc.returncode == 5, proc.stderr
+    lines = proc.stdout.splitlines()
+    missing = [ln for ln in lines if ln.startswith("test tools: missing ")]
+    assert [ln.split(" (")[0] for ln in missing[:3]] == ["test tools: missing the glTF validator and three.js",
+                                                         "test tools: missing KaTeX", "test tools: missing chromium"]
+    assert "npm ci --prefix tools/node (needs node and npm: sudo apt-get install nodejs npm" in missing[0]
+    assert missing[1].endswith("make katex (needs node and npm: sudo apt-get install nodejs npm on Debian)")
+    assert "sudo apt-get install chromium" in missing[2]
+    recordings = os.path.isdir("/usr/share/asterisk/sounds/en_US_f_Allison")
+    assert len(missing) == (3 if recordings else 4)
+    assert lines[-1] == ("test tools: required (fail instead of skipping): "
+                         + ("DUALTALKER_REQUIRE_REAL_VOICES=1" if recordings else "none"))
+
+
+def test_readme_examples_write_distinct_folders():
+    """README's commands run one after the other as written: no two `generate`s into the same --out (the second
+    would be refused), and no command writes the shipped sample."""
+    text = (ROOT / "README.md").read_text()
+    outs = re.findall(r"dualtalker-lite generate --out (\S+)", text)
+    assert len(outs) >= 3 and len(set(outs)) == len(outs), outs
+    assert not [o for o in outs if o.startswith("data_samples")]

@@ -78,12 +78,13 @@ def test_table_on_speech_finds_the_bilabials(corpus, recogniser):
     assert pp_hit / pp > 0.5, pp_hit / pp
 
 
+@pytest.mark.tools
 def test_table_on_a_real_voice(recogniser):
     """A real (telephone-band) voice: 'Please enter your password followed by the pound key.'"""
     from dualtalker_lite.audio import load_audio
 
     if not ASTERISK.is_dir():
-        message = "real recordings missing: apt-get install asterisk-core-sounds-en-wav (.ci/run does)"
+        message = "real recordings missing: apt-get install asterisk-core-sounds-en-wav (make test-tools does it as root)"
         if os.environ.get("DUALTALKER_REQUIRE_REAL_VOICES"):
             pytest.fail(message)
         pytest.skip(message)

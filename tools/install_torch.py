@@ -13,6 +13,9 @@ The project runs on the CPU, but on Linux x86-64 PyPI only has the CUDA build of
 5. otherwise say so, with the size, and install pip's default build (on a PyPI-only machine: the CUDA one,
    which works on the CPU too; about 4 minutes at 100 Mbit/s). ``TORCH_CPU_ONLY=1`` stops here instead.
 
+numpy is installed just before torch (from pip's own configuration), so that torch finds it the first time it is
+imported: torch imported without numpy warns ``Failed to initialize NumPy``.
+
 Exit status: 0 when torch is installed, 2 when it is not (a message says why), pip's status if pip fails.
 """
 from __future__ import annotations
@@ -27,6 +30,7 @@ from importlib import metadata
 
 VERSION = "2.13.0"
 CPU_INDEX = "https://download.pytorch.org/whl/cpu"
+NUMPY = "numpy>=1.26"  # pyproject.toml's range: installed before torch, which looks for it when first imported
 PYPI_CUDA_GB, CPU_MB = 2.7, 192  # measured for 2.13.0, Linux x86-64, CPython 3.11
 
 
@@ -91,7 +95,9 @@ def main() -> int:
           else sys.stdout, flush=True)
     if extra is None:
         return 2 if "not installing" in message else 0
-    status = subprocess.call([*pip, "install", "--quiet", *extra, f"torch=={VERSION}"])
+    status = subprocess.call([*pip, "install", "--quiet", NUMPY])  # before torch (not from a torch-only index)
+    if status == 0:
+        status = subprocess.call([*pip, "install", "--quiet", *extra, f"torch=={VERSION}"])
     if status == 0:
         import importlib
 

@@ -19,7 +19,9 @@ shortest training sentences with every emotion and level (EmoFace's pseudo-pairs
 speaker and sentence, is in ``train``); ``test_emo_a`` = the same speakers on the ``emotion_test_sentences``
 shortest test sentences, every emotion and level (neutral twins in ``test_a``); ``test_emo_b`` = the unseen
 speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence neutral clips of 10-30 s
-(sentences outside ``train``), for length generalisation and speed.
+(sentences outside ``train``), for length generalisation and speed. Sentences per split: ``--val-sentences`` and
+``--test-sentences`` (4 and 10 of the default 48; on the command line, fewer for a smaller corpus, in proportion:
+:func:`held_out_sentences`), the rest for ``train``.
 
 Output. The corpus is built in a hidden temporary folder beside ``--out`` and moved into place when complete
 (:class:`~dualtalker_lite.files.AtomicOutputDir`): a failure, Ctrl-C or kill leaves an existing corpus untouched. An
@@ -42,8 +44,8 @@ import numpy as np
 
 from .sentences import SENTENCES, sentence_id
 
-__all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "render_clip", "generate_corpus", "read_sentences", "main",
-           "SPLITS", "MAX_SENTENCE_CHARS"]
+__all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "held_out_sentences", "render_clip", "generate_corpus",
+           "read_sentences", "main", "SPLITS", "MAX_SENTENCE_CHARS"]
 
 FPS = 30
 SAMPLE_RATE = 16000
@@ -159,6 +161,20 @@ def plan_corpus(spec: CorpusSpec, subjects: list[str], texts=SENTENCES) -> list[
         subject = seen[(3 * j) % len(seen)]
         plans.append(ClipPlan(f"{subject}_long{j + 1:02d}", subject, ids[0], "neutral", 0, "long", tuple(ids[1:])))
     return plans
+
+
+def held_out_sentences(sentences: int) -> tuple[int, int]:
+    """Default ``(val_sentences, test_sentences)`` for a corpus of ``sentences`` sentences.
+
+    :class:`CorpusSpec`'s 4 and 10 are meant for its 48 sentences (34 left for training). A smaller corpus keeps the
+    same fractions, 1/12 and 5/24 (at least one sentence each), so that training keeps about 70% of the sentences:
+    20 sentences -> (2, 4), 14 left for training; with the fixed 4 and 10, 6 would be left and test-A would be larger
+    than the training split. 48 sentences or more -> (4, 10)."""
+    d = CorpusSpec()
+    if sentences >= d.sentences:
+        return d.val_sentences, d.test_sentences
+    return (max(1, round(sentences * d.val_sentences / d.sentences)),
+            max(1, round(sentences * d.test_sentences / d.sentences)))
 
 
 def read_sentences(path: str | Path) -> tuple[str, ...]:
@@ -364,7 +380,7 @@ def _emotion_list(text: str) -> tuple[str, ...]:
 
 
 GENERATE_EXAMPLE = """examples:
-  {prog} --out runs/corpus --speakers 6 --sentences 20 --processes 2
+  {prog} --out runs/my_corpus --speakers 6 --sentences 20 --processes 2   # 443 clips, ~460 MB
   {prog} --out runs/mine --sentences-file my_sentences.txt --speakers 4     # one sentence per line"""
 
 
@@ -382,8 +398,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     d = CorpusSpec()
     for field_name in ("speakers", "unseen_speakers", "sentences", "val_sentences", "test_sentences",
                        "emotion_speakers", "emotion_sentences", "emotion_test_sentences", "vertices", "seed"):
+        scaled = " (with fewer than 48 sentences, scaled down: held_out_sentences)" if field_name in (
+            "val_sentences", "test_sentences") else ""
         ap.add_argument("--" + field_name.replace("_", "-"), type=int, default=None,
-                        help=f"default {getattr(d, field_name)}")
+                        help=f"default {getattr(d, field_name)}{scaled}")
     ap.add_argument("--long-clips", default=None, help="sentences per long clip, comma-separated (default 5,8,12); "
                     "'' for none")
     ap.add_argument("--format", choices=["faceformer", "compact"], default=None)
@@ -404,12 +422,22 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
         if args.long_clips is not None:
             base["long_clips"] = tuple(int(n) for n in args.long_clips.split(",") if n.strip())
         base.update({k: v for k, v in vars(args).items() if k in base and v is not None and k != "long_clips"})
+        scaled = []
+        for key, n in zip(("val_sentences", "test_sentences"), held_out_sentences(base["sentences"])):
+            if args.preset is None and getattr(args, key) is None and n != base[key]:
+                base[key] = n
+                scaled.append(key)
         if args.emotion_speakers is None:  # fewer speakers than the default: every seen speaker is emotional
             base["emotion_speakers"] = min(base["emotion_speakers"], base["speakers"] - base["unseen_speakers"])
         spec = CorpusSpec(**base)
         plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)  # fail before synthesizing anything
     except ValueError as err:
         ap.exit(2, f"error: {err}\n")
+    if scaled:
+        print(f"note: {spec.sentences} sentences: {spec.val_sentences} for validation and {spec.test_sentences} for "
+              f"test-A, {spec.sentences - spec.val_sentences - spec.test_sentences} for training (scaled down from "
+              f"{d.val_sentences} and {d.test_sentences} of {d.sentences}; --val-sentences and --test-sentences set "
+              f"them)", flush=True)
     meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
                            progress=not args.no_progress and sys.stderr.isatty(), overwrite=args.overwrite)
     sizes = {k: len(v) for k, v in meta["splits"].items()}

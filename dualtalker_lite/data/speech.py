@@ -30,7 +30,8 @@ inventory observed on ~22k distinct English words and a few hundred sentences. A
 linking [j] between vowels (*the apple*), ``r-`` linking r, ``n-`` syllabic n, ``@L`` syllabic l,
 ``t2`` unaspirated t (*tower*), ``3`` r-coloured schwa, ``i@3 aI3`` vowel + r, ``aI@`` (*quiet*),
 ``0`` the *lot* vowel, ``aa`` the *bath* vowel; ``x C l# O u`` are rare (loanwords, odd spellings).
-Other texts may produce symbols outside this list; they are passed through unchanged.
+Other texts may produce symbols outside this list; they are passed through unchanged. :data:`ESPEAK_IPA`
+(:func:`to_ipa`) gives each symbol's IPA, for figures.
 
 Summary: :func:`synthesize` turns ``(text, VoiceSpec)`` into an :class:`Utterance`;
 :func:`synthesize_many` does it for a corpus on several cores. Voices, speakers and emotions live in
@@ -74,6 +75,26 @@ ENGLISH_PHONEMES = (
     "0", "O", "O:", "O2", "O@", "o@", "V", "U", "U@", "u", "u:",
     "eI", "aI", "aI@", "aI3", "aU", "OI", "oU", "e@", "i@", "i@3",
 )
+
+# espeak-ng's symbols (ASCII mnemonics, the corpus's ``phonemes``) -> IPA, for figures that a reader must read without
+# espeak's tables: ``;`` is a linking [j], ``O2`` the vowel of *off*, ``N`` the [ŋ] of *sing*. Approximate where
+# espeak distinguishes what IPA writes alike (``@ @2 @-`` are all [ə]); en-us values (``0`` [ɑ], ``aa`` [æ]).
+ESPEAK_IPA = {
+    "p": "p", "b": "b", "t": "t", "d": "d", "k": "k", "g": "ɡ", "?": "ʔ", "t#": "ɾ", "t2": "t",
+    "f": "f", "v": "v", "T": "θ", "D": "ð", "s": "s", "z": "z", "S": "ʃ", "Z": "ʒ", "x": "x", "C": "ç", "h": "h",
+    "tS": "tʃ", "dZ": "dʒ", "m": "m", "n": "n", "N": "ŋ", "n-": "n̩", "l": "l", "l#": "ɫ", "@L": "əl", "r": "ɹ",
+    "r-": "ɹ", "w": "w", "j": "j", ";": "j",
+    "@": "ə", "@2": "ə", "@-": "ə", "3": "ɚ", "3:": "ɜː", "I": "ɪ", "I2": "ɪ", "I#": "ɪ", "i": "i", "i:": "iː",
+    "E": "ɛ", "a": "æ", "a#": "ɐ", "aa": "æ", "A:": "ɑː", "A@": "ɑɹ", "0": "ɑ", "O": "ɔ", "O:": "ɔː", "O2": "ɔ",
+    "O@": "ɔɹ", "o@": "oɹ", "V": "ʌ", "U": "ʊ", "U@": "ʊɹ", "u": "u", "u:": "uː",
+    "eI": "eɪ", "aI": "aɪ", "aI@": "aɪə", "aI3": "aɪɚ", "aU": "aʊ", "OI": "ɔɪ", "oU": "oʊ", "e@": "ɛɹ", "i@": "ɪɹ",
+    "i@3": "ɪɹ",
+}
+
+
+def to_ipa(symbol: str) -> str:
+    """The IPA of one espeak-ng symbol (:data:`ESPEAK_IPA`); silence stays ``"_"``, an unknown symbol unchanged."""
+    return ESPEAK_IPA.get(symbol, symbol)
 
 
 # --------------------------------------------------------------------------------------------

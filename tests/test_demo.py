@@ -1,0 +1,55 @@
+"""The demo's outputs a reader opens first: metrics.md explains every column, the lip-distance figure its phones.
+(The whole demo runs in tests/test_experiments.py; these check the two writers without training anything.)"""
+import matplotlib
+import numpy as np
+
+from dualtalker_lite import demo
+from dualtalker_lite.data.speech import ENGLISH_PHONEMES, ESPEAK_IPA, to_ipa
+from dualtalker_lite.experiments import METRICS
+
+matplotlib.use("Agg")
+
+
+def fake_results():
+    metrics = {key: 0.5 + i for i, (key, _, _) in enumerate(METRICS)}
+    return {"Static template": {"metrics": metrics, "train_seconds": 0.0, "n_parameters": 0},
+            "DualTalker": {"metrics": {**metrics, "lve_euclidean": 2.9437}, "train_seconds": 131.2,
+                           "n_parameters": 812194}}
+
+
+def test_metrics_md_has_a_legend_line_for_every_column():
+    text = demo.metrics_markdown(fake_results(), "python -m dualtalker_lite.demo", {"Static template": 0,
+                                                                                   "DualTalker": 37}, 48)
+    lines = text.splitlines()
+    header = next(ln for ln in lines if ln.startswith("| model |"))
+    columns = [c.strip() for c in header.strip("|").split("|")]
+    assert len(columns) == len(METRICS) + 4 and columns[1] == "LVE_pub (mm²) ↓" and columns[-1] == "params"
+    legend = [ln for ln in lines if ln.startswith("- `")]
+    assert [ln[3:].split("`: ")[0] for ln in legend] == columns   # one line per column, in the table's order
+    by_column = dict(ln[3:].split("`: ", 1) for ln in legend)
+    assert "mm²; lower is better" in by_column["LVE_pub (mm²) ↓"]
+    assert "mm; signed, closer to 0 is better" in by_column["FDD (mm, →0)"]
+    assert "0 to 1; higher is better" in by_column["closed <1 mm at /p b m/ ↑"]
+    assert "closer to 1 is better" in by_column["lip motion ratio (→1)"]
+    row = next(ln for ln in lines if ln.startswith("| DualTalker |")).strip("|").split("|")
+    assert [c.strip() for c in row][2] == "2.944" and [c.strip() for c in row][-3:] == ["37", "131", "812,194"]
+
+
+def test_every_metric_of_the_tables_has_a_legend():
+    assert {key for key, _, _ in METRICS} <= set(demo.COLUMN_LEGEND)
+
+
+def test_espeak_symbols_become_ipa():
+    assert set(ESPEAK_IPA) == set(ENGLISH_PHONEMES) - {"_"}
+    assert [to_ipa(s) for s in (";", "O2", "N", "T", "D", "S", "tS", "@", "3:", "_", "qq")] == [
+        "j", "ɔ", "ŋ", "θ", "ð", "ʃ", "tʃ", "ə", "ɜː", "_", "qq"]
+
+
+def test_lip_distance_figure_shows_ipa_and_explains_it():
+    meta = {"text": "Sing on.", "phonemes": [["_", 0.0, 0.1], ["s", 0.1, 0.2], ["I", 0.2, 0.3], ["N", 0.3, 0.4],
+                                             ["O2", 0.4, 0.5], ["n", 0.5, 0.6], ["_", 0.6, 0.7]]}
+    times = np.arange(21) / 30
+    fig = demo.lip_distance_figure(times, {"ground truth": np.linspace(2, 10, 21)}, "SPK01_s00", meta)
+    labels = [t.get_text() for t in fig.axes[0].texts]
+    assert labels == ["s", "ɪ", "ŋ", "ɔ", "n"]
+    assert fig.get_supxlabel() == demo.PHONE_CAPTION and "IPA" in demo.PHONE_CAPTION
