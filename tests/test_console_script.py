@@ -216,7 +216,8 @@ def test_convert_templates_and_prepare_dataset(tmp_path):
     user_error(run("convert-templates", root / "templates.pkl"), "already exists")
     user_error(run("convert-templates", root / "missing.pkl", "--out", tmp_path / "x.npz"), "missing.pkl")
     assert not (tmp_path / "x.npz").exists()
-    assert "4 clips at 25 fps" in ok(run("prepare-dataset", root, "--preset", "biwi"))
+    out = ok(run("prepare-dataset", root, "--preset", "biwi"))
+    assert "4 clips at 25 fps" in out and out.endswith(f" -> {root / 'metadata.json'}\n")  # what it wrote
     user_error(run("prepare-dataset", tmp_path / "nowhere", "--preset", "biwi"), "nowhere")
     assert not (tmp_path / "nowhere").exists()
 

@@ -528,5 +528,5 @@ def prepare_main(argv: list[str] | None = None) -> dict:
     meta = prepare_dataset(args.root, args.preset, args.overwrite)
     sizes = {k: len(v) for k, v in meta["splits"].items()}
     print(f"{args.root}: {len(meta['clips'])} clips at {meta['fps']} fps, {meta['n_vertices']} vertices; "
-          f"splits {sizes}; {len(meta['skipped'])} file(s) outside every split")
+          f"splits {sizes}; {len(meta['skipped'])} file(s) outside every split -> {Path(args.root) / 'metadata.json'}")
     return meta
