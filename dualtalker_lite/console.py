@@ -146,7 +146,6 @@ class ProgressLines:
         self.t0 = clock()
         self.first: tuple[float, int] | None = None  # (time, steps done) at the first line
         self.last_printed: float | None = None
-        self.lines = 0  # how many lines were printed (for tests and callers that want to know)
 
     def update(self, done: int, **values) -> bool:
         """Report that ``done`` of ``total`` steps are complete (``values``: shown as ``name value``, in order)
@@ -165,7 +164,6 @@ class ProgressLines:
         print(", ".join(parts), file=self.stream or sys.stderr, flush=True)
         self.first = self.first or (now, done)
         self.last_printed = now
-        self.lines += 1
         return True
 
 
@@ -178,17 +176,20 @@ def progress_iter(iterable: Iterable[T], mode: str | bool, label: str, total: in
     (``desc``, ``unit``), ``"lines"`` :class:`ProgressLines` labelled ``label`` (e.g. ``"generate: speech clip"``),
     ``"off"`` (or False) nothing. ``total``: the number of items (default ``len(iterable)``)."""
     mode = "bar" if mode is True else "off" if mode is False else mode
-    if mode not in ("bar", "lines", "off"):
+    if mode not in ("bar", "lines", "off"):  # checked now, not at the first item
         raise ValueError(f"progress mode {mode!r}: expected 'bar', 'lines' or 'off' (or True/False)")
     total = len(iterable) if total is None else total  # type: ignore[arg-type]
     if mode == "bar":
         from tqdm.auto import tqdm
 
-        yield from tqdm(iterable, total=total, desc=desc, unit=unit, leave=False)
-    elif mode == "lines":
-        lines = ProgressLines(label, total)
-        for done, item in enumerate(iterable, 1):
-            yield item
-            lines.update(done)
-    else:
-        yield from iterable
+        return iter(tqdm(iterable, total=total, desc=desc, unit=unit, leave=False))
+    if mode == "lines":
+        return _with_lines(iterable, ProgressLines(label, total))
+    return iter(iterable)
+
+
+def _with_lines(iterable: Iterable[T], lines: ProgressLines) -> Iterator[T]:
+    """Yield each item; once the loop asks for the next one (its body is done), report it to ``lines``."""
+    for done, item in enumerate(iterable, 1):
+        yield item
+        lines.update(done)
