@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from .console import USER_ERRORS, exit_status, run_main
+from .console import USER_ERRORS, HelpFormatter, ProgressLines, exit_status, progress_mode, run_main
 
 __all__ = ["USER_ERRORS", "run_main", "main"]  # the first two re-exported from .console (their home)
 
@@ -129,10 +129,11 @@ def _train(argv: list[str]) -> Path:
                                              "of TrainConfig.tiny) and save a self-describing checkpoint. EmoFace "
                                              "trains on train + train_emo with each clip's pseudo-pair partner, "
                                              "the other models on train.",
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+                                 formatter_class=HelpFormatter)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
-    ap.add_argument("--model", choices=sorted(specs), default="dualtalker")
-    ap.add_argument("--epochs", type=int, default=45)
+    ap.add_argument("--model", choices=sorted(specs), default="dualtalker",
+                    help="which model of the experiment tables to train")
+    ap.add_argument("--epochs", type=int, default=45, help="passes over the training clips")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
                          "default: all)")
@@ -141,16 +142,18 @@ def _train(argv: list[str]) -> Path:
                          "labels, fed the phoneme recogniser's viseme tracks by evaluate and animate; works on any "
                          "voice; emoface's emotion branch also reads the log-mel) or logmel (the papers' kind of "
                          "input; learns this corpus's voices only)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the initialisation, shuffling and crops")
     ap.add_argument("--out", required=True, help="checkpoint file to write (.pt)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    ap.add_argument("--no-progress", action="store_true",
-                    help="no progress bar (it is shown only when stderr is a terminal anyway)")
+    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                    help="no progress on stderr (otherwise a bar on a terminal, else a line per epoch at most "
+                         "every ~10 s with the loss, elapsed time and time left); the final line stays")
     ap.add_argument("--checkpoint-every", type=int, default=5, metavar="N",
                     help="every N epochs save the whole training state to <out>.resume (atomically; removed when "
-                         "training completes), so a killed run continues with --resume; 0: never (default: 5)")
+                         "training completes), so a killed run continues with --resume; 0: never "
+                         "(default: %(default)s)")
     ap.add_argument("--resume", action="store_true",
                     help="continue the run saved in <out>.resume; the other arguments must be that run's")
     args = ap.parse_args(argv)
@@ -207,9 +210,9 @@ def _train(argv: list[str]) -> Path:
     torch.manual_seed(args.seed)
     n_vertices = int(train_set[0]["template"].numel() // 3)
     model, model_cfg = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers), faces=corpus.faces)
+    progress = progress_mode(args.quiet)  # a bar on a terminal (train's own), else lines (below), or none
     cfg = TrainConfig.tiny(epochs=args.epochs, seed=args.seed, validate_every=0, device=str(device),
-                           weights=loss_weights(model, spec.loss),
-                           progress=not args.no_progress and sys.stderr.isatty())
+                           weights=loss_weights(model, spec.loss), progress=progress == "bar")
     loader = (make_pair_loader if paired else make_loader)(train_set, cfg.batch_size, shuffle=True, seed=args.seed)
     weights = sum(p.numel() * p.element_size() for p in model.parameters())  # checkpoint ~1x, resume state ~3x
     check_free_space(out, weights * (4 if args.checkpoint_every else 1), "the checkpoint (and its resume state)")
@@ -218,14 +221,24 @@ def _train(argv: list[str]) -> Path:
               "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
               "epochs": args.epochs, "clips": args.clips, "features": args.features, "seed": args.seed,
               "training_clips": len(train_set)}
+    done = 0 if resume is None else int(resume["train"]["epoch"])  # epochs completed before this run
     if resume is not None:
         _check_resume_args(resume_path, resume["args"], record)
+        print(f"resuming {args.model} from {resume_path}: {done} of {args.epochs} epochs done, continuing with "
+              f"epoch {done + 1}", flush=True)
 
     def on_checkpoint(state: dict) -> None:
         atomic_torch_save({"format": RESUME_FORMAT, "args": record, "train": state}, resume_path)
 
-    history = train(model, loader, cfg, checkpoint_every=args.checkpoint_every, on_checkpoint=on_checkpoint,
-                    resume=None if resume is None else resume["train"])
+    on_epoch = None
+    if progress == "lines":  # stderr is a log file, CI or nohup: a line per epoch, at most every ~10 s
+        lines = ProgressLines("train: epoch", cfg.epochs, start=done)
+
+        def on_epoch(model, history) -> None:
+            lines.update(len(history.terms), loss=f"{history.terms[-1].get('total', math.nan):.4g}")
+
+    history = train(model, loader, cfg, on_epoch=on_epoch, checkpoint_every=args.checkpoint_every,
+                    on_checkpoint=on_checkpoint, resume=None if resume is None else resume["train"])
     model.cpu()
     if args.features == "visemes":
         features = front_end.settings()
@@ -264,12 +277,15 @@ def _evaluate(argv: list[str]) -> dict:
                                              "with the metrics of the experiment tables (on a split with several "
                                              "emotions also the emotional tables' brow, smile and, for EmoFace, "
                                              "emotion-recognition metrics).",
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--checkpoint", required=True)
+                                 formatter_class=HelpFormatter)
+    ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
-    ap.add_argument("--split", default="test_a")
+    ap.add_argument("--split", default="test_a", help="the corpus split to predict and score")
     ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                    help="no progress on stderr (otherwise a bar on a terminal, else a line at most every ~10 s "
+                         "with the clips predicted, elapsed time and time left)")
     args = ap.parse_args(argv)
     if args.json and Path(args.json).is_dir():
         raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
@@ -294,7 +310,7 @@ def _evaluate(argv: list[str]) -> dict:
     dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor),
                            "logmel" if computed else features["name"],
                            len(corpus.phoneme_inventory))
-    out = predict_split(model, dataset)
+    out = _predict_with_progress(predict_split, model, dataset, progress_mode(args.quiet))
     from .checks import check_finite
 
     for clip, pred in zip(out["names"], out["preds"]):
@@ -323,7 +339,22 @@ def _evaluate(argv: list[str]) -> dict:
         atomic_write_text(args.json, json.dumps({"checkpoint": str(args.checkpoint), "split": args.split,
                                                  "metrics": metrics, "left_out": left_out},
                                                 indent=1, allow_nan=False))
+        print(f"metrics -> {args.json}")
     return metrics
+
+
+def _predict_with_progress(predict_split, model, dataset, mode: str) -> dict:
+    """``predict_split(model, dataset)`` showing its progress in clips: a tqdm bar (``mode="bar"``), lines
+    (``"lines"``, :class:`~dualtalker_lite.console.ProgressLines`) or nothing (``"off"``)."""
+    if mode == "off":
+        return predict_split(model, dataset)
+    if mode == "lines":
+        lines = ProgressLines("evaluate: clips", len(dataset))
+        return predict_split(model, dataset, on_batch=lines.update)
+    from tqdm.auto import tqdm
+
+    with tqdm(total=len(dataset), desc="clips", leave=False) as bar:
+        return predict_split(model, dataset, on_batch=lambda done: bar.update(done - bar.n))
 
 
 def _generate(argv: list[str]):

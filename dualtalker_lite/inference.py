@@ -45,6 +45,7 @@ from .checkpoints import describe, extractor_from_settings, load_checkpoint, top
 from .data.corpus import Corpus, check_face_size
 from .streaming import predict_chunks, write_npy_stream
 from .checks import check_finite
+from .console import HelpFormatter, progress_mode
 from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
@@ -261,8 +262,8 @@ EXAMPLE = """example:
 
 def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0], epilog=EXAMPLE,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--checkpoint", required=True)
+                                 formatter_class=HelpFormatter)
+    ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
     ap.add_argument("--wav", help="speech recording (WAV/FLAC, mono, any sample rate)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style to use (see --list-speakers)")
     ap.add_argument("--list-speakers", action="store_true", help="print the speakers the model knows and exit")
@@ -281,8 +282,9 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
     ap.add_argument("--chunk", type=int, default=900,
                     help="frames decoded and written per block (memory vs. overhead; the result is the same)")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bar while rendering the video (it is "
-                    "shown only when stderr is a terminal anyway)")
+    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                    help="no progress bar while rendering the video (it is shown only when stderr is a terminal "
+                         "anyway); the final line stays")
     ap.add_argument("--debug", action="store_true", help="show full tracebacks")
     return ap
 
@@ -336,11 +338,34 @@ def run(args: argparse.Namespace) -> list[Path]:
     with target as tmp:
         npy = write_npy_stream(tmp / "vertices.npy", blocks, n_frames, template.size)
         written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate, template=template,
-                                progress=not args.no_progress and sys.stderr.isatty())
+                                progress=progress_mode(args.quiet) == "bar")
     out = Path(args.out)
     names = [out / p.relative_to(tmp) for p in written]
-    print(f"{n_frames} frames ({n_frames / FPS:.1f} s) -> " + ", ".join(map(str, names)))
+    print(f"{n_frames} frames ({n_frames / FPS:.1f} s){_conditions_used(model, args.emotion, conditions, corpus)} -> "
+          + ", ".join(map(str, names)))
     return names
+
+
+def _conditions_used(model: torch.nn.Module, asked: str | None, conditions: dict, corpus: Corpus | None) -> str:
+    """For an emotion-aware model (one whose ``generate_chunks`` takes ``emotion``, e.g. EmoFace), what the final
+    line says it used: ``", emotion happy, level 2"`` (an index given as ``--emotion 2`` is named from ``corpus``
+    when there is one: ``", emotion sad (index 2), level 1"``), or ``", emotion recognised from the speech, level
+    1"`` when no ``--emotion`` was given (the classifier's probabilities weight the emotions); ``""`` for other
+    models."""
+    import inspect
+
+    if "emotion" not in inspect.signature(model.generate_chunks).parameters:
+        return ""
+    level = 1 if conditions.get("level") is None else conditions["level"]  # the models' default (EmoFace: normal)
+    index = conditions.get("emotion")
+    if index is None:
+        return f", emotion recognised from the speech, level {level}"
+    if str(asked).strip().lstrip("-").isdigit():
+        names = corpus.emotions if corpus is not None else []
+        what = f"{names[index]} (index {index})" if 0 <= index < len(names) else f"index {index}"
+    else:
+        what = asked
+    return f", emotion {what}, level {level}"
 
 
 def main(argv: list[str] | None = None) -> list[Path]:

@@ -1,15 +1,20 @@
-"""The installed ``dualtalker-lite`` console script as a real process: every subcommand exits 0 with nothing on
-stderr when it succeeds, 2 with one ``error:`` line (and nothing written) on a typical user error, 1 only on a bug.
+"""The installed ``dualtalker-lite`` console script as a real process: every subcommand exits 0 when it succeeds,
+with nothing on stderr but its progress lines (stderr is not a terminal here; ``--quiet``: none) and a last line on
+stdout saying what it wrote, 2 with one ``error:`` line (and nothing written) on a typical user error, 1 only on a
+bug.
 
 (``python -m dualtalker_lite.cli`` or calling ``cli.main`` in-process hides what the console-script wrapper
 ``sys.exit(main())`` does with a returned value, which is why these tests start the script itself.)
 """
 import ast
+import io
 import json
 import math
 import os
+import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -23,15 +28,30 @@ SCRIPT = Path(sys.executable).with_name("dualtalker-lite")
 COMMANDS = ("animate", "train", "evaluate", "generate", "convert-templates", "prepare-dataset")
 
 
-def run(*argv, cwd=None) -> subprocess.CompletedProcess:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
-    return subprocess.run([str(SCRIPT), *map(str, argv)], capture_output=True, text=True, env=env, cwd=cwd,
+def run(*argv, cwd=None, stderr=None, env=None) -> subprocess.CompletedProcess:
+    """The script as a process; ``stderr``: an open file to send it to (as in a log) instead of a pipe."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MPLBACKEND": "Agg", **(env or {})}
+    return subprocess.run([str(SCRIPT), *map(str, argv)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE if stderr is None else stderr, text=True, env=env, cwd=cwd,
                           timeout=300)
 
 
+# A progress line of a long command when stderr is not a terminal (console.ProgressLines)
+PROGRESS = re.compile(r"(train: epoch|evaluate: clips|generate: speech clip|generate: face clip) (\d+)/(\d+), "
+                      r"(loss (\S+), )?(\d+(?::\d\d)+) elapsed(, about (\d+(?::\d\d)+) left)?")
+
+
+def progress_lines(stderr: str) -> list[re.Match]:
+    """stderr holds progress lines only -> their matches."""
+    matches = [PROGRESS.fullmatch(line) for line in stderr.splitlines()]
+    assert all(matches), stderr[-2000:]
+    return matches
+
+
 def ok(proc) -> str:
-    """Success: status 0, nothing on stderr (no progress bar, no printed return value) -> stdout."""
-    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-2000:]
+    """Success: status 0, on stderr nothing but progress lines (no bar, no printed return value) -> stdout."""
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    progress_lines(proc.stderr)
     return proc.stdout
 
 
@@ -95,6 +115,7 @@ def test_train_exits_0_and_refuses_to_overwrite(voca_ckpt):
 def test_evaluate_prints_numbers_and_strict_json(voca_ckpt, tmp_path):
     out = ok(run("evaluate", "--checkpoint", voca_ckpt, "--split", "test_a", "--json", tmp_path / "m.json"))
     assert "nan" not in out.lower() and "closed <1 mm at /p b m/" in out and "lip-distance corr." in out
+    assert out.endswith(f"\nmetrics -> {tmp_path / 'm.json'}\n")  # the last line names the file written
     data = strict_json(tmp_path / "m.json")
     m = data["metrics"]
     assert data["left_out"] == {} and data["split"] == "test_a"
@@ -145,10 +166,18 @@ def test_emoface_train_evaluate_animate(wav, tmp_path):
     assert "nan" not in out.lower() and 0 <= metrics["emotion_accuracy"] <= 1 and metrics["brow_raise_error_mm"] > 0
     outs = {}
     for emotion in ("happy", "sad"):
-        ok(run("animate", "--checkpoint", ckpt, "--wav", wav, "--emotion", emotion, "--level", "2",
-               "--format", "npy", "--out", tmp_path / emotion))
+        out = ok(run("animate", "--checkpoint", ckpt, "--wav", wav, "--emotion", emotion, "--level", "2",
+                     "--format", "npy", "--out", tmp_path / emotion))
+        assert out == f"15 frames (0.5 s), emotion {emotion}, level 2 -> {tmp_path / emotion / 'vertices.npy'}, " \
+                      f"{tmp_path / emotion / 'frame0.obj'}\n"  # the emotion and level used
         outs[emotion] = np.load(tmp_path / emotion / "vertices.npy")
     assert outs["happy"].shape == outs["sad"].shape and np.abs(outs["happy"] - outs["sad"]).max() > 0
+    sad = Corpus(sample_path()).emotions.index("sad")
+    out = ok(run("animate", "--checkpoint", ckpt, "--wav", wav, "--emotion", sad, "--format", "npy", "--out",
+                 tmp_path / "by_index"))
+    assert f"15 frames (0.5 s), emotion sad (index {sad}), level 1 -> " in out  # an index is named; level's default
+    out = ok(run("animate", "--checkpoint", ckpt, "--wav", wav, "--format", "npy", "--out", tmp_path / "heard"))
+    assert "15 frames (0.5 s), emotion recognised from the speech, level 1 -> " in out
 
 
 def test_emoface_needs_pseudo_pairs(tmp_path):
@@ -165,8 +194,12 @@ def test_generate_and_its_sentences_file_errors(tmp_path):
     small = ["--speakers", "2", "--unseen-speakers", "1", "--val-sentences", "1", "--test-sentences", "1",
              "--emotion-speakers", "0", "--long-clips", "", "--format", "compact", "--vertices", "500",
              "--processes", "1"]
-    out = ok(run("generate", "--out", tmp_path / "c", "--sentences-file", good, *small))
+    proc = run("generate", "--out", tmp_path / "c", "--sentences-file", good, *small)
+    out = ok(proc)
     assert out.startswith(f"wrote 13 clips to {tmp_path / 'c'}") and (tmp_path / "c" / "metadata.json").is_file()
+    done = [(m[1], m[2], m[3]) for m in progress_lines(proc.stderr)]  # each stage's first and last clip at least
+    for stage in ("generate: speech clip", "generate: face clip"):
+        assert (stage, "1", "13") in done and (stage, "13", "13") in done, proc.stderr
     line = user_error(run("generate", "--out", tmp_path / "d", "--sentences-file", bad, *small))
     assert line == f"error: --sentences-file {bad}:2: empty line (write one sentence per line, no blank lines)"
     assert not (tmp_path / "d").exists()
@@ -183,9 +216,107 @@ def test_convert_templates_and_prepare_dataset(tmp_path):
     user_error(run("convert-templates", root / "templates.pkl"), "already exists")
     user_error(run("convert-templates", root / "missing.pkl", "--out", tmp_path / "x.npz"), "missing.pkl")
     assert not (tmp_path / "x.npz").exists()
-    assert "4 clips at 25 fps" in ok(run("prepare-dataset", root, "--preset", "biwi"))
+    out = ok(run("prepare-dataset", root, "--preset", "biwi"))
+    assert "4 clips at 25 fps" in out and out.endswith(f" -> {root / 'metadata.json'}\n")  # what it wrote
     user_error(run("prepare-dataset", tmp_path / "nowhere", "--preset", "biwi"), "nowhere")
     assert not (tmp_path / "nowhere").exists()
+
+
+def seconds(clock: str) -> int:
+    """``m:ss`` or ``h:mm:ss`` -> seconds."""
+    total = 0
+    for part in clock.split(":"):
+        total = 60 * total + int(part)
+    return total
+
+
+def test_train_prints_progress_lines_into_a_log_and_quiet_silences_them(tmp_path):
+    """stderr is a file (a log, CI, nohup), where a bar would be a wall of carriage returns: a line for the first
+    and the last epoch (between them at most one per ~10 s), each with the loss the checkpoint's history records,
+    the elapsed time and, but on the last, the time left. ``--quiet`` (and its old name ``--no-progress``): none."""
+    from dualtalker_lite.checkpoints import load_checkpoint
+
+    out, log = tmp_path / "m.pt", tmp_path / "train.log"
+    argv = ("train", "--model", "voca", "--epochs", "3", "--clips", "16", "--out", out)
+    with open(log, "w") as stderr:
+        t0 = time.monotonic()
+        proc = run(*argv, stderr=stderr)
+        wall = time.monotonic() - t0
+    assert proc.returncode == 0 and proc.stdout == f"trained voca for 3 epochs on 16 clips -> {out}\n", log.read_text()
+    lines = progress_lines(log.read_text())
+    epochs = [int(m[2]) for m in lines]
+    assert epochs[0] == 1 and epochs[-1] == 3 and epochs == sorted(set(epochs)), epochs
+    assert {m[3] for m in lines} == {"3"} and all(m[1] == "train: epoch" for m in lines)
+    terms = load_checkpoint(out)[1]["history"]["terms"]
+    assert [m[5] for m in lines] == [f"{terms[e - 1]['total']:.4g}" for e in epochs]  # the real loss
+    assert all(m[8] is not None for m in lines[:-1]) and lines[-1][8] is None  # time left, but when done
+    assert seconds(lines[0][6]) <= seconds(lines[-1][6]) <= wall + 1
+    for quiet in ("--quiet", "--no-progress"):
+        with open(log, "w") as stderr:
+            proc = run(*argv, "--overwrite", quiet, stderr=stderr)
+        assert (proc.returncode, log.read_text()) == (0, "")
+        assert proc.stdout == f"trained voca for 3 epochs on 16 clips -> {out}\n"  # the final line stays
+
+
+def test_progress_lines_come_at_most_every_10_s_with_an_honest_estimate():
+    """ProgressLines on a fake clock: the first and the last step always, between them a line once 10 s have passed
+    since the previous one; the time left from the steps since the first line (the first carries the set-up)."""
+    from dualtalker_lite.console import ProgressLines, clock_time
+
+    now, stream = [100.0], io.StringIO()
+    lines = ProgressLines("train: epoch", 10, stream=stream, clock=lambda: now[0])
+    for epoch in range(1, 11):
+        now[0] += 7.0 if epoch == 1 else 3.0  # the first epoch reads the clips: slower
+        lines.update(epoch, loss=f"{1 / epoch:.4g}")
+    assert stream.getvalue().splitlines() == [
+        "train: epoch 1/10, loss 1, 0:07 elapsed, about 1:03 left",  # 9 x 7 s: the first epoch's pace
+        "train: epoch 5/10, loss 0.2, 0:19 elapsed, about 0:15 left",  # 5 x 3 s: the pace since the first line
+        "train: epoch 9/10, loss 0.1111, 0:31 elapsed, about 0:03 left",
+        "train: epoch 10/10, loss 0.1, 0:34 elapsed"]
+    stream = io.StringIO()
+    resumed = ProgressLines("train: epoch", 10, start=6, stream=stream, clock=lambda: now[0])
+    now[0] += 4.0
+    resumed.update(7, loss="0.1")  # the 6 epochs of the interrupted run took no time in this one
+    assert stream.getvalue() == "train: epoch 7/10, loss 0.1, 0:04 elapsed, about 0:12 left\n"
+    assert [clock_time(s) for s in (0.4, 59.5, 61, 3723)] == ["0:00", "1:00", "1:01", "1:02:03"]
+
+
+# The defaults --help must show (a sample per command), and the help's invocation of that option
+HELP_DEFAULTS = {"train": {"--model": "dualtalker", "--epochs": "45", "--seed": "0", "--device": "cpu",
+                           "--threads": "1", "--checkpoint-every": "5", "--corpus": "the shipped data_samples/"},
+                 "evaluate": {"--split": "test_a", "--corpus": "the shipped data_samples/"},
+                 "animate": {"--speaker": "SPK01", "--out": "runs/animation", "--format": "npy,mp4",
+                             "--device": "cpu", "--chunk": "900"},
+                 "generate": {"--speakers": "10", "--processes": "2", "--format": "faceformer"},
+                 "convert-templates": {"--out": "beside the pickle"},
+                 "prepare-dataset": {}}
+
+
+def option_help(text: str) -> dict[str, str]:
+    """--help text (one line per entry: COLUMNS is wide) -> {first option string: its help text}."""
+    entries, name = {}, None
+    for line in text.split("\noptions:\n", 1)[1].split("\n\n", 1)[0].splitlines():
+        if line.startswith("  -"):
+            invocation, _, help_text = line.strip().partition("  ")
+            name = invocation.split(",")[0].split()[0]
+            entries[name] = help_text.strip()
+        else:
+            entries[name] = (entries[name] + " " + line.strip()).strip()
+    return entries
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help_shows_each_option_default(command):
+    """Every option with a default says it, ``(default: 45)``; no "(default: None)" or "(default: False)" noise;
+    the epilog's examples keep their line breaks."""
+    text = ok(run(command, "--help", env={"COLUMNS": "400"}))
+    helps = option_help(text)
+    for option, default in HELP_DEFAULTS[command].items():
+        assert f"(default: {default})" in helps[option] or f"(default: {default};" in helps[option], \
+            (option, helps[option])
+    assert "default: None" not in text and "default: False" not in text and "default: True" not in text
+    assert all(h for o, h in helps.items()), helps  # every option explains itself
+    assert f"\n  dualtalker-lite {command} " in text.split("\nexample", 1)[1]  # the examples' lines as written
 
 
 @pytest.mark.parametrize("command", COMMANDS)

@@ -664,7 +664,7 @@ def test_train_after_a_killed_save_sweeps_the_half_written_checkpoint(tmp_path):
     dead = _dead_pid()
     stale = tmp_path / f".m.pt.{dead}.zz9.tmp"
     stale.write_bytes(b"PK\x03\x04 half a checkpoint")
-    proc = cli("train", "--model", "voca", "--epochs", "1", "--clips", "4", "--out", tmp_path / "m.pt")
+    proc = cli("train", "--model", "voca", "--epochs", "1", "--clips", "4", "--out", tmp_path / "m.pt", "--quiet")
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.splitlines() == [f"note: removed {stale} (0.0 MB), left by a run (process {dead}) that was "
                                         "killed"]
@@ -731,6 +731,8 @@ def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path
     assert state["train"]["epoch"] == 2 and len(state["train"]["history"]["terms"]) == 2
     resumed = cli(*TRAIN_SMALL, "--out", out, "--checkpoint-every", "2", "--resume")
     assert resumed.returncode == 0 and resumed.stderr.splitlines() == [took_over(out, pid)], resumed.stderr
+    assert resumed.stdout.splitlines()[0] == f"resuming voca from {out}.resume: 2 of 4 epochs done, continuing " \
+                                             f"with epoch 3"  # said at the start
     assert "trained voca for 4 epochs" in resumed.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["killed.pt", "straight.pt"]  # the state is removed
     (_, a), (_, b) = load_checkpoint(tmp_path / "straight.pt"), load_checkpoint(out)
@@ -928,7 +930,7 @@ def _failing_save(monkeypatch, fail_in: set):
 
 
 TRAIN_TINY = ["train", "--model", "voca", "--epochs", "1", "--clips", "2", "--checkpoint-every", "0",
-              "--overwrite"]
+              "--overwrite", "--quiet"]  # quiet: stderr holds the error line alone, no progress line before it
 
 
 def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(tmp_path, capsys, monkeypatch):

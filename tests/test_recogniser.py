@@ -298,10 +298,11 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
         return subprocess.run([str(script), *map(str, argv)], capture_output=True, text=True, env=env, timeout=300)
 
     ckpt = tmp_path / "vis.pt"
-    proc = run("train", "--model", "faceformer", "--epochs", "1", "--clips", "8", "--out", ckpt)  # the default
+    # the default front-end; --quiet: no progress lines on stderr (it is a pipe here)
+    proc = run("train", "--model", "faceformer", "--epochs", "1", "--clips", "8", "--out", ckpt, "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     assert torch.load(ckpt, weights_only=True)["features"]["name"] == "hama"
-    proc = run("evaluate", "--checkpoint", ckpt, "--split", "test_b", "--json", tmp_path / "m.json")
+    proc = run("evaluate", "--checkpoint", ckpt, "--split", "test_b", "--json", tmp_path / "m.json", "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     wav = sample_path() / "audio" / "SPK01_s05.flac"
     proc = run("animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--out", tmp_path / "a",
@@ -309,7 +310,7 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     assert np.load(tmp_path / "a" / "vertices.npy").shape[1] == torch.load(ckpt, weights_only=True)["n_vertices"] * 3
     # EmoFace: visemes for its content branch, log-mel for its emotion branch (175 features, content_dims 15)
-    proc = run("train", "--model", "emoface", "--epochs", "1", "--clips", "8", "--out", tmp_path / "e.pt")
+    proc = run("train", "--model", "emoface", "--epochs", "1", "--clips", "8", "--out", tmp_path / "e.pt", "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     saved = torch.load(tmp_path / "e.pt", weights_only=True)
     assert (saved["features"]["name"], saved["features"]["settings"]["output"]) == ("hama", "visemes+logmel")

@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import json
 import re
-import sys
 import zlib
 from dataclasses import asdict, dataclass, field
 from importlib import metadata as importlib_metadata
@@ -42,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..console import HelpFormatter, progress_mode
 from .sentences import SENTENCES, sentence_id
 
 __all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "held_out_sentences", "render_clip", "generate_corpus",
@@ -282,7 +282,7 @@ def claim_output(out: str | Path, overwrite: bool = False):
     return AtomicOutputDir(out, overwrite=overwrite)
 
 
-def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progress: bool = True,
+def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progress: bool | str = True,
                     only: list[str] | None = None, texts: tuple[str, ...] | None = None,
                     sentences_file: str | None = None, overwrite: bool = False) -> dict:
     """Generate the corpus described by ``spec`` into ``out``; returns the metadata dict.
@@ -291,12 +291,13 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
     built in a temporary sibling and swapped in when complete, so a failure leaves the old ``out`` untouched.
 
     ``only``: generate just these clip names (for tests that check a shipped clip bit for bit).
+    ``progress``: True/``"bar"`` progress bars, ``"lines"`` a line at most every ~10 s for each stage (speech, then
+    faces), False/``"off"`` none (:func:`~dualtalker_lite.console.progress_iter`).
     ``texts``: the sentences (default :data:`SENTENCES`), e.g. from :func:`read_sentences`.
     Everything is planned and checked before the first file is written.
     """
     import soundfile as sf
-    from tqdm.auto import tqdm
-
+    from ..console import progress_iter
     from ..face import CONTROL_NAMES, VISEMES, FaceRig, build_template, make_speakers
     from .speech import ENGLISH_PHONEMES, emotional_prosody, speaker_voices, synthesize_many
 
@@ -323,7 +324,7 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
             (root / "vertices_npy").mkdir(exist_ok=True)
         rigs = {name: FaceRig(s) for name, s in by_name.items()}
         clips, controls = {}, {}
-        for plan, utt in tqdm(list(zip(plans, utterances)), desc="faces", disable=not progress, leave=False):
+        for plan, utt in progress_iter(list(zip(plans, utterances)), progress, "generate: face clip", desc="faces"):
             clip = render_clip(plan, utt, by_name[plan.subject], texts)
             clips[plan.name] = clip["meta"]
             pcm = to_pcm16(utt.wave)
@@ -379,6 +380,22 @@ def _emotion_list(text: str) -> tuple[str, ...]:
     return items
 
 
+# --help of the corpus-size options (their defaults come from CorpusSpec and CorpusSpec.sample)
+SPEC_HELP = {"speakers": "speakers in all, seen and unseen",
+             "unseen_speakers": "of those, the last N are unseen: held out for test_b and test_emo_b",
+             "sentences": "sentences used: the first N built-in ones, or of --sentences-file (all its lines "
+                          "unless given)",
+             "val_sentences": "of those, sentences of the val split (with fewer than 48 sentences, scaled down: "
+                              "held_out_sentences)",
+             "test_sentences": "of those, sentences of the test splits (with fewer than 48 sentences, scaled down: "
+                               "held_out_sentences)",
+             "emotion_speakers": "seen speakers who also speak the emotional pseudo-pairs (train_emo, test_emo_a); "
+                                 "never more than the seen speakers unless given",
+             "emotion_sentences": "shortest training sentences spoken with every emotion and level",
+             "emotion_test_sentences": "shortest test sentences spoken with every emotion and level",
+             "vertices": "approximate vertex count of the template mesh",
+             "seed": "seed of the speakers' faces and of which sentences go to which split"}
+
 GENERATE_EXAMPLE = """examples:
   {prog} --out runs/my_corpus --speakers 6 --sentences 20 --processes 2   # 443 clips, ~460 MB
   {prog} --out runs/mine --sentences-file my_sentences.txt --speakers 4     # one sentence per line"""
@@ -388,28 +405,31 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     """Command line (``python -m dualtalker_lite.data.generate`` or ``dualtalker-lite generate``, ``prog``)."""
     prog = prog or "python -m dualtalker_lite.data.generate"
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0],
-                                 epilog=GENERATE_EXAMPLE.format(prog=prog),
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+                                 epilog=GENERATE_EXAMPLE.format(prog=prog), formatter_class=HelpFormatter)
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--preset", choices=["sample"], help="the shipped data_samples/ corpus")
     ap.add_argument("--sentences-file", help="text file, one sentence per line (default: the built-in sentences)")
     ap.add_argument("--emotions", type=_emotion_list, default=None,
-                    help=f"comma-separated emotions of the emotional splits (default {','.join(EMOTIONAL)})")
-    d = CorpusSpec()
-    for field_name in ("speakers", "unseen_speakers", "sentences", "val_sentences", "test_sentences",
-                       "emotion_speakers", "emotion_sentences", "emotion_test_sentences", "vertices", "seed"):
-        scaled = " (with fewer than 48 sentences, scaled down: held_out_sentences)" if field_name in (
-            "val_sentences", "test_sentences") else ""
+                    help=f"comma-separated emotions of the emotional splits (default: {','.join(EMOTIONAL)})")
+    d, sample = CorpusSpec(), CorpusSpec.sample()
+    for field_name, text in SPEC_HELP.items():  # default None: "not given" (--preset sample has its own values)
+        preset = "" if getattr(sample, field_name) == getattr(d, field_name) else \
+            f"; {getattr(sample, field_name)} with --preset sample"
         ap.add_argument("--" + field_name.replace("_", "-"), type=int, default=None,
-                        help=f"default {getattr(d, field_name)}{scaled}")
-    ap.add_argument("--long-clips", default=None, help="sentences per long clip, comma-separated (default 5,8,12); "
-                    "'' for none")
-    ap.add_argument("--format", choices=["faceformer", "compact"], default=None)
-    ap.add_argument("--processes", type=int, default=2)
+                        help=f"{text} (default: {getattr(d, field_name)}{preset})")
+    ap.add_argument("--long-clips", default=None,
+                    help=f"sentences per long clip, comma-separated, '' for none (default: "
+                         f"{','.join(map(str, d.long_clips))}; {','.join(map(str, sample.long_clips))} with --preset "
+                         f"sample)")
+    ap.add_argument("--format", choices=["faceformer", "compact"], default=None,
+                    help="layout: FaceFormer's (wav/, vertices_npy/) or the compact one of data_samples/ "
+                         f"(FLAC + control tracks) (default: {d.format}; {sample.format} with --preset sample)")
+    ap.add_argument("--processes", type=int, default=2, help="espeak-ng worker processes")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing corpus in --out (built aside, swapped in when complete)")
-    ap.add_argument("--no-progress", action="store_true",
-                    help="no progress bars (they are shown only when stderr is a terminal anyway)")
+    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                    help="no progress on stderr (otherwise bars on a terminal, else a line at most every ~10 s for "
+                         "the speech, then for the faces); the final line stays")
     args = ap.parse_args(argv)
     try:
         texts = read_sentences(args.sentences_file) if args.sentences_file else SENTENCES
@@ -439,7 +459,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
               f"{d.val_sentences} and {d.test_sentences} of {d.sentences}; --val-sentences and --test-sentences set "
               f"them)", flush=True)
     meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
-                           progress=not args.no_progress and sys.stderr.isatty(), overwrite=args.overwrite)
+                           progress=progress_mode(args.quiet), overwrite=args.overwrite)
     sizes = {k: len(v) for k, v in meta["splits"].items()}
     print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: {sizes}")
 

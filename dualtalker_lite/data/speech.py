@@ -163,16 +163,20 @@ def synthesize(text: str, voice: VoiceSpec | None = None) -> Utterance:
 
 
 def synthesize_many(
-    requests: Sequence[tuple[str, VoiceSpec]], processes: int = 2, progress: bool = True
+    requests: Sequence[tuple[str, VoiceSpec]], processes: int = 2, progress: bool | str = True
 ) -> list[Utterance]:
-    """:func:`synthesize` for many ``(text, voice)`` pairs, ``processes`` workers at a time, in order."""
-    from tqdm.auto import tqdm
+    """:func:`synthesize` for many ``(text, voice)`` pairs, ``processes`` workers at a time, in order.
+
+    ``progress``: True/``"bar"`` a progress bar, ``"lines"`` a line at most every ~10 s, False/``"off"`` none
+    (:func:`~dualtalker_lite.console.progress_iter`)."""
+    from ..console import progress_iter
 
     # Threads only wait on their worker process, so `processes` threads keep that many cores busy.
     with ThreadPoolExecutor(max_workers=processes) as pool:
         jobs = [pool.submit(synthesize, text, voice) for text, voice in requests]
         try:
-            return [job.result() for job in tqdm(jobs, desc="espeak-ng", unit="clip", disable=not progress)]
+            return [job.result() for job in progress_iter(jobs, progress, "generate: speech clip",
+                                                          desc="espeak-ng", unit="clip")]
         finally:
             for job in jobs:  # after an error, do not wait for the rest
                 job.cancel()

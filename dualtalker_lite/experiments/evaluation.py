@@ -6,7 +6,7 @@ bandwidth, and the collapse check (audio swapped for another sentence's -> ``aud
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -169,14 +169,19 @@ def _unpad(batch_pred: torch.Tensor, batch: dict, preds: list, gts: list, templa
         names.append(batch["name"][i])
 
 
-def predict_split(model: torch.nn.Module, dataset: Dataset) -> dict:
-    """Autoregressive predictions for every clip of ``dataset`` -> lists of (T_i, V*3) arrays, names, templates."""
+def predict_split(model: torch.nn.Module, dataset: Dataset,
+                  on_batch: Callable[[int], None] | None = None) -> dict:
+    """Autoregressive predictions for every clip of ``dataset`` -> lists of (T_i, V*3) arrays, names, templates.
+
+    ``on_batch(clips_done)``: called after each batch of 16 clips (``dualtalker-lite evaluate``'s progress)."""
     from ..data.dataset import make_loader
     from ..train import predict
 
     preds, gts, templates, names = [], [], [], []
     for batch in make_loader(dataset, batch_size=16, shuffle=False):
         _unpad(predict(model, batch), batch, preds, gts, templates, names)
+        if on_batch is not None:
+            on_batch(len(names))
     return {"preds": preds, "gts": gts, "templates": templates, "names": names}
 
 
