@@ -30,7 +30,8 @@ a ``FaceFormer``. :func:`upgrade_checkpoint` renames both on load (one note on s
 Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
 refused both when saving and when loading. :func:`load_checkpoint` also checks the file's integrity (the zip CRC of
 every record of the torch archive: one flipped byte is refused, never loaded) and validates hand-edited fields
-against a small schema (:func:`validate_fields`): ``features`` (a known name, settings of the right types, hop > 0),
+against a small schema (:func:`validate_fields`): ``features`` (a known name, settings of the right types, hop > 0;
+the phoneme recogniser's lag, window, blank bias and fps within the bounds of ``recogniser.check_settings``),
 ``speakers`` (a list of distinct names, never a string), ``n_vertices``, ``topology`` and the type of every
 ``model_config`` field (``d_model: '64'`` is one clear line, not a formatting error deep in a model).
 """
@@ -263,6 +264,11 @@ def _check_features(features: Any, source: str) -> None:
     settings = features.get("settings", {})
     if not isinstance(settings, dict):
         raise ValueError(f"{source}: features 'settings' must be a dict, found {_type_name(settings)}")
+    if name == "hama":  # the phoneme recogniser: types, ranges from the code that uses them, no unknown keys
+        from .recogniser import check_settings
+
+        check_settings(settings, source)
+        return
     if name != "logmel":
         return
     unknown = sorted(map(str, set(settings) - set(_LOGMEL_KEYS)))

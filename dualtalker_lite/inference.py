@@ -326,7 +326,8 @@ def run(args: argparse.Namespace) -> list[Path]:
                              f"mesh.obj (the speaker's neutral face with the model's topology)")
         template, faces = corpus.template(args.speaker), corpus.faces
     extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint))
-    wave = AudioStream(args.wav, sample_rate=extractor.sample_rate)  # checked now, read block by block later
+    wave = AudioStream(args.wav, sample_rate=extractor.sample_rate,  # checked now, read block by block later
+                       front_end=getattr(extractor, "front_end", "logmel"))
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
     conditions = {"emotion": resolve_emotion(args.emotion, corpus), "level": args.level}

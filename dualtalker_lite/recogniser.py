@@ -71,7 +71,8 @@ from .audio import SAMPLE_RATE, LogMelExtractor, validate_wave
 from .face.visemes import VISEMES
 
 __all__ = ["NAME", "HAMA_VERSION", "RATE", "FRAME_SAMPLES", "MAX_FRAMES_PER_CALL", "SYMBOL_TO_VISEME",
-           "NON_PHONES", "OUTPUTS", "LAG_S", "WINDOW_S", "default_cache_dir", "wave_hash", "n_recogniser_frames",
+           "NON_PHONES", "OUTPUTS", "LAG_S", "WINDOW_S", "MAX_LAG_S", "MAX_WINDOW_S", "MAX_BLANK_BIAS", "MAX_FPS",
+           "SETTING_KEYS", "check_settings", "default_cache_dir", "wave_hash", "n_recogniser_frames",
            "PhonemeRecogniser", "symbol_visemes", "spike_track", "RecogniserExtractor"]
 
 NAME = "hama"                   # the front-end's name in checkpoints
@@ -87,6 +88,17 @@ WINDOW_S = 0.1                  # a mesh frame takes the nearest spike within th
 BLANK_BIAS = -0.1               # added to <blank> before the argmax (hama's own greedy decoder does the same)
 OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160,
            "visemes+logmel": len(VISEMES) + 160}
+
+# What a checkpoint's settings may hold (check_settings): every bound comes from the code that uses the value.
+MAX_LAG_S = 0.3                 # |lag_s|: hama trails the phones by 14 ms (tuned on 0 .. 80 ms); a phone lasts 50-200 ms,
+                                # so a lag of 300 ms already gives every frame the viseme of a phone or two away
+MAX_WINDOW_S = 1.0              # window_s: a window of 1 s bridges every pause (no frame is ever "sil" in speech)
+MAX_BLANK_BIAS = 10.0           # |blank_bias| in nats: +10 makes <blank> win every frame (an all-"sil" track),
+                                # -10 makes it lose every frame (a spike on every frame); hama itself uses -0.1
+MAX_FPS = 120                   # mesh frames per second (the corpora here: 25 and 30); above 50 (the recogniser's
+                                # rate) the track only repeats frames
+SETTING_KEYS = ("version", "output", "lag_s", "window_s", "blank_bias", "fps", "sample_rate", "dim", "visemes",
+                "table")        # RecogniserExtractor.settings()'s keys: nothing else may appear in a checkpoint
 
 # ------------------------------------------------------------------------------ symbol -> viseme table
 # hama's 191 output symbols (vocab ``decoder`` + "<wb>", "<blank>"), grouped by viseme. Phones of other languages
@@ -128,6 +140,75 @@ def symbol_visemes(symbols) -> np.ndarray:
                        f"the table in dualtalker_lite/recogniser.py was written for hama {HAMA_VERSION}")
     return np.array([-1 if SYMBOL_TO_VISEME[s] is None else VISEMES.index(SYMBOL_TO_VISEME[s]) for s in symbols],
                     dtype=np.int64)
+
+
+def _shown(value) -> str:
+    """``float 1000000.0``: a value's type and (shortened) repr, for one-line messages."""
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and bool(np.isfinite(value))
+
+
+def check_settings(settings: dict, source: str = "checkpoint") -> None:
+    """Raise one ValueError line naming ``source`` and the field unless ``settings`` (a checkpoint's
+    ``features["settings"]`` for ``"hama"``, as :meth:`RecogniserExtractor.settings` writes them) can drive the
+    recogniser front-end. Keys may be missing (older checkpoints: the defaults apply), never unknown.
+
+    The bounds come from how each value is used, so a hand-edited value that would silently give a wrong track is
+    refused instead (``lag_s: 1e6`` moved every spike 11 days earlier: an all-"sil" face, exit 0):
+
+    ==============  ================================================================================================
+    ``lag_s``       seconds, ``|lag_s| <=`` :data:`MAX_LAG_S` (spike times minus ``lag_s``; log-probs read that much
+                    later); measured 0.014, default :data:`LAG_S`
+    ``window_s``    seconds, from half a mesh frame (``0.5 / fps``: a smaller window lets a spike fall between two
+                    frames unseen) to :data:`MAX_WINDOW_S`
+    ``blank_bias``  nats added to ``<blank>`` before the argmax, ``|blank_bias| <=`` :data:`MAX_BLANK_BIAS`
+    ``fps``         the mesh rate, an int in 1 .. :data:`MAX_FPS` (frame times are ``f / fps``: 0 divides by zero)
+    ``sample_rate`` 16000: the only rate hama takes
+    ``output``      one of :data:`OUTPUTS`; ``dim`` its width (an int)
+    ``version``,    strings (compared with the installation by :meth:`RecogniserExtractor.from_settings`);
+    ``table``       ``visemes``: a list of viseme names
+    ==============  ================================================================================================
+    """
+    if not isinstance(settings, dict):
+        raise ValueError(f"{source}: features 'settings' must be a dict, found {_shown(settings)}")
+    unknown = sorted(map(str, set(settings) - set(SETTING_KEYS)))
+    if unknown:
+        raise ValueError(f"{source}: features settings {unknown} are not {NAME} recogniser settings; known: "
+                         f"{', '.join(SETTING_KEYS)}")
+
+    def bad(key: str, what: str):
+        raise ValueError(f"{source}: features setting {key!r} must be {what}, found {_shown(settings[key])}")
+
+    if "output" in settings and settings["output"] not in OUTPUTS:
+        bad("output", f"one of {', '.join(sorted(OUTPUTS))}")
+    fps = settings.get("fps", 30)
+    if "fps" in settings and not (isinstance(fps, int) and not isinstance(fps, bool) and 1 <= fps <= MAX_FPS):
+        bad("fps", f"an int from 1 to {MAX_FPS} (mesh frames per second)")
+    if "lag_s" in settings and not (_number(settings["lag_s"]) and abs(settings["lag_s"]) <= MAX_LAG_S):
+        bad("lag_s", f"a number of seconds within +-{MAX_LAG_S:g} (how late the recogniser's spikes come; "
+                     f"measured: 0.014)")
+    low = 0.5 / fps
+    if "window_s" in settings and not (_number(settings["window_s"]) and
+                                       low - 1e-9 <= settings["window_s"] <= MAX_WINDOW_S):
+        bad("window_s", f"a number of seconds from {low:.4g} (half a mesh frame at {fps} fps) to {MAX_WINDOW_S:g}")
+    if "blank_bias" in settings and not (_number(settings["blank_bias"]) and
+                                         abs(settings["blank_bias"]) <= MAX_BLANK_BIAS):
+        bad("blank_bias", f"a number of nats within +-{MAX_BLANK_BIAS:g}")
+    if "sample_rate" in settings and not (settings["sample_rate"] == SAMPLE_RATE and
+                                          not isinstance(settings["sample_rate"], bool)):
+        bad("sample_rate", f"{SAMPLE_RATE} (the only rate {NAME} takes)")
+    if "dim" in settings and not (isinstance(settings["dim"], int) and not isinstance(settings["dim"], bool)):
+        bad("dim", "an int")
+    for key in ("version", "table"):
+        if key in settings and not isinstance(settings[key], str):
+            bad(key, "a string")
+    if "visemes" in settings and not (isinstance(settings["visemes"], (list, tuple)) and
+                                      all(isinstance(v, str) for v in settings["visemes"])):
+        bad("visemes", "a list of viseme names")
 
 
 # ------------------------------------------------------------------------------ the recogniser
@@ -473,7 +554,9 @@ class RecogniserExtractor:
     ``"logprobs+logmel"`` ((T, 351)) or ``"visemes+logmel"`` ((T, 175)). ``lag_s``: spikes and log-probs are
     read ``lag_s`` later than the mesh frame time (hama lags the phones). ``window_s``: the nearest-spike window of
     :func:`spike_track`.
-    ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors.
+    ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors. ``cache=False``:
+    compute in memory, never touching the disk cache. The values are not bounded here (``window_s=0`` pins a test's
+    spike to one frame); a checkpoint's are, when it loads (:func:`check_settings`).
     """
 
     def __init__(self, output: str = "visemes", lag_s: float = LAG_S, window_s: float = WINDOW_S,
@@ -483,6 +566,7 @@ class RecogniserExtractor:
             raise ValueError(f"output must be one of {sorted(OUTPUTS)}, got {output!r}")
         self.output, self.lag_s, self.window_s, self.blank_bias, self.fps = output, lag_s, window_s, blank_bias, fps
         self.sample_rate = SAMPLE_RATE
+        self.front_end = "hama+logmel" if output.endswith("+logmel") else "hama"   # audio.upsampled_warning's wording
         self.dim = OUTPUTS[output]
         self.recogniser = recogniser or PhonemeRecogniser(cache=cache, cache_dir=cache_dir)
         self._logmel = LogMelExtractor(fps=fps) if output.endswith("+logmel") else None
@@ -499,10 +583,12 @@ class RecogniserExtractor:
 
     @classmethod
     def from_settings(cls, features: dict, source: str = "checkpoint", **kw) -> "RecogniserExtractor":
-        """Rebuild from :meth:`settings`; one-line ValueError for another front-end, version or table."""
+        """Rebuild from :meth:`settings`; one-line ValueError for another front-end, version or table, or a
+        setting :func:`check_settings` refuses. ``kw``: ``cache``, ``cache_dir`` or ``recogniser``."""
         if not features or features.get("name") != NAME:
             raise ValueError(f"{source}: features {features and features.get('name')!r} are not the {NAME!r} "
                              f"recogniser's")
+        check_settings(features.get("settings", {}), source)
         s = dict(features.get("settings", {}))
         ex = cls(output=s.get("output", "visemes"), lag_s=s.get("lag_s", LAG_S), window_s=s.get("window_s", WINDOW_S),
                  blank_bias=s.get("blank_bias", BLANK_BIAS), fps=s.get("fps", 30), **kw)
