@@ -101,8 +101,11 @@ def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
     return {"name": "logmel", "settings": settings}
 
 
-def extractor_from_settings(features: dict | None, source: str = "checkpoint"):
-    """Rebuild the feature extractor a checkpoint was trained with (``None`` -> default log-mel)."""
+def extractor_from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True):
+    """Rebuild the feature extractor a checkpoint was trained with (``None`` -> default log-mel).
+
+    ``cache=False`` (``--no-cache``): the phoneme recogniser computes in memory and never touches its disk cache
+    (log-mel has no cache: the flag changes nothing there)."""
     from .audio import LogMelExtractor
 
     if not features:
@@ -110,7 +113,7 @@ def extractor_from_settings(features: dict | None, source: str = "checkpoint"):
     if features.get("name") == "hama":  # the phoneme recogniser: refuses another hama version or symbol table
         from .recogniser import RecogniserExtractor
 
-        return RecogniserExtractor.from_settings(features, source)
+        return RecogniserExtractor.from_settings(features, source, cache=cache)
     if features.get("name") != "logmel":
         raise ValueError(f"{source}: the model was trained on {features.get('name')!r} features, which cannot be "
                          f"computed from a recording; only 'logmel' and 'hama' models animate audio")

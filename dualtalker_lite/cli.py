@@ -270,6 +270,9 @@ def _evaluate(argv: list[str]) -> dict:
     ap.add_argument("--split", default="test_a")
     ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
+                         "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite)")
     args = ap.parse_args(argv)
     if args.json and Path(args.json).is_dir():
         raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
@@ -290,7 +293,7 @@ def _evaluate(argv: list[str]) -> dict:
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
     features = ckpt.get("features") or {"name": "logmel"}
     computed = features.get("name") in ("logmel", "hama")  # from the audio (hama: the recogniser's viseme tracks)
-    extractor = extractor_from_settings(features, args.checkpoint) if computed else None
+    extractor = extractor_from_settings(features, args.checkpoint, cache=not args.no_cache) if computed else None
     dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor),
                            "logmel" if computed else features["name"],
                            len(corpus.phoneme_inventory))
