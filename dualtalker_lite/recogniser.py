@@ -305,6 +305,7 @@ def _pieces(blocks, n: int, jobs: list, hasher=None) -> Iterator[np.ndarray]:
 # ------------------------------------------------------------------------------ cache entries
 _TRAILER_MAGIC = b"DTLCACHE1\n"                                          # then the key (32 bytes), the sha256 (32)
 _TRAILER_SIZE = len(_TRAILER_MAGIC) + 32 + 32
+_OLDER_VERSION = "has no key and checksum (written by an older version)"
 ENTRY_LAYOUT = """A cache entry (``<cache>/hama-<version>/<key[:2]>/<key[2:34]>.npy``) is a ``.npy`` file of the
 float16 log-probs ``(1 + N // 320, 191)`` (``np.load`` reads it) followed by a 74-byte trailer: ``DTLCACHE1\\n``,
 the 32 bytes of the key it was made for (:func:`wave_hash`), and the sha256 of the ``.npy`` header and rows. A read
@@ -391,7 +392,8 @@ class PhonemeRecogniser:
     The cache is verified, never trusted: each entry carries the key it was made for and a checksum
     (:data:`ENTRY_LAYOUT`), and an entry made for another recording (two entries swapped or copied), damaged,
     truncated, of another type (strings, float64) or holding NaN is recomputed and overwritten, with one ``warning:``
-    line naming it; an older version's entry (no trailer) is recomputed the same way. Temporaries that killed runs
+    line naming it; an older version's entries (no trailer) are recomputed the same way, with one ``note:`` line for
+    the first. Temporaries that killed runs
     left are removed (:meth:`_sweep`). A cache folder that cannot be used (read-only, full, a file where a folder
     should be or a folder where an entry should be) is dropped for the rest of the run with one ``warning:`` line
     naming it and ``DUALTALKER_CACHE``: the log-probs are then computed in memory, the same numbers.
@@ -414,6 +416,7 @@ class PhonemeRecogniser:
         self.cache = bool(cache)
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
         self._swept = False                                            # stale temporaries removed yet (_sweep)
+        self._old_noted = False                                        # an older version's entry noted yet
         self.threads = max(1, min(int(threads), os.cpu_count() or 1))
 
     def settings(self) -> dict:
@@ -518,8 +521,9 @@ class PhonemeRecogniser:
     def _open_entry(self, path: Path, n: int, key: str):
         """The verified cache entry at ``path`` for the wave of ``n`` samples with key ``key``, as ``(open file
         positioned at its first row, offset of that row)``; None on a miss. An entry that fails a check
-        (:meth:`_check_entry`) is named in one ``warning:`` line and recomputed (then overwritten); a cache that
-        cannot be read turns the cache off (:meth:`_unusable`)."""
+        (:meth:`_check_entry`) is named in one ``warning:`` line and recomputed (then overwritten); an older
+        version's entry (no trailer) is recomputed too, with one ``note:`` line for the first of them only; a cache
+        that cannot be read turns the cache off (:meth:`_unusable`)."""
         try:
             if not path.is_file():
                 return None
@@ -532,6 +536,13 @@ class PhonemeRecogniser:
         except OSError as e:
             f.close()
             self._unusable(e)
+            return None
+        if reason is _OLDER_VERSION:  # not a fault: one note per recogniser (an upgrade meets hundreds of them)
+            f.close()
+            if not self._old_noted:
+                print(f"note: {path}: recogniser cache entry {reason}; recomputing it (and, without a word, any "
+                      f"other such entry in this run)", file=sys.stderr)
+            self._old_noted = True
             return None
         if reason is not None:
             f.close()
@@ -561,7 +572,7 @@ class PhonemeRecogniser:
             return f"has shape {shape}, not ({rows}, {width}) (damaged or foreign)"
         size, data = os.fstat(f.fileno()).st_size, rows * width * 2
         if size == start + data:
-            return "has no key and checksum (written by an older version)"
+            return _OLDER_VERSION
         if size != start + data + _TRAILER_SIZE:
             return f"is {size} bytes, not {start + data + _TRAILER_SIZE} (truncated or damaged)"
         f.seek(start + data)
