@@ -83,9 +83,9 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
 
     ``mono="error"`` (default) refuses multichannel files; ``mono="mean"`` averages the channels.
     A different file rate is resampled (``resample=True``) or refused; a rate below ``sample_rate`` is upsampled
-    with a one-line ``warning:`` on stderr (:func:`upsampled_warning`, worded for ``front_end``). Truncated files are refused: a WAV
-    whose header promises more samples (:func:`check_wav_header`), an MP3 that decodes short of its length header
-    or has none (:func:`check_mp3_length`). Every error names the file.
+    with a one-line ``warning:`` on stderr (:func:`upsampled_warning`, worded for ``front_end``). Truncated files
+    are refused: a WAV whose header promises more samples (:func:`check_wav_header`), an MP3 that decodes short of
+    its length header or has none (:func:`check_mp3_length`). Every error names the file.
     """
     import soundfile as sf
 

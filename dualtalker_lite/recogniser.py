@@ -21,9 +21,9 @@ Pieces, bottom up (each usable alone):
   disk under a content hash (sha256 of the wave's float32 bytes + the recogniser settings):
   :func:`default_cache_dir`. Each entry carries its key and a checksum, checked on every read (issue 32); an
   unusable cache folder falls back to computing in memory with one warning, and ``cache=False`` (the commands'
-  ``--no-cache``) never touches the disk. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one call at a
-  time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s calls
-  in the model.
+  ``--no-cache``) never touches the disk. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one
+  call at a time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s
+  calls in the model.
   :meth:`PhonemeRecogniser.stream_log_probs` does the same for a wave given as blocks (``AudioStream.blocks``),
   never holding it whole: each call's samples come from a rolling buffer of blocks, the cache key is hashed block
   by block, the cache entry is written and read block by block.
@@ -94,8 +94,8 @@ BLANK_BIAS = -0.1               # added to <blank> before the argmax (hama's own
 OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160,
            "visemes+logmel": len(VISEMES) + 160}
 # What a checkpoint's settings may hold (check_settings): every bound comes from the code that uses the value.
-MAX_LAG_S = 0.3                 # |lag_s|: hama trails the phones by 14 ms (tuned on 0 .. 80 ms); a phone lasts 50-200 ms,
-                                # so a lag of 300 ms already gives every frame the viseme of a phone or two away
+MAX_LAG_S = 0.3                 # |lag_s|: hama trails the phones by 14 ms (tuned on 0 .. 80 ms); a phone lasts
+                                # 50-200 ms, so a lag of 300 ms gives every frame the viseme of a phone or two away
 MAX_WINDOW_S = 1.0              # window_s: a window of 1 s bridges every pause (no frame is ever "sil" in speech)
 MAX_BLANK_BIAS = 10.0           # |blank_bias| in nats: +10 makes <blank> win every frame (an all-"sil" track),
                                 # -10 makes it lose every frame (a spike on every frame); hama itself uses -0.1
@@ -385,9 +385,10 @@ class PhonemeRecogniser:
 
     ``core_s`` / ``context_s``: seconds kept per call / seconds of context on each side (multiples of 20 ms;
     ``core_s + 2 context_s`` must stay under hama's 30 s). ``cache_dir``: where outputs are cached (None:
-    :func:`default_cache_dir`); ``cache=False`` computes every time (``--no-cache``). ``threads``: calls run at once on recordings
-    longer than one core (hama's engine is single-threaded per call and releases the GIL: two threads halve the wall
-    time on two cores; each extra call in flight holds about 70 MB). Results do not depend on ``threads``.
+    :func:`default_cache_dir`); ``cache=False`` computes every time (``--no-cache``). ``threads``: calls run at once
+    on recordings longer than one core (hama's engine is single-threaded per call and releases the GIL: two threads
+    halve the wall time on two cores; each extra call in flight holds about 70 MB). Results do not depend on
+    ``threads``.
 
     The cache is verified, never trusted: each entry carries the key it was made for and a checksum
     (:data:`ENTRY_LAYOUT`), and an entry made for another recording (two entries swapped or copied), damaged,
