@@ -1422,3 +1422,31 @@ def test_the_8_khz_warning_speaks_of_the_phoneme_recogniser_on_a_phonetic_checkp
     assert len(err) == 1 and err[0].startswith(f"warning: {tmp_path / 'phone.wav'}: sampled at 8000 Hz"), err
     assert "phoneme recogniser" in err[0] and "above 4 kHz" in err[0] and "log-mel" not in err[0], err
     assert np.isfinite(vertices).all()
+
+
+def test_a_killed_phonetic_runs_temporary_is_swept_by_the_next_run(phonetic, tmp_path, monkeypatch):
+    """The real thing behind the test above: an ``animate`` process SIGKILLed while it writes its cache entry leaves
+    its temporary; the next run removes it with one ``note:`` line naming it and the dead process, and ends with
+    the one good entry."""
+    corpus = Corpus(sample_path())
+    wave = np.concatenate([corpus.wave(n) for n in corpus.split("test_a")[:20]])[:30 * 16000]   # two 24 s calls
+    sf.write(tmp_path / "long.wav", wave, 16000, subtype="FLOAT")
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    argv = [sys.executable, "-m", "dualtalker_lite.cli", "animate", "--checkpoint", str(phonetic["ckpt"]), "--wav",
+            str(tmp_path / "long.wav"), "--out", str(tmp_path / "o"), "--format", "npy"]
+    proc = subprocess.Popen(argv, env=_env(), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while not list(cache.rglob("*.tmp")) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    (left,) = list(cache.rglob("*.tmp"))
+    assert f".{proc.pid}." in left.name and not _cache_entries(cache)   # the killed process's own temporary
+    again = subprocess.run(argv[:-3] + [str(tmp_path / "o2"), "--format", "npy"], env=_env(), cwd=REPO,
+                           capture_output=True, text=True, timeout=300)   # another --out: no claim to take over
+    assert again.returncode == 0, again.stderr[-2000:]
+    lines = again.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"note: removed {left} (") and \
+        f"(process {proc.pid}) that was killed" in lines[0], lines
+    assert not list(cache.rglob("*.tmp")) and len(_cache_entries(cache)) == 1
