@@ -1450,3 +1450,57 @@ def test_a_killed_phonetic_runs_temporary_is_swept_by_the_next_run(phonetic, tmp
     assert len(lines) == 1 and lines[0].startswith(f"note: removed {left} (") and \
         f"(process {proc.pid}) that was killed" in lines[0], lines
     assert not list(cache.rglob("*.tmp")) and len(_cache_entries(cache)) == 1
+
+
+@pytest.mark.parametrize("read", ["whole", "stream"])
+def test_a_full_disk_while_writing_a_cache_entry_is_one_warning(phonetic, tmp_path, capsys, monkeypatch, read):
+    """The disk fills while an entry is being written (after its header and first block): one ``warning:`` line
+    naming the cache folder and ``DUALTALKER_CACHE``, the features equal the uncached ones, and neither an entry nor
+    a temporary is left (was: the errno line, exit 2)."""
+    import builtins
+    import errno
+
+    import dualtalker_lite.recogniser as recogniser_module
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.recogniser import PhonemeRecogniser, RecogniserExtractor
+
+    wave = load_audio(phonetic["a"])
+    T = int(round(len(wave) * 30 / 16000))
+    short = dict(core_s=0.5, context_s=0.2)                                 # 25 rows per call: several blocks
+    expected = RecogniserExtractor("visemes", recogniser=PhonemeRecogniser(**short, cache=False))(wave, T)
+    real_open = builtins.open
+
+    class Full:
+        """A file on a disk with room for the header and one block of rows, no more."""
+        def __init__(self, f):
+            self.f, self.room = f, 128 + 25 * 191 * 2
+
+        def write(self, data):
+            if len(data) > self.room:
+                raise OSError(errno.ENOSPC, "No space left on device", self.f.name)
+            self.room -= len(data)
+            return self.f.write(data)
+
+        def close(self):
+            self.f.close()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+    def opener(file, mode="r", *args, **kwargs):
+        f = real_open(file, mode, *args, **kwargs)
+        return Full(f) if "w" in mode else f
+
+    monkeypatch.setattr(recogniser_module, "open", opener, raising=False)
+    cache = tmp_path / "cache"
+    rec = PhonemeRecogniser(**short, cache_dir=cache)
+    ex = RecogniserExtractor("visemes", recogniser=rec)
+    got = ex(wave, T) if read == "whole" else ex.stream(lambda: [wave], len(wave), T)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert torch.equal(got, expected)
+    assert len(lines) == 1 and lines[0].startswith(f"warning: recogniser cache {cache}: unusable (No space left") \
+        and "DUALTALKER_CACHE" in lines[0], lines
+    assert not list(cache.rglob("*.tmp")) and not _cache_entries(cache) and rec.cache is False
