@@ -58,15 +58,34 @@ def resample(wave: np.ndarray, orig_sr: int, target_sr: int) -> np.ndarray:
     return resample_poly(wave, target_sr // g, orig_sr // g, axis=0).astype(np.float32)
 
 
+def upsampled_warning(path, file_sr: int, sample_rate: int, front_end: str = "logmel") -> str:
+    """The one ``warning:`` line for a recording sampled below ``sample_rate`` (upsampled: nothing above
+    ``file_sr / 2`` is there), worded for the model's audio ``front_end``: ``"logmel"`` (its upper mel bands are
+    empty, and log-mel models know only full-band speech), ``"hama"`` (the phoneme recogniser: it copes with
+    telephone-band speech, the real-voice benchmark's voice is 8 kHz, but has less to go on for the consonants whose
+    energy lies above 4 kHz) or ``"hama+logmel"`` (both: EmoFace's emotion branch reads log-mel)."""
+    head = f"warning: {path}: sampled at {file_sr} Hz, below {sample_rate} Hz: upsampled"
+    top = f"{file_sr / 2000:g} kHz"
+    if front_end.startswith("hama"):
+        text = (f"{head}, so nothing above {top} is there; this model's phoneme recogniser copes with telephone-band "
+                f"speech (docs/front-ends.md) but has less to go on for s, f and th, whose energy lies above {top}")
+        if front_end.endswith("+logmel"):
+            text += f", and the log-mel features of its emotion branch are empty above {top}"
+        return text
+    return (f"{head}, so the mel bands above {top} are empty; log-mel models were trained on "
+            f"{sample_rate / 1000:g} kHz speech and may animate it poorly (the recogniser front-end, --features "
+            f"visemes, copes with telephone audio)")
+
+
 def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample: bool = True,
-               mono: str = "error") -> np.ndarray:
+               mono: str = "error", front_end: str = "logmel") -> np.ndarray:
     """Read a WAV/FLAC file as float32 ``(N,)`` in [-1, 1] at ``sample_rate``.
 
     ``mono="error"`` (default) refuses multichannel files; ``mono="mean"`` averages the channels.
     A different file rate is resampled (``resample=True``) or refused; a rate below ``sample_rate`` is upsampled
-    with a one-line ``warning:`` on stderr (its upper mel bands stay empty). Truncated files are refused: a WAV
-    whose header promises more samples (:func:`check_wav_header`), an MP3 that decodes short of its length header
-    or has none (:func:`check_mp3_length`). Every error names the file.
+    with a one-line ``warning:`` on stderr (:func:`upsampled_warning`, worded for ``front_end``). Truncated files
+    are refused: a WAV whose header promises more samples (:func:`check_wav_header`), an MP3 that decodes short of
+    its length header or has none (:func:`check_mp3_length`). Every error names the file.
     """
     import soundfile as sf
 
@@ -110,10 +129,7 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
             raise ValueError(f"{path} is sampled at {file_sr} Hz, expected {sample_rate} Hz "
                              f"(pass resample=True to resample)")
         if file_sr < sample_rate:  # upsampled: everything above file_sr / 2 stays empty (one line, not an error)
-            print(f"warning: {path}: sampled at {file_sr} Hz, below {sample_rate} Hz: upsampled, so the mel bands "
-                  f"above {file_sr / 2000:g} kHz are empty; log-mel models were trained on {sample_rate / 1000:g} kHz "
-                  f"speech and may animate it poorly (the recogniser front-end, --features visemes, copes with "
-                  f"telephone audio)", file=sys.stderr)
+            print(upsampled_warning(path, file_sr, sample_rate, front_end), file=sys.stderr)
         wave = _resample(wave, file_sr, sample_rate)
     return np.ascontiguousarray(wave, dtype=np.float32)
 
@@ -139,9 +155,11 @@ class AudioStream:
     ``sample_rate`` (peak-normalised like ``load_audio``; another rate resampled block by block with enough
     context on both sides for the polyphase filter, so the samples equal ``load_audio``'s up to float rounding).
     ``len(stream)`` is the number of samples at ``sample_rate``; :meth:`read` joins the blocks (the whole wave).
+    ``front_end``: the model's audio front-end, for the wording of the below-16-kHz warning (:func:`upsampled_warning`).
     """
 
-    def __init__(self, path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, block_s: float = 60.0):
+    def __init__(self, path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, block_s: float = 60.0,
+                 front_end: str = "logmel"):
         import soundfile as sf
 
         self.path, self.sample_rate = Path(path), int(sample_rate)
@@ -183,10 +201,7 @@ class AudioStream:
                           stacklevel=2)
             self.peak = peak
         if self.file_sr < self.sample_rate:
-            print(f"warning: {path}: sampled at {self.file_sr} Hz, below {self.sample_rate} Hz: upsampled, so the "
-                  f"mel bands above {self.file_sr / 2000:g} kHz are empty; log-mel models were trained on "
-                  f"{self.sample_rate / 1000:g} kHz speech and may animate it poorly (the recogniser front-end, "
-                  f"--features visemes, copes with telephone audio)", file=sys.stderr)
+            print(upsampled_warning(path, self.file_sr, self.sample_rate, front_end), file=sys.stderr)
         g = math.gcd(self.file_sr, self.sample_rate)
         self.up, self.down = self.sample_rate // g, self.file_sr // g
         self.n_file = decoded

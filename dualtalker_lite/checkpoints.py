@@ -30,7 +30,8 @@ a ``FaceFormer``. :func:`upgrade_checkpoint` renames both on load (one note on s
 Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
 refused both when saving and when loading. :func:`load_checkpoint` also checks the file's integrity (the zip CRC of
 every record of the torch archive: one flipped byte is refused, never loaded) and validates hand-edited fields
-against a small schema (:func:`validate_fields`): ``features`` (a known name, settings of the right types, hop > 0),
+against a small schema (:func:`validate_fields`): ``features`` (a known name, settings of the right types, hop > 0;
+the phoneme recogniser's lag, window, blank bias and fps within the bounds of ``recogniser.check_settings``),
 ``speakers`` (a list of distinct names, never a string), ``n_vertices``, ``topology`` and the type of every
 ``model_config`` field (``d_model: '64'`` is one clear line, not a formatting error deep in a model).
 """
@@ -100,8 +101,11 @@ def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
     return {"name": "logmel", "settings": settings}
 
 
-def extractor_from_settings(features: dict | None, source: str = "checkpoint"):
-    """Rebuild the feature extractor a checkpoint was trained with (``None`` -> default log-mel)."""
+def extractor_from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True):
+    """Rebuild the feature extractor a checkpoint was trained with (``None`` -> default log-mel).
+
+    ``cache=False`` (``--no-cache``): the phoneme recogniser computes in memory and never touches its disk cache
+    (log-mel has no cache: the flag changes nothing there)."""
     from .audio import LogMelExtractor
 
     if not features:
@@ -109,7 +113,7 @@ def extractor_from_settings(features: dict | None, source: str = "checkpoint"):
     if features.get("name") == "hama":  # the phoneme recogniser: refuses another hama version or symbol table
         from .recogniser import RecogniserExtractor
 
-        return RecogniserExtractor.from_settings(features, source)
+        return RecogniserExtractor.from_settings(features, source, cache=cache)
     if features.get("name") != "logmel":
         raise ValueError(f"{source}: the model was trained on {features.get('name')!r} features, which cannot be "
                          f"computed from a recording; only 'logmel' and 'hama' models animate audio")
@@ -263,6 +267,11 @@ def _check_features(features: Any, source: str) -> None:
     settings = features.get("settings", {})
     if not isinstance(settings, dict):
         raise ValueError(f"{source}: features 'settings' must be a dict, found {_type_name(settings)}")
+    if name == "hama":  # the phoneme recogniser: types, ranges from the code that uses them, no unknown keys
+        from .recogniser import check_settings
+
+        check_settings(settings, source)
+        return
     if name != "logmel":
         return
     unknown = sorted(map(str, set(settings) - set(_LOGMEL_KEYS)))

@@ -286,6 +286,9 @@ def _evaluate(argv: list[str]) -> dict:
     ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                     help="no progress on stderr (otherwise a bar on a terminal, else a line at most every ~10 s "
                          "with the clips predicted, elapsed time and time left)")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
+                         "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite)")
     args = ap.parse_args(argv)
     if args.json and Path(args.json).is_dir():
         raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
@@ -306,7 +309,7 @@ def _evaluate(argv: list[str]) -> dict:
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
     features = ckpt.get("features") or {"name": "logmel"}
     computed = features.get("name") in ("logmel", "hama")  # from the audio (hama: the recogniser's viseme tracks)
-    extractor = extractor_from_settings(features, args.checkpoint) if computed else None
+    extractor = extractor_from_settings(features, args.checkpoint, cache=not args.no_cache) if computed else None
     dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor),
                            "logmel" if computed else features["name"],
                            len(corpus.phoneme_inventory))

@@ -285,6 +285,10 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                     help="no progress bar while rendering the video (it is shown only when stderr is a terminal "
                          "anyway); the final line stays")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
+                         "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite); log-mel models "
+                         "have no cache")
     ap.add_argument("--debug", action="store_true", help="show full tracebacks")
     return ap
 
@@ -327,8 +331,9 @@ def run(args: argparse.Namespace) -> list[Path]:
             raise ValueError(f"corpus {corpus.root} has no face for speaker {args.speaker!r}; pass --template "
                              f"mesh.obj (the speaker's neutral face with the model's topology)")
         template, faces = corpus.template(args.speaker), corpus.faces
-    extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint))
-    wave = AudioStream(args.wav, sample_rate=extractor.sample_rate)  # checked now, read block by block later
+    extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint), cache=not args.no_cache)
+    wave = AudioStream(args.wav, sample_rate=extractor.sample_rate,  # checked now, read block by block later
+                       front_end=getattr(extractor, "front_end", "logmel"))
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
     conditions = {"emotion": resolve_emotion(args.emotion, corpus), "level": args.level}

@@ -19,9 +19,11 @@ Pieces, bottom up (each usable alone):
   call keeps only its core's frames, so the stitched output covers the whole recording, frame for frame. Outputs
   are rounded to float16 (0.01 nat resolution; always, so cached and fresh results are identical) and cached on
   disk under a content hash (sha256 of the wave's float32 bytes + the recogniser settings):
-  :func:`default_cache_dir`. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one call at a
-  time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s calls
-  in the model.
+  :func:`default_cache_dir`. Each entry carries its key and a checksum, checked on every read (issue 32); an
+  unusable cache folder falls back to computing in memory with one warning, and ``cache=False`` (the commands'
+  ``--no-cache``) never touches the disk. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one
+  call at a time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s
+  calls in the model.
   :meth:`PhonemeRecogniser.stream_log_probs` does the same for a wave given as blocks (``AudioStream.blocks``),
   never holding it whole: each call's samples come from a rolling buffer of blocks, the cache key is hashed block
   by block, the cache entry is written and read block by block.
@@ -59,8 +61,10 @@ non-speech (music, noise) may produce spurious spikes. See ``docs/front-ends.md`
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Iterator
 
@@ -69,9 +73,11 @@ import torch
 
 from .audio import SAMPLE_RATE, LogMelExtractor, validate_wave
 from .face.visemes import VISEMES
+from .files import _alive
 
 __all__ = ["NAME", "HAMA_VERSION", "RATE", "FRAME_SAMPLES", "MAX_FRAMES_PER_CALL", "SYMBOL_TO_VISEME",
-           "NON_PHONES", "OUTPUTS", "LAG_S", "WINDOW_S", "default_cache_dir", "wave_hash", "n_recogniser_frames",
+           "NON_PHONES", "OUTPUTS", "LAG_S", "WINDOW_S", "MAX_LAG_S", "MAX_WINDOW_S", "MAX_BLANK_BIAS", "MAX_FPS",
+           "SETTING_KEYS", "check_settings", "default_cache_dir", "wave_hash", "n_recogniser_frames",
            "PhonemeRecogniser", "symbol_visemes", "spike_track", "RecogniserExtractor"]
 
 NAME = "hama"                   # the front-end's name in checkpoints
@@ -87,6 +93,16 @@ WINDOW_S = 0.1                  # a mesh frame takes the nearest spike within th
 BLANK_BIAS = -0.1               # added to <blank> before the argmax (hama's own greedy decoder does the same)
 OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160,
            "visemes+logmel": len(VISEMES) + 160}
+# What a checkpoint's settings may hold (check_settings): every bound comes from the code that uses the value.
+MAX_LAG_S = 0.3                 # |lag_s|: hama trails the phones by 14 ms (tuned on 0 .. 80 ms); a phone lasts
+                                # 50-200 ms, so a lag of 300 ms gives every frame the viseme of a phone or two away
+MAX_WINDOW_S = 1.0              # window_s: a window of 1 s bridges every pause (no frame is ever "sil" in speech)
+MAX_BLANK_BIAS = 10.0           # |blank_bias| in nats: +10 makes <blank> win every frame (an all-"sil" track),
+                                # -10 makes it lose every frame (a spike on every frame); hama itself uses -0.1
+MAX_FPS = 120                   # mesh frames per second (the corpora here: 25 and 30); above 50 (the recogniser's
+                                # rate) the track only repeats frames
+SETTING_KEYS = ("version", "output", "lag_s", "window_s", "blank_bias", "fps", "sample_rate", "dim", "visemes",
+                "table")        # RecogniserExtractor.settings()'s keys: nothing else may appear in a checkpoint
 
 # ------------------------------------------------------------------------------ symbol -> viseme table
 # hama's 191 output symbols (vocab ``decoder`` + "<wb>", "<blank>"), grouped by viseme. Phones of other languages
@@ -128,6 +144,75 @@ def symbol_visemes(symbols) -> np.ndarray:
                        f"the table in dualtalker_lite/recogniser.py was written for hama {HAMA_VERSION}")
     return np.array([-1 if SYMBOL_TO_VISEME[s] is None else VISEMES.index(SYMBOL_TO_VISEME[s]) for s in symbols],
                     dtype=np.int64)
+
+
+def _shown(value) -> str:
+    """``float 1000000.0``: a value's type and (shortened) repr, for one-line messages."""
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and bool(np.isfinite(value))
+
+
+def check_settings(settings: dict, source: str = "checkpoint") -> None:
+    """Raise one ValueError line naming ``source`` and the field unless ``settings`` (a checkpoint's
+    ``features["settings"]`` for ``"hama"``, as :meth:`RecogniserExtractor.settings` writes them) can drive the
+    recogniser front-end. Keys may be missing (older checkpoints: the defaults apply), never unknown.
+
+    The bounds come from how each value is used, so a hand-edited value that would silently give a wrong track is
+    refused instead (``lag_s: 1e6`` moved every spike 11 days earlier: an all-"sil" face, exit 0):
+
+    ==============  ================================================================================================
+    ``lag_s``       seconds, ``|lag_s| <=`` :data:`MAX_LAG_S` (spike times minus ``lag_s``; log-probs read that much
+                    later); measured 0.014, default :data:`LAG_S`
+    ``window_s``    seconds, from half a mesh frame (``0.5 / fps``: a smaller window lets a spike fall between two
+                    frames unseen) to :data:`MAX_WINDOW_S`
+    ``blank_bias``  nats added to ``<blank>`` before the argmax, ``|blank_bias| <=`` :data:`MAX_BLANK_BIAS`
+    ``fps``         the mesh rate, an int in 1 .. :data:`MAX_FPS` (frame times are ``f / fps``: 0 divides by zero)
+    ``sample_rate`` 16000: the only rate hama takes
+    ``output``      one of :data:`OUTPUTS`; ``dim`` its width (an int)
+    ``version``,    strings (compared with the installation by :meth:`RecogniserExtractor.from_settings`);
+    ``table``       ``visemes``: a list of viseme names
+    ==============  ================================================================================================
+    """
+    if not isinstance(settings, dict):
+        raise ValueError(f"{source}: features 'settings' must be a dict, found {_shown(settings)}")
+    unknown = sorted(map(str, set(settings) - set(SETTING_KEYS)))
+    if unknown:
+        raise ValueError(f"{source}: features settings {unknown} are not {NAME} recogniser settings; known: "
+                         f"{', '.join(SETTING_KEYS)}")
+
+    def bad(key: str, what: str):
+        raise ValueError(f"{source}: features setting {key!r} must be {what}, found {_shown(settings[key])}")
+
+    if "output" in settings and settings["output"] not in OUTPUTS:
+        bad("output", f"one of {', '.join(sorted(OUTPUTS))}")
+    fps = settings.get("fps", 30)
+    if "fps" in settings and not (isinstance(fps, int) and not isinstance(fps, bool) and 1 <= fps <= MAX_FPS):
+        bad("fps", f"an int from 1 to {MAX_FPS} (mesh frames per second)")
+    if "lag_s" in settings and not (_number(settings["lag_s"]) and abs(settings["lag_s"]) <= MAX_LAG_S):
+        bad("lag_s", f"a number of seconds within +-{MAX_LAG_S:g} (how late the recogniser's spikes come; "
+                     f"measured: 0.014)")
+    low = 0.5 / fps
+    if "window_s" in settings and not (_number(settings["window_s"]) and
+                                       low - 1e-9 <= settings["window_s"] <= MAX_WINDOW_S):
+        bad("window_s", f"a number of seconds from {low:.4g} (half a mesh frame at {fps} fps) to {MAX_WINDOW_S:g}")
+    if "blank_bias" in settings and not (_number(settings["blank_bias"]) and
+                                         abs(settings["blank_bias"]) <= MAX_BLANK_BIAS):
+        bad("blank_bias", f"a number of nats within +-{MAX_BLANK_BIAS:g}")
+    if "sample_rate" in settings and not (settings["sample_rate"] == SAMPLE_RATE and
+                                          not isinstance(settings["sample_rate"], bool)):
+        bad("sample_rate", f"{SAMPLE_RATE} (the only rate {NAME} takes)")
+    if "dim" in settings and not (isinstance(settings["dim"], int) and not isinstance(settings["dim"], bool)):
+        bad("dim", "an int")
+    for key in ("version", "table"):
+        if key in settings and not isinstance(settings[key], str):
+            bad(key, "a string")
+    if "visemes" in settings and not (isinstance(settings["visemes"], (list, tuple)) and
+                                      all(isinstance(v, str) for v in settings["visemes"])):
+        bad("visemes", "a list of viseme names")
 
 
 # ------------------------------------------------------------------------------ the recogniser
@@ -217,14 +302,102 @@ def _pieces(blocks, n: int, jobs: list, hasher=None) -> Iterator[np.ndarray]:
             raise ValueError(f"the audio holds more than the announced {n} samples")
 
 
+# ------------------------------------------------------------------------------ cache entries
+_TRAILER_MAGIC = b"DTLCACHE1\n"                                          # then the key (32 bytes), the sha256 (32)
+_TRAILER_SIZE = len(_TRAILER_MAGIC) + 32 + 32
+_OLDER_VERSION = "has no key and checksum (written by an older version)"
+ENTRY_LAYOUT = """A cache entry (``<cache>/hama-<version>/<key[:2]>/<key[2:34]>.npy``) is a ``.npy`` file of the
+float16 log-probs ``(1 + N // 320, 191)`` (``np.load`` reads it) followed by a 74-byte trailer: ``DTLCACHE1\\n``,
+the 32 bytes of the key it was made for (:func:`wave_hash`), and the sha256 of the ``.npy`` header and rows. A read
+checks all of it (:meth:`PhonemeRecogniser._check_entry`); entries of older versions (no trailer) are recomputed."""
+
+
+class _EntryWriter:
+    """One cache entry written as its blocks come (:data:`ENTRY_LAYOUT`), under the temporary name
+    ``<cache>/hama-<version>/entry.<pid>.<id>.tmp`` (the process id tells :meth:`PhonemeRecogniser._sweep` whether
+    its writer is still alive), renamed onto the entry's path only when complete, so a reader never sees half an
+    entry. Any OSError (read-only, full, something in the way) turns the recogniser's cache off with one warning
+    (:meth:`PhonemeRecogniser._unusable`) and the writer into a no-op; ``strict=True`` raises it instead."""
+
+    def __init__(self, rec: "PhonemeRecogniser", shape: tuple[int, int], strict: bool = False):
+        self.rec, self.strict, self.f, self.tmp = rec, strict, None, None
+        try:
+            folder = rec.cache_folder
+            folder.mkdir(parents=True, exist_ok=True)
+            rec._sweep()
+            self.tmp = folder / f"entry.{os.getpid()}.{id(self):x}.tmp"
+            self.f = open(self.tmp, "wb")
+            header = io.BytesIO()
+            np.lib.format.write_array_header_1_0(header, {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float16)),
+                                                          "fortran_order": False, "shape": tuple(shape)})
+            self.hasher = hashlib.sha256(header.getvalue())
+            self.f.write(header.getvalue())
+        except OSError as e:
+            self._fail(e)
+
+    def write(self, block: np.ndarray) -> None:
+        if self.f is None:
+            return
+        data = np.ascontiguousarray(block, dtype=np.float16).tobytes()
+        try:
+            self.f.write(data)
+        except OSError as e:
+            self._fail(e)
+            return
+        self.hasher.update(data)
+
+    def commit(self, key: str, path: Path) -> None:
+        """Append the trailer and rename the entry into place (atomic: readers see the old entry or this one)."""
+        if self.f is None:
+            return
+        try:
+            self.f.write(_TRAILER_MAGIC + bytes.fromhex(key) + self.hasher.digest())
+            self.f.close()
+            path.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(self.tmp, path)
+            self.f = self.tmp = None
+        except OSError as e:
+            self._fail(e)
+
+    def discard(self) -> None:
+        """Close and remove the temporary file (nothing after :meth:`commit`)."""
+        f, tmp, self.f, self.tmp = self.f, self.tmp, None, None
+        if f is not None:
+            try:
+                f.close()
+            except OSError:      # the buffered rest could not be written (disk full): the file goes anyway
+                pass
+        if tmp is not None:
+            try:
+                tmp.unlink(missing_ok=True)
+            except OSError:
+                pass
+
+    def _fail(self, e: OSError) -> None:
+        self.discard()
+        if self.strict:
+            raise e
+        self.rec._unusable(e)
+
+
 class PhonemeRecogniser:
     """hama's CTC phoneme recogniser: 16 kHz mono wave (N,) -> log-probs (1 + N // 320, 191) at 50 Hz.
 
     ``core_s`` / ``context_s``: seconds kept per call / seconds of context on each side (multiples of 20 ms;
     ``core_s + 2 context_s`` must stay under hama's 30 s). ``cache_dir``: where outputs are cached (None:
-    :func:`default_cache_dir`); ``cache=False`` computes every time. ``threads``: calls run at once on recordings
-    longer than one core (hama's engine is single-threaded per call and releases the GIL: two threads halve the wall
-    time on two cores; each extra call in flight holds about 70 MB). Results do not depend on ``threads``.
+    :func:`default_cache_dir`); ``cache=False`` computes every time (``--no-cache``). ``threads``: calls run at once
+    on recordings longer than one core (hama's engine is single-threaded per call and releases the GIL: two threads
+    halve the wall time on two cores; each extra call in flight holds about 70 MB). Results do not depend on
+    ``threads``.
+
+    The cache is verified, never trusted: each entry carries the key it was made for and a checksum
+    (:data:`ENTRY_LAYOUT`), and an entry made for another recording (two entries swapped or copied), damaged,
+    truncated, of another type (strings, float64) or holding NaN is recomputed and overwritten, with one ``warning:``
+    line naming it; an older version's entries (no trailer) are recomputed the same way, with one ``note:`` line for
+    the first. Temporaries that killed runs
+    left are removed (:meth:`_sweep`). A cache folder that cannot be used (read-only, full, a file where a folder
+    should be or a folder where an entry should be) is dropped for the rest of the run with one ``warning:`` line
+    naming it and ``DUALTALKER_CACHE``: the log-probs are then computed in memory, the same numbers.
     """
 
     def __init__(self, core_s: float = CORE_S, context_s: float = CONTEXT_S, cache: bool = True,
@@ -241,8 +414,10 @@ class PhonemeRecogniser:
         self.symbols = list(self.model.decoder_tokens)                 # 191 symbols
         self.blank_id = self.model.blank_id
         self.visemes_of_symbol = symbol_visemes(self.symbols)         # (191,) viseme index or -1
-        self.cache = cache
+        self.cache = bool(cache)
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self._swept = False                                            # stale temporaries removed yet (_sweep)
+        self._old_noted = False                                        # an older version's entry noted yet
         self.threads = max(1, min(int(threads), os.cpu_count() or 1))
 
     def settings(self) -> dict:
@@ -301,25 +476,171 @@ class PhonemeRecogniser:
         jobs = self._jobs(wave.shape[0])
         yield from self._stitch(jobs, (wave[lo:hi] for _, _, lo, hi in jobs))
 
+    # ---- the cache
+    @property
+    def cache_folder(self) -> Path:
+        """``<cache_dir>/hama-<version>``: entries in 256 shard folders named by the key's first two hex digits."""
+        return self.cache_dir / f"{NAME}-{self.version}"
+
     def cache_path(self, key: str) -> Path:
-        """Where the log-probs of the wave with :func:`wave_hash` ``key`` are cached (a ``.npy`` file)."""
-        return self.cache_dir / f"{NAME}-{self.version}" / key[:2] / f"{key[2:34]}.npy"
+        """Where the log-probs of the wave with :func:`wave_hash` ``key`` are cached (see :data:`ENTRY_LAYOUT`)."""
+        return self.cache_folder / key[:2] / f"{key[2:34]}.npy"
+
+    def _unusable(self, e: OSError) -> None:
+        """The cache failed (read-only, full, a file or folder in the way): compute in memory from now on, saying so
+        in one ``warning:`` line (once per recogniser) that names the folder and how to choose another."""
+        if self.cache:
+            where = f": {e.filename}" if getattr(e, "filename", None) else ""
+            print(f"warning: recogniser cache {self.cache_dir}: unusable ({e.strerror or e}{where}); computing "
+                  f"in memory without it (set DUALTALKER_CACHE to a writable folder, or pass --no-cache)",
+                  file=sys.stderr)
+        self.cache = False
+
+    def _sweep(self) -> None:
+        """Remove the temporaries of cache writes whose process is gone (``entry.<pid>.<id>.tmp``; older versions'
+        ``stream.<pid>.<id>.tmp`` and ``<key>.<pid>.tmp``): a killed run leaves one, 69 MB per hour of audio, that
+        nothing else removes. A live process's are kept; one ``note:`` line per removal. Once per recogniser,
+        before its first write. (A process id is checked on this machine: a cache shared with other machines or
+        containers should not be written by several of them at once.)"""
+        if self._swept:
+            return
+        self._swept = True
+        folder = self.cache_folder
+        for tmp in [*folder.glob("*.tmp"), *folder.glob("*/*.tmp")]:
+            parts = tmp.name.split(".")
+            pid = parts[1] if len(parts) >= 3 else ""
+            if not pid.isdigit() or _alive(int(pid)):
+                continue
+            try:
+                size = tmp.stat().st_size
+                tmp.unlink()
+            except OSError:         # removed meanwhile, or a read-only cache (the write then says so)
+                continue
+            print(f"note: removed {tmp} ({size / 1e6:.1f} MB), a cache entry left half-written by a recogniser run "
+                  f"(process {pid}) that was killed", file=sys.stderr)
+
+    def _open_entry(self, path: Path, n: int, key: str):
+        """The verified cache entry at ``path`` for the wave of ``n`` samples with key ``key``, as ``(open file
+        positioned at its first row, offset of that row)``; None on a miss. An entry that fails a check
+        (:meth:`_check_entry`) is named in one ``warning:`` line and recomputed (then overwritten); an older
+        version's entry (no trailer) is recomputed too, with one ``note:`` line for the first of them only; a cache
+        that cannot be read turns the cache off (:meth:`_unusable`)."""
+        try:
+            if not path.is_file():
+                return None
+            f = open(path, "rb")
+        except OSError as e:
+            self._unusable(e)
+            return None
+        try:
+            reason = self._check_entry(f, n, key)
+        except OSError as e:
+            f.close()
+            self._unusable(e)
+            return None
+        if reason is _OLDER_VERSION:  # not a fault: one note per recogniser (an upgrade meets hundreds of them)
+            f.close()
+            if not self._old_noted:
+                print(f"note: {path}: recogniser cache entry {reason}; recomputing it (and, without a word, any "
+                      f"other such entry in this run)", file=sys.stderr)
+            self._old_noted = True
+            return None
+        if reason is not None:
+            f.close()
+            print(f"warning: {path}: recogniser cache entry {reason}; recomputing it", file=sys.stderr)
+            return None
+        return f, f.tell()
+
+    def _check_entry(self, f, n: int, key: str) -> str | None:
+        """Why the entry open in ``f`` cannot be trusted for the wave of ``n`` samples with key ``key`` (None: it
+        can, and ``f`` is left at its first row). Checked: the ``.npy`` header (float16, C order, the shape of
+        ``n`` samples), the size (a trailer follows the rows), the key in the trailer (swapped or copied entries of
+        the same length have the right shape: only the key tells them apart), the sha256 of header and rows, and
+        that every value is finite (NaN log-probs would give an all-"sil" track)."""
+        try:
+            version = np.lib.format.read_magic(f)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+            if read_header is None:
+                return f"is not a cache entry (.npy format {version})"
+            shape, fortran, dtype = read_header(f)
+        except ValueError:
+            return "is not a readable .npy file (damaged?)"
+        start, rows, width = f.tell(), n_recogniser_frames(n), len(self.symbols)
+        if dtype != np.float16 or fortran:
+            return f"holds {dtype} values{' in Fortran order' if fortran else ''}, not float16 log-probabilities"
+        if shape != (rows, width):
+            return f"has shape {shape}, not ({rows}, {width}) (damaged or foreign)"
+        size, data = os.fstat(f.fileno()).st_size, rows * width * 2
+        if size == start + data:
+            return _OLDER_VERSION
+        if size != start + data + _TRAILER_SIZE:
+            return f"is {size} bytes, not {start + data + _TRAILER_SIZE} (truncated or damaged)"
+        f.seek(start + data)
+        trailer = f.read(_TRAILER_SIZE)
+        if trailer[:len(_TRAILER_MAGIC)] != _TRAILER_MAGIC:
+            return "has no valid trailer (damaged)"
+        made_for = trailer[len(_TRAILER_MAGIC):len(_TRAILER_MAGIC) + 32]
+        if made_for != bytes.fromhex(key):
+            return (f"was made for another recording (key {made_for.hex()[:16]}..., this recording's "
+                    f"{key[:16]}...: swapped or copied entries?)")
+        f.seek(0)
+        hasher, finite = hashlib.sha256(f.read(start)), True
+        step = self.core // FRAME_SAMPLES
+        for first in range(0, rows, step):
+            raw = f.read(min(step, rows - first) * width * 2)
+            hasher.update(raw)
+            finite = finite and bool(np.isfinite(np.frombuffer(raw, np.float16)).all())
+        if hasher.digest() != trailer[-32:]:
+            return "fails its checksum (changed or damaged after it was written)"
+        if not finite:
+            return "holds NaN or infinite log-probabilities"
+        f.seek(start)
+        return None
+
+    def _read_rows(self, f, n: int, path: Path) -> Iterator[tuple[int, np.ndarray]]:
+        """``(first, block)`` of a verified entry (``f`` at its first row), one core's rows per plain read."""
+        rows, width = n_recogniser_frames(n), len(self.symbols)
+        with f:
+            step = self.core // FRAME_SAMPLES
+            for first in range(0, rows, step):
+                count = min(step, rows - first)
+                block = np.fromfile(f, dtype=np.float16, count=count * width)
+                if block.size != count * width:
+                    raise OSError(f"{path}: the cache entry ended early (changed while being read?)")
+                yield first, block.reshape(count, width)
+
+    def write_cache_entry(self, key: str, log_probs: np.ndarray) -> Path:
+        """Store ``log_probs`` ``(1 + N // 320, 191)`` as the entry of the wave with :func:`wave_hash` ``key``
+        (float16, with the key and checksum, atomically) -> its path. For tests and benchmarks that make up an entry
+        so that hama never runs; raises the OSError of an unusable cache (no fallback here)."""
+        log_probs = np.asarray(log_probs)
+        writer = _EntryWriter(self, log_probs.shape, strict=True)
+        try:
+            writer.write(log_probs)
+            path = self.cache_path(key)
+            writer.commit(key, path)
+        finally:
+            writer.discard()
+        return path
 
     def stream_log_probs(self, blocks, n_samples: int) -> Iterator[tuple[int, np.ndarray]]:
         """:meth:`iter_log_probs` of a wave of ``n_samples`` given as consecutive blocks, never holding it whole.
 
         ``blocks``: a zero-argument callable returning a fresh iterator of the blocks each time (e.g.
         :meth:`AudioStream.blocks <dualtalker_lite.audio.AudioStream.blocks>`), or a plain iterable of them.
-        A callable is read once to hash the wave (the cache key of :meth:`log_probs`): on a hit the entry is read
-        block by block from the file (plain reads of one core's rows: a memory map's pages would stay in the
-        process's resident memory); on a miss it is read once more for the recogniser. A plain iterable is read
-        once, hashed on the way, so it can fill the cache but never hit it.
+        A callable is read once to hash the wave (the cache key of :meth:`log_probs`): on a hit the entry is
+        verified (one pass over the file: key, checksum, finite values) and read block by block (plain reads of one
+        core's rows: a memory map's pages would stay in the process's resident memory); on a miss the blocks are
+        read once more for the recogniser. A plain iterable is read once, hashed on the way, so it can fill the
+        cache but never hit it.
 
         The recogniser takes each call's samples (core + context, the same ranges as :meth:`iter_log_probs`) from
         a rolling buffer of the blocks, so the blocks are bit-identical to :meth:`iter_log_probs`'s on the joined
         wave, with ``threads`` calls in flight as there. Memory: those calls' samples (28 s each) plus one block.
-        The cache entry is written as the blocks come (same path and ``.npy`` bytes as :meth:`log_probs`), under
-        a temporary name renamed when complete, and removed if the stream stops early.
+        The cache entry is written as the blocks come (same path and bytes as :meth:`log_probs`), under a
+        temporary name renamed when complete, and removed if the stream stops early. A cache that fails while
+        being written is dropped with one warning; the blocks still come.
         """
         n = int(n_samples)
         if n < 1:
@@ -333,99 +654,59 @@ class PhonemeRecogniser:
                 hasher.update(json.dumps(settings, sort_keys=True).encode())
                 key = hasher.hexdigest()
                 path = self.cache_path(key)
-                cached = self._read_cached(path, n)
-                if cached is not None:
-                    yield from cached
+                hit = self._open_entry(path, n, key)
+                if hit is not None:
+                    yield from self._read_rows(hit[0], n, path)
                     return
             source = blocks()
         hasher = hashlib.sha256() if self.cache and key is None else None
         jobs = self._jobs(n)
         pieces = _pieces(source, n, jobs, hasher)
-        tmp = f = None
-        if self.cache:
-            folder = self.cache_dir / f"{NAME}-{self.version}"
-            folder.mkdir(parents=True, exist_ok=True)
-            tmp = folder / f"stream.{os.getpid()}.{id(pieces):x}.tmp"
-            f = open(tmp, "wb")
-            np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float16)),
-                                                     "fortran_order": False,
-                                                     "shape": (n_recogniser_frames(n), len(self.symbols))})
+        writer = _EntryWriter(self, (n_recogniser_frames(n), len(self.symbols))) if self.cache else None
         try:
             for first, block in self._stitch(jobs, pieces):
-                if f is not None:
-                    f.write(np.ascontiguousarray(block).tobytes())
+                if writer is not None:
+                    writer.write(block)
                 yield first, block
             next(pieces, None)                                         # the rest of the blocks: none may be left
-            if f is not None:
-                f.close()
+            if writer is not None:
                 if key is None:
                     hasher.update(json.dumps(settings, sort_keys=True).encode())
-                    path = self.cache_path(hasher.hexdigest())
-                path.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(tmp, path)                                  # atomic: readers never see half a file
+                    key = hasher.hexdigest()
+                    path = self.cache_path(key)
+                writer.commit(key, path)
         finally:
-            if f is not None:
-                f.close()
-            if tmp is not None and tmp.exists():
-                tmp.unlink()
-
-    def _read_cached(self, path: Path, n: int):
-        """The cache entry at ``path`` as an iterator of ``(first, block)`` (one core's rows per read), or None
-        when there is none, or it is unreadable or of another shape (then it is recomputed and overwritten)."""
-        if not path.is_file():
-            return None
-        try:
-            f = open(path, "rb")
-        except OSError:
-            return None
-        try:
-            version = np.lib.format.read_magic(f)
-            read_header = {(1, 0): np.lib.format.read_array_header_1_0,
-                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-            shape, fortran, dtype = read_header(f) if read_header else (None, True, None)
-            rows, width = n_recogniser_frames(n), len(self.symbols)
-            if shape != (rows, width) or fortran or dtype.hasobject or \
-                    os.fstat(f.fileno()).st_size != f.tell() + rows * width * dtype.itemsize:
-                f.close()
-                return None
-        except (ValueError, OSError):
-            f.close()
-            return None
-
-        def read():
-            with f:
-                step = self.core // FRAME_SAMPLES
-                for first in range(0, rows, step):
-                    count = min(step, rows - first)
-                    block = np.fromfile(f, dtype=dtype, count=count * width)
-                    if block.size != count * width:
-                        raise OSError(f"{path}: the cache entry ended early (changed while being read?)")
-                    yield first, block.reshape(count, width)
-        return read()
+            if writer is not None:
+                writer.discard()
 
     def log_probs(self, wave: np.ndarray | torch.Tensor) -> np.ndarray:
-        """(1 + N // 320, 191) float16 log-probs of the whole wave, from the cache when there (memory-mapped)."""
+        """(1 + N // 320, 191) float16 log-probs of the whole wave; from the cache (verified, memory-mapped) when
+        there, else computed and stored (unless the cache is off or unusable: then only computed)."""
         wave = wave.detach().cpu().numpy() if isinstance(wave, torch.Tensor) else np.asarray(wave)
         validate_wave(wave, SAMPLE_RATE)
-        path = None
+        n = wave.shape[0]
+        shape = (n_recogniser_frames(n), len(self.symbols))
+        key = path = None
         if self.cache:
-            path = self.cache_path(wave_hash(wave, self.settings()))
-            if path.is_file():
-                try:
-                    cached = np.load(path, mmap_mode="r", allow_pickle=False)
-                    if cached.shape == (n_recogniser_frames(wave.shape[0]), len(self.symbols)):
-                        return cached
-                except (ValueError, OSError):
-                    pass                                               # corrupt entry: recompute, overwrite
-        out = np.empty((n_recogniser_frames(wave.shape[0]), len(self.symbols)), dtype=np.float16)
-        for first, block in self.iter_log_probs(wave):
-            out[first:first + block.shape[0]] = block
-        if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            with open(tmp, "wb") as f:
-                np.save(f, out)
-            os.replace(tmp, path)                                      # atomic: readers never see half a file
+            key = wave_hash(wave, self.settings())
+            path = self.cache_path(key)
+            hit = self._open_entry(path, n, key)
+            if hit is not None:
+                f, start = hit
+                with f:
+                    return np.memmap(f, dtype=np.float16, mode="r", offset=start, shape=shape)
+        out = np.empty(shape, dtype=np.float16)
+        writer = _EntryWriter(self, shape) if self.cache else None
+        try:
+            for first, block in self.iter_log_probs(wave):
+                out[first:first + block.shape[0]] = block
+                if writer is not None:
+                    writer.write(block)
+            if writer is not None:
+                writer.commit(key, path)
+        finally:
+            if writer is not None:
+                writer.discard()
         return out
 
     def spikes(self, log_probs: np.ndarray, blank_bias: float = BLANK_BIAS) -> tuple[np.ndarray, np.ndarray]:
@@ -473,7 +754,9 @@ class RecogniserExtractor:
     ``"logprobs+logmel"`` ((T, 351)) or ``"visemes+logmel"`` ((T, 175)). ``lag_s``: spikes and log-probs are
     read ``lag_s`` later than the mesh frame time (hama lags the phones). ``window_s``: the nearest-spike window of
     :func:`spike_track`.
-    ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors.
+    ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors. ``cache=False``:
+    compute in memory, never touching the disk cache. The values are not bounded here (``window_s=0`` pins a test's
+    spike to one frame); a checkpoint's are, when it loads (:func:`check_settings`).
     """
 
     def __init__(self, output: str = "visemes", lag_s: float = LAG_S, window_s: float = WINDOW_S,
@@ -483,6 +766,7 @@ class RecogniserExtractor:
             raise ValueError(f"output must be one of {sorted(OUTPUTS)}, got {output!r}")
         self.output, self.lag_s, self.window_s, self.blank_bias, self.fps = output, lag_s, window_s, blank_bias, fps
         self.sample_rate = SAMPLE_RATE
+        self.front_end = "hama+logmel" if output.endswith("+logmel") else "hama"   # audio.upsampled_warning's wording
         self.dim = OUTPUTS[output]
         self.recogniser = recogniser or PhonemeRecogniser(cache=cache, cache_dir=cache_dir)
         self._logmel = LogMelExtractor(fps=fps) if output.endswith("+logmel") else None
@@ -499,10 +783,12 @@ class RecogniserExtractor:
 
     @classmethod
     def from_settings(cls, features: dict, source: str = "checkpoint", **kw) -> "RecogniserExtractor":
-        """Rebuild from :meth:`settings`; one-line ValueError for another front-end, version or table."""
+        """Rebuild from :meth:`settings`; one-line ValueError for another front-end, version or table, or a
+        setting :func:`check_settings` refuses. ``kw``: ``cache``, ``cache_dir`` or ``recogniser``."""
         if not features or features.get("name") != NAME:
             raise ValueError(f"{source}: features {features and features.get('name')!r} are not the {NAME!r} "
                              f"recogniser's")
+        check_settings(features.get("settings", {}), source)
         s = dict(features.get("settings", {}))
         ex = cls(output=s.get("output", "visemes"), lag_s=s.get("lag_s", LAG_S), window_s=s.get("window_s", WINDOW_S),
                  blank_bias=s.get("blank_bias", BLANK_BIAS), fps=s.get("fps", 30), **kw)

@@ -1091,9 +1091,7 @@ def test_animate_memory_is_flat_in_the_audio_length_on_the_phonetic_route(tmp_pa
         log_probs = np.full((n_recogniser_frames(wave.shape[0]), 191), -20.0, dtype=np.float16)
         log_probs[:, recogniser.blank_id] = 0.0
         log_probs[::7, recogniser.symbols.index("m")] = 1.0
-        entry = recogniser.cache_path(wave_hash(wave, recogniser.settings()))
-        entry.parent.mkdir(parents=True, exist_ok=True)
-        np.save(entry, log_probs)
+        recogniser.write_cache_entry(wave_hash(wave, recogniser.settings()), log_probs)   # with key and checksum
         del wave, log_probs
         proc = subprocess.run([sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "dualtalker_lite.cli",
                                "animate", "--checkpoint", tmp_path / "m.pt", "--wav", wav, "--out",
@@ -1128,3 +1126,384 @@ def test_audio_stream_reads_what_load_audio_reads(tmp_path, rate):
     n = int(round(len(whole) * 30 / 16000))
     ext = LogMelExtractor()
     assert torch.equal(ext.stream(iter(blocks), len(stream), n), ext(whole, n))
+
+
+# ---- issue 32: the recogniser's cache is verified and optional; its settings are validated ----------------------
+@pytest.fixture(scope="module")
+def phonetic(tmp_path_factory) -> dict:
+    """A tiny phonetic FaceFormer (the recogniser's viseme tracks, ``"hama"`` features) and two WAVs of corpus speech
+    cut to the same length (so their cache entries have the same shape: only the key tells them apart)."""
+    pytest.importorskip("hama", reason="the [phonetic] extra (hama) is not installed")
+    from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+    from dualtalker_lite.recogniser import RecogniserExtractor
+
+    corpus = Corpus(sample_path())
+    root = tmp_path_factory.mktemp("phonetic")
+    torch.manual_seed(0)
+    cfg = FaceFormerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=15,
+                                n_speakers=len(corpus.train_speakers))
+    model = FaceFormer(cfg).eval()
+    with torch.no_grad():  # the output layer starts at zero (the template, whatever the audio): give it weights
+        for param in model.parameters():
+            if not param.any():
+                param.normal_(0.0, 0.01)
+    save_checkpoint(root / "vis.pt", model, cfg, speakers=corpus.train_speakers,
+                    faces=corpus.faces, features=RecogniserExtractor("visemes", cache=False).settings())
+    a, b = (corpus.wave(n) for n in corpus.split("test_a")[:2])
+    n = min(len(a), len(b))
+    for name, wave in (("a", a[:n]), ("b", b[:n])):
+        sf.write(root / f"{name}.wav", wave, 16000, subtype="FLOAT")
+    return {"ckpt": root / "vis.pt", "a": root / "a.wav", "b": root / "b.wav", "n": n}
+
+
+def _animate(capsys, phonetic, wav, out, *extra) -> tuple[np.ndarray, list[str]]:
+    """``animate`` in-process -> (vertices, stderr lines); it must succeed."""
+    from dualtalker_lite.cli import main
+
+    capsys.readouterr()
+    main(["animate", "--checkpoint", str(phonetic["ckpt"]), "--wav", str(wav), "--speaker", "SPK01", "--out",
+          str(out), "--format", "npy", *map(str, extra)])
+    return np.load(Path(out) / "vertices.npy"), capsys.readouterr().err.strip().splitlines()
+
+
+def _cache_entries(cache: Path) -> list[Path]:
+    return sorted(p for p in cache.rglob("*.npy"))
+
+
+def test_swapped_cache_entries_are_recomputed_not_trusted(phonetic, tmp_path, capsys, monkeypatch):
+    """Was: two entries of the same length swapped made ``animate A.wav`` produce B's animation bit for bit (the
+    entry was trusted by its shape). Now each entry carries the key it was made for: the swap is named in one
+    ``warning:`` line, A is recomputed, its entry rewritten, and nothing else in the cache changes."""
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "ref_cache"))   # the references: a cache of their own
+    ref_a, err = _animate(capsys, phonetic, phonetic["a"], tmp_path / "ref_a")
+    ref_b, _ = _animate(capsys, phonetic, phonetic["b"], tmp_path / "ref_b")
+    assert err == [] and not np.array_equal(ref_a, ref_b)
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    a1, err_a = _animate(capsys, phonetic, phonetic["a"], tmp_path / "a1")
+    entry_a = _cache_entries(cache)
+    b1, err_b = _animate(capsys, phonetic, phonetic["b"], tmp_path / "b1")
+    entry_b = [p for p in _cache_entries(cache) if p not in entry_a]
+    assert err_a == err_b == [] and np.array_equal(a1, ref_a) and np.array_equal(b1, ref_b)
+    assert len(entry_a) == len(entry_b) == 1 and entry_a[0].stat().st_size == entry_b[0].stat().st_size
+    entry_a, entry_b = entry_a[0], entry_b[0]
+    good_a, good_b = entry_a.read_bytes(), entry_b.read_bytes()
+    entry_a.write_bytes(good_b)
+    entry_b.write_bytes(good_a)                                   # swapped
+    a2, err = _animate(capsys, phonetic, phonetic["a"], tmp_path / "a2")
+    assert np.array_equal(a2, ref_a)                              # A's animation, not B's
+    assert len(err) == 1 and err[0].startswith(f"warning: {entry_a}: ") and "made for another recording" in err[0] \
+        and "recomputing" in err[0], err
+    assert entry_a.read_bytes() == good_a and entry_b.read_bytes() == good_a   # only A's entry was rewritten
+    assert _cache_entries(cache) == sorted([entry_a, entry_b]) and not list(cache.rglob("*.tmp"))
+
+
+@pytest.mark.parametrize("case", ["nan", "string", "float64", "old_format", "flipped_byte", "truncated"])
+def test_a_bad_cache_entry_is_recomputed_with_one_warning(phonetic, tmp_path, capsys, case):
+    """Was: a NaN-filled entry gave an all-"sil" track (a silent face); a string-typed entry of the right shape was
+    never recomputed; an entry changed after writing was read as it was. Now every read checks type, shape, key,
+    checksum and finiteness: one ``warning:`` line naming the entry, the numbers recomputed (equal to a fresh
+    computation), the entry overwritten by a good one; through both read paths (whole wave and streamed). An older
+    version's entry (no key or checksum) is recomputed the same way with a ``note:`` (once per run, not per entry)."""
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.recogniser import PhonemeRecogniser, RecogniserExtractor, n_recogniser_frames, wave_hash
+
+    wave = load_audio(phonetic["a"])
+    T = int(round(len(wave) * 30 / 16000))
+    fresh = RecogniserExtractor("visemes", cache=False)
+    expected = fresh(wave, T)
+    good_rec = PhonemeRecogniser(cache_dir=tmp_path / "good")
+    good_rec.log_probs(wave)
+    (good_entry,) = _cache_entries(tmp_path / "good")
+    good = good_entry.read_bytes()
+    reasons = {"nan": "NaN or infinite", "string": "holds <U4 values", "float64": "holds float64 values",
+               "old_format": "written by an older version", "flipped_byte": "fails its checksum",
+               "truncated": "truncated"}
+    rows = np.asarray(fresh.recogniser.log_probs(wave))
+    for read in ("whole", "stream"):
+        rec = PhonemeRecogniser(cache_dir=tmp_path / read)
+        key = wave_hash(wave, rec.settings())
+        if case == "nan":
+            entry = rec.write_cache_entry(key, np.full_like(rows, np.nan))   # a valid key and checksum, NaN rows
+        else:
+            entry = rec.cache_path(key)
+            entry.parent.mkdir(parents=True)
+            if case == "string":
+                np.save(entry, np.full(rows.shape, "-1.0"))
+            elif case == "float64":
+                np.save(entry, rows.astype(np.float64))
+            elif case == "old_format":
+                np.save(entry, rows)
+            elif case == "flipped_byte":
+                entry.write_bytes(good[:200] + bytes([good[200] ^ 0x40]) + good[201:])
+            else:
+                entry.write_bytes(good[:-10])
+        capsys.readouterr()
+        ex = RecogniserExtractor("visemes", recogniser=rec)
+        got = ex(wave, T) if read == "whole" else ex.stream(lambda: [wave], len(wave), T)
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert torch.equal(got, expected), (case, read)
+        kind = "note" if case == "old_format" else "warning"    # an older version's entry is no fault: a note
+        assert len(lines) == 1 and lines[0].startswith(f"{kind}: {entry}: recogniser cache entry ") and \
+            reasons[case] in lines[0] and "recomputing it" in lines[0], (case, lines)
+        assert entry.read_bytes() == good and _cache_entries(tmp_path / read) == [entry]
+        assert not list((tmp_path / read).rglob("*.tmp"))
+        assert torch.equal(ex(wave, T), expected) and capsys.readouterr().err == ""    # now a plain hit
+    if case == "old_format":                   # a second older entry in the same run: recomputed without a word
+        other = wave[:-3200]
+        older = rec.cache_path(wave_hash(other, rec.settings()))
+        older.parent.mkdir(parents=True, exist_ok=True)
+        np.save(older, rows[:n_recogniser_frames(len(other))])
+        assert np.array_equal(rec.log_probs(other), fresh.recogniser.log_probs(other))
+        assert capsys.readouterr().err == ""
+
+
+def test_stale_cache_temporaries_of_dead_processes_are_removed(phonetic, tmp_path, capsys, monkeypatch):
+    """Was: a killed phonetic run left ``stream.<pid>.<id>.tmp`` (about 69 MB per hour of audio) that nothing
+    removed. Now the next write into the cache removes the temporaries whose process is gone, with one ``note:``
+    line each; a live process's temporary (a concurrent run) and files that are not temporaries are kept."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    folder = cache / "hama-1.7.0"
+    (folder / "ab").mkdir(parents=True)
+    dead = _dead_pid()
+    stale = [folder / f"stream.{dead}.7f3a.tmp", folder / "ab" / f"{'c' * 32}.{dead}.tmp",
+             folder / f"entry.{dead}.9e1.tmp"]
+    for path in stale:
+        path.write_bytes(b"\0" * 1_000_000)
+    live = folder / f"entry.{os.getpid()}.5d.tmp"
+    other = [folder / "notes.tmp", folder / "ab" / "README"]
+    for path in [live, *other]:
+        path.write_bytes(b"keep")
+    vertices, err = _animate(capsys, phonetic, phonetic["a"], tmp_path / "o")
+    assert sorted(err) == sorted(f"note: removed {p} (1.0 MB), a cache entry left half-written by a recogniser run "
+                                 f"(process {dead}) that was killed" for p in stale), err
+    assert not any(p.exists() for p in stale) and live.read_bytes() == b"keep"
+    assert all(p.read_bytes() == b"keep" for p in other) and len(_cache_entries(cache)) == 1
+    assert np.isfinite(vertices).all()
+
+
+def _read_only(monkeypatch, root: Path) -> None:
+    """Make ``root`` read-only: its permission bits, and (root ignores them) every open for writing under it
+    fails with EACCES, as on a read-only folder or file system."""
+    import builtins
+
+    import dualtalker_lite.recogniser as recogniser_module
+
+    for path in [root, *root.rglob("*")]:
+        path.chmod(0o555 if path.is_dir() else 0o444)
+    real_open = builtins.open
+
+    def guarded(file, mode="r", *args, **kwargs):
+        if any(c in mode for c in "wax+") and str(file).startswith(str(root)):
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, mode, *args, **kwargs)
+
+    monkeypatch.setattr(recogniser_module, "open", guarded, raising=False)
+
+
+def test_a_read_only_cache_falls_back_to_memory_with_one_warning(phonetic, tmp_path, capsys, monkeypatch):
+    """Was: any cache problem aborted with an errno line naming neither the cache nor ``DUALTALKER_CACHE``, and
+    there was no way around a read-only home. Now a read-only cache still serves its entries (a hit: no word) and a
+    miss is computed in memory with one ``warning:`` line naming the folder and ``DUALTALKER_CACHE``; the result is
+    the uncached one and the cache is byte-identical."""
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "ref_cache"))
+    ref_b, _ = _animate(capsys, phonetic, phonetic["b"], tmp_path / "ref_b")
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    a1, _ = _animate(capsys, phonetic, phonetic["a"], tmp_path / "a1")        # fills the cache with A's entry
+    before = snapshot(cache)
+    _read_only(monkeypatch, cache)
+    try:
+        a2, err = _animate(capsys, phonetic, phonetic["a"], tmp_path / "a2")
+        assert err == [] and np.array_equal(a2, a1)
+        b1, err = _animate(capsys, phonetic, phonetic["b"], tmp_path / "b1")
+        assert np.array_equal(b1, ref_b)
+        assert len(err) == 1 and err[0].startswith(f"warning: recogniser cache {cache}: unusable (") and \
+            "Permission denied" in err[0] and "computing in memory" in err[0] and "DUALTALKER_CACHE" in err[0] and \
+            "--no-cache" in err[0], err
+        assert snapshot(cache) == before
+    finally:
+        for path in [cache, *cache.rglob("*")]:
+            path.chmod(0o755 if path.is_dir() else 0o644)
+
+
+@pytest.mark.parametrize("case", ["file_as_cache_folder", "folder_as_entry", "file_as_shard"])
+def test_an_unusable_cache_folder_is_one_warning_and_the_right_result(phonetic, tmp_path, monkeypatch, case):
+    """A real ``animate`` process whose cache cannot be written (a file where the cache folder or a shard folder
+    should be, a folder where the entry should be): exit 0, the uncached animation, and stderr exactly one
+    ``warning:`` line naming the cache folder and ``DUALTALKER_CACHE`` (was: an errno line, exit 2)."""
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.recogniser import PhonemeRecogniser, wave_hash
+
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "ref_cache"))   # the processes inherit it (cli)
+    ref = cli("animate", "--checkpoint", phonetic["ckpt"], "--wav", phonetic["a"], "--out", tmp_path / "ref",
+              "--format", "npy", timeout=300)
+    assert (ref.returncode, ref.stderr) == (0, ""), ref.stderr[-2000:]
+    cache = tmp_path / "cache"
+    rec = PhonemeRecogniser(cache=False, cache_dir=cache)
+    entry = rec.cache_path(wave_hash(load_audio(phonetic["a"]), rec.settings()))
+    if case == "file_as_cache_folder":
+        cache.write_text("not a folder")
+    elif case == "folder_as_entry":
+        entry.mkdir(parents=True)
+    else:
+        entry.parent.parent.mkdir(parents=True)
+        entry.parent.write_text("not a folder")
+    before = snapshot(tmp_path / "cache") if cache.is_dir() else cache.read_bytes()
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    proc = cli("animate", "--checkpoint", phonetic["ckpt"], "--wav", phonetic["a"], "--out", tmp_path / "o",
+               "--format", "npy", timeout=300)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 0 and len(lines) == 1, proc.stderr[-2000:]
+    assert lines[0].startswith(f"warning: recogniser cache {cache}: unusable (") and "DUALTALKER_CACHE" in lines[0]
+    assert np.array_equal(np.load(tmp_path / "o" / "vertices.npy"), np.load(tmp_path / "ref" / "vertices.npy"))
+    assert (snapshot(tmp_path / "cache") if cache.is_dir() else cache.read_bytes()) == before
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_no_cache_never_touches_the_cache_folder(phonetic, tmp_path, capsys, monkeypatch):
+    """``--no-cache`` on ``animate`` and ``evaluate``: the recogniser computes in memory; the cache folder is never
+    created, nothing is printed, and the numbers are those of a run with the cache."""
+    from dualtalker_lite.cli import main
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    uncached, err = _animate(capsys, phonetic, phonetic["a"], tmp_path / "u", "--no-cache")
+    assert err == [] and not cache.exists()
+    cached, err = _animate(capsys, phonetic, phonetic["a"], tmp_path / "c")
+    assert err == [] and np.array_equal(cached, uncached) and len(_cache_entries(cache)) == 1
+    shutil.rmtree(cache)
+    metrics = {}
+    for flag in ("--no-cache", None):
+        capsys.readouterr()
+        main(["evaluate", "--checkpoint", str(phonetic["ckpt"]), "--split", "test_b",
+              "--json", str(tmp_path / f"m{flag}.json"), *([flag] if flag else [])])
+        assert capsys.readouterr().err == ""
+        metrics[flag] = json.loads((tmp_path / f"m{flag}.json").read_text())["metrics"]
+        assert cache.exists() == (flag is None)
+    assert metrics["--no-cache"] == metrics[None]
+
+
+PHONETIC_EDITS = {
+    "lag_huge": ("lag_s", 1e6, "'lag_s' must be a number of seconds within +-0.3"),
+    "lag_text": ("lag_s", "0.02", "'lag_s' must be a number of seconds"),
+    "window_negative": ("window_s", -1, "'window_s' must be a number of seconds from 0.01667"),
+    "window_huge": ("window_s", 30.0, "'window_s' must be a number of seconds"),
+    "fps_zero": ("fps", 0, "'fps' must be an int from 1 to 120"),
+    "fps_float": ("fps", 30.0, "'fps' must be an int"),
+    "blank_bias_nan": ("blank_bias", float("nan"), "'blank_bias' must be a number of nats within +-10"),
+    "sample_rate": ("sample_rate", 8000, "'sample_rate' must be 16000"),
+    "output_unknown": ("output", "phones", "'output' must be one of"),
+    "unknown_key": ("lag", 0.02, "features settings ['lag'] are not hama recogniser settings"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PHONETIC_EDITS))
+def test_hand_edited_recogniser_settings_are_refused(phonetic, tmp_path, capsys, case):
+    """Was: a phonetic checkpoint's settings were never validated: ``lag_s: 1e6``, ``window_s: -1``, ``fps: 0`` or
+    ``blank_bias: NaN`` made ``animate`` and ``evaluate`` exit 0 with an all-silence track, an unknown key was
+    ignored and a text ``lag_s`` was a traceback. Now: one line naming the checkpoint and the field, exit 2, nothing
+    written (``evaluate`` for one case: the same line)."""
+    key, value, message = PHONETIC_EDITS[case]
+    path = _edited(phonetic["ckpt"], tmp_path, _set("features", "settings", key, value))
+    argv = ["animate", "--checkpoint", path, "--wav", phonetic["a"], "--speaker", "SPK01", "--out", tmp_path / "o"]
+    refused_in_process(capsys, argv, f"error: {path}: features setting", message)
+    if case == "lag_huge":
+        refused_in_process(capsys, ["evaluate", "--checkpoint", path, "--json", tmp_path / "m.json"], path, message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["edited.pt"]
+
+
+def test_the_8_khz_warning_speaks_of_the_phoneme_recogniser_on_a_phonetic_checkpoint(phonetic, tmp_path, capsys,
+                                                                                      monkeypatch):
+    """Was: 8 kHz audio animated by a phonetic checkpoint got the log-mel warning ("log-mel models were trained on
+    16 kHz speech ... the recogniser front-end copes"), about a model it was not. Now the line speaks of this
+    model's phoneme recogniser; the animation is still written."""
+    sf.write(tmp_path / "phone.wav", sf.read(phonetic["a"])[0][::2], 8000)
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "cache"))
+    vertices, err = _animate(capsys, phonetic, tmp_path / "phone.wav", tmp_path / "o")
+    assert len(err) == 1 and err[0].startswith(f"warning: {tmp_path / 'phone.wav'}: sampled at 8000 Hz"), err
+    assert "phoneme recogniser" in err[0] and "above 4 kHz" in err[0] and "log-mel" not in err[0], err
+    assert np.isfinite(vertices).all()
+
+
+def test_a_killed_phonetic_runs_temporary_is_swept_by_the_next_run(phonetic, tmp_path, monkeypatch):
+    """The real thing behind the test above: an ``animate`` process SIGKILLed while it writes its cache entry leaves
+    its temporary; the next run removes it with one ``note:`` line naming it and the dead process, and ends with
+    the one good entry."""
+    corpus = Corpus(sample_path())
+    wave = np.concatenate([corpus.wave(n) for n in corpus.split("test_a")[:20]])[:30 * 16000]   # two 24 s calls
+    sf.write(tmp_path / "long.wav", wave, 16000, subtype="FLOAT")
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    argv = [sys.executable, "-m", "dualtalker_lite.cli", "animate", "--checkpoint", str(phonetic["ckpt"]), "--wav",
+            str(tmp_path / "long.wav"), "--out", str(tmp_path / "o"), "--format", "npy"]
+    proc = subprocess.Popen(argv, env=_env(), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while not list(cache.rglob("*.tmp")) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    (left,) = list(cache.rglob("*.tmp"))
+    assert f".{proc.pid}." in left.name and not _cache_entries(cache)   # the killed process's own temporary
+    again = subprocess.run(argv[:-3] + [str(tmp_path / "o2"), "--format", "npy"], env=_env(), cwd=REPO,
+                           capture_output=True, text=True, timeout=300)   # another --out: no claim to take over
+    assert again.returncode == 0, again.stderr[-2000:]
+    lines = again.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"note: removed {left} (") and \
+        f"(process {proc.pid}) that was killed" in lines[0], lines
+    assert not list(cache.rglob("*.tmp")) and len(_cache_entries(cache)) == 1
+
+
+@pytest.mark.parametrize("read", ["whole", "stream"])
+def test_a_full_disk_while_writing_a_cache_entry_is_one_warning(phonetic, tmp_path, capsys, monkeypatch, read):
+    """The disk fills while an entry is being written (after its header and first block): one ``warning:`` line
+    naming the cache folder and ``DUALTALKER_CACHE``, the features equal the uncached ones, and neither an entry nor
+    a temporary is left (was: the errno line, exit 2)."""
+    import builtins
+    import errno
+
+    import dualtalker_lite.recogniser as recogniser_module
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.recogniser import PhonemeRecogniser, RecogniserExtractor
+
+    wave = load_audio(phonetic["a"])
+    T = int(round(len(wave) * 30 / 16000))
+    short = dict(core_s=0.5, context_s=0.2)                                 # 25 rows per call: several blocks
+    expected = RecogniserExtractor("visemes", recogniser=PhonemeRecogniser(**short, cache=False))(wave, T)
+    real_open = builtins.open
+
+    class Full:
+        """A file on a disk with room for the header and one block of rows, no more."""
+        def __init__(self, f):
+            self.f, self.room = f, 128 + 25 * 191 * 2
+
+        def write(self, data):
+            if len(data) > self.room:
+                raise OSError(errno.ENOSPC, "No space left on device", self.f.name)
+            self.room -= len(data)
+            return self.f.write(data)
+
+        def close(self):
+            self.f.close()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+    def opener(file, mode="r", *args, **kwargs):
+        f = real_open(file, mode, *args, **kwargs)
+        return Full(f) if "w" in mode else f
+
+    monkeypatch.setattr(recogniser_module, "open", opener, raising=False)
+    cache = tmp_path / "cache"
+    rec = PhonemeRecogniser(**short, cache_dir=cache)
+    ex = RecogniserExtractor("visemes", recogniser=rec)
+    got = ex(wave, T) if read == "whole" else ex.stream(lambda: [wave], len(wave), T)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert torch.equal(got, expected)
+    assert len(lines) == 1 and lines[0].startswith(f"warning: recogniser cache {cache}: unusable (No space left") \
+        and "DUALTALKER_CACHE" in lines[0], lines
+    assert not list(cache.rglob("*.tmp")) and not _cache_entries(cache) and rec.cache is False

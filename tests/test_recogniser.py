@@ -149,8 +149,10 @@ def test_cache_is_content_hashed(tmp_path, corpus):
     assert len(files) == 1 and a.dtype == np.float16
     key = wave_hash(wave, r.settings())
     assert files[0].name == key[2:34] + ".npy" and files[0].parent.name == key[:2]
-    np.save(files[0], np.zeros_like(a))                      # the second call reads the file, not the model
-    assert np.array_equal(np.asarray(r.log_probs(wave)), np.zeros_like(a))
+    assert r.write_cache_entry(key, np.zeros_like(a)) == files[0]   # a valid entry (key, checksum) of zeros:
+    assert np.array_equal(np.asarray(r.log_probs(wave)), np.zeros_like(a))   # the second call reads the file
+    np.save(files[0], np.zeros_like(a))                      # an older version's entry (no key or checksum): recomputed
+    assert np.array_equal(np.asarray(r.log_probs(wave)), a)
     b = r.log_probs(wave * 0.5)                              # other content, other key
     assert len(list(tmp_path.rglob("*.npy"))) == 2 and not np.array_equal(np.asarray(b), np.zeros_like(a))
     assert wave_hash(wave, {**r.settings(), "core_samples": 1}) != key
