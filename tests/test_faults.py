@@ -930,12 +930,12 @@ TRAIN_TINY = ["train", "--model", "voca", "--epochs", "1", "--clips", "2", "--ch
               "--overwrite"]
 
 
-def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(tmp_path, capsys, monkeypatch):
+def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(ckpt, tmp_path, capsys, monkeypatch):
     """Was: a raw RuntimeError and the trained model lost. Now: the old checkpoint is byte-identical, no temporary
     is left, the trained model is in the fallback folder (loadable), and one line says where; exit 2."""
     out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
     out_dir.mkdir()
-    (out_dir / "m.pt").write_bytes(b"the old checkpoint")
+    shutil.copy(ckpt, out_dir / "m.pt")  # the old checkpoint (--overwrite replaces only a checkpoint, issue 32)
     monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
     _failing_save(monkeypatch, {out_dir})
     before = snapshot(out_dir)
@@ -947,10 +947,10 @@ def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(tmp_path, c
     assert ckpt["model_class"] and [p.name for p in rescue.iterdir()] == ["m.pt"]
 
 
-def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(ckpt, tmp_path, capsys, monkeypatch):
     out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
     out_dir.mkdir()
-    (out_dir / "m.pt").write_bytes(b"the old checkpoint")
+    shutil.copy(ckpt, out_dir / "m.pt")
     monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
     _failing_save(monkeypatch, {out_dir, rescue})
     before = snapshot(out_dir)
@@ -959,7 +959,7 @@ def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(tmp_path, capsys,
     assert snapshot(out_dir) == before and list(rescue.iterdir()) == []
 
 
-def test_too_little_free_space_is_refused_before_training(tmp_path, capsys, monkeypatch):
+def test_too_little_free_space_is_refused_before_training(ckpt, tmp_path, capsys, monkeypatch):
     """Free space is checked before training (about 4x the weights with periodic states), not discovered after."""
     import collections
 
@@ -969,7 +969,7 @@ def test_too_little_free_space_is_refused_before_training(tmp_path, capsys, monk
     usage = collections.namedtuple("usage", "total used free")
     monkeypatch.setattr(files.shutil, "disk_usage", lambda p: usage(10 ** 9, 10 ** 9 - 500_000, 500_000))
     monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained despite the full disk"))
-    (tmp_path / "m.pt").write_bytes(b"the old checkpoint")
+    shutil.copy(ckpt, tmp_path / "m.pt")
     before = snapshot(tmp_path)
     refused_in_process(capsys, TRAIN_TINY + ["--out", tmp_path / "m.pt"], tmp_path / "m.pt", "only 0.5 MB free",
                        "the checkpoint (and its resume state) needs about")
