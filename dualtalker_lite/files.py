@@ -264,16 +264,20 @@ def _file_size_limit() -> int | None:
     return None if soft == resource.RLIM_INFINITY else soft
 
 
-def _cause(e: BaseException, path: Path, size: int | None = None) -> int | None:
+def _cause(e: BaseException, path: Path, size: int | None = None, any_os_error: bool = False) -> int | None:
     """The errno (ENOSPC, EDQUOT, EFBIG) or 0 (memory) behind a failed write, or None if it was no resource error.
 
     torch.save and np.save do not always keep the errno: a full disk is ``RuntimeError('... file write failed')``,
     a file-size limit (``ulimit -f``) ``RuntimeError('[enforce fail at inline_container.cc:672] . unexpected pos
     576 vs 534')`` or ``OSError('100000 requested and 2484 written')``. Those are told apart afterwards from the
-    process's file-size limit (``size``: how far the file got) and the free space of the folder."""
+    process's file-size limit (``size``: how far the file got) and the free space of the folder.
+
+    ``any_os_error``: where the failing call did nothing but write ``path`` (``torch.save`` into its temporary), any
+    other ``OSError`` with an errno (an I/O error, a file system remounted read-only) counts too: the model is
+    rescued all the same, and the line gives the system's words."""
     if isinstance(e, MemoryError):
         return 0
-    if isinstance(e, OSError) and e.errno in RESOURCE_ERRNOS:
+    if isinstance(e, OSError) and (e.errno in RESOURCE_ERRNOS or any_os_error and e.errno):
         return e.errno
     text = str(e).lower()
     if not (isinstance(e, OSError) and e.errno is None or isinstance(e, RuntimeError) and (
@@ -360,7 +364,7 @@ def _save_in_parts(obj: Any, first: Path, part_size: int) -> list[Path]:
 
 
 WHEN = {errno.ENOSPC: "there is room", errno.EDQUOT: "your quota allows it",
-        errno.EFBIG: "the file-size limit allows it", 0: "you need it"}
+        errno.EFBIG: "the file-size limit allows it", 0: "you need it"}  # other errnos: "it can be written"
 
 
 def atomic_torch_save(obj: Any, path: str | os.PathLike, fallback: bool = False) -> Path:
@@ -382,7 +386,7 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike, fallback: bool = False)
     try:
         _save_aside(obj, path)
     except _SaveFailed as failed:
-        cause = _cause(failed.error, path, failed.size)
+        cause = _cause(failed.error, path, failed.size, any_os_error=True)
         if cause is None:
             raise failed.error from None
         why = _why(failed.error, cause)
@@ -394,7 +398,7 @@ def atomic_torch_save(obj: Any, path: str | os.PathLike, fallback: bool = False)
 
 
 def _advice(cause: int) -> str:
-    return MEMORY_ADVICE if cause == 0 else RESOURCE_ERRNOS[cause]
+    return MEMORY_ADVICE if cause == 0 else RESOURCE_ERRNOS.get(cause, "choose another place")
 
 
 def _why(e: BaseException, cause: int) -> str:
@@ -424,7 +428,7 @@ def _rescue(obj: Any, path: Path, cause: int, why: str, error: BaseException) ->
         try:
             _save_aside(obj, rescue)
         except _SaveFailed as failed:
-            again, limit = _cause(failed.error, rescue, failed.size), _file_size_limit()
+            again, limit = _cause(failed.error, rescue, failed.size, any_os_error=True), _file_size_limit()
             if again is None:
                 raise failed.error from None
             if again != errno.EFBIG or not limit:
@@ -442,10 +446,10 @@ def _rescue(obj: Any, path: Path, cause: int, why: str, error: BaseException) ->
         join = f"cat {rescue} {rescue}.part{{2..{len(parts)}}} > {path}"
         raise ResourceError(cause, f"{path}: could not be written ({why}); it is unchanged, and the result was saved "
                                    f"to {rescue} in {len(parts)} parts instead (the limit holds everywhere); once "
-                                   f"{WHEN[cause]}, join them: {join}") from error
+                                   f"{WHEN.get(cause, 'it can be written')}, join them: {join}") from error
     raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}); it is unchanged, and the "
                                                f"result was saved to {rescue} instead; move it to {path} once "
-                                               f"{WHEN[cause]}") from error
+                                               f"{WHEN.get(cause, 'it can be written')}") from error
 
 
 def default_file_mode(executable: bool = False) -> int:
