@@ -1452,3 +1452,26 @@ def test_out_dot_is_the_current_folder(ckpt, wav, tmp_path, capsys, monkeypatch)
     before = snapshot(tmp_path)
     refused_in_process(capsys, ["convert-templates", root / "templates.pkl", "--out", "."], "--out .: is a folder")
     assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("case", ["extra_file", "sentences_inside", "no_manifest"])
+def test_generate_overwrite_replaces_only_a_corpus_it_wrote(small_corpus, tmp_path, case):
+    """generate --overwrite replaces only a corpus that generate wrote (its manifest lists every file): not one
+    with a file added by hand, not one holding the --sentences-file being read, not a corpus without the manifest
+    (written by hand or by an older version: remove it yourself). Refused before any synthesis (a real process)."""
+    corpus = tmp_path / "c"
+    shutil.copytree(small_corpus, corpus, symlinks=True)
+    sentences = small_corpus.parent / "s.txt"
+    fragment = f"--out {corpus}: holds notes.txt, which generate did not write"
+    if case == "extra_file":
+        (corpus / "notes.txt").write_text("mine")
+    if case == "sentences_inside":
+        sentences = corpus / "s.txt"
+        shutil.copy(small_corpus.parent / "s.txt", sentences)
+        fragment = f"--out {corpus}: holds the sentences file {sentences} that this run reads"
+    if case == "no_manifest":
+        (corpus / ".dualtalker-output.json").unlink()
+        fragment = f"--out {corpus}: was not written by dualtalker-lite generate (no .dualtalker-output.json in it)"
+    before = snapshot(tmp_path)
+    refused(cli("generate", "--out", corpus, "--sentences-file", sentences, "--overwrite", *SMALL), fragment)
+    assert snapshot(tmp_path) == before
