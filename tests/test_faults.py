@@ -1475,3 +1475,30 @@ def test_generate_overwrite_replaces_only_a_corpus_it_wrote(small_corpus, tmp_pa
     before = snapshot(tmp_path)
     refused(cli("generate", "--out", corpus, "--sentences-file", sentences, "--overwrite", *SMALL), fragment)
     assert snapshot(tmp_path) == before
+
+
+def test_a_full_disk_at_a_periodic_state_save_keeps_the_state(tmp_path, capsys, monkeypatch):
+    """train's periodic state (<out>.resume) is rescued like the checkpoint: the run stops with one line naming the
+    state and where it went, and moved back, the rescued state continues the run with --resume."""
+    out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
+    out_dir.mkdir()
+    monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
+    real = torch.save
+
+    def save(obj, f, *a, **kw):
+        if isinstance(f, (str, os.PathLike)) and Path(f).parent == out_dir and ".resume." in Path(f).name:
+            Path(f).write_bytes(b"PK\x03\x04 half a state")
+            raise OSError(122, "Disk quota exceeded")
+        return real(obj, f, *a, **kw)
+    monkeypatch.setattr(torch, "save", save)
+    argv = ["train", "--model", "voca", "--epochs", "2", "--clips", "2", "--checkpoint-every", "1",
+            "--out", out_dir / "m.pt"]
+    refused_in_process(capsys, argv, f"{out_dir / 'm.pt.resume'}: could not be written (Disk quota exceeded); it is "
+                       f"unchanged, and the result was saved to {rescue / 'm.pt.resume'} instead")
+    assert list(out_dir.iterdir()) == []
+    monkeypatch.setattr(torch, "save", real)
+    shutil.move(rescue / "m.pt.resume", out_dir / "m.pt.resume")
+    from dualtalker_lite.cli import main
+
+    assert main([str(a) for a in argv + ["--resume"]]) == 0
+    assert sorted(p.name for p in out_dir.iterdir()) == ["m.pt"]
