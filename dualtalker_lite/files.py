@@ -269,8 +269,9 @@ def _cause(e: BaseException, path: Path, size: int | None = None, any_os_error: 
 
     torch.save and np.save do not always keep the errno: a full disk is ``RuntimeError('... file write failed')``,
     a file-size limit (``ulimit -f``) ``RuntimeError('[enforce fail at inline_container.cc:672] . unexpected pos
-    576 vs 534')`` or ``OSError('100000 requested and 2484 written')``. Those are told apart afterwards from the
-    process's file-size limit (``size``: how far the file got) and the free space of the folder.
+    576 vs 534')`` or ``OSError('100000 requested and 2484 written')``. Such a short write is taken as the
+    file-size limit when the process has one and the file reached it (``size``: how far the file got; unknown
+    counts as reached), else as a full disk (a quota keeps its errno in every writer seen).
 
     ``any_os_error``: where the failing call did nothing but write ``path`` (``torch.save`` into its temporary), any
     other ``OSError`` with an errno (an I/O error, a file system remounted read-only) counts too: the model is
@@ -280,15 +281,17 @@ def _cause(e: BaseException, path: Path, size: int | None = None, any_os_error: 
     if isinstance(e, OSError) and (e.errno in RESOURCE_ERRNOS or any_os_error and e.errno):
         return e.errno
     text = str(e).lower()
-    if not (isinstance(e, OSError) and e.errno is None or isinstance(e, RuntimeError) and (
-            "write" in text or "inline_container" in text or "unexpected pos" in text)):
+    short_write = type(e) is OSError and e.errno is None and ("written" in text or "write" in text)  # numpy's
+    torch_write = isinstance(e, RuntimeError) and ("write" in text or "inline_container" in text
+                                                   or "unexpected pos" in text)
+    if not (short_write or torch_write):  # e.g. FileNotFoundError('... missing') keeps its own message
         return None
     limit = _file_size_limit()
     if limit is not None and (size is None or size >= limit):
         return errno.EFBIG
     if "memory" in text or "alloc" in text:
         return 0
-    return errno.ENOSPC  # the quota case keeps its errno in every writer seen; a short write is a full disk
+    return errno.ENOSPC
 
 
 def resource_error(e: BaseException, path: str | os.PathLike, unchanged: bool = True,
@@ -650,7 +653,8 @@ class AtomicOutputDir:
                     if error is None:
                         raise
                     raise error from e
-            elif isinstance(exc, (OSError, RuntimeError, MemoryError)) and not isinstance(exc, ResourceError):
+            elif isinstance(exc, (OSError, MemoryError)) and not isinstance(exc, ResourceError):  # not a bug's
+                # RuntimeError: nothing in the block calls torch.save, whose short writes are RuntimeErrors
                 error = resource_error(exc, self.given)
                 if error is not None:
                     raise error from exc

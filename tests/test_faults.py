@@ -1383,6 +1383,12 @@ def test_a_full_disk_while_animating_names_out(ckpt, wav, tmp_path, capsys, monk
                        f"written (280416 requested and 2484 written)", "free some space")
     assert snapshot(tmp_path) == before
 
+    def missing(path, *a, **k):  # an OSError that is no resource error keeps its own line
+        raise FileNotFoundError("vendored three.js file missing: x.js (restore it with `make vendor-three`)")
+    monkeypatch.setattr(inference, "write_npy_stream", missing)
+    line = refused_in_process(capsys, _animate(ckpt, wav, tmp_path / "anim"), "error: vendored three.js file missing")
+    assert "could not be written" not in line and snapshot(tmp_path) == before
+
 
 def test_memory_running_out_is_one_line(ckpt, wav, tmp_path, capsys, monkeypatch):
     """A MemoryError anywhere else in a command: one line and what to do, exit 2 (was: a traceback, exit 1)."""
