@@ -3,6 +3,15 @@
 A crash, Ctrl-C or SIGTERM never leaves half a file or a mixed folder behind: :func:`atomic_torch_save`,
 :func:`atomic_write_text` and :class:`AtomicOutputDir` build the result aside and move it into place only when it
 is complete, and remove their temporaries otherwise.
+
+What may be replaced (issue 32): an output folder carries a manifest, :data:`MANIFEST`, naming the command that
+wrote it and its files, and ``overwrite`` replaces only such a folder of the same command that holds nothing else;
+a target that is or holds one of the command's inputs is never replaced (:func:`refuse_inputs`). When the machine
+runs out of something while writing (a full disk, a quota, the file-size limit of ``ulimit -f``, memory), the error
+is one :class:`ResourceError` line naming the file and what to do (:func:`resource_error`), and a checkpoint that
+cannot be saved is kept in :func:`fallback_dir` under a new name (:func:`rescue_name`). Helper files (lock,
+temporaries) carry a shortened name beside a long output (:func:`helper_stem`), and ``.`` as an output is the
+folder it names (:func:`output_path`).
 """
 from __future__ import annotations
 
