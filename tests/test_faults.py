@@ -80,6 +80,14 @@ def snapshot(root: Path) -> dict:
             for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+def earlier_animation(out: Path) -> Path:
+    """An earlier output of animate, as --overwrite accepts it (issue 32): a file and the manifest naming it."""
+    out.mkdir()
+    (out / "vertices.npy").write_bytes(b"earlier result")
+    (out / ".dualtalker-output.json").write_text('{"command": "animate", "files": ["vertices.npy"]}')
+    return out
+
+
 # ------------------------------------------------------------------------------------------ forged pickles
 def _shared_deep(levels=18, fan=10):
     """One list referenced ``fan`` times at each of ``levels`` levels: ~0.5 kB pickled, 10^18 paths to walk."""
@@ -536,8 +544,7 @@ def test_a_template_in_millimetres_is_refused(ckpt, wav, tmp_path, capsys):
     from dualtalker_lite.inference import read_template
 
     mm = _template_obj(tmp_path / "face_mm.obj", 1000.0)
-    (tmp_path / "o").mkdir()
-    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    earlier_animation(tmp_path / "o")
     before = snapshot(tmp_path)
     refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--template", mm,
                                 "--out", tmp_path / "o", "--overwrite", "--format", "npy"],
@@ -571,8 +578,7 @@ def test_a_speaker_entry_without_rig_parameters_is_refused(ckpt, wav, tmp_path, 
                "name_only": "shape"}[case]
     with pytest.raises(ValueError, match="lacks rig parameters"):
         Corpus(root).template("SPK01")
-    (tmp_path / "o").mkdir()
-    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    earlier_animation(tmp_path / "o")
     before = snapshot(tmp_path / "o")
     refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--corpus", root,
                                 "--out", tmp_path / "o", "--overwrite", "--format", "npy"],
@@ -613,8 +619,7 @@ def test_a_truncated_mp3_is_refused(ckpt, tmp_path, capsys):
     raw = whole.read_bytes()
     cut = tmp_path / "cut.mp3"
     cut.write_bytes(raw[:len(raw) // 2])
-    (tmp_path / "o").mkdir()
-    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    earlier_animation(tmp_path / "o")
     before = snapshot(tmp_path / "o")
     proc = cli("animate", "--checkpoint", ckpt, "--wav", cut, "--speaker", "SPK01", "--out", tmp_path / "o",
                "--overwrite", "--format", "npy")  # a real process: mpg123's own warnings on fd 2 must not show
@@ -678,8 +683,8 @@ import sys, time
 from pathlib import Path
 import dualtalker_lite.files as files
 save = files.atomic_torch_save
-def paused(obj, path):
-    out = save(obj, path)
+def paused(obj, path, **kw):
+    out = save(obj, path, **kw)
     if str(path).endswith('.resume'):
         Path(sys.argv[1]).write_text('saved')
         time.sleep(60)
