@@ -1444,6 +1444,10 @@ def test_a_240_character_out_is_written(ckpt, wav, tmp_path, capsys):
     assert main(["convert-templates", root / "templates.pkl", "--out", npz]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, anim.name, "vocaset"])
     assert [p.name for p in root.iterdir() if p.name.startswith(".")] == []
+    longest = tmp_path / ("y" * 251 + ".pt")  # legal, but <out>.resume would not be: one line, before training
+    refused_in_process(capsys, TRAIN_TINY + ["--checkpoint-every", "1", "--out", longest], "a name of 254 bytes "
+                       "leaves no room for its periodic state", "shorten it or pass --checkpoint-every 0")
+    assert not longest.exists()
 
 
 def test_out_dot_is_the_current_folder(ckpt, wav, tmp_path, capsys, monkeypatch):
