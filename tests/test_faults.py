@@ -1406,6 +1406,13 @@ def test_memory_running_out_is_one_line(ckpt, wav, tmp_path, capsys, monkeypatch
                        "other programs")
     assert list(tmp_path.iterdir()) == []
 
+    def cache_full(*a, **k):  # a resource error the system raises elsewhere (e.g. the recogniser's cache)
+        raise OSError(122, "Disk quota exceeded", str(tmp_path / "cache" / "x.npy"))
+    monkeypatch.setattr(inference, "predict_chunks", cache_full)
+    refused_in_process(capsys, _animate(ckpt, wav, tmp_path / "anim"), f"error: {tmp_path / 'cache' / 'x.npy'}: Disk "
+                       f"quota exceeded; your disk quota is used up: remove some of your files or choose another place")
+    assert list(tmp_path.iterdir()) == []
+
 
 @pytest.mark.parametrize("command", ["train", "animate"])
 def test_a_read_only_out_is_reported_by_its_own_name(ckpt, wav, tmp_path, capsys, monkeypatch, command):
