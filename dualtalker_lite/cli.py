@@ -166,8 +166,8 @@ def _train(argv: list[str]) -> Path:
     if out.is_dir() or out.name in ("", ".", ".."):
         raise IsADirectoryError(f"--out {out}: is a folder; name the checkpoint file to write (e.g. {out / 'model.pt'})")
     if len(out.name.encode()) > NAME_MAX - len(".resume") and args.checkpoint_every:
-        raise ValueError(f"--out {out.name[:40]}...: a name of {len(out.name.encode())} bytes leaves no room for its "
-                         f"periodic state {out.name[:8]}....resume ({NAME_MAX} bytes at most); shorten it or pass "
+        raise ValueError(f"--out {out}: a name of {len(out.name.encode())} bytes leaves no room for its periodic "
+                         f"state <name>.resume ({NAME_MAX} bytes at most in a name); shorten it or pass "
                          f"--checkpoint-every 0")
     claim(out)  # a second run into the same --out fails now with one line (released when the command ends)
     corpus_root = Path(args.corpus or sample_path())
