@@ -58,7 +58,7 @@ from .models.faceformer import FaceFormer, FaceFormerConfig
 from .checks import NonFiniteError
 from .files import atomic_torch_save
 
-__all__ = ["FORMAT_VERSION", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
+__all__ = ["FORMAT_VERSION", "is_own_file", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
            "extractor_settings", "extractor_from_settings", "describe", "upgrade_checkpoint",
            "upgrade_state_dict", "verify_integrity", "validate_fields", "FEATURE_NAMES"]
 
@@ -199,6 +199,25 @@ def upgrade_checkpoint(ckpt: dict) -> tuple[dict, str | None]:
         out["model_class"], out["model_config"] = "FaceFormer", {k: v for k, v in cfg.items() if k in keep}
         note += " (the FaceFormer-style baseline is now the FaceFormer class)"
     return out, note + "; save it again to skip this step"
+
+
+def is_own_file(path: str | Path, *markers: bytes) -> bool:
+    """Whether ``path`` is a torch archive this package wrote: a zip whose ``data.pkl`` record (the pickled dict,
+    without the tensors' bytes: small) holds every one of ``markers`` (default: a checkpoint's ``model_class`` and
+    ``state_dict`` keys; ``train``'s resume state passes its format string). Only the zip directory and that one
+    record are read, so a file of any size is judged in milliseconds; a damaged archive is not recognised.
+
+    ``--overwrite`` replaces only such a file: never a corpus's ``metadata.json``, a recording or a notebook."""
+    markers = markers or (b"model_class", b"state_dict")
+    try:
+        with zipfile.ZipFile(path) as z:
+            pkl = [n for n in z.namelist() if n == "data.pkl" or n.endswith("/data.pkl")]
+            if len(pkl) != 1 or z.getinfo(pkl[0]).file_size > 64 << 20:
+                return False
+            data = z.read(pkl[0])
+    except (zipfile.BadZipFile, zlib.error, OSError, EOFError, ValueError, RuntimeError):
+        return False
+    return all(m in data for m in markers)
 
 
 def verify_integrity(path: str | Path) -> None:

@@ -114,9 +114,9 @@ def _train(argv: list[str]) -> Path:
 
     import hashlib
 
-    from .checkpoints import extractor_settings, save_checkpoint
+    from .checkpoints import extractor_settings, is_own_file, save_checkpoint
     from .data import sample_path
-    from .files import atomic_torch_save, check_free_space, claim, sweep_stale
+    from .files import NAME_MAX, atomic_torch_save, check_free_space, claim, sweep_stale
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset, make_loader
     from .data.pairs import make_pair_loader
@@ -144,7 +144,9 @@ def _train(argv: list[str]) -> Path:
                          "input; learns this corpus's voices only)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the initialisation, shuffling and crops")
     ap.add_argument("--out", required=True, help="checkpoint file to write (.pt)")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an existing checkpoint (only a checkpoint: never another kind of file, nor one of "
+                         "the corpus)")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
@@ -164,9 +166,24 @@ def _train(argv: list[str]) -> Path:
     if args.clips is not None and args.clips < 1:
         raise ValueError(f"--clips {args.clips}: must be at least 1")
     out = Path(args.out)
+    if out.is_dir() or out.name in ("", ".", ".."):
+        raise IsADirectoryError(f"--out {out}: is a folder; name the checkpoint file to write (e.g. {out / 'model.pt'})")
+    if len(out.name.encode()) > NAME_MAX - len(".resume") and args.checkpoint_every:
+        raise ValueError(f"--out {out}: a name of {len(out.name.encode())} bytes leaves no room for its periodic "
+                         f"state <name>.resume ({NAME_MAX} bytes at most in a name); shorten it or pass "
+                         f"--checkpoint-every 0")
     claim(out)  # a second run into the same --out fails now with one line (released when the command ends)
+    corpus_root = Path(args.corpus or sample_path())
+    if out.exists() and corpus_root.is_dir() and Path(os.path.realpath(corpus_root)) in \
+            Path(os.path.realpath(out)).parents:
+        raise ValueError(f"--out {out}: is a file of the corpus {corpus_root} that this run trains on; writing --out "
+                         f"would replace it; choose another --out")
     if out.exists() and not args.overwrite:
         raise FileExistsError(f"checkpoint {out} already exists; pass --overwrite to replace it")
+    if out.exists() and not is_own_file(out):
+        raise FileExistsError(f"--out {out}: is not a dualtalker-lite checkpoint; --overwrite replaces only a "
+                              f"checkpoint (a torch archive with a model_class and state_dict); remove it yourself "
+                              f"or choose another --out")
     out.parent.mkdir(parents=True, exist_ok=True)
     if not os.access(out.parent, os.W_OK):
         raise PermissionError(f"output folder {out.parent} is not writable")
@@ -175,6 +192,9 @@ def _train(argv: list[str]) -> Path:
     if resume is None and resume_path.exists() and not args.overwrite:
         raise FileExistsError(f"{resume_path}: an interrupted run of this --out saved its state here; pass --resume "
                               f"to continue it, or --overwrite to start over (the state is then replaced)")
+    if resume is None and resume_path.exists() and not is_own_file(resume_path, RESUME_FORMAT.encode()):
+        raise FileExistsError(f"{resume_path}: is not a training state of dualtalker-lite train; --overwrite replaces "
+                              f"only that; remove it yourself or choose another --out")
     from .inference import resolve_device
 
     device = resolve_device(args.device)
@@ -228,7 +248,9 @@ def _train(argv: list[str]) -> Path:
               f"epoch {done + 1}", flush=True)
 
     def on_checkpoint(state: dict) -> None:
-        atomic_torch_save({"format": RESUME_FORMAT, "args": record, "train": state}, resume_path)
+        # a full disk (quota, file-size limit, memory) here stops the run, but the state goes to the fallback
+        # folder, so the epochs trained so far are kept (the one error line says where)
+        atomic_torch_save({"format": RESUME_FORMAT, "args": record, "train": state}, resume_path, fallback=True)
 
     on_epoch = None
     if progress == "lines":  # stderr is a log file, CI or nohup: a line per epoch, at most every ~10 s
@@ -282,7 +304,8 @@ def _evaluate(argv: list[str]) -> dict:
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--split", default="test_a", help="the corpus split to predict and score")
     ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an existing --json file (only an earlier metrics file of evaluate)")
     ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                     help="no progress on stderr (otherwise a bar on a terminal, else a line at most every ~10 s "
                          "with the clips predicted, elapsed time and time left)")
@@ -301,6 +324,13 @@ def _evaluate(argv: list[str]) -> dict:
             raise ValueError(f"--json {args.json}: is the checkpoint being evaluated; name another file")
         if not args.overwrite:
             raise FileExistsError(f"--json {args.json}: already exists; pass --overwrite to replace it")
+        try:
+            earlier = json.loads(Path(args.json).read_text())
+        except (OSError, ValueError):
+            earlier = None
+        if not (isinstance(earlier, dict) and {"checkpoint", "split", "metrics"} <= set(earlier)):
+            raise FileExistsError(f"--json {args.json}: is not a metrics file of dualtalker-lite evaluate; --overwrite "
+                                  f"replaces only that; remove it yourself or name another file")
     model, ckpt = load_checkpoint(args.checkpoint)
     corpus = Corpus(args.corpus or sample_path())
     _check_corpus(corpus, ckpt)

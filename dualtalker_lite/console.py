@@ -8,6 +8,8 @@ success                      0            the command's own output on stdout, it
                                           it wrote or did; on stderr nothing but progress (below) and
                                           ``note:``/``warning:`` lines
 user error (``USER_ERRORS``) 2            ``error: <file>: <problem>`` (one line) and a hint on stderr
+out of a resource            2            the same: the file, the cause (disk full, quota, file-size
+                                          limit, memory) and what to do
 wrong arguments (argparse)   2            argparse's usage line and ``error: ...``
 Ctrl-C or SIGTERM            130          ``interrupted; temporary files removed``
 anything else (a bug)        1            Python's traceback
@@ -31,6 +33,7 @@ written).
 from __future__ import annotations
 
 import argparse
+import errno
 import signal
 import sys
 import time
@@ -43,9 +46,26 @@ __all__ = ["USER_ERRORS", "run_main", "exit_status", "HelpFormatter", "progress_
 USER_ERRORS = (ValueError, KeyError, OSError, ImportError)
 
 
+# What to do when the machine runs out of something: these lines, and files.resource_error's, which uses them.
+RESOURCE_ADVICE = {errno.ENOSPC: "free some space or choose another place (another disk)",
+                   errno.EDQUOT: "your disk quota is used up: remove some of your files or choose another place",
+                   errno.EFBIG: "the file-size limit of this process (ulimit -f) is too small for it: raise it "
+                                "(ulimit -f unlimited) or ask your administrator"}
+MEMORY_ADVICE = "close other programs, or run on a machine with more memory"
+
+
 def _message(e: BaseException) -> str:
+    if isinstance(e, MemoryError):
+        return f"out of memory ({_first_line(e) or 'MemoryError'}); {MEMORY_ADVICE}"
+    if isinstance(e, OSError) and e.errno in RESOURCE_ADVICE and e.filename is not None:
+        # a resource error raised by the system or a library, not by our own writers: name its file, say what to do
+        return f"{e.filename}: {e.strerror}; {RESOURCE_ADVICE[e.errno]}"
     text = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
     return str(text).strip().splitlines()[0] if str(text).strip() else type(e).__name__
+
+
+def _first_line(e: BaseException) -> str:
+    return (str(e).strip().splitlines() or [""])[0]
 
 
 def _raise_interrupt(signum, frame):
@@ -70,7 +90,7 @@ def run_main(func: Callable, argv: Sequence[str] | None = None):
             raise
         print("interrupted; temporary files removed", file=sys.stderr)
         sys.exit(130)
-    except USER_ERRORS as e:
+    except (*USER_ERRORS, MemoryError) as e:
         if debug:
             raise
         print(f"error: {_message(e)}", file=sys.stderr)

@@ -3,6 +3,15 @@
 A crash, Ctrl-C or SIGTERM never leaves half a file or a mixed folder behind: :func:`atomic_torch_save`,
 :func:`atomic_write_text` and :class:`AtomicOutputDir` build the result aside and move it into place only when it
 is complete, and remove their temporaries otherwise.
+
+What may be replaced (issue 32): an output folder carries a manifest, :data:`MANIFEST`, naming the command that
+wrote it and its files, and ``overwrite`` replaces only such a folder of the same command that holds nothing else;
+a target that is or holds one of the command's inputs is never replaced (:func:`refuse_inputs`). When the machine
+runs out of something while writing (a full disk, a quota, the file-size limit of ``ulimit -f``, memory), the error
+is one :class:`ResourceError` line naming the file and what to do (:func:`resource_error`), and a checkpoint that
+cannot be saved is kept in :func:`fallback_dir` under a new name (:func:`rescue_name`). Helper files (lock,
+temporaries) carry a shortened name beside a long output (:func:`helper_stem`), and ``.`` as an output is the
+folder it names (:func:`output_path`).
 """
 from __future__ import annotations
 
@@ -11,6 +20,8 @@ import contextlib
 import errno
 import fcntl
 import glob
+import io
+import json
 import os
 import shutil
 import signal
@@ -23,9 +34,19 @@ from typing import Any
 
 import torch
 
+from .console import MEMORY_ADVICE, RESOURCE_ADVICE
+
 __all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir",
            "temporary_prefix", "sweep_stale", "claim", "Claim", "claims_released",
-           "check_free_space", "fallback_dir", "tensor_bytes"]
+           "check_free_space", "fallback_dir", "tensor_bytes", "MANIFEST", "output_path", "helper_stem",
+           "resource_error", "ResourceError", "refuse_inputs", "rescue_name"]
+
+MANIFEST = ".dualtalker-output.json"  # inside every output folder: which command wrote it, and which files
+
+# Errors that mean "the machine ran out of something", not "the input is wrong": each is reported naming the file
+# being written and what to do about it (:func:`resource_error`); the advice lives in console, the bottom layer.
+RESOURCE_ERRNOS = RESOURCE_ADVICE
+NAME_MAX = 255  # bytes in one file name on Linux and macOS file systems
 
 
 def repo_root() -> Path:
@@ -41,10 +62,39 @@ def runs_dir(*parts: str) -> Path:
     return path
 
 
+def output_path(path: str | os.PathLike) -> Path:
+    """``--out`` as given -> an absolute, normalised path with a real name (``.`` -> the current folder's path,
+    ``a/..`` -> its parent), or one ValueError line for the root folder, which has no name to write beside.
+
+    The helper files of an output (lock, temporaries) are named after it, so ``Path('.')`` (empty name) would
+    fail deep inside ``with_name``; the absolute form names the folder the user meant."""
+    given = Path(path)
+    absolute = Path(os.path.abspath(given))
+    if not absolute.name:
+        raise ValueError(f"{given}: is the root folder; name a file or folder to write")
+    return absolute
+
+
+def helper_stem(path: Path) -> str:
+    """The part of ``path``'s name that its helper files (``.<stem>.lock``, ``.<stem>.<pid>.*.tmp``, ...) carry:
+    the name itself when short, else its first 64 characters and a hash of the whole name.
+
+    A file name may have 255 bytes; the helpers add up to about 40 characters, so a legal 240-character ``--out``
+    would otherwise be refused with ``File name too long`` for a file the user never named."""
+    name = Path(path).name
+    if len(name.encode()) <= 180:
+        return name
+    import hashlib
+
+    head = name.encode()[:64].decode(errors="ignore")
+    return f"{head}~{hashlib.sha256(name.encode()).hexdigest()[:16]}"
+
+
 def temporary_prefix(path: Path) -> str:
-    """Name prefix of the temporaries written beside ``path``: hidden, the target's name and this process's id
-    (``.name.<pid>.``), so that a later run can tell the leftovers of a killed run (:func:`sweep_stale`)."""
-    return f".{path.name}.{os.getpid()}."
+    """Name prefix of the temporaries written beside ``path``: hidden, the target's name (:func:`helper_stem`) and
+    this process's id (``.name.<pid>.``), so that a later run can tell the leftovers of a killed run
+    (:func:`sweep_stale`)."""
+    return f".{helper_stem(path)}.{os.getpid()}."
 
 
 def _alive(pid: int) -> bool:
@@ -67,8 +117,9 @@ def sweep_stale(path: str | os.PathLike) -> list[Path]:
     removed = []
     if not path.parent.is_dir():
         return removed
-    for leftover in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
-        pid = leftover.name[len(path.name) + 2:].split(".", 1)[0]
+    stem = helper_stem(path)
+    for leftover in path.parent.glob(f".{glob.escape(stem)}.*.tmp"):
+        pid = leftover.name[len(stem) + 2:].split(".", 1)[0]
         if not pid.isdigit() or _alive(int(pid)):
             continue
         size = sum(f.stat().st_size for f in leftover.rglob("*") if f.is_file()) if leftover.is_dir() else \
@@ -94,7 +145,8 @@ class Claim:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self.lock = self.path.with_name(f".{self.path.name}.lock")
+        absolute = output_path(self.path)  # '.', 'a/..': the folder meant, not an empty name
+        self.lock = absolute.with_name(f".{helper_stem(absolute)}.lock")
         self.fd: int | None = None
         try:
             self.lock.parent.mkdir(parents=True, exist_ok=True)
@@ -102,7 +154,13 @@ class Claim:
             raise PermissionError(f"{self.path}: cannot create the output's parent folder {self.lock.parent}: "
                                   f"{e.strerror}") from e
         while self.fd is None:  # retried only if the lock file was replaced between open() and flock()
-            fd = os.open(self.lock, os.O_RDWR | os.O_CREAT, default_file_mode())
+            try:
+                fd = os.open(self.lock, os.O_RDWR | os.O_CREAT, default_file_mode())
+            except OSError as e:  # the lock is ours, not the user's: name the output and its folder
+                if e.errno in RESOURCE_ERRNOS:
+                    raise resource_error(e, self.path) from e
+                raise PermissionError(f"{self.path}: cannot write in its folder {self.lock.parent} ({e.strerror}); "
+                                      f"choose a writable place") from e
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -198,9 +256,72 @@ def tensor_bytes(obj: Any) -> int:
     return 0
 
 
-def _disk_full(e: BaseException) -> bool:
-    """torch.save reports a failed write as RuntimeError ('... file write failed'); others as OSError."""
-    return isinstance(e, OSError) or (isinstance(e, RuntimeError) and "write" in str(e).lower())
+class ResourceError(OSError):
+    """The machine ran out of something while writing a file (disk, quota, file-size limit, memory): a user error
+    (an ``OSError``, exit 2) whose one line names the file and what to do; ``errno`` says which resource (ENOSPC,
+    EDQUOT, EFBIG, ENOMEM), and ``str()`` is the line itself (no ``[Errno N]`` prefix)."""
+
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.errno = code
+
+
+def _file_size_limit() -> int | None:
+    import resource
+
+    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return None if soft == resource.RLIM_INFINITY else soft
+
+
+def _cause(e: BaseException, path: Path, size: int | None = None, any_os_error: bool = False) -> int | None:
+    """The errno (ENOSPC, EDQUOT, EFBIG) or 0 (memory) behind a failed write, or None if it was no resource error.
+
+    torch.save and np.save do not always keep the errno: a full disk is ``RuntimeError('... file write failed')``,
+    a file-size limit (``ulimit -f``) ``RuntimeError('[enforce fail at inline_container.cc:672] . unexpected pos
+    576 vs 534')`` or ``OSError('100000 requested and 2484 written')``. Such a short write is taken as the
+    file-size limit when the process has one and the file reached it (``size``: how far the file got; unknown
+    counts as reached), else as a full disk (a quota keeps its errno in every writer seen).
+
+    ``any_os_error``: where the failing call did nothing but write ``path`` (``torch.save`` into its temporary), any
+    other ``OSError`` with an errno (an I/O error, a file system remounted read-only) counts too: the model is
+    rescued all the same, and the line gives the system's words."""
+    if isinstance(e, MemoryError):
+        return 0
+    if isinstance(e, OSError) and (e.errno in RESOURCE_ERRNOS or any_os_error and e.errno):
+        return e.errno
+    text = str(e).lower()
+    short_write = type(e) is OSError and e.errno is None and ("written" in text or "write" in text)  # numpy's
+    torch_write = isinstance(e, RuntimeError) and ("write" in text or "inline_container" in text
+                                                   or "unexpected pos" in text)
+    if not (short_write or torch_write):  # e.g. FileNotFoundError('... missing') keeps its own message
+        return None
+    limit = _file_size_limit()
+    if limit is not None and (size is None or size >= limit):
+        return errno.EFBIG
+    if "memory" in text or "alloc" in text:
+        return 0
+    return errno.ENOSPC
+
+
+def resource_error(e: BaseException, path: str | os.PathLike, unchanged: bool = True,
+                   size: int | None = None) -> "ResourceError | None":
+    """A failed write of ``path`` -> one :class:`ResourceError` line naming ``path``, the cause and what to do
+    (``it is unchanged`` with ``unchanged=True``), or None if ``e`` was not a resource error (a bug, or a user
+    error that keeps its own message)."""
+    cause = _cause(e, Path(path), size)
+    if cause is None:
+        return None
+    kept = "; it is unchanged" if unchanged else ""
+    return ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({_why(e, cause)}){kept}; "
+                                                f"{_advice(cause)}")
+
+
+class _SaveFailed(Exception):
+    """A failed ``torch.save`` and how far its temporary file got (bytes), to tell a file-size limit apart."""
+
+    def __init__(self, error: BaseException, size: int):
+        super().__init__(str(error))
+        self.error, self.size = error, size
 
 
 def _save_aside(obj: Any, path: Path) -> None:
@@ -209,7 +330,10 @@ def _save_aside(obj: Any, path: Path) -> None:
     os.close(fd)
     try:
         with _remove_on_signal(tmp) as signals:
-            torch.save(obj, tmp)
+            try:
+                torch.save(obj, tmp)
+            except (OSError, RuntimeError, MemoryError) as e:
+                raise _SaveFailed(e, os.path.getsize(tmp) if os.path.exists(tmp) else 0) from e
             os.chmod(tmp, default_file_mode())  # mkstemp makes 0600; a checkpoint is an ordinary file (0644)
             signals.check()
             os.replace(tmp, path)
@@ -218,38 +342,126 @@ def _save_aside(obj: Any, path: Path) -> None:
             os.remove(tmp)
 
 
+def rescue_name(folder: Path, name: str) -> Path:
+    """A new file in ``folder`` for a rescued ``name``: ``name`` itself if free, else ``stem-2.suffix``,
+    ``stem-3.suffix``, ... (taken with O_EXCL, so two rescues, even concurrent ones, never replace each other;
+    the empty placeholder is replaced by the rescued file)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stem, suffix = Path(name).stem, Path(name).suffix
+    for n in range(1, 10_000):
+        candidate = folder / (name if n == 1 else f"{stem}-{n}{suffix}")
+        try:
+            os.close(os.open(candidate, os.O_CREAT | os.O_EXCL | os.O_WRONLY, default_file_mode()))
+            return candidate
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{folder}: 10,000 rescued files named like {name}; move some of them away")
+
+
+def _save_in_parts(obj: Any, first: Path, part_size: int) -> list[Path]:
+    """``torch.save`` into memory, then write the bytes as ``first``, ``first.part2``, ... of at most
+    ``part_size`` bytes each (a file-size limit cannot stop that); ``cat`` joins them into the checkpoint."""
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    data = buffer.getbuffer()
+    parts = [first] + [first.with_name(f"{first.name}.part{k}") for k in range(2, -(-len(data) // part_size) + 1)]
+    try:
+        for k, part in enumerate(parts):
+            atomic_write_bytes(part, data[k * part_size:(k + 1) * part_size])
+    except BaseException:
+        for part in parts:
+            part.unlink(missing_ok=True)
+        raise
+    return parts
+
+
+WHEN = {errno.ENOSPC: "there is room", errno.EDQUOT: "your quota allows it",
+        errno.EFBIG: "the file-size limit allows it", 0: "you need it"}  # other errnos: "it can be written"
+
+
 def atomic_torch_save(obj: Any, path: str | os.PathLike, fallback: bool = False) -> Path:
     """``torch.save`` to a temporary file in the same folder, then rename: a crash never leaves half a file.
 
-    A failed write (a full disk: torch's ``RuntimeError`` or an ``OSError``) leaves ``path`` as it was and
-    removes the temporary, then raises one ``OSError`` line. With ``fallback=True`` (weights that cost training)
-    the object is first saved to :func:`fallback_dir`, and the line says where it is."""
+    A write that runs out of a resource (a full disk, a used-up quota, the file-size limit of ``ulimit -f``, memory;
+    :func:`_cause`) leaves ``path`` as it was and removes the temporary, then raises one :class:`ResourceError` line
+    naming ``path``, the cause and what to do. With ``fallback=True`` (weights that cost training) the object is
+    then saved to :func:`fallback_dir` under a name no earlier rescue holds (:func:`rescue_name`), and the line says
+    where; under a file-size limit, which holds everywhere, it is saved there in parts of the allowed size, and the
+    line says how to join them. Any other error (a bug) propagates unchanged."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        if fallback:  # clearly too little room: do not even try (the check's own line is the reason)
-            check_free_space(path, tensor_bytes(obj), "the file")
-        _save_aside(obj, path)
-    except (OSError, RuntimeError) as e:
-        if not _disk_full(e):
-            raise
-        why = os.strerror(e.errno) if isinstance(e, OSError) and e.errno else str(e).strip().splitlines()[0]
-        if isinstance(e, OSError) and str(e).startswith(str(path)):
-            why = str(e).split(": ", 2)[-1].split(";")[0]  # check_free_space's own reason
-        if not fallback:
-            raise OSError(errno.ENOSPC, f"{path}: could not be written ({why}); it is unchanged") from e
-        rescue = fallback_dir() / path.name
+    if fallback:  # clearly too little room: do not even try (the check's own line is the reason)
         try:
-            rescue.parent.mkdir(parents=True, exist_ok=True)
-            _save_aside(obj, rescue)
-        except (OSError, RuntimeError) as e2:
-            if not _disk_full(e2):
-                raise
-            raise OSError(errno.ENOSPC, f"{path}: could not be written ({why}), nor the fallback {rescue}; "
-                                        f"the result is lost, free some space and run again") from e2
-        raise OSError(errno.ENOSPC, f"{path}: could not be written ({why}); it is unchanged, and the result "
-                                    f"was saved to {rescue} instead; move it to {path} once there is room") from e
+            check_free_space(path, tensor_bytes(obj), "the file")
+        except OSError as e:
+            return _rescue(obj, path, errno.ENOSPC, str(e).split(": ", 1)[1].split(";")[0], e)
+    try:
+        _save_aside(obj, path)
+    except _SaveFailed as failed:
+        cause = _cause(failed.error, path, failed.size, any_os_error=True)
+        if cause is None:
+            raise failed.error from None
+        why = _why(failed.error, cause)
+        if not fallback:
+            raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}); it is unchanged; "
+                                                       f"{_advice(cause)}") from failed.error
+        return _rescue(obj, path, cause, why, failed.error)
     return path
+
+
+def _advice(cause: int) -> str:
+    return MEMORY_ADVICE if cause == 0 else RESOURCE_ERRNOS.get(cause, "choose another place")
+
+
+def _why(e: BaseException, cause: int) -> str:
+    """The reason shown in parentheses: the system's words for the errno, else the writer's own first line, and
+    the file-size limit when that was the cause."""
+    if cause == errno.EFBIG and _file_size_limit() is not None:  # torch's own words say nothing of the limit
+        return f"{os.strerror(errno.EFBIG)}: the file-size limit (ulimit -f) is {_file_size_limit()} bytes"
+    if isinstance(e, OSError) and e.errno:
+        return os.strerror(e.errno)
+    if isinstance(e, MemoryError):
+        return "out of memory"
+    return (str(e).strip().splitlines() or [type(e).__name__])[0]
+
+
+def _rescue(obj: Any, path: Path, cause: int, why: str, error: BaseException) -> Path:
+    """Save ``obj`` that could not go to ``path`` to a new file of :func:`fallback_dir` and raise the one line
+    that says where (or that it is lost). A file-size limit holds everywhere: then it is saved in parts."""
+    advice = _advice(cause)
+    try:
+        rescue = rescue_name(fallback_dir(), path.name)
+    except OSError as e:
+        raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}), nor a file made in the "
+                            f"fallback folder {fallback_dir()} ({e.strerror or e}); the result is lost; {advice}, "
+                            f"and run again") from error
+    parts = [rescue]
+    try:
+        try:
+            _save_aside(obj, rescue)
+        except _SaveFailed as failed:
+            again, limit = _cause(failed.error, rescue, failed.size, any_os_error=True), _file_size_limit()
+            if again is None:
+                raise failed.error from None
+            if again != errno.EFBIG or not limit:
+                raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}), nor the fallback "
+                                    f"{rescue}; the result is lost; {advice}, and run again") from failed.error
+            try:
+                parts = _save_in_parts(obj, rescue, limit)
+            except (OSError, RuntimeError, MemoryError) as e3:
+                raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}), nor the fallback "
+                                    f"{rescue}, even in parts; the result is lost; {advice}, and run again") from e3
+    except BaseException:
+        rescue.unlink(missing_ok=True)  # the placeholder of rescue_name
+        raise
+    if len(parts) > 1:
+        join = f"cat {rescue} {rescue}.part{{2..{len(parts)}}} > {path}"
+        raise ResourceError(cause, f"{path}: could not be written ({why}); it is unchanged, and the result was saved "
+                                   f"to {rescue} in {len(parts)} parts instead (the limit holds everywhere); once "
+                                   f"{WHEN.get(cause, 'it can be written')}, join them: {join}") from error
+    raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}); it is unchanged, and the "
+                                               f"result was saved to {rescue} instead; move it to {path} once "
+                                               f"{WHEN.get(cause, 'it can be written')}") from error
 
 
 def default_file_mode(executable: bool = False) -> int:
@@ -292,14 +504,26 @@ class _remove_on_signal:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write a text file via a temporary file in the same folder and a rename (0644 under umask 022)."""
+    """Write a text file via a temporary file in the same folder and a rename (0644 under umask 022); a full
+    disk, quota or file-size limit leaves ``path`` as it was (one :class:`ResourceError` line)."""
+    return atomic_write_bytes(path, text.encode())
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes | memoryview) -> Path:
+    """:func:`atomic_write_text` for bytes."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+        except (OSError, MemoryError) as e:
+            error = resource_error(e, path, size=os.path.getsize(tmp))
+            if error is None:
+                raise
+            raise error from e
         os.chmod(tmp, default_file_mode())
         os.replace(tmp, path)
     finally:
@@ -308,23 +532,67 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return path
 
 
+def refuse_inputs(target: str | os.PathLike, inputs, what: str = "--out") -> None:
+    """Refuse (one ValueError line) an output ``target`` that is, or holds, one of the command's own inputs:
+    ``inputs`` are ``(label, path)`` pairs (the checkpoint, the recording, the corpus, the source file; None paths
+    and paths that do not exist are skipped). Compared as resolved paths (symbolic links, ``..``) and, for files,
+    with ``os.path.samefile`` (hard links): replacing the target would delete what the run reads."""
+    target = Path(target)
+    if not os.path.lexists(target):
+        return
+    real_target = Path(os.path.realpath(target))
+    for label, path in inputs:
+        if path is None or not os.path.exists(path):
+            continue
+        real = Path(os.path.realpath(path))
+        same = real == real_target or (target.is_file() and Path(path).is_file() and os.path.samefile(path, target))
+        if same or real_target in real.parents:
+            where = "is" if same else "holds"
+            raise ValueError(f"{what} {target}: {where} the {label} {path} that this run reads; writing {what} "
+                             f"would replace it; choose another {what}")
+
+
+def _owned_files(folder: Path) -> list[str]:
+    """Every file (and symbolic link) under ``folder``, relative, as POSIX paths; folders are not listed."""
+    found = []
+    for top, dirs, files in os.walk(folder):
+        rel = Path(top).relative_to(folder)
+        found += [(rel / name).as_posix() for name in files]
+        found += [(rel / name).as_posix() for name in dirs if os.path.islink(os.path.join(top, name))]
+    return sorted(found)
+
+
 class AtomicOutputDir:
     """Write an output folder atomically: work in a hidden temporary folder beside ``target``, move it into place.
 
-    >>> with AtomicOutputDir("runs/anim", overwrite=False) as tmp:   # doctest: +SKIP
+    >>> with AtomicOutputDir("runs/anim", overwrite=False, command="animate") as tmp:   # doctest: +SKIP
     ...     np.save(tmp / "vertices.npy", verts)
 
     - an existing, non-empty ``target`` raises :class:`FileExistsError` unless ``overwrite=True``;
+    - ``overwrite=True`` replaces only an earlier output of the same ``command``: every folder written here gets a
+      manifest, :data:`MANIFEST` (``.dualtalker-output.json``: the command and the files it wrote), and a folder
+      without one, of another command, or holding any file the manifest does not list is refused with one line
+      (never a folder of the user's files, never a corpus where an animation goes);
+    - ``inputs``, ``(label, path)`` pairs, are what the command reads (checkpoint, recording, corpus): a ``target``
+      that is or holds one is refused, with or without ``overwrite`` (:func:`refuse_inputs`);
+    - ``target`` ``.`` (or ``..``) means that folder by its absolute name; the current folder, or one holding it, is
+      refused (replacing it would pull the folder from under the shell);
     - the parent folder's writability is checked on construction (call it before any long work);
-    - on an exception, Ctrl-C or SIGTERM the temporary folder is removed and ``target`` is left as it was;
+    - on an exception, Ctrl-C or SIGTERM the temporary folder is removed and ``target`` is left as it was; a full
+      disk, a quota, a file-size limit or memory running out becomes one :class:`ResourceError` line naming
+      ``target`` and what to do;
     - on success the old ``target`` (if any) is replaced as a whole: never a mix of old and new files;
     - ``target`` is claimed (:func:`claim`) from construction to the end of the ``with`` block: a concurrent run
       into the same target fails at construction with one line.
     """
 
-    def __init__(self, target: str | os.PathLike, overwrite: bool = False):
-        self.target = Path(target)
+    def __init__(self, target: str | os.PathLike, overwrite: bool = False, command: str = "output",
+                 inputs=()):
+        self.given = Path(target)
+        self.target = output_path(target) if self.given.name in ("", ".", "..") else self.given
         self.overwrite = overwrite
+        self.command = command
+        self.inputs = list(inputs)
         self.claim = claim(self.target)  # a concurrent run into the same target fails here, at once
         try:
             self._check()
@@ -335,10 +603,18 @@ class AtomicOutputDir:
 
     def _check(self) -> None:
         if self.target.exists() and not self.target.is_dir():
-            raise FileExistsError(f"output {self.target} exists and is not a folder")
-        if self.target.is_dir() and any(self.target.iterdir()) and not self.overwrite:
-            raise FileExistsError(f"output folder {self.target} already exists and is not empty; "
-                                  f"pass --overwrite to replace it, or choose another --out")
+            raise FileExistsError(f"output {self.given} exists and is not a folder")
+        here, real = Path(os.getcwd()).resolve(), self.target.resolve()
+        if real == here or real in here.parents:
+            raise ValueError(f"--out {self.given}: is the current folder{'' if real == here else ' (or holds it)'}; "
+                             f"replacing it would pull it from under your shell; name a new folder such as "
+                             f"{self.given / self.command}")
+        refuse_inputs(self.given, self.inputs)
+        if self.target.is_dir() and any(self.target.iterdir()):
+            if not self.overwrite:
+                raise FileExistsError(f"output folder {self.given} already exists and is not empty; "
+                                      f"pass --overwrite to replace it, or choose another --out")
+            self._check_owned()
         parent = self.target.parent
         try:
             parent.mkdir(parents=True, exist_ok=True)
@@ -346,6 +622,29 @@ class AtomicOutputDir:
             raise PermissionError(f"cannot create the output's parent folder {parent}: {e.strerror}") from e
         if not os.access(parent, os.W_OK | os.X_OK):
             raise PermissionError(f"output folder {parent} is not writable")
+
+    def _check_owned(self) -> None:
+        """``overwrite``: the folder must be an earlier output of this command and hold nothing else."""
+        remedy = f"--overwrite replaces only an earlier output of {self.command}; remove it yourself or choose " \
+                 f"another --out"
+        manifest = self.target / MANIFEST
+        if not manifest.is_file():
+            raise FileExistsError(f"--out {self.given}: was not written by dualtalker-lite {self.command} (no "
+                                  f"{MANIFEST} in it); {remedy}")
+        try:
+            record = json.loads(manifest.read_text())
+            command, listed = record["command"], set(record["files"])
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise FileExistsError(f"--out {self.given}: its {MANIFEST} is unreadable ({type(e).__name__}); "
+                                  f"{remedy}") from e
+        if command != self.command:
+            raise FileExistsError(f"--out {self.given}: is the output of dualtalker-lite {command}, not of "
+                                  f"{self.command}; {remedy}")
+        extra = [f for f in _owned_files(self.target) if f != MANIFEST and f not in listed]
+        if extra:
+            more = f" (and {len(extra) - 1} more)" if len(extra) > 1 else ""
+            raise FileExistsError(f"--out {self.given}: holds {extra[0]}{more}, which {self.command} did not write; "
+                                  f"{remedy}")
 
     def __enter__(self) -> Path:
         sweep_stale(self.target)
@@ -356,18 +655,37 @@ class AtomicOutputDir:
     def __exit__(self, exc_type, exc, tb) -> bool:
         try:
             if exc_type is None:
-                self._signals.check()  # a swallowed Ctrl-C/SIGTERM still means: do not publish
-                os.chmod(self.tmp, default_file_mode(executable=True))
-                old = None
-                if self.target.exists():
-                    old = self.target.with_name(f".{self.target.name}.old-{os.getpid()}-{time.time_ns()}")
-                    os.replace(self.target, old)
-                os.replace(self.tmp, self.target)
-                if old is not None:
-                    shutil.rmtree(old, ignore_errors=True)
+                try:
+                    self._publish()
+                except (OSError, MemoryError) as e:
+                    error = resource_error(e, self.given)
+                    if error is None:
+                        raise
+                    raise error from e
+            elif isinstance(exc, (OSError, MemoryError)) and not isinstance(exc, ResourceError):  # not a bug's
+                # RuntimeError: nothing in the block calls torch.save, whose short writes are RuntimeErrors
+                error = resource_error(exc, self.given)
+                if error is not None:
+                    raise error from exc
         finally:
             self._signals.__exit__(None, None, None)
             if self.tmp is not None and self.tmp.exists():
                 shutil.rmtree(self.tmp, ignore_errors=True)
             self.claim.release()
         return False
+
+    def _publish(self) -> None:
+        self._signals.check()  # a swallowed Ctrl-C/SIGTERM still means: do not publish
+        from . import __version__
+
+        record = {"command": self.command, "package_version": __version__, "files": _owned_files(self.tmp)}
+        (self.tmp / MANIFEST).write_text(json.dumps(record, indent=1) + "\n")
+        os.chmod(self.tmp / MANIFEST, default_file_mode())
+        os.chmod(self.tmp, default_file_mode(executable=True))
+        old = None
+        if self.target.exists():
+            old = self.target.with_name(f".{helper_stem(self.target)}.old-{os.getpid()}-{time.time_ns()}")
+            os.replace(self.target, old)
+        os.replace(self.tmp, self.target)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)

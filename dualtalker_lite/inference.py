@@ -17,7 +17,9 @@ writes into ``--out`` (formats chosen with ``--format``, default ``npy,mp4``):
 ==================  ==============================================================================
 
 Safety rules, in order: the output folder is checked first (an existing, non-empty ``--out`` needs
-``--overwrite``; its parent must be writable) so nothing long runs before a trivial failure; the checkpoint
+``--overwrite``, which replaces only an earlier output of ``animate``: a folder with its ``.dualtalker-output.json``
+and no other file; an ``--out`` that is or holds the checkpoint, the recording, the template or the corpus is
+refused; its parent must be writable) so nothing long runs before a trivial failure; the checkpoint
 names the speakers it knows (``--list-speakers``) and the vertex count and topology it was trained on, and a
 mismatching corpus or ``--template`` is refused; the audio is validated (sample rate resampled; stereo,
 empty, NaN, overflowing or truncated files refused); the prediction must be finite; every file is written
@@ -316,7 +318,11 @@ def run(args: argparse.Namespace) -> list[Path]:
         return []
     if not args.wav:
         raise ValueError("--wav is required (the speech recording to animate)")
-    target = AtomicOutputDir(args.out, overwrite=args.overwrite)  # existence + writability, before any work
+    # existence, ownership (--overwrite replaces only an earlier animation), writability, before any work; an --out
+    # that is or holds what this run reads (the checkpoint, the recording, ...) is refused even with --overwrite
+    target = AtomicOutputDir(args.out, overwrite=args.overwrite, command="animate",
+                             inputs=[("checkpoint", args.checkpoint), ("recording", args.wav),
+                                     ("template", args.template), ("corpus", args.corpus or sample_path())])
     device = resolve_device(args.device)
     corpus = None
     if args.corpus or not args.template or not ckpt.get("speakers"):

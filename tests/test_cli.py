@@ -32,7 +32,7 @@ def test_train_evaluate_animate(tmp_path, capsys):
           "--out", str(tmp_path / "anim"), "--no-video"])
     verts = np.load(tmp_path / "anim" / "vertices.npy")
     assert verts.shape == (15, corpus.metadata["n_vertices"] * 3) and np.isfinite(verts).all()
-    assert sorted(p.name for p in (tmp_path / "anim").iterdir()) == ["frame0.obj", "vertices.npy"]  # no mp4
+    assert sorted(p.name for p in (tmp_path / "anim").iterdir()) == [".dualtalker-output.json", "frame0.obj", "vertices.npy"]  # no mp4
     # streamed in blocks of 4 frames (4 blocks, the last partial), the mp4 rendered from the memory-mapped file
     main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK02",
           "--out", str(tmp_path / "anim"), "--overwrite", "--chunk", "4", "--no-progress"])

@@ -289,7 +289,7 @@ def test_animate_writes_npy_gltf_and_html(checkpoint, corpus, tmp_path, capsys):
     out = tmp_path / "me"
     main([str(a) for a in ["--checkpoint", checkpoint, "--wav", wav, "--speaker", "SPK01", "--out", out,
                            "--format", "npy,gltf,html"]])
-    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "animation.html", "animation.wav",
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.glb", "animation.html", "animation.wav",
                                                      "frame0.obj", "vertices.npy"]
     printed = capsys.readouterr().out
     assert "animation.glb:" in printed and "max vertex error" in printed
@@ -302,4 +302,4 @@ def test_animate_writes_npy_gltf_and_html(checkpoint, corpus, tmp_path, capsys):
     assert f'const GLB = "{glb64}"' in (out / "animation.html").read_text()  # the page plays that very file
     only = tmp_path / "page"  # html alone: no .glb or .wav left beside it
     main([str(a) for a in ["--checkpoint", checkpoint, "--wav", wav, "--out", only, "--format", "html"]])
-    assert [p.name for p in only.iterdir()] == ["animation.html"]
+    assert sorted(p.name for p in only.iterdir()) == [".dualtalker-output.json", "animation.html"]

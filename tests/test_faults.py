@@ -80,6 +80,14 @@ def snapshot(root: Path) -> dict:
             for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+def earlier_animation(out: Path) -> Path:
+    """An earlier output of animate, as --overwrite accepts it (issue 32): a file and the manifest naming it."""
+    out.mkdir()
+    (out / "vertices.npy").write_bytes(b"earlier result")
+    (out / ".dualtalker-output.json").write_text('{"command": "animate", "files": ["vertices.npy"]}')
+    return out
+
+
 # ------------------------------------------------------------------------------------------ forged pickles
 def _shared_deep(levels=18, fan=10):
     """One list referenced ``fan`` times at each of ``levels`` levels: ~0.5 kB pickled, 10^18 paths to walk."""
@@ -537,8 +545,7 @@ def test_a_template_in_millimetres_is_refused(ckpt, wav, tmp_path, capsys):
     from dualtalker_lite.inference import read_template
 
     mm = _template_obj(tmp_path / "face_mm.obj", 1000.0)
-    (tmp_path / "o").mkdir()
-    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    earlier_animation(tmp_path / "o")
     before = snapshot(tmp_path)
     refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--template", mm,
                                 "--out", tmp_path / "o", "--overwrite", "--format", "npy"],
@@ -572,8 +579,7 @@ def test_a_speaker_entry_without_rig_parameters_is_refused(ckpt, wav, tmp_path, 
                "name_only": "shape"}[case]
     with pytest.raises(ValueError, match="lacks rig parameters"):
         Corpus(root).template("SPK01")
-    (tmp_path / "o").mkdir()
-    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    earlier_animation(tmp_path / "o")
     before = snapshot(tmp_path / "o")
     refused_in_process(capsys, ["animate", "--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--corpus", root,
                                 "--out", tmp_path / "o", "--overwrite", "--format", "npy"],
@@ -614,8 +620,7 @@ def test_a_truncated_mp3_is_refused(ckpt, tmp_path, capsys):
     raw = whole.read_bytes()
     cut = tmp_path / "cut.mp3"
     cut.write_bytes(raw[:len(raw) // 2])
-    (tmp_path / "o").mkdir()
-    (tmp_path / "o" / "vertices.npy").write_bytes(b"earlier result")
+    earlier_animation(tmp_path / "o")
     before = snapshot(tmp_path / "o")
     proc = cli("animate", "--checkpoint", ckpt, "--wav", cut, "--speaker", "SPK01", "--out", tmp_path / "o",
                "--overwrite", "--format", "npy")  # a real process: mpg123's own warnings on fd 2 must not show
@@ -679,8 +684,8 @@ import sys, time
 from pathlib import Path
 import dualtalker_lite.files as files
 save = files.atomic_torch_save
-def paused(obj, path):
-    out = save(obj, path)
+def paused(obj, path, **kw):
+    out = save(obj, path, **kw)
     if str(path).endswith('.resume'):
         Path(sys.argv[1]).write_text('saved')
         time.sleep(60)
@@ -933,12 +938,12 @@ TRAIN_TINY = ["train", "--model", "voca", "--epochs", "1", "--clips", "2", "--ch
               "--overwrite", "--quiet"]  # quiet: stderr holds the error line alone, no progress line before it
 
 
-def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(tmp_path, capsys, monkeypatch):
+def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(ckpt, tmp_path, capsys, monkeypatch):
     """Was: a raw RuntimeError and the trained model lost. Now: the old checkpoint is byte-identical, no temporary
     is left, the trained model is in the fallback folder (loadable), and one line says where; exit 2."""
     out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
     out_dir.mkdir()
-    (out_dir / "m.pt").write_bytes(b"the old checkpoint")
+    shutil.copy(ckpt, out_dir / "m.pt")  # the old checkpoint (--overwrite replaces only a checkpoint, issue 32)
     monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
     _failing_save(monkeypatch, {out_dir})
     before = snapshot(out_dir)
@@ -950,10 +955,10 @@ def test_a_full_disk_while_saving_the_model_saves_it_to_the_fallback(tmp_path, c
     assert ckpt["model_class"] and [p.name for p in rescue.iterdir()] == ["m.pt"]
 
 
-def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(ckpt, tmp_path, capsys, monkeypatch):
     out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
     out_dir.mkdir()
-    (out_dir / "m.pt").write_bytes(b"the old checkpoint")
+    shutil.copy(ckpt, out_dir / "m.pt")
     monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
     _failing_save(monkeypatch, {out_dir, rescue})
     before = snapshot(out_dir)
@@ -962,7 +967,7 @@ def test_a_full_disk_everywhere_is_one_line_and_leaves_nothing(tmp_path, capsys,
     assert snapshot(out_dir) == before and list(rescue.iterdir()) == []
 
 
-def test_too_little_free_space_is_refused_before_training(tmp_path, capsys, monkeypatch):
+def test_too_little_free_space_is_refused_before_training(ckpt, tmp_path, capsys, monkeypatch):
     """Free space is checked before training (about 4x the weights with periodic states), not discovered after."""
     import collections
 
@@ -972,7 +977,7 @@ def test_too_little_free_space_is_refused_before_training(tmp_path, capsys, monk
     usage = collections.namedtuple("usage", "total used free")
     monkeypatch.setattr(files.shutil, "disk_usage", lambda p: usage(10 ** 9, 10 ** 9 - 500_000, 500_000))
     monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained despite the full disk"))
-    (tmp_path / "m.pt").write_bytes(b"the old checkpoint")
+    shutil.copy(ckpt, tmp_path / "m.pt")
     before = snapshot(tmp_path)
     refused_in_process(capsys, TRAIN_TINY + ["--out", tmp_path / "m.pt"], tmp_path / "m.pt", "only 0.5 MB free",
                        "the checkpoint (and its resume state) needs about")
@@ -1507,3 +1512,397 @@ def test_a_full_disk_while_writing_a_cache_entry_is_one_warning(phonetic, tmp_pa
     assert len(lines) == 1 and lines[0].startswith(f"warning: recogniser cache {cache}: unusable (No space left") \
         and "DUALTALKER_CACHE" in lines[0], lines
     assert not list(cache.rglob("*.tmp")) and not _cache_entries(cache) and rec.cache is False
+
+
+# ------------------------------------------------ --overwrite replaces only an output of the same command (issue 32)
+def _animate_argv(ckpt, wav, out, *extra) -> list:
+    return ["animate", "--checkpoint", ckpt, "--wav", wav, "--out", out, "--format", "npy", *extra]
+
+
+@pytest.mark.parametrize("case", ["checkpoint", "recording", "symlink"])
+def test_animate_overwrite_never_replaces_its_own_inputs(ckpt, wav, tmp_path, capsys, case):
+    """Was: `animate --out proj --overwrite`, proj/ holding the checkpoint and the recording, exited 0 and left only
+    vertices.npy and frame0.obj: the model and the recording were gone. Now an --out that is or holds an input is
+    refused (resolved paths: also through a symbolic link), with or without --overwrite."""
+    proj = tmp_path / "proj"
+    proj.mkdir()
+    model, rec, out = ckpt, wav, proj
+    if case in ("checkpoint", "symlink"):
+        model = proj / "model.pt"
+        shutil.copy(ckpt, model)
+    if case in ("recording", "symlink"):
+        rec = proj / "me.wav"
+        shutil.copy(wav, rec)
+    if case == "symlink":  # the same folder by another name
+        out = tmp_path / "link"
+        out.symlink_to(proj)
+    label, path = ("recording", rec) if case == "recording" else ("checkpoint", model)
+    before = snapshot(tmp_path)
+    for extra in (["--overwrite"], []):
+        refused_in_process(capsys, _animate_argv(model, rec, out, *extra), f"--out {out}: holds the {label} {path} that "
+                           f"this run reads", "choose another --out")
+        assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("case", ["unrelated", "extra_file", "other_command", "bad_manifest"])
+def test_animate_overwrite_replaces_only_an_earlier_animation(ckpt, wav, tmp_path, capsys, case):
+    """Was: a folder of unrelated files replaced by the animation. Now --overwrite replaces only a folder that
+    animate wrote (its .dualtalker-output.json) holding nothing that animate did not write; an earlier animation is
+    still replaced (exit 0)."""
+    from dualtalker_lite.cli import main
+
+    out = tmp_path / "anim"
+    if case == "extra_file":
+        assert main(_animate_argv(ckpt, wav, out)) == 0
+        (out / "notes.txt").write_text("mine")
+        fragment = "holds notes.txt, which animate did not write"
+    else:
+        (out / "data").mkdir(parents=True)
+        (out / "thesis.tex").write_text("mine")
+        (out / "data" / "x.csv").write_text("1,2")
+        fragment = "was not written by dualtalker-lite animate (no .dualtalker-output.json in it)"
+        if case == "other_command":
+            (out / ".dualtalker-output.json").write_text('{"command": "generate", "files": ["thesis.tex"]}')
+            fragment = "is the output of dualtalker-lite generate, not of animate"
+        if case == "bad_manifest":
+            (out / ".dualtalker-output.json").write_text('{"command": "animate", "fil')
+            fragment = "its .dualtalker-output.json is unreadable"
+    capsys.readouterr()
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, _animate_argv(ckpt, wav, out, "--overwrite"), f"--out {out}: ", fragment,
+                       "--overwrite replaces only an earlier output of animate")
+    assert snapshot(tmp_path) == before
+    if case == "extra_file":  # without the stranger, the earlier animation is replaced as before
+        (out / "notes.txt").unlink()
+        assert main(_animate_argv(ckpt, wav, out, "--overwrite", "--format", "gltf")) == 0
+        assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.glb", "animation.wav"]
+
+
+def _no_training(monkeypatch):
+    import dualtalker_lite.train as train_module
+
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained before refusing"))
+
+
+@pytest.mark.parametrize("case", ["corpus_metadata", "corpus_by_symlink", "not_a_checkpoint", "not_a_state"])
+def test_train_overwrite_replaces_only_a_checkpoint_never_its_corpus(tmp_path, capsys, monkeypatch, case):
+    """Was: `train --out <its corpus>/metadata.json --overwrite` destroyed the training corpus (any file was
+    replaced). Now --out inside the corpus being read is refused, and --overwrite replaces only a checkpoint (a
+    torch archive with model_class and state_dict) and only a training state as <out>.resume; before training."""
+    corpus = corpus_copy(tmp_path)
+    out = corpus / "metadata.json"
+    fragment = f"--out {out}: is a file of the corpus {corpus} that this run trains on"
+    if case == "corpus_by_symlink":
+        (tmp_path / "elsewhere").symlink_to(corpus)
+        out = tmp_path / "elsewhere" / "metadata.json"
+        fragment = f"--out {out}: is a file of the corpus {corpus}"
+    if case == "not_a_checkpoint":
+        out = tmp_path / "notes.pt"
+        out.write_text("my notes")
+        fragment = f"--out {out}: is not a dualtalker-lite checkpoint; --overwrite replaces only a checkpoint"
+    if case == "not_a_state":
+        out = tmp_path / "m.pt"
+        (tmp_path / "m.pt.resume").write_text("my notes")
+        fragment = f"{out}.resume: is not a training state of dualtalker-lite train"
+    _no_training(monkeypatch)
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, TRAIN_TINY + ["--corpus", corpus, "--out", out, "--checkpoint-every", "1"], fragment)
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("case", ["same", "hard_link", "symlink", "not_an_npz"])
+def test_convert_templates_never_replaces_its_source(tmp_path, case):
+    """Was: `convert-templates X.pkl --out X.pkl --overwrite` replaced its own source. Now the source (by resolved
+    path or samefile) is never the output, and --overwrite replaces only an .npz of arrays (a real process)."""
+    root = _ff_root(tmp_path / "vocaset")
+    pkl = root / "templates.pkl"
+    out = {"same": pkl, "hard_link": root / "copy.pkl", "symlink": root / "link.pkl",
+           "not_an_npz": root / "notes.npz"}[case]
+    if case == "hard_link":
+        os.link(pkl, out)
+    if case == "symlink":
+        out.symlink_to(pkl)
+    if case == "not_an_npz":
+        out.write_text("my notes")
+    fragment = (f"--out {out}: is not a .npz archive of arrays" if case == "not_an_npz" else
+                f"--out {out}: is the source file {pkl} that this run reads")
+    before = snapshot(tmp_path)
+    refused(cli("convert-templates", pkl, "--out", out, "--overwrite"), fragment)
+    assert snapshot(tmp_path) == before
+
+
+def test_prepare_dataset_overwrite_rebuilds_only_its_own_metadata(tmp_path, capsys):
+    root = _ff_root(tmp_path / "vocaset")
+    (root / "metadata.json").write_text('{"clips": {}, "note": "a corpus of generate copied here"}')
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, ["prepare-dataset", root, "--preset", "vocaset", "--overwrite"],
+                       f"{root / 'metadata.json'}: was not written by dualtalker-lite prepare-dataset")
+    assert snapshot(tmp_path) == before
+
+
+def test_evaluate_json_overwrite_replaces_only_a_metrics_file(ckpt, tmp_path, capsys):
+    (tmp_path / "m.json").write_text('{"mine": 1}')
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, ["evaluate", "--checkpoint", ckpt, "--json", tmp_path / "m.json", "--overwrite"],
+                       f"--json {tmp_path / 'm.json'}: is not a metrics file of dualtalker-lite evaluate")
+    assert snapshot(tmp_path) == before
+
+
+# --------------------------------------------- resource errors name their file and what to do (issue 32 item 4)
+def _resource_failing_save(monkeypatch, fail_in: set, error):
+    """torch.save writes half a file in the folders ``fail_in``, then raises ``error()``; elsewhere it saves."""
+    real = torch.save
+
+    def save(obj, f, *a, **kw):
+        if isinstance(f, (str, os.PathLike)) and Path(f).parent in fail_in:
+            Path(f).write_bytes(b"PK\x03\x04 half a checkpoint")
+            raise error()
+        return real(obj, f, *a, **kw)
+    monkeypatch.setattr(torch, "save", save)
+
+
+RESOURCE_CASES = {
+    "disk_full": (lambda: OSError(28, "No space left on device"), "No space left on device", "free some space"),
+    "quota": (lambda: OSError(122, "Disk quota exceeded"), "Disk quota exceeded", "your disk quota is used up"),
+    "too_large": (lambda: OSError(27, "File too large"), "File too large",
+                  "the file-size limit of this process (ulimit -f) is too small for it"),
+    "memory": (MemoryError, "out of memory", "close other programs"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(RESOURCE_CASES))
+def test_a_resource_error_while_saving_the_model_keeps_it(ckpt, tmp_path, capsys, monkeypatch, case):
+    """Was: only errors whose text held 'write' were recognised: a quota, a file-size limit or memory running out
+    during the save was a traceback and the trained model lost. Now each is one line naming --out, the cause and
+    what to do, the old checkpoint is byte-identical and the model is rescued (loadable)."""
+    error, why, advice = RESOURCE_CASES[case]
+    out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
+    out_dir.mkdir()
+    shutil.copy(ckpt, out_dir / "m.pt")
+    monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
+    _resource_failing_save(monkeypatch, {out_dir}, error)
+    before = snapshot(out_dir)
+    refused_in_process(capsys, TRAIN_TINY + ["--out", out_dir / "m.pt"], f"error: {out_dir / 'm.pt'}: could not be "
+                       f"written ({why}", "it is unchanged", f"saved to {rescue / 'm.pt'} instead")
+    assert snapshot(out_dir) == before
+    load_checkpoint(rescue / "m.pt")
+    _resource_failing_save(monkeypatch, {out_dir, rescue}, error)  # the fallback fails too: one line, lost
+    refused_in_process(capsys, TRAIN_TINY + ["--out", out_dir / "m.pt"], f"{out_dir / 'm.pt'}: could not be written "
+                       f"({why}), nor the fallback {rescue / 'm-2.pt'}; the result is lost; {advice}")
+    assert snapshot(out_dir) == before and [p.name for p in rescue.iterdir()] == ["m.pt"]
+
+
+def test_a_second_rescue_never_replaces_the_first(ckpt, tmp_path, capsys, monkeypatch):
+    """Was: a second full-disk rescue of a model with the same --out name silently replaced the first rescued model.
+    Now each rescue takes a new name (m.pt, m-2.pt, ...) and the first is byte-identical."""
+    out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
+    out_dir.mkdir()
+    monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
+    _failing_save(monkeypatch, {out_dir})
+    refused_in_process(capsys, TRAIN_TINY + ["--out", out_dir / "m.pt"], f"saved to {rescue / 'm.pt'} instead")
+    first = snapshot(rescue)
+    refused_in_process(capsys, TRAIN_TINY + ["--out", out_dir / "m.pt", "--seed", "1"],
+                       f"saved to {rescue / 'm-2.pt'} instead")
+    assert {k: v for k, v in snapshot(rescue).items() if k == "m.pt"} == first
+    assert sorted(p.name for p in rescue.iterdir()) == ["m-2.pt", "m.pt"] and list(out_dir.iterdir()) == []
+    a, b = (load_checkpoint(rescue / n)[1]["state_dict"] for n in ("m.pt", "m-2.pt"))
+    assert any(not torch.equal(a[k], b[k]) for k in a)  # two different models, both kept
+
+
+def _file_size_limit(limit: int):
+    def preexec():
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return preexec
+
+
+def test_a_file_size_limit_during_the_save_keeps_the_model_in_parts(ckpt, tmp_path):
+    """Was: under `ulimit -f`, torch's 'inline_container ... unexpected pos' RuntimeError was a traceback (no
+    'write' in it) and the model lost. Now (a real process under RLIMIT_FSIZE): one line naming --out and the limit,
+    the old checkpoint byte-identical, and the model saved to the fallback in parts of the allowed size, which the
+    command in the line joins into a loadable checkpoint."""
+    out_dir, rescue, limit = tmp_path / "out", tmp_path / "rescue", 100_000
+    out_dir.mkdir()
+    shutil.copy(ckpt, out_dir / "m.pt")
+    before = snapshot(out_dir)
+    env = {**_env(), "DUALTALKER_FALLBACK": str(rescue), "PYTHONDONTWRITEBYTECODE": "1"}
+    proc = subprocess.run([sys.executable, "-m", "dualtalker_lite.cli", *map(str, TRAIN_TINY), "--out",
+                           out_dir / "m.pt"], capture_output=True, text=True, env=env, cwd=REPO, timeout=120,
+                          preexec_fn=_file_size_limit(limit))
+    line = refused(proc, f"{out_dir / 'm.pt'}: could not be written (File too large: the file-size limit (ulimit -f) "
+                         f"is {limit} bytes); it is unchanged", f"saved to {rescue / 'm.pt'} in ", "parts instead")
+    assert snapshot(out_dir) == before
+    parts = sorted(rescue.iterdir(), key=lambda p: (len(p.name), p.name))
+    assert len(parts) >= 2 and all(p.stat().st_size <= limit for p in parts) and f"> {out_dir / 'm.pt'}" in line
+    joined = tmp_path / "joined.pt"
+    joined.write_bytes(b"".join(p.read_bytes() for p in parts))
+    assert load_checkpoint(joined)[1]["model_class"] == "VocaStyle"
+
+
+def test_a_file_size_limit_while_animating_names_out_and_keeps_it(ckpt, wav, tmp_path):
+    """The same limit while animate writes its vertices (a real process): one line naming --out, the cause and what
+    to do; an earlier animation in --out is byte-identical and no temporary is left."""
+    from dualtalker_lite.cli import main
+
+    out = tmp_path / "anim"
+    main([str(a) for a in _animate_argv(ckpt, wav, out)])
+    before = snapshot(tmp_path)
+    env = {**_env(), "PYTHONDONTWRITEBYTECODE": "1"}
+    proc = subprocess.run([sys.executable, "-m", "dualtalker_lite.cli", *map(str, _animate_argv(ckpt, wav, out)),
+                           "--overwrite"], capture_output=True, text=True, env=env, cwd=REPO, timeout=120,
+                          preexec_fn=_file_size_limit(50_000))
+    refused(proc, f"error: {out}: could not be written (File too large", "it is unchanged", "ulimit -f")
+    assert snapshot(tmp_path) == before
+
+
+def test_a_full_disk_while_animating_names_out(ckpt, wav, tmp_path, capsys, monkeypatch):
+    """numpy reports a short write as OSError('... requested and ... written') without an errno: still one line
+    naming --out and what to do (a full disk: the file-size limit is unlimited here)."""
+    import dualtalker_lite.inference as inference
+
+    def full(path, *a, **k):
+        Path(path).write_bytes(b"\x93NUMPY half")
+        raise OSError("280416 requested and 2484 written")
+    monkeypatch.setattr(inference, "write_npy_stream", full)
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, _animate_argv(ckpt, wav, tmp_path / "anim"), f"error: {tmp_path / 'anim'}: could not be "
+                       f"written (280416 requested and 2484 written)", "free some space")
+    assert snapshot(tmp_path) == before
+
+    def missing(path, *a, **k):  # an OSError that is no resource error keeps its own line
+        raise FileNotFoundError("vendored three.js file missing: x.js (restore it with `make vendor-three`)")
+    monkeypatch.setattr(inference, "write_npy_stream", missing)
+    line = refused_in_process(capsys, _animate_argv(ckpt, wav, tmp_path / "anim"), "error: vendored three.js file missing")
+    assert "could not be written" not in line and snapshot(tmp_path) == before
+
+
+def test_memory_running_out_is_one_line(ckpt, wav, tmp_path, capsys, monkeypatch):
+    """A MemoryError anywhere else in a command: one line and what to do, exit 2 (was: a traceback, exit 1)."""
+    import dualtalker_lite.inference as inference
+
+    def no_memory(*a, **k):
+        raise MemoryError()
+    monkeypatch.setattr(inference, "predict_chunks", no_memory)
+    refused_in_process(capsys, _animate_argv(ckpt, wav, tmp_path / "anim"), "error: out of memory (MemoryError); close "
+                       "other programs")
+    assert list(tmp_path.iterdir()) == []
+
+    def cache_full(*a, **k):  # a resource error the system raises elsewhere (e.g. the recogniser's cache)
+        raise OSError(122, "Disk quota exceeded", str(tmp_path / "cache" / "x.npy"))
+    monkeypatch.setattr(inference, "predict_chunks", cache_full)
+    refused_in_process(capsys, _animate_argv(ckpt, wav, tmp_path / "anim"), f"error: {tmp_path / 'cache' / 'x.npy'}: Disk "
+                       f"quota exceeded; your disk quota is used up: remove some of your files or choose another place")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["train", "animate"])
+def test_a_read_only_out_is_reported_by_its_own_name(ckpt, wav, tmp_path, capsys, monkeypatch, command):
+    """Was: `[Errno 13] Permission denied: '<folder>/.m.pt.lock'`, a file the user never named. Now the line names
+    --out and its folder. (Tests run as root, whom permissions do not stop: opening the lock fails by hand.)"""
+    real_open = os.open
+
+    def read_only(path, *a, **k):
+        if str(path).endswith(".lock"):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *a, **k)
+    monkeypatch.setattr(os, "open", read_only)
+    out = tmp_path / "ro" / ("m.pt" if command == "train" else "anim")
+    (tmp_path / "ro").mkdir()
+    argv = TRAIN_TINY + ["--out", out] if command == "train" else _animate_argv(ckpt, wav, out)
+    line = refused_in_process(capsys, argv, f"error: {out}: cannot write in its folder {tmp_path / 'ro'} "
+                              f"(Permission denied); choose a writable place")
+    assert ".lock" not in line and list((tmp_path / "ro").iterdir()) == []
+
+
+def test_a_240_character_out_is_written(ckpt, wav, tmp_path, capsys):
+    """Was: a legal 240-character --out refused with `File name too long`, for the lock and temporary names the
+    command adds. Now helper names of long outputs are shortened with a hash: train (with its periodic state,
+    <out>.resume, 247 characters), animate (twice: --overwrite's old-folder name) and convert-templates succeed and
+    leave nothing else."""
+    from dualtalker_lite.cli import main
+
+    name = "x" * 237 + ".pt"
+    assert len(name) == 240
+    assert main(TRAIN_TINY[:-1] + ["--epochs", "2", "--checkpoint-every", "1", "--out", tmp_path / name]) == 0
+    load_checkpoint(tmp_path / name)
+    anim = tmp_path / ("a" * 240)
+    assert main(_animate_argv(ckpt, wav, anim)) == 0 and main(_animate_argv(ckpt, wav, anim, "--overwrite")) == 0
+    root = _ff_root(tmp_path / "vocaset")
+    npz = root / ("t" * 236 + ".npz")
+    assert main(["convert-templates", root / "templates.pkl", "--out", npz]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, anim.name, "vocaset"])
+    assert [p.name for p in root.iterdir() if p.name.startswith(".")] == []
+    longest = tmp_path / ("y" * 251 + ".pt")  # legal, but <out>.resume would not be: one line, before training
+    refused_in_process(capsys, TRAIN_TINY + ["--checkpoint-every", "1", "--out", longest], "a name of 254 bytes "
+                       "leaves no room for its periodic state", "shorten it or pass --checkpoint-every 0")
+    assert not longest.exists()
+
+
+def test_out_dot_is_the_current_folder(ckpt, wav, tmp_path, capsys, monkeypatch):
+    """Was: `PosixPath('.') has an empty name`. Now `.` is the folder it names: animate refuses to replace the
+    current folder (or one holding it), train and convert-templates say it is a folder, all naming what to do."""
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, _animate_argv(ckpt, wav, "."), "--out .: is the current folder; replacing it would pull "
+                       "it from under your shell; name a new folder such as animate")
+    refused_in_process(capsys, _animate_argv(ckpt, wav, "..", "--overwrite"), "--out ..: is the current folder (or holds "
+                       "it)")
+    refused_in_process(capsys, TRAIN_TINY + ["--out", "."], "--out .: is a folder; name the checkpoint file to write "
+                       "(e.g. model.pt)")
+    root = _ff_root(tmp_path / "vocaset")
+    before = snapshot(tmp_path)
+    refused_in_process(capsys, ["convert-templates", root / "templates.pkl", "--out", "."], "--out .: is a folder")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("case", ["extra_file", "sentences_inside", "no_manifest"])
+def test_generate_overwrite_replaces_only_a_corpus_it_wrote(small_corpus, tmp_path, case):
+    """generate --overwrite replaces only a corpus that generate wrote (its manifest lists every file): not one
+    with a file added by hand, not one holding the --sentences-file being read, not a corpus without the manifest
+    (written by hand or by an older version: remove it yourself). Refused before any synthesis (a real process)."""
+    corpus = tmp_path / "c"
+    shutil.copytree(small_corpus, corpus, symlinks=True)
+    sentences = small_corpus.parent / "s.txt"
+    fragment = f"--out {corpus}: holds notes.txt, which generate did not write"
+    if case == "extra_file":
+        (corpus / "notes.txt").write_text("mine")
+    if case == "sentences_inside":
+        sentences = corpus / "s.txt"
+        shutil.copy(small_corpus.parent / "s.txt", sentences)
+        fragment = f"--out {corpus}: holds the sentences file {sentences} that this run reads"
+    if case == "no_manifest":
+        (corpus / ".dualtalker-output.json").unlink()
+        fragment = f"--out {corpus}: was not written by dualtalker-lite generate (no .dualtalker-output.json in it)"
+    before = snapshot(tmp_path)
+    refused(cli("generate", "--out", corpus, "--sentences-file", sentences, "--overwrite", *SMALL), fragment)
+    assert snapshot(tmp_path) == before
+
+
+def test_a_full_disk_at_a_periodic_state_save_keeps_the_state(tmp_path, capsys, monkeypatch):
+    """train's periodic state (<out>.resume) is rescued like the checkpoint: the run stops with one line naming the
+    state and where it went, and moved back, the rescued state continues the run with --resume."""
+    out_dir, rescue = tmp_path / "out", tmp_path / "rescue"
+    out_dir.mkdir()
+    monkeypatch.setenv("DUALTALKER_FALLBACK", str(rescue))
+    real = torch.save
+
+    def save(obj, f, *a, **kw):
+        if isinstance(f, (str, os.PathLike)) and Path(f).parent == out_dir and ".resume." in Path(f).name:
+            Path(f).write_bytes(b"PK\x03\x04 half a state")
+            raise OSError(122, "Disk quota exceeded")
+        return real(obj, f, *a, **kw)
+    monkeypatch.setattr(torch, "save", save)
+    argv = ["train", "--model", "voca", "--epochs", "2", "--clips", "2", "--checkpoint-every", "1",
+            "--out", out_dir / "m.pt"]
+    refused_in_process(capsys, argv, f"{out_dir / 'm.pt.resume'}: could not be written (Disk quota exceeded); it is "
+                       f"unchanged, and the result was saved to {rescue / 'm.pt.resume'} instead")
+    assert list(out_dir.iterdir()) == []
+    monkeypatch.setattr(torch, "save", real)
+    shutil.move(rescue / "m.pt.resume", out_dir / "m.pt.resume")
+    from dualtalker_lite.cli import main
+
+    assert main([str(a) for a in argv + ["--resume"]]) == 0
+    assert sorted(p.name for p in out_dir.iterdir()) == ["m.pt"]

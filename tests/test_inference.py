@@ -142,7 +142,7 @@ def test_obj_sequence_and_animated_glb(setup, ckpt, wav, tmp_path):
     out = tmp_path / "anim"
     main(["--checkpoint", ckpt, "--wav", wav, "--speaker", "SPK01", "--out", out, "--format", "obj,glb,mp4",
           "--no-video"])
-    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "animation.wav", "obj"]
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.glb", "animation.wav", "obj"]
     objs = sorted((out / "obj").iterdir())
     assert len(objs) == 30 and objs[0].name == "frame_00000.obj"
     mesh = trimesh.load(objs[4], process=False, force="mesh")
@@ -161,10 +161,11 @@ def test_obj_sequence_and_animated_glb(setup, ckpt, wav, tmp_path):
 
 def test_overwrite_replaces_the_whole_folder(ckpt, wav, tmp_path, capsys):
     out = tmp_path / "anim"
-    out.mkdir()
-    (out / "animation.mp4").write_bytes(b"old video")
+    main(["--checkpoint", ckpt, "--wav", wav, "--out", out, "--format", "gltf"])  # an earlier animation
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.glb", "animation.wav"]
     main(["--checkpoint", ckpt, "--wav", wav, "--out", out, "--format", "npy", "--overwrite"])
-    assert sorted(p.name for p in out.iterdir()) == ["frame0.obj", "vertices.npy"]  # no stale video
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "frame0.obj", "vertices.npy"]
+    assert json.loads((out / ".dualtalker-output.json").read_text())["files"] == ["frame0.obj", "vertices.npy"]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
@@ -460,7 +461,7 @@ def test_streamed_cli_output_equals_the_uncached_reference(setup, moving_ckpt, w
 def test_vertices_npy_is_not_left_when_not_asked_for(moving_ckpt, wav, tmp_path):
     out = tmp_path / "anim"
     main(["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--format", "glb", "--chunk", "8"])
-    assert sorted(p.name for p in out.iterdir()) == ["animation.glb", "animation.wav"]
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.glb", "animation.wav"]
 
 
 def test_failure_in_a_later_block_leaves_nothing_behind(setup, moving_ckpt, wav, tmp_path, capsys, monkeypatch):
@@ -478,11 +479,12 @@ def test_failure_in_a_later_block_leaves_nothing_behind(setup, moving_ckpt, wav,
                   "model output contains NaN/infinite values (first at frame 14)", "nothing was written")
     assert "Traceback" not in line
     _nothing_written(tmp_path, out)
-    out.mkdir()
+    out.mkdir()  # an earlier animation (with the manifest --overwrite asks for, issue 32)
     (out / "animation.mp4").write_bytes(b"old video")
+    (out / ".dualtalker-output.json").write_text('{"command": "animate", "files": ["animation.mp4"]}')
     _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7", "--overwrite"],
            "first at frame 14")
-    assert sorted(p.name for p in out.iterdir()) == ["animation.mp4"]
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.mp4"]
     assert (out / "animation.mp4").read_bytes() == b"old video"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 

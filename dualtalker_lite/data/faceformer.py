@@ -270,15 +270,36 @@ def safe_load_pickle(path: str | os.PathLike):
     return _check_plain(obj, str(path), unpickler._array_cls)
 
 
+def _is_npz_of_arrays(path: Path) -> bool:
+    """Whether ``path`` is a zip archive of ``.npy`` members only (what ``np.savez`` writes): the one kind of file
+    ``convert-templates --overwrite`` may replace."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return False
+    return bool(names) and all(n.endswith(".npy") for n in names)
+
+
 def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = None, overwrite: bool = False) -> Path:
     """FaceFormer's ``templates.pkl`` ({subject: (V, 3)}) -> ``templates.npz`` (float32 (V*3,) per subject)."""
     from ..checks import check_finite, check_name
     from ..files import default_file_mode
 
+    from ..files import refuse_inputs, temporary_prefix
+
     pkl = Path(pkl)
     out = Path(out) if out is not None else pkl.with_suffix(".npz")
+    if out.is_dir() or out.name in ("", ".", ".."):
+        raise IsADirectoryError(f"--out {out}: is a folder; name the .npz file to write")
+    refuse_inputs(out, [("source file", pkl)])  # never the pickle being converted, even with --overwrite
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    if out.exists() and not _is_npz_of_arrays(out):
+        raise FileExistsError(f"--out {out}: is not a .npz archive of arrays (as convert-templates writes); "
+                              f"--overwrite replaces only that; remove it yourself or choose another --out")
     obj = safe_load_pickle(pkl)
     if not isinstance(obj, dict) or not obj:
         raise ValueError(f"{pkl}: expected a non-empty dict {{subject: (V, 3) array}}, found {type(obj).__name__}")
@@ -295,7 +316,7 @@ def convert_templates(pkl: str | os.PathLike, out: str | os.PathLike | None = No
     sizes = {a.size for a in arrays.values()}
     if len(sizes) > 1:
         raise ValueError(f"{pkl}: templates have different vertex counts {sorted(s // 3 for s in sizes)}")
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp.npz")
+    tmp = out.with_name(f"{temporary_prefix(out)}tmp.npz")  # short enough beside a long name (helper_stem)
     try:
         np.savez(tmp, **arrays)
         os.chmod(tmp, default_file_mode())
@@ -388,6 +409,16 @@ def read_index_file(path: str | os.PathLike, n_vertices: int) -> np.ndarray:
     return idx
 
 
+def _prepared_here(meta_path: Path) -> bool:
+    """Whether ``meta_path`` is a ``metadata.json`` that :func:`prepare_dataset` wrote (``"format": "faceformer"``),
+    the only one ``--overwrite`` rebuilds: a corpus of ``generate`` copied here is never replaced."""
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == "faceformer"
+
+
 def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = False) -> dict:
     """Write ``metadata.json``, ``templates.npz``, ``regions.json`` and ``faces.npy`` into a FaceFormer folder.
 
@@ -412,6 +443,9 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
     with claim(meta_path):
         if meta_path.exists() and not overwrite:
             raise FileExistsError(f"{meta_path} already exists; pass --overwrite to rebuild it")
+        if meta_path.exists() and not _prepared_here(meta_path):
+            raise FileExistsError(f"{meta_path}: was not written by dualtalker-lite prepare-dataset (no \"format\": "
+                                  f"\"faceformer\"); --overwrite rebuilds only that; move it away yourself first")
         sweep_stale(meta_path)
         tmp = Path(tempfile.mkdtemp(dir=root, prefix=temporary_prefix(meta_path), suffix=".tmp"))
         try:

@@ -25,8 +25,9 @@ speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence
 
 Output. The corpus is built in a hidden temporary folder beside ``--out`` and moved into place when complete
 (:class:`~dualtalker_lite.files.AtomicOutputDir`): a failure, Ctrl-C or kill leaves an existing corpus untouched. An
-existing non-empty ``--out`` is refused unless ``--overwrite`` is given, and even then only a corpus (a folder with
-``metadata.json``) is replaced; the shipped ``data_samples/`` (and any folder holding it) is never a target
+existing non-empty ``--out`` is refused unless ``--overwrite`` is given, and even then only a corpus that ``generate``
+wrote is replaced (a folder with ``metadata.json`` and the ``.dualtalker-output.json`` that lists every file in it:
+a folder holding anything else, or the ``--sentences-file`` being read, is refused); the shipped ``data_samples/`` (and any folder holding it) is never a target
 (``make sample`` regenerates it).
 """
 from __future__ import annotations
@@ -263,7 +264,7 @@ def _pairs(clips: dict) -> dict[str, dict[str, str]]:
     return {k: dict(sorted(v.items())) for k, v in sorted(groups.items()) if len(v) > 1}
 
 
-def claim_output(out: str | Path, overwrite: bool = False):
+def claim_output(out: str | Path, overwrite: bool = False, sentences_file: str | None = None):
     """The :class:`~dualtalker_lite.files.AtomicOutputDir` a corpus is built in, after the checks of the module
     docstring (never the shipped sample, an existing folder only with ``overwrite`` and only if it is a corpus)."""
     from ..files import AtomicOutputDir
@@ -279,7 +280,9 @@ def claim_output(out: str | Path, overwrite: bool = False):
     if overwrite and out.is_dir() and any(out.iterdir()) and not (out / "metadata.json").is_file():
         raise ValueError(f"--out {out}: is not a corpus (no metadata.json); --overwrite replaces only a corpus, "
                          f"choose an empty or new folder")
-    return AtomicOutputDir(out, overwrite=overwrite)
+    # --overwrite replaces only a corpus generate wrote (its .dualtalker-output.json lists every file), never one
+    # holding the sentences file this run reads
+    return AtomicOutputDir(out, overwrite=overwrite, command="generate", inputs=[("sentences file", sentences_file)])
 
 
 def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progress: bool | str = True,
@@ -312,7 +315,7 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
         if unknown:
             raise ValueError(f"only: clips not in this corpus: {unknown[:5]}")
         plans = [p for p in plans if p.name in set(only)]
-    target = claim_output(out, overwrite)  # before any long work
+    target = claim_output(out, overwrite, sentences_file)  # before any long work
     requests = [(" ".join(texts[i] for i in p.sentences), emotional_prosody(voices[p.subject], p.emotion, p.level))
                 for p in plans]
     utterances = synthesize_many(requests, processes=processes, progress=progress)
