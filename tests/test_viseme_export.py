@@ -203,3 +203,26 @@ def test_visemes_is_listed_in_help_and_unknown_formats_name_it(tmp_path):
     proc = _run("animate", "--checkpoint", tmp_path / "none.pt", "--wav", CLIP.with_suffix(".flac"),
                 "--out", tmp_path / "o", "--format", "viseme")
     assert proc.returncode == 2 and "unknown format(s) ['viseme']" in proc.stderr and "visemes" in proc.stderr
+
+
+def test_without_the_recogniser_visemes_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    import dualtalker_lite.recogniser as recogniser
+    from dualtalker_lite.inference import main
+
+    def missing():
+        raise ImportError("the phoneme recogniser front-end needs the optional package hama (pip install hama)")
+
+    monkeypatch.setattr(recogniser, "_import_hama", missing)
+    with pytest.raises(SystemExit) as e:     # the checkpoint does not even exist: refused before it is read
+        main(["--checkpoint", str(tmp_path / "none.pt"), "--wav", str(CLIP.with_suffix(".flac")),
+              "--out", str(tmp_path / "o"), "--format", "npy,visemes"])
+    assert e.value.code == 2
+    line = capsys.readouterr().err.strip().splitlines()[0]
+    assert line.startswith("error: --format visemes: the viseme timing comes from the phoneme recogniser") and \
+        "pip install hama" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_no_segments_is_silence():
+    w = viseme_weights([], 5)
+    assert np.array_equal(w[:, 0], np.ones(5, np.float32)) and not w[:, 1:].any()

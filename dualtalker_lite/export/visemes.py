@@ -144,7 +144,10 @@ def check_available() -> None:
     """Raise ImportError (one line: how to install it) unless the phoneme recogniser (hama) can be imported."""
     from ..recogniser import _import_hama
 
-    _import_hama()
+    try:
+        _import_hama()
+    except ImportError as e:
+        raise ImportError(f"--format visemes: the viseme timing comes from the phoneme recogniser; {e}") from e
 
 
 def recognised_segments(wave, n_frames: int, fps: float = 30.0, extractor=None) -> tuple[list, dict]:
