@@ -159,7 +159,7 @@ def _run(*argv, env=None):
     return subprocess.run([str(SCRIPT), *map(str, argv)], capture_output=True, text=True, env=env, timeout=300)
 
 
-def test_animate_writes_viseme_curves_peaking_at_the_recordings_bilabials(tmp_path):
+def test_animate_writes_viseme_curves_peaking_at_the_recordings_bilabials(tmp_path, monkeypatch):
     pytest.importorskip("hama")
     env = {"DUALTALKER_CACHE": str(tmp_path / "cache")}
     ckpt = tmp_path / "voca.pt"
@@ -194,6 +194,17 @@ def test_animate_writes_viseme_curves_peaking_at_the_recordings_bilabials(tmp_pa
     for p, s, e in phones:
         if p in ("i:", "a", "A:", "aU"):
             assert open_[(t >= s) & (t < e)].max() > 0.6, p
+    # no model needed: the same curves from the file (streamed) and from the wave in memory
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.export.visemes import viseme_curves
+
+    monkeypatch.setenv("DUALTALKER_CACHE", str(tmp_path / "cache"))
+    streamed, whole = viseme_curves(CLIP.with_suffix(".flac")), viseme_curves(load_audio(CLIP.with_suffix(".flac")))
+    assert len(streamed.weights) == 99 and streamed.segments == whole.segments
+    written = json.loads((out / "visemes.json").read_text())["segments"]                      # 6 decimals
+    assert [[COLUMN[c], round(a, 6), round(b, 6)] for c, a, b in streamed.segments] == written
+    assert np.array_equal(streamed.weights, whole.weights)
+    assert np.abs(streamed.weights - curves.weights).max() <= 5e-5 + 1e-7      # the files hold 4 decimals
 
 
 def test_visemes_is_listed_in_help_and_unknown_formats_name_it(tmp_path):

@@ -137,7 +137,8 @@ def track_segments(ids: np.ndarray, fps: float, classes=CLASSES) -> list[tuple[s
     if ids.size == 0:
         return []
     edges = np.concatenate([[0], np.nonzero(np.diff(ids))[0] + 1, [ids.size]])
-    return [(classes[int(ids[a])], (a - 0.5) / fps, (b - 0.5) / fps) for a, b in zip(edges[:-1], edges[1:])]
+    return [(classes[int(ids[a])], float((a - 0.5) / fps), float((b - 0.5) / fps))
+            for a, b in zip(edges[:-1].tolist(), edges[1:].tolist())]
 
 
 def check_available() -> None:
