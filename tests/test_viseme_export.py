@@ -93,6 +93,12 @@ def test_bad_inputs_are_refused(tmp_path):
     bad.write_text("time,a,b\n0,1,2\n")
     with pytest.raises(ValueError, match=f"{bad}: not a viseme curves file"):
         read_visemes(bad)
+    bad.write_text("time," + ",".join(OCULUS) + "\n0.0,1.0\n")
+    with pytest.raises(ValueError, match="rows of 16 numbers"):
+        read_visemes(bad)
+    (tmp_path / "visemes.json").write_text("{}")
+    with pytest.raises(ValueError, match="not a 'dualtalker-lite viseme curves 1' file"):
+        read_visemes(tmp_path / "visemes.json")
 
 
 def test_weights_sum_to_one_ramp_in_and_out_and_are_the_rigs_coarticulation():

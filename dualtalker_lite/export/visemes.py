@@ -279,7 +279,10 @@ def read_visemes(path) -> VisemeCurves:
             lines = path.read_text().splitlines()
             if not lines or lines[0].split(",") != ["time", *NAMES]:
                 raise ValueError("the header is not time," + ",".join(NAMES))
-            data = np.array([[float(x) for x in line.split(",")] for line in lines[1:]]).reshape(-1, 1 + len(NAMES))
+            rows = [line.split(",") for line in lines[1:]]
+            if not rows or any(len(r) != 1 + len(NAMES) for r in rows):
+                raise ValueError(f"expected one or more rows of {1 + len(NAMES)} numbers")
+            data = np.array([[float(x) for x in r] for r in rows])
             fps = round(1.0 / float(np.median(np.diff(data[:, 0]))), 3) if len(data) > 1 else 30.0  # 6-decimal times
             return VisemeCurves(data[:, 1:].astype(np.float32), fps)
         doc = json.loads(path.read_text())
