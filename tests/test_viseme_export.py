@@ -210,6 +210,10 @@ def test_animate_writes_viseme_curves_peaking_at_the_recordings_bilabials(tmp_pa
     written = json.loads((out / "visemes.json").read_text())["segments"]                      # 6 decimals
     assert [[COLUMN[c], round(a, 6), round(b, 6)] for c, a, b in streamed.segments] == written
     assert np.array_equal(streamed.weights, whole.weights)
+    from dualtalker_lite.audio import AudioStream                  # a stream at another rate is reopened at 16 kHz
+    assert np.array_equal(viseme_curves(AudioStream(CLIP.with_suffix(".flac"), 22050), 99).weights, whole.weights)
+    with pytest.raises(ValueError, match="needs 16000 Hz audio, got sample_rate=8000"):
+        viseme_curves(np.zeros(8000, np.float32), sample_rate=8000)
     assert np.abs(streamed.weights - curves.weights).max() <= 5e-5 + 1e-7      # the files hold 4 decimals
 
 

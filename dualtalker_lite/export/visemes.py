@@ -230,12 +230,15 @@ def viseme_curves(wave, n_frames: int | None = None, fps: float = 30.0, channel:
                   sample_rate: int = 16000, extractor=None) -> VisemeCurves:
     """Viseme curves of a recording, no model needed: :func:`recognised_segments` then :func:`viseme_weights`.
 
-    ``wave``: a 16 kHz (N,) array, an :class:`~dualtalker_lite.audio.AudioStream`, or an audio file's path (any
-    rate: resampled). ``n_frames``: default ``round(N * fps / 16000)`` (at least 1), what ``animate`` predicts."""
+    ``wave``: a 16 kHz (N,) array, an :class:`~dualtalker_lite.audio.AudioStream` (one at another rate is reopened
+    at 16 kHz), or an audio file's path (any rate: resampled). ``n_frames``: default ``round(N * fps / 16000)`` (at
+    least 1), what ``animate`` predicts."""
     from ..audio import SAMPLE_RATE, AudioStream
 
     if isinstance(wave, (str, os.PathLike)):
         wave = AudioStream(wave, sample_rate=SAMPLE_RATE)
+    elif hasattr(wave, "blocks") and getattr(wave, "sample_rate", SAMPLE_RATE) != SAMPLE_RATE and hasattr(wave, "path"):
+        wave = AudioStream(wave.path, sample_rate=SAMPLE_RATE)         # the recogniser's rate, from the same file
     elif not hasattr(wave, "blocks") and int(sample_rate) != SAMPLE_RATE:
         raise ValueError(f"the recogniser needs {SAMPLE_RATE} Hz audio, got sample_rate={sample_rate} "
                          f"(resample, or pass the file's path)")
