@@ -298,15 +298,16 @@ class _Server:
 
 
 def _best_lag_corr(live: np.ndarray, ref: np.ndarray, max_lag: int = 30) -> tuple[float, int]:
-    """The highest correlation of ``ref`` with a window of ``live`` starting at lag 0..max_lag frames (the fake
-    microphone starts playing before the page starts capturing, by an unknown few frames)."""
+    """The highest correlation of ``ref`` with ``live`` shifted by -max_lag..max_lag frames, over their overlap
+    (at least 80% of ``ref``): the fake microphone plays from its own start, the page captures from when the
+    worklet runs, an offset of a few unknown frames either way."""
     best = (-1.0, 0)
-    for lag in range(0, max_lag + 1):
-        seg = live[lag:lag + len(ref)]
-        if len(seg) < 0.8 * len(ref) or seg.std() == 0:
+    for lag in range(-max_lag, max_lag + 1):
+        a, b = (live[lag:], ref) if lag >= 0 else (live, ref[-lag:])
+        k = min(len(a), len(b))
+        if k < 0.8 * len(ref) or a[:k].std() == 0:
             continue
-        c = float(np.corrcoef(seg, ref[:len(seg)])[0, 1])
-        best = max(best, (c, lag))
+        best = max(best, (float(np.corrcoef(a[:k], b[:k])[0, 1]), lag))
     return best
 
 
@@ -331,19 +332,33 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 page.on("request", lambda r: requests.append(r.url))
                 page.on("websocket", lambda w: requests.append(w.url))
                 page.goto(f"http://{base}/")
-                page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)", timeout=30000)
+                page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)", timeout=60000)
                 assert page.evaluate("() => dtlLive.error") is None
                 page.click("button.start")
                 page.wait_for_function("() => dtlLive.running || dtlLive.status.startsWith('No microphone')",
-                                       timeout=20000)
+                                       timeout=60000)
                 assert page.evaluate("() => dtlLive.running"), page.evaluate("() => dtlLive.status")
                 n = len(lip_off)
-                page.wait_for_function(f"() => dtlLive.frames >= {n + 15}", timeout=30000)
+                page.wait_for_function(f"() => dtlLive.frames >= {n + 15}", timeout=60000)
                 page.screenshot(path=str(shots / "live_page.png"))
                 state = page.evaluate("() => [dtlLive.lip, dtlLive.latencyMs, dtlLive.shown, "
                                       "document.querySelector('.latency').textContent]")
                 page.click("button.start")                          # stop
-                page.wait_for_function("() => dtlLive.status.startsWith('stopped')", timeout=20000)
+                page.wait_for_function("() => dtlLive.status.startsWith('stopped')", timeout=60000)
+                # no microphone permission: one line says so; a file still plays through the live path
+                denied = browser.new_page(viewport={"width": 800, "height": 600})
+                denied.on("request", lambda r: requests.append(r.url))
+                denied.on("websocket", lambda w: requests.append(w.url))
+                denied.add_init_script("navigator.mediaDevices.getUserMedia = () => "
+                                       "Promise.reject(new DOMException('denied', 'NotAllowedError'));")
+                denied.goto(f"http://{base}/")
+                denied.wait_for_function("() => window.dtlLive && dtlLive.ready", timeout=60000)
+                denied.click("button.start")
+                denied.wait_for_function("() => dtlLive.status !== ''", timeout=60000)
+                no_mic = denied.evaluate("() => document.querySelector('.status').textContent")
+                denied.set_input_files("input.file", str(wav))
+                denied.wait_for_function(f"() => dtlLive.frames >= {n // 2}", timeout=60000)
+                file_lip = denied.evaluate("() => dtlLive.lip")
             finally:
                 browser.close()
     finally:
@@ -354,5 +369,8 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     corr, lag = _best_lag_corr(lip, lip_off)
     assert corr > 0.5, (corr, lag)
     assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
+    assert no_mic == "No microphone permission: allow the microphone for this page (or play a file)."
+    file_lip = np.array([np.nan if v is None else v for v in file_lip], float)
+    assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std()
     local = (f"http://{base}/", f"ws://{base}/")
     assert requests and [u for u in requests if not u.startswith(local)] == []
