@@ -2,6 +2,7 @@
 
     OMP_NUM_THREADS=1 python benchmarks/live.py                          # the track, a few settings, both clips
     OMP_NUM_THREADS=1 python benchmarks/live.py --checkpoint runs/m.pt   # + the model: lip-distance correlation
+    OMP_NUM_THREADS=1 python benchmarks/live.py --checkpoint runs/m.pt --latency   # + through the server, in real time
 
 For each setting (look-ahead, past context, hop) and each shipped real clip (``notebooks/data/real/*.flac``, 8 kHz
 telephone speech upsampled to 16 kHz as ``animate`` does), the clip is fed to
@@ -15,6 +16,11 @@ offline track that ``animate`` feeds the model (:meth:`RecogniserExtractor.visem
 With ``--checkpoint`` (a model trained on the viseme track, e.g. ``dualtalker-lite train --clips 16 --epochs 1``),
 the whole :class:`~dualtalker_lite.live.stream.LiveSession` (track + incremental decoder) runs on each clip and its
 lip distance (upper to lower lip midpoint) is correlated with the offline ``animate`` output of the same clip.
+With ``--latency`` too, each clip is streamed through the live server (in-process, aiohttp's test server on
+127.0.0.1) in real time, 100 ms messages as the page sends them, and the latency of every frame is recorded: the
+time from sending the message that completes frame f's audio (sample ``(f + 1) 16000 / 30``) to receiving its
+vertices. That is the page's figure minus the browser's own buffering; it includes the algorithmic latency
+(``LiveSettings.latency_s``), waiting for the next hop and the compute, so it grows on a busy machine.
 Nothing here is a pass/fail test; the figures are quoted in ``docs/live.md``.
 """
 from __future__ import annotations
@@ -51,6 +57,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", default=None, help="a viseme-track model: also the whole live path")
     ap.add_argument("--speaker", default="SPK01")
+    ap.add_argument("--latency", action="store_true", help="with --checkpoint: through the server, in real time")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     clips = sorted((ROOT / "notebooks" / "data" / "real").glob("*.flac"))
@@ -101,6 +108,62 @@ def main(argv=None) -> None:
             a, b = lip_distance(live, [up], [lo]), lip_distance(off, [up], [lo])
             print(f"{name:>22} {len(live):6d} {np.corrcoef(a, b)[0, 1]:8.3f} {a.std():11.4f} {b.std():14.4f} "
                   f"{c / (len(wave) / 16000):6.2f}")
+
+        if args.latency:
+            print("\nthrough the server in real time (100 ms messages): latency per frame, ms")
+            print(f"{'clip':>22} {'median':>7} {'p95':>7} {'max':>7}")
+            for name, wave in waves.items():
+                lat = np.array(asyncio_run_latency(args.checkpoint, args.speaker, wave)) * 1000
+                print(f"{name:>22} {np.median(lat):7.0f} {np.percentile(lat, 95):7.0f} {lat.max():7.0f}")
+
+
+def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray) -> list[float]:
+    """Stream ``wave`` through the live server in real time -> seconds from the message completing each frame's
+    audio to that frame's arrival (frames flushed by the final ``stop`` are left out)."""
+    import asyncio
+    import json
+
+    from aiohttp.test_utils import TestClient, TestServer
+
+    from dualtalker_lite.live.server import HEADER, load_config, make_app
+
+    config = load_config(checkpoint, speaker)
+    pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
+
+    async def main():
+        client = TestClient(TestServer(make_app(config), host="127.0.0.1"))
+        await client.start_server()
+        sent, arrived = [], {}
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": f"http://127.0.0.1:{client.server.port}"})
+            await ws.receive()
+
+            async def reader():
+                async for msg in ws:
+                    if msg.type.name == "BINARY":
+                        first, n, _ = HEADER.unpack_from(msg.data)
+                        now = time.perf_counter()
+                        arrived.update({first + i: now for i in range(n)})
+            task = asyncio.create_task(reader())
+            t0 = time.perf_counter()
+            for k, i in enumerate(range(0, len(pcm), 1600)):
+                await asyncio.sleep(max(0.0, t0 + (k + 1) * 0.1 - time.perf_counter()))  # as captured
+                await ws.send_bytes(pcm[i:i + 1600].tobytes())
+                sent.append((i + len(pcm[i:i + 1600]), time.perf_counter()))
+            await asyncio.sleep(1.5)                          # frames still in flight (no flush: not live)
+            await ws.close()
+            task.cancel()
+        finally:
+            await client.close()
+        lat = []
+        for f, t in arrived.items():
+            need = int(np.ceil((f + 1) * 16000 / 30))
+            when = next((ts for n, ts in sent if n >= need), None)
+            if when is not None:
+                lat.append(t - when)
+        return lat
+
+    return asyncio.run(main())
 
 
 if __name__ == "__main__":
