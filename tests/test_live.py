@@ -90,6 +90,34 @@ def test_streaming_track_has_the_offline_length_and_mostly_its_classes():
         StreamingVisemes(ex, lookahead_s=5)
 
 
+def test_incremental_decoder_with_whole_context_is_the_offline_decoding(config):
+    """With past and look-ahead covering the clip, every frame's features are the offline ones, so pushing the
+    features a few frames at a time must give ``generate_chunks``'s vertices (to float rounding): the KV-cache step,
+    its offsets and the feedback are used as offline. With the default bounded context the result differs."""
+    import torch
+
+    from dualtalker_lite.live.stream import IncrementalDecoder
+
+    rng = np.random.default_rng(0)
+    feats = np.eye(15, dtype=np.float32)[rng.integers(0, 15, 70)]              # (70, 15) one-hot visemes
+    with torch.no_grad():
+        ref = torch.cat(list(config.model.generate_chunks(torch.from_numpy(feats)[None],
+                                                          torch.from_numpy(config.template)[None],
+                                                          torch.tensor([config.speaker]))), 1)[0].numpy()
+    dec = IncrementalDecoder(config.model, config.template, config.speaker, past_frames=500, ahead_frames=500)
+    out = [dec.push(feats[i:i + 4]) for i in range(0, 70, 4)] + [dec.flush()]
+    assert sum(len(o) for o in out[:-1]) == 0                                  # all waited for 500 frames ahead
+    np.testing.assert_allclose(out[-1], ref, atol=1e-6)
+    assert np.abs(ref - config.template).max() > 1e-6                           # the model does move the face
+    dec = IncrementalDecoder(config.model, config.template, config.speaker, past_frames=8, ahead_frames=2)
+    parts = [dec.push(feats[i:i + 4]) for i in range(0, 70, 4)]
+    assert sum(len(p) for p in parts) == 68                                     # all but the last 2: look-ahead
+    live = np.concatenate(parts + [dec.flush()])
+    assert live.shape == ref.shape and not np.allclose(live, ref, atol=1e-7)
+    with pytest.raises(ValueError, match="one motion decoder"):
+        IncrementalDecoder(torch.nn.Linear(2, 2), config.template)
+
+
 # ------------------------------------------------------------------------------------------------ the server
 def _run(coro):
     return asyncio.run(coro)
