@@ -234,7 +234,7 @@ def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(con
     pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
 
     async def main():
-        client = await _client(config, Limits(max_speed=1000, max_messages_per_s=1000))
+        client = await _client(config, Limits(max_speed=1e9, max_messages_per_s=1000))
         frames = {}
         try:
             ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
@@ -252,7 +252,7 @@ def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(con
                 else:
                     assert msg.type == WSMsgType.TEXT
                     done = json.loads(msg.data)
-                    assert done["type"] == "done"
+                    assert done["type"] == "done", done
                     break
             await ws.close()
         finally:

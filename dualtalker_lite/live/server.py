@@ -11,7 +11,8 @@ What runs where:
   meter and the measured latency (capture of a frame's audio -> its vertices on the page).
 * **the server** (this module, aiohttp): per connection a :class:`~dualtalker_lite.live.stream.LiveSession`
   (causal viseme track + the model's KV-cache step), run in a worker thread so the event loop keeps serving. Every
-  binary message is pushed to it; the frames that became final go back as one binary message.
+  binary message is pushed to it (messages that arrive while it computes are pushed together, so a server that
+  fell behind catches up); the frames that became final go back as one binary message.
 
 The protocol (``/ws``):
 
@@ -59,6 +60,7 @@ log = logging.getLogger("dualtalker_lite.live")
 PAGE_DIR = Path(__file__).with_name("page")
 HEADER = struct.Struct("<III")          # first frame, frame count, samples received
 _VENDOR = ("three.module.min.js", "OrbitControls.js", "LICENSE")  # what the page imports of export/vendor/three
+MAX_BATCH_S = 5.0                       # at most this much backlog per push (hama reads at most 30 s per call)
 _PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript"}
 
 
@@ -179,7 +181,7 @@ def make_app(config: LiveConfig):
         sessions.add(ws)
         loop = asyncio.get_running_loop()
         session = await loop.run_in_executor(executor, new_session)
-        started, samples, count = time.monotonic(), 0, 0
+        started, samples = time.monotonic(), 0
         window_start, window_count = started, 0
 
         async def close(code, reason: str):
@@ -191,6 +193,25 @@ def make_app(config: LiveConfig):
         async def send(first: int, verts: np.ndarray):
             if len(verts) and not ws.closed:
                 await ws.send_bytes(HEADER.pack(first, len(verts), samples) + verts.astype("<f4").tobytes())
+
+        # Audio waits in ``backlog`` while the session computes; ``work`` takes all of it at once (at most
+        # MAX_BATCH_S), so a server that fell behind runs hama once on the whole backlog instead of once per
+        # message: its cost per second of audio drops and it catches up instead of falling further behind.
+        backlog: list[np.ndarray] = []
+        worker = None
+
+        async def work(current):
+            try:
+                while backlog:
+                    take, n = [], 0
+                    while backlog and n < MAX_BATCH_S * SAMPLE_RATE:
+                        take.append(backlog.pop(0))
+                        n += take[-1].size
+                    first, verts = await loop.run_in_executor(executor, current.push, np.concatenate(take))
+                    await send(first, verts)
+            except (ConnectionResetError, RuntimeError) as e:          # the client went away while computing
+                log.warning("closed %s: %s", peer, e or "the client went away mid-stream")
+                backlog.clear()
 
         await ws.send_str(json.dumps({"type": "hello", "fps": config.extractor.fps, "sample_rate": SAMPLE_RATE,
                                       "max_message_bytes": limits.max_message_bytes}))
@@ -220,14 +241,16 @@ def make_app(config: LiveConfig):
                         await close(WSCloseCode.POLICY_VIOLATION, f"audio faster than {limits.max_speed:g}x "
                                     f"real time")
                         break
-                    pcm = np.frombuffer(data, dtype="<i2").astype(np.float32) / 32768.0
-                    first, verts = await loop.run_in_executor(executor, session.push, pcm)
-                    await send(first, verts)
+                    backlog.append(np.frombuffer(data, dtype="<i2").astype(np.float32) / 32768.0)
+                    if worker is None or worker.done():
+                        worker = asyncio.create_task(work(session))
                 elif msg.type == WSMsgType.TEXT:
                     try:
                         kind = json.loads(msg.data).get("type")
                     except (ValueError, AttributeError):
                         kind = None
+                    if worker is not None:
+                        await worker                              # the audio before the command, first
                     if kind == "stop":
                         first, verts = await loop.run_in_executor(executor, session.flush)
                         await send(first, verts)
@@ -251,6 +274,9 @@ def make_app(config: LiveConfig):
                 await ws.close()
         finally:
             sessions.discard(ws)
+            backlog.clear()
+            if worker is not None and not worker.done():
+                worker.cancel()
         return ws
 
     async def on_shutdown(app):

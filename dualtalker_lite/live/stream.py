@@ -76,6 +76,9 @@ class StreamingVisemes:
         samples = np.asarray(samples, dtype=np.float32).reshape(-1)
         if samples.size and not np.isfinite(samples).all():
             raise ValueError("audio samples must be finite")
+        if samples.size > 10 * SAMPLE_RATE:  # hama reads at most 30 s per call: long pieces go 10 s at a time
+            return np.concatenate([self.push(samples[i:i + 10 * SAMPLE_RATE])
+                                   for i in range(0, samples.size, 10 * SAMPLE_RATE)])
         self.buf = np.concatenate([self.buf, samples])
         self.n += samples.size
         if self.n - self._last_run < self.hop:
