@@ -286,6 +286,22 @@ def test_live_command_refuses_bad_checkpoints(tmp_path, capsys):
     assert e.value.code == 2 and "logmel.pt: live needs a model trained on the recogniser's viseme track" in err
 
 
+def test_live_command_refuses_bad_options_and_a_busy_port(checkpoint, config, capsys):
+    from dualtalker_lite.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["live", "--checkpoint", str(checkpoint), "--lookahead-ms", "5000"])
+    assert e.value.code == 2 and "error: --lookahead-ms 5000: must be between 0 and 2000" in capsys.readouterr().err
+    server = _Server(config)                                  # holds a port
+    try:
+        with pytest.raises(SystemExit) as e:
+            main(["live", "--checkpoint", str(checkpoint), "--port", str(server.port)])
+    finally:
+        server.close()
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and f"error: 127.0.0.1:{server.port}: cannot listen" in err and "--port" in err
+
+
 # ------------------------------------------------------------------------------------------------ a real browser
 def _chromium():
     exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
