@@ -118,6 +118,37 @@ def test_incremental_decoder_with_whole_context_is_the_offline_decoding(config):
         IncrementalDecoder(torch.nn.Linear(2, 2), config.template)
 
 
+def test_incremental_decoder_waits_for_a_centred_alignment_window(config):
+    """A decoder whose integration reads features w//2 frames after t (FaceFormer's centred window; DualTalker with
+    ``query_from="decoder"``, ``align_window=5``) waits for them, and with whole context it reproduces
+    ``generate_chunks`` too (random weights, so the face moves)."""
+    import torch
+
+    from dualtalker_lite.live.stream import IncrementalDecoder
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=config.template.size // 3, audio_dim=15, n_speakers=2,
+                                query_from="decoder", align_window=5)
+    model = DualTalker(cfg).eval()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    right = model.decoder.feature_margins()[1]
+    assert right == 2
+    feats = np.eye(15, dtype=np.float32)[np.random.default_rng(1).integers(0, 15, 50)]
+    with torch.no_grad():
+        ref = torch.cat(list(model.generate_chunks(torch.from_numpy(feats)[None],
+                                                   torch.from_numpy(config.template)[None],
+                                                   torch.tensor([1]))), 1)[0].numpy()
+    assert np.abs(ref - config.template).max() > 1e-5
+    dec = IncrementalDecoder(model, config.template, 1, past_frames=8, ahead_frames=0)
+    assert len(dec.push(feats[:10])) == 10 - right            # waits for the alignment window's last frame
+    dec = IncrementalDecoder(model, config.template, 1, past_frames=500, ahead_frames=500)
+    whole = np.concatenate([dec.push(feats[i:i + 7]) for i in range(0, 50, 7)] + [dec.flush()])
+    np.testing.assert_allclose(whole, ref, atol=1e-5)
+
+
 # ------------------------------------------------------------------------------------------------ the server
 def _run(coro):
     return asyncio.run(coro)
