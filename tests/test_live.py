@@ -259,6 +259,31 @@ def test_garbage_oversized_flood_and_vanishing_clients_leave_the_server_serving(
     assert caplog.text.count("closed 127.0.0.1") >= 5
 
 
+def test_a_failing_session_is_one_log_line_and_a_1011_close(config, caplog, monkeypatch):
+    from dualtalker_lite.live.stream import LiveSession
+
+    def boom(self, samples):
+        raise ValueError("boom")
+
+    async def main():
+        client = await _client(config)
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            await ws.receive(timeout=10)
+            await ws.send_bytes(bytes(3200))
+            text, code = await _closed_with_error(ws)
+            assert text == "the live session failed: ValueError: boom" and code == 1011
+            monkeypatch.undo()
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    monkeypatch.setattr(LiveSession, "push", boom)
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("the live session failed: ValueError: boom") == 1
+
+
 def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(config, offline):
     verts_off, lip_off = offline
     wave = _wave()

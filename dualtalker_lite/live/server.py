@@ -35,7 +35,7 @@ Safety rules (each tested in ``tests/test_live.py``):
   not one of the commands, binary of an odd length, audio arriving faster than ``max_speed`` x real time (after a
   2 s allowance) or more than ``max_messages_per_s`` messages a second close it too (code 1008 or 1003), with one
   log line naming the client and the reason; a client silent for ``idle_timeout_s`` is closed; a client that goes
-  away mid-stream just ends its session. At most ``max_sessions`` connections at once (more get 503). Nothing of
+  away mid-stream just ends its session; a session that fails (a bug) is closed with code 1011 and its error. At most ``max_sessions`` connections at once (more get 503). Nothing of
   that stops the server, which keeps serving the others.
 """
 from __future__ import annotations
@@ -187,8 +187,11 @@ def make_app(config: LiveConfig):
         async def close(code, reason: str):
             log.warning("closed %s: %s", peer, reason)
             if not ws.closed:
-                await ws.send_str(json.dumps({"type": "error", "message": reason}))
-                await ws.close(code=code, message=reason[:120].encode())
+                try:
+                    await ws.send_str(json.dumps({"type": "error", "message": reason}))
+                    await ws.close(code=code, message=reason[:120].encode())
+                except ConnectionResetError:                           # it went away meanwhile
+                    pass
 
         async def send(first: int, verts: np.ndarray):
             if len(verts) and not ws.closed:
@@ -209,9 +212,12 @@ def make_app(config: LiveConfig):
                         n += take[-1].size
                     first, verts = await loop.run_in_executor(executor, current.push, np.concatenate(take))
                     await send(first, verts)
-            except (ConnectionResetError, RuntimeError) as e:          # the client went away while computing
+            except ConnectionResetError as e:                           # the client went away while computing
                 log.warning("closed %s: %s", peer, e or "the client went away mid-stream")
                 backlog.clear()
+            except Exception as e:                                     # a bug: say so, end this session only
+                backlog.clear()
+                await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
 
         await ws.send_str(json.dumps({"type": "hello", "fps": config.extractor.fps, "sample_rate": SAMPLE_RATE,
                                       "max_message_bytes": limits.max_message_bytes}))
@@ -268,10 +274,13 @@ def make_app(config: LiveConfig):
                     break
                 else:  # CLOSE / CLOSING / CLOSED: the client went away
                     break
-        except (ConnectionResetError, asyncio.CancelledError):
+        except ConnectionResetError:
             log.warning("closed %s: the client went away mid-stream", peer)
-            if not ws.closed:
-                await ws.close()
+        except asyncio.CancelledError:
+            log.warning("closed %s: the connection was cancelled (client gone or server stopping)", peer)
+            raise
+        except Exception as e:                                         # a bug: say so, end this session only
+            await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
         finally:
             sessions.discard(ws)
             backlog.clear()
