@@ -35,8 +35,9 @@ Safety rules (each tested in ``tests/test_live.py``):
   not one of the commands, binary of an odd length, audio arriving faster than ``max_speed`` x real time (after a
   2 s allowance) or more than ``max_messages_per_s`` messages a second close it too (code 1008 or 1003), with one
   log line naming the client and the reason; a client silent for ``idle_timeout_s`` is closed; a client that goes
-  away mid-stream just ends its session; a session that fails (a bug) is closed with code 1011 and its error. At most ``max_sessions`` connections at once (more get 503). Nothing of
-  that stops the server, which keeps serving the others.
+  away mid-stream just ends its session; a session that fails (a bug) is closed with code 1011 and its error.
+  At most ``max_sessions`` connections at once (more get 503). Nothing of that stops the server, which keeps
+  serving the others.
 """
 from __future__ import annotations
 
