@@ -451,14 +451,14 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 denied.on("websocket", lambda w: requests.append(w.url))
                 denied.add_init_script("navigator.mediaDevices.getUserMedia = () => "
                                        "Promise.reject(new DOMException('denied', 'NotAllowedError'));")
-                denied.goto(f"http://{base}/")
+                denied.goto(f"http://{base}/?native")               # the browser's rate: the worklet resamples
                 denied.wait_for_function("() => window.dtlLive && dtlLive.ready", timeout=60000)
                 denied.click("button.start")
                 denied.wait_for_function("() => dtlLive.status !== ''", timeout=60000)
                 no_mic = denied.evaluate("() => document.querySelector('.status').textContent")
                 denied.set_input_files("input.file", str(wav))
                 denied.wait_for_function(f"() => dtlLive.frames >= {n // 2}", timeout=60000)
-                file_lip = denied.evaluate("() => dtlLive.lip")
+                file_lip, file_rate = denied.evaluate("() => [dtlLive.lip, dtlLive.contextRate]")
             finally:
                 browser.close()
     finally:
@@ -471,6 +471,8 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
     assert no_mic == "No microphone permission: allow the microphone for this page (or play a file)."
     file_lip = np.array([np.nan if v is None else v for v in file_lip], float)
-    assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std()
+    assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std() and file_rate != 16000
+    corr, lag = _best_lag_corr(file_lip, lip_off[:len(file_lip)])
+    assert corr > 0.5, ("file at the browser's rate", corr, lag)
     local = (f"http://{base}/", f"ws://{base}/")
     assert requests and [u for u in requests if not u.startswith(local)] == []

@@ -117,13 +117,19 @@ try {
     };
     sock.onclose = () => { if (state.running) { say('connection closed by the server'); stop(false); } };
   });
-  const audioContext = () => {
+  // a 16 kHz context where the browser allows it (Chrome resamples the microphone for us); else its own rate, and
+  // the worklet resamples
+  // (?native in the address: always the browser's own rate, to try the worklet's resampling)
+  const forceNative = new URLSearchParams(location.search).has('native');
+  const audioContext = (native) => {
+    if (native || forceNative) return new AudioContext();
     try { return new AudioContext({ sampleRate: rate }); } catch (e) { return new AudioContext(); }
   };
-  const begin = async (makeSource) => {
+  const begin = async (makeSource, native = false) => {
     pending.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = []; state.frames = 0;
     state.samplesSent = 0; delay = info.latency_s;
-    ctx = audioContext();
+    ctx = audioContext(native);
+    state.contextRate = ctx.sampleRate;
     await ctx.audioWorklet.addModule('/page/worklet.js');
     const source = await makeSource(ctx);      // may throw (no microphone permission)
     ws = await connect();
@@ -148,12 +154,17 @@ try {
     if (ws && ws.readyState === WebSocket.OPEN && flush) ws.send(JSON.stringify({ type: 'stop' }));
     meter.value = 0;
   };
-  const startMicrophone = () => begin(async (c) => {
+  const microphone = (native) => begin(async (c) => {
     const stream = await navigator.mediaDevices.getUserMedia(
       { audio: { channelCount: 1, echoCancellation: false, noiseSuppression: false, autoGainControl: false } });
     stopAudio = () => stream.getTracks().forEach((t) => t.stop());
     say('listening: speak');
     return c.createMediaStreamSource(stream);
+  }, native);
+  // Firefox refuses a microphone in a context of another rate (NotSupportedError): then the context's own rate
+  const startMicrophone = () => microphone(false).catch((e) => {
+    if (e && e.name === 'NotSupportedError') { stop(false); return microphone(true); }
+    throw e;
   });
   const startFile = (file) => begin(async (c) => {
     const audio = await c.decodeAudioData(await file.arrayBuffer());
