@@ -98,16 +98,20 @@ def main(argv=None) -> None:
         speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
         template = corpus.template(args.speaker)
         up, lo = corpus.regions["lip_midpoints"]
-        print(f"\nwhole live path ({Path(args.checkpoint).name}, default LiveSettings) vs offline animate")
-        print(f"{'clip':>22} {'frames':>6} {'lip corr':>8} {'live std mm':>11} {'offline std mm':>14} {'cpu/s':>6}")
-        for name, wave in waves.items():
-            off = animate_wave(model, wave, template, speaker, extractor=extractor)
-            session = LiveSession(model, extractor, template, speaker, LiveSettings())
-            out, c, _ = feed(session, wave)
-            live = np.concatenate([v for _, v in out])
-            a, b = lip_distance(live, [up], [lo]), lip_distance(off, [up], [lo])
-            print(f"{name:>22} {len(live):6d} {np.corrcoef(a, b)[0, 1]:8.3f} {a.std():11.4f} {b.std():14.4f} "
-                  f"{c / (len(wave) / 16000):6.2f}")
+        print(f"\nwhole live path ({Path(args.checkpoint).name}) vs offline animate; encoder context in frames")
+        print(f"{'clip':>22} {'past':>4} {'ahead':>5} {'frames':>6} {'lip corr':>8} {'live std mm':>11} "
+              f"{'offline std mm':>14} {'cpu/s':>6}")
+        offline_verts = {name: animate_wave(model, wave, template, speaker, extractor=extractor)
+                         for name, wave in waves.items()}
+        for past, ahead in [(60, 3), (60, 0), (30, 3), (120, 6)]:   # the first is LiveSettings' default
+            for name, wave in waves.items():
+                session = LiveSession(model, extractor, template, speaker,
+                                      LiveSettings(past_frames=past, ahead_frames=ahead))
+                out, c, _ = feed(session, wave)
+                live = np.concatenate([v for _, v in out])
+                a, b = lip_distance(live, [up], [lo]), lip_distance(offline_verts[name], [up], [lo])
+                print(f"{name:>22} {past:4d} {ahead:5d} {len(live):6d} {np.corrcoef(a, b)[0, 1]:8.3f} "
+                      f"{a.std():11.4f} {b.std():14.4f} {c / (len(wave) / 16000):6.2f}")
 
         if args.latency:
             print("\nthrough the server in real time (100 ms messages): latency per frame, ms")
