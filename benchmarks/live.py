@@ -135,7 +135,7 @@ def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray) -> list
     pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
 
     async def main():
-        client = TestClient(TestServer(make_app(config), host="127.0.0.1"))
+        client = TestClient(TestServer(make_app(config), host="127.0.0.1", handler_cancellation=True))
         await client.start_server()
         sent, arrived = [], {}
         try:

@@ -112,7 +112,13 @@ def _peer(request) -> str:
 
 def make_app(config: LiveConfig):
     """The aiohttp application: ``/`` the page, ``/page/*`` its scripts, ``/vendor/three/*`` three.js, ``/mesh`` the
-    face (JSON), ``/ws`` the live WebSocket."""
+    face (JSON), ``/ws`` the live WebSocket.
+
+    Run it with ``handler_cancellation=True`` (``web.AppRunner(app, handler_cancellation=True)``, as :func:`serve`
+    does; ``TestServer(app, handler_cancellation=True)`` in tests): aiohttp's server-side WebSocket does not notice
+    a client whose connection simply drops (killed tab, pulled cable; aiohttp issues #2309, #4877), only the
+    cancellation of the handler tells it, and a session would otherwise hold its thread and memory until the idle
+    timeout."""
     from aiohttp import WSCloseCode, WSMsgType, web
 
     from ..export.html import vendor_dir
@@ -182,7 +188,7 @@ def make_app(config: LiveConfig):
         sessions.add(ws)
         loop = asyncio.get_running_loop()
         session = await loop.run_in_executor(executor, new_session)
-        started, samples = time.monotonic(), 0
+        started, samples, stopped = time.monotonic(), 0, False
         window_start, window_count = started, 0
 
         async def close(code, reason: str):
@@ -244,6 +250,7 @@ def make_app(config: LiveConfig):
                                     f"(expected int16 PCM)")
                         break
                     samples += len(data) // 2
+                    stopped = False
                     if samples / SAMPLE_RATE > limits.max_speed * (now - started) + 2.0:
                         await close(WSCloseCode.POLICY_VIOLATION, f"audio faster than {limits.max_speed:g}x "
                                     f"real time")
@@ -258,6 +265,7 @@ def make_app(config: LiveConfig):
                         kind = None
                     if worker is not None:
                         await worker                              # the audio before the command, first
+                    stopped = kind == "stop"
                     if kind == "stop":
                         first, verts = await loop.run_in_executor(executor, session.flush)
                         await send(first, verts)
@@ -274,11 +282,15 @@ def make_app(config: LiveConfig):
                     log.warning("closed %s: %s", peer, ws.exception())
                     break
                 else:  # CLOSE / CLOSING / CLOSED: the client went away
+                    if samples and not stopped:
+                        log.warning("closed %s: the client went away mid-stream (after %.1f s of audio)", peer,
+                                    samples / SAMPLE_RATE)
                     break
         except ConnectionResetError:
             log.warning("closed %s: the client went away mid-stream", peer)
-        except asyncio.CancelledError:
-            log.warning("closed %s: the connection was cancelled (client gone or server stopping)", peer)
+        except asyncio.CancelledError:  # handler_cancellation: the TCP connection was lost (or the server stops)
+            log.warning("closed %s: connection lost mid-stream (client gone or server stopping) after %.1f s of "
+                        "audio", peer, samples / SAMPLE_RATE)
             raise
         except Exception as e:                                         # a bug: say so, end this session only
             await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
@@ -357,7 +369,7 @@ def serve(config: LiveConfig, host: str = "127.0.0.1", port: int = 8765) -> None
     app = make_app(config)
 
     async def main():
-        runner = web.AppRunner(app, access_log=None)
+        runner = web.AppRunner(app, access_log=None, handler_cancellation=True)   # see make_app
         await runner.setup()
         site = web.TCPSite(runner, host, port)
         try:
