@@ -260,6 +260,24 @@ def test_garbage_oversized_flood_and_vanishing_clients_leave_the_server_serving(
     assert "connection lost mid-stream (client gone or server stopping) after 0.1 s of audio" in caplog.text
 
 
+def test_a_stalled_client_is_closed_after_the_idle_timeout(config, caplog):
+    async def main():
+        client = await _client(config, Limits(idle_timeout_s=0.5))
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            await ws.receive(timeout=10)
+            await ws.send_bytes(bytes(3200))                        # 0.1 s, then nothing
+            text, code = await _closed_with_error(ws)
+            assert text == "no message for 0.5 s" and code == 1008
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("no message for 0.5 s") == 1
+
+
 def test_a_failing_session_is_one_log_line_and_a_1011_close(config, caplog, monkeypatch):
     from dualtalker_lite.live.stream import LiveSession
 
