@@ -116,6 +116,9 @@ def test_incremental_decoder_with_whole_context_is_the_offline_decoding(config):
     assert live.shape == ref.shape and not np.allclose(live, ref, atol=1e-7)
     with pytest.raises(ValueError, match="one motion decoder"):
         IncrementalDecoder(torch.nn.Linear(2, 2), config.template)
+    dec = IncrementalDecoder(config.model, config.template, config.speaker, past_frames=8, ahead_frames=0)
+    with pytest.raises(ValueError, match="NaN/infinite values \\(first at frame 0\\)"):
+        dec.push(np.full((3, 15), np.nan, np.float32))                         # never silently wrong
 
 
 def test_incremental_decoder_waits_for_a_centred_alignment_window(config):

@@ -27,7 +27,7 @@ is asynchronous: the server calls ``push`` in a worker thread.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -199,7 +199,7 @@ class IncrementalDecoder:
         hi = min(self.received, stop + self.right)
         a = max(0, lo - self.past)
         a -= a % self.period                                          # the encoder's PPE phase of absolute frames
-        a = max(a, self.f0)
+        assert a >= self.f0, "features dropped too early"           # _keep covers past + period: never binds
         b = min(self.received, hi + self.ahead)
         audio = torch.from_numpy(self.feats[a - self.f0:b - self.f0])[None]                  # (1, b - a, D_a)
         x = self.model.encode_audio(audio, None)[:, lo - a:hi - a]                           # (1, hi - lo, d)
@@ -209,6 +209,12 @@ class IncrementalDecoder:
             m = self.dec.cached_step(self.states, self.token, x, self.style, t, None, lo)     # (1, 1, V*3)
             out[t - t0] = (self.template + m[:, 0]).numpy()[0]
             self.token = self.dec.feedback(m, self.style)
+        bad = ~np.isfinite(out).all(1)
+        if bad.any():
+            from ..checks import NonFiniteError
+
+            raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
+                                 f"{t0 + int(np.argmax(bad))})")
         self.t = stop
         drop = max(0, self.t - self._keep - self.f0)                  # features no later frame reads
         if drop:
@@ -226,7 +232,6 @@ class LiveSettings:
     hop_s: float = 0.2            # hama runs once per hop of new audio
     past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
     ahead_frames: int = 3         # audio-encoder look-ahead (mesh frames) after it
-    extra: dict = field(default_factory=dict)
 
     def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
         """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
