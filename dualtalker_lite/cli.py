@@ -3,6 +3,7 @@
     dualtalker-lite animate   --checkpoint M.pt --wav me.wav --speaker SPK01 --out runs/me   # a recording -> a face
     dualtalker-lite train     --model dualtalker --epochs 100 --out runs/my_model.pt         # train on a corpus
     dualtalker-lite evaluate  --checkpoint runs/my_model.pt --split test_a                   # metrics on a split
+    dualtalker-lite live      --checkpoint runs/my_model.pt                                   # speak and see (local page)
     dualtalker-lite generate  --out runs/my_corpus --speakers 6 --sentences 20               # synthesize a corpus
     dualtalker-lite convert-templates vocaset/templates.pkl                                  # safe pickle -> npz
     dualtalker-lite prepare-dataset vocaset --preset vocaset                                 # -> a loadable corpus
@@ -402,6 +403,12 @@ def _animate(argv: list[str]):
     return run(parser().parse_args(argv))
 
 
+def _live(argv: list[str]):
+    from .live.server import main as live_main
+
+    return live_main(argv)
+
+
 def _convert(argv: list[str]):
     from .data.faceformer import convert_templates_main
 
@@ -415,6 +422,7 @@ def _prepare(argv: list[str]):
 
 
 COMMANDS = {"animate": (_animate, "animate a face from your own speech recording"),
+            "live": (_live, "animate a face from your microphone, live, in a local web page"),
             "train": (_train, "train a model on a corpus, save a self-describing checkpoint"),
             "evaluate": (_evaluate, "metrics of a checkpoint on a corpus split"),
             "generate": (_generate, "synthesize a talking-face corpus (needs the [speech] extra)"),

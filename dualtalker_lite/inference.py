@@ -14,6 +14,10 @@ writes into ``--out`` (formats chosen with ``--format``, default ``npy,mp4``):
 ``html``            ``animation.html``: one self-contained page (three.js, animation and sound inlined) that
                     plays in any browser: play/pause, scrub bar, orbit controls
 ``mp4``             ``animation.mp4`` with your audio (skip with ``--no-video``)
+``visemes``         ``visemes.json`` and ``visemes.csv``: the 15 standard viseme weights per frame
+                    (``viseme_sil`` ... ``viseme_U``, the names Ready Player Me / Oculus-compatible avatars use),
+                    coarticulated as the rig does, timed by the phoneme recogniser (any checkpoint); see
+                    :mod:`dualtalker_lite.export.visemes`
 ==================  ==============================================================================
 
 Safety rules, in order: the output folder is checked first (an existing, non-empty ``--out`` needs
@@ -55,7 +59,7 @@ __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_tem
            "write_obj", "write_glb", "write_outputs", "run", "main", "FORMAT_ALIASES"]
 
 FPS = 30
-FORMATS = ("npy", "obj", "gltf", "html", "mp4")
+FORMATS = ("npy", "obj", "gltf", "html", "mp4", "visemes")
 FORMAT_ALIASES = {"glb": "gltf"}  # the .glb's old name: now the morph-target file (the flip-book is gone)
 
 
@@ -211,7 +215,9 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
     if ``"npy"`` is among the formats. The mp4 comes from :func:`~dualtalker_lite.viz.animate.render_video`
     (fast Pillow renderer, the speech muxed in, a progress bar with ``progress=True``). ``gltf`` and ``html``
     (:mod:`dualtalker_lite.export`) take ``template`` (V*3,) as the rest shape of the morph targets (default:
-    the clip's mean frame) and print the morph targets' count and measured max/mean vertex error.
+    the clip's mean frame) and print the morph targets' count and measured max/mean vertex error. ``visemes``
+    (:mod:`dualtalker_lite.export.visemes`) runs the phoneme recogniser on ``wave`` (16 kHz) and writes the 15
+    viseme curves for the clip's frames (one per frame of ``verts``, at ``FPS``).
     """
     folder = Path(folder)
     if hasattr(wave, "blocks") and "html" in formats:
@@ -243,6 +249,14 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
             written.append(write_html(folder / "animation.html", glb, wave, sample_rate, title="animation"))
             if "gltf" not in formats:
                 glb.unlink()
+    if "visemes" in formats:
+        from .export.visemes import viseme_curves, write_visemes
+
+        if wave is None:
+            raise ValueError("--format visemes needs the speech recording (the viseme timing is recognised in it)")
+        curves = viseme_curves(wave, n_frames=len(clip), fps=FPS, sample_rate=sample_rate)
+        written += write_visemes(folder, curves)
+        print(curves.line())
     if "mp4" in formats:
         from .viz.animate import render_video
 
@@ -278,7 +292,8 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing, non-empty --out")
     ap.add_argument("--format", default="npy,mp4",
-                    help=f"comma-separated subset of {','.join(FORMATS)} (glb: same as gltf)")
+                    help=f"comma-separated subset of {','.join(FORMATS)} (glb: same as gltf; visemes: the 15 "
+                         f"standard viseme curves viseme_sil..viseme_U as visemes.json and visemes.csv)")
     ap.add_argument("--no-video", action="store_true", help="skip the mp4 (fast for long recordings)")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
@@ -312,6 +327,10 @@ def run(args: argparse.Namespace) -> list[Path]:
         raise ValueError("nothing to write: --no-video removed the only format; add e.g. --format npy")
     if args.chunk < 1:
         raise ValueError(f"--chunk {args.chunk}: must be a positive number of frames")
+    if "visemes" in formats:
+        from .export.visemes import check_available
+
+        check_available()  # the phoneme recogniser times the visemes: refuse now, not after the prediction
     model, ckpt = load_checkpoint(args.checkpoint)
     if args.list_speakers:
         print(describe(ckpt))

@@ -19,7 +19,7 @@ LAYERS = [  # lowest first
     ("data and blocks", ("data", "blocks")),
     ("models and losses", ("models", "losses")),
     ("training and evaluation", ("train", "checkpoints", "metrics")),
-    ("applications", ("experiments", "inference", "streaming", "viz")),
+    ("applications", ("experiments", "inference", "streaming", "viz", "live")),
     ("front ends", ("cli", "demo", "viz.widgets", "experiments.__main__")),
 ]
 PAPERS = ("models.dualtalker", "models.corrtalk", "models.emoface", "models.faceformer")

@@ -25,7 +25,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 
 SCRIPT = Path(sys.executable).with_name("dualtalker-lite")
-COMMANDS = ("animate", "train", "evaluate", "generate", "convert-templates", "prepare-dataset")
+COMMANDS = ("animate", "train", "evaluate", "generate", "convert-templates", "prepare-dataset", "live")
 
 
 def run(*argv, cwd=None, stderr=None, env=None) -> subprocess.CompletedProcess:

@@ -4,8 +4,13 @@
   by error, one weights animation at the mesh frame rate) + ``animation.wav``; ``read_gltf_animation`` reads it back.
 - :mod:`~dualtalker_lite.export.html`: ``viewer_html`` (the HTML string, for notebooks) and ``write_html`` -> one
   .html with three.js, the animation and the audio inlined (no network requests).
+- :mod:`~dualtalker_lite.export.visemes` (issue 33): ``viseme_curves`` -> the 15 standard viseme weights per frame
+  (``viseme_sil`` .. ``viseme_U``), coarticulated as the rig does; ``write_visemes`` -> ``visemes.json`` and
+  ``visemes.csv``; ``apply_viseme_weights`` poses any mesh from them.
 
-Layering: this subpackage imports only numpy, pygltflib, soundfile and the standard library; ``inference`` uses it.
+Layering: ``gltf`` and ``html`` import only numpy, pygltflib, soundfile and the standard library; ``visemes`` also
+imports ``face`` (the rig's coarticulation), ``files`` and, lazily, ``audio`` and ``recogniser``. ``inference`` uses
+them; this package's ``__init__`` imports ``gltf`` only.
 """
 from .gltf import GltfReport, morph_basis, read_gltf_animation, write_gltf
 

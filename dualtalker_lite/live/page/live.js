@@ -1,0 +1,198 @@
+// The live page: microphone (or a file) -> AudioWorklet -> 16 kHz int16 over a WebSocket -> frames back -> three.js.
+// Everything is served by the dualtalker-lite live server (no other request is made). For tests and curious
+// users, window.dtlLive exposes the state: {ready, error, running, frames, lip, latencyMs, shown, samplesSent}.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const root = document.getElementById('live');
+const view = root.querySelector('.view'), msg = root.querySelector('.msg');
+const button = root.querySelector('.start'), meter = root.querySelector('.level');
+const latencyEl = root.querySelector('.latency'), statusEl = root.querySelector('.status');
+const fileInput = root.querySelector('.file');
+const state = window.dtlLive = { ready: false, error: null, running: false, frames: 0, lip: [], latencyMs: null,
+                                 shown: -1, samplesSent: 0, status: '' };
+const say = (text) => { statusEl.textContent = text; state.status = text; };
+
+try {
+  const info = await (await fetch('/mesh')).json();
+  const fps = info.fps, rate = info.sample_rate;
+  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(window.devicePixelRatio);
+  view.appendChild(renderer.domElement);
+  const scene = new THREE.Scene();
+  scene.background = new THREE.Color(0x202124);
+  scene.add(new THREE.HemisphereLight(0xffffff, 0x303030, 1.2));
+  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+  sun.position.set(0.5, 1, 1.5);
+  scene.add(sun);
+  const geometry = new THREE.BufferGeometry();
+  const rest = new Float32Array(info.template);
+  const position = new THREE.BufferAttribute(rest.slice(), 3);
+  position.setUsage(THREE.DynamicDrawUsage);
+  geometry.setAttribute('position', position);
+  geometry.setIndex(info.faces);
+  geometry.computeVertexNormals();
+  const mesh = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: 0xd9a88f, roughness: 0.7 }));
+  scene.add(mesh);
+  const camera = new THREE.PerspectiveCamera(30, 1, 0.001, 100);
+  const controls = new OrbitControls(camera, renderer.domElement);
+  geometry.computeBoundingBox();
+  const box = geometry.boundingBox, center = box.getCenter(new THREE.Vector3());
+  const size = box.getSize(new THREE.Vector3()).length();
+  camera.position.copy(center).add(new THREE.Vector3(0, 0, 1.5 * size));
+  camera.near = size / 100; camera.far = size * 100; camera.updateProjectionMatrix();
+  controls.target.copy(center); controls.update();
+  const resize = () => {
+    const w = view.clientWidth, h = Math.max(view.clientHeight, 200);
+    renderer.setSize(w, h, false); camera.aspect = w / h; camera.updateProjectionMatrix();
+  };
+  new ResizeObserver(resize).observe(view);
+  resize();
+
+  // ---- frames in, played in time: frame f is shown when the capture clock reaches f / fps + the latency
+  const pending = new Map();              // frame index -> Float32Array (V*3)
+  const sent = [];                        // [samples sent so far, performance.now()] per message
+  let latest = -1, clockAt = 0, delay = info.latency_s;
+  const lips = info.lip_midpoints;
+  const lipOf = (v) => {
+    if (!lips) return null;
+    const a = 3 * lips[0], b = 3 * lips[1];
+    return 1000 * Math.hypot(v[a] - v[b], v[a + 1] - v[b + 1], v[a + 2] - v[b + 2]);   // mm
+  };
+  const sentTime = (sample) => {          // when the message holding this sample was sent (binary search)
+    let lo = 0, hi = sent.length - 1;
+    if (hi < 0 || sent[hi][0] < sample) return null;
+    while (lo < hi) { const mid = (lo + hi) >> 1; if (sent[mid][0] >= sample) hi = mid; else lo = mid + 1; }
+    return sent[lo][1];
+  };
+  const onFrames = (buf) => {
+    const head = new DataView(buf, 0, 12);
+    const first = head.getUint32(0, true), n = head.getUint32(4, true);
+    const all = new Float32Array(buf, 12), width = all.length / Math.max(n, 1);
+    for (let i = 0; i < n; i++) {
+      const v = all.subarray(i * width, (i + 1) * width);
+      pending.set(first + i, v);
+      state.lip[first + i] = lipOf(v);
+    }
+    latest = Math.max(latest, first + n - 1);
+    state.frames = latest + 1;
+    const t = sentTime(Math.ceil((first + n) / fps * rate));
+    if (t !== null && state.running) {
+      const ms = performance.now() - t;
+      state.latencyMs = ms;
+      delay = 0.9 * delay + 0.1 * (ms / 1000 + 0.03);
+      latencyEl.textContent = `latency ${ms.toFixed(0)} ms`;
+    }
+  };
+  const show = (f) => {
+    const v = pending.get(f);
+    if (!v) return;
+    position.array.set(v); position.needsUpdate = true; geometry.computeVertexNormals();
+    state.shown = f;
+    for (const k of pending.keys()) if (k < f) pending.delete(k);
+  };
+  renderer.setAnimationLoop(() => {
+    if (latest >= 0) {
+      const clock = state.samplesSent / rate + Math.min(0.1, (performance.now() - clockAt) / 1000);
+      const target = state.running ? Math.min(latest, Math.floor((clock - delay) * fps)) : latest;
+      let f = target;
+      while (f > state.shown && !pending.has(f)) f--;
+      if (f > state.shown) show(f);
+    }
+    controls.update(); renderer.render(scene, camera);
+  });
+
+  // ---- audio out: a WebSocket per run
+  let ctx = null, ws = null, stopAudio = null;
+  const connect = () => new Promise((ok, no) => {
+    const sock = new WebSocket(`ws://${location.host}/ws`);
+    sock.binaryType = 'arraybuffer';
+    sock.onopen = () => { sock.send(JSON.stringify({ type: 'start' })); ok(sock); };
+    sock.onerror = () => no(new Error('cannot reach the live server'));
+    sock.onmessage = (e) => {
+      if (typeof e.data !== 'string') { onFrames(e.data); return; }
+      const m = JSON.parse(e.data);
+      if (m.type === 'done') { say(`stopped: ${m.frames} frames`); sock.close(); }
+      else if (m.type === 'error') say(`server closed the connection: ${m.message}`);
+    };
+    sock.onclose = () => { if (state.running) { say('connection closed by the server'); stop(false); } };
+  });
+  // a 16 kHz context where the browser allows it (Chrome resamples the microphone for us); else its own rate, and
+  // the worklet resamples
+  // (?native in the address: always the browser's own rate, to try the worklet's resampling)
+  const forceNative = new URLSearchParams(location.search).has('native');
+  const audioContext = (native) => {
+    if (native || forceNative) return new AudioContext();
+    try { return new AudioContext({ sampleRate: rate }); } catch (e) { return new AudioContext(); }
+  };
+  const begin = async (makeSource, native = false) => {
+    pending.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = []; state.frames = 0;
+    state.samplesSent = 0; delay = info.latency_s;
+    ctx = audioContext(native);
+    state.contextRate = ctx.sampleRate;
+    await ctx.audioWorklet.addModule('/page/worklet.js');
+    const source = await makeSource(ctx);      // may throw (no microphone permission)
+    ws = await connect();
+    const node = new AudioWorkletNode(ctx, 'pcm-sender');
+    const mute = ctx.createGain(); mute.gain.value = 0;
+    node.connect(mute).connect(ctx.destination);   // pulled by the graph, silent
+    node.port.onmessage = (e) => {
+      meter.value = Math.min(1, 4 * e.data.rms);
+      if (!ws || ws.readyState !== WebSocket.OPEN) return;
+      ws.send(e.data.pcm);
+      state.samplesSent += e.data.pcm.byteLength / 2; clockAt = performance.now();
+      sent.push([state.samplesSent, clockAt]);
+    };
+    source.connect(node);
+    state.running = true; button.textContent = 'Stop'; button.disabled = false;
+    if (ctx.state === 'suspended') await ctx.resume();
+  };
+  const stop = (flush = true) => {
+    state.running = false; button.textContent = 'Start';
+    if (stopAudio) { stopAudio(); stopAudio = null; }
+    if (ctx) { ctx.close(); ctx = null; }
+    if (ws && ws.readyState === WebSocket.OPEN && flush) ws.send(JSON.stringify({ type: 'stop' }));
+    meter.value = 0;
+  };
+  const microphone = (native) => begin(async (c) => {
+    const stream = await navigator.mediaDevices.getUserMedia(
+      { audio: { channelCount: 1, echoCancellation: false, noiseSuppression: false, autoGainControl: false } });
+    stopAudio = () => stream.getTracks().forEach((t) => t.stop());
+    say('listening: speak');
+    return c.createMediaStreamSource(stream);
+  }, native);
+  // Firefox refuses a microphone in a context of another rate (NotSupportedError): then the context's own rate
+  const startMicrophone = () => microphone(false).catch((e) => {
+    if (e && e.name === 'NotSupportedError') { stop(false); return microphone(true); }
+    throw e;
+  });
+  const startFile = (file) => begin(async (c) => {
+    const audio = await c.decodeAudioData(await file.arrayBuffer());
+    const src = c.createBufferSource();
+    src.buffer = audio; src.connect(c.destination);           // heard, and sent through the live path
+    src.onended = () => { if (state.running) stop(); };
+    stopAudio = () => { try { src.stop(); } catch (e) { /* already ended */ } };
+    src.start();
+    say(`playing ${file.name} through the live path`);
+    return src;
+  });
+  const failed = (e) => {
+    stop(false);
+    if (ws) ws.close();
+    const denied = e && (e.name === 'NotAllowedError' || e.name === 'SecurityError');
+    say(denied ? 'No microphone permission: allow the microphone for this page (or play a file).'
+               : `cannot start: ${e && e.message || e}`);
+    console.error(e);
+  };
+  button.onclick = () => { if (state.running) stop(); else startMicrophone().catch(failed); };
+  fileInput.onchange = () => { if (fileInput.files[0]) { if (state.running) stop(); startFile(fileInput.files[0]).catch(failed); } };
+  Object.assign(state, { ready: true, mesh, info, start: () => startMicrophone().catch(failed), stop,
+                         playFile: (f) => startFile(f).catch(failed) });
+  msg.textContent = `${info.checkpoint}, speaker ${info.speaker}: press Start and speak ` +
+                    `(look-ahead ${info.lookahead_ms} ms, expected latency ${(1000 * info.latency_s).toFixed(0)} ms)`;
+  button.disabled = false;
+} catch (e) {
+  state.error = String(e && e.stack || e);
+  msg.textContent = 'cannot start the live view: ' + e;
+  console.error(e);
+}

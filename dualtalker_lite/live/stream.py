@@ -1,0 +1,283 @@
+"""The live path, without the network: audio samples in, viseme classes and face frames out, a hop at a time.
+
+Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/server.py`` runs them per connection):
+
+* :class:`StreamingVisemes` -- a *causal* viseme track with a bounded look-ahead. The offline track
+  (:meth:`~dualtalker_lite.recogniser.RecogniserExtractor.viseme_ids`) runs hama on 24 s cores with 2 s of context
+  on each side; live, that is 2 s of waiting and 28 s of recogniser per call. Here, every hop (``push``), hama runs
+  on ``past_s`` of audio before the first recogniser frame not yet final, up to the newest sample; a recogniser
+  frame j (t = 20 ms x j) is *final* once ``lookahead_s`` of audio after it has arrived, and only final frames are
+  kept (never revised). A mesh frame f then takes the nearest spike within ``window_s`` (after moving spikes
+  ``lag_s`` earlier, as offline: :func:`~dualtalker_lite.recogniser.spike_track`), so it is final once the
+  recogniser frames up to ``f / fps + lag_s + window_s`` are. Latency of the track: ``lookahead_s + lag_s +
+  window_s`` (0.2 + 0.02 + 0.1 s by default) plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
+  audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (0.6 s past, 0.2 s
+  ahead, hops of 0.2 s) keep that well below real time on one core (measured: ``docs/live.md``).
+* :class:`IncrementalDecoder` -- the model's autoregressive step (its KV cache,
+  :meth:`~dualtalker_lite.blocks.decoder.MotionDecoder.cached_step`) for each new frame. The audio encoder of the
+  models is non-causal (its receptive field is hundreds of frames: 454 for the tiny DualTalker), so offline
+  decoding (``generate_chunks``) cannot start before it has seen 15 s of the future. Live, frame t's features are
+  encoded from the features of frames ``[t - past_frames, t + ahead_frames]`` only: an approximation (an encoder
+  trained on whole clips sees a window edge where it saw more speech), not the offline numbers. How close it comes
+  is measured on a shipped clip (``benchmarks/live.py``, ``tests/test_live.py``: lip-distance correlation).
+
+The two meet in :class:`LiveSession`: samples -> one-hot visemes -> vertices, what a connection runs. Nothing here
+is asynchronous: the server calls ``push`` in a worker thread.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..recogniser import FRAME_SAMPLES, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track
+
+__all__ = ["StreamingVisemes", "IncrementalDecoder", "LiveSession", "LiveSettings"]
+
+SAMPLE_RATE = 16000
+
+
+class StreamingVisemes:
+    """Viseme class per mesh frame from 16 kHz audio given in pieces, with ``lookahead_s`` of look-ahead.
+
+        track = StreamingVisemes(extractor, lookahead_s=0.2)
+        for piece in pieces:                  # float32 samples in [-1, 1], any length
+            ids = track.push(piece)           # (n,) int64, the mesh frames that became final (maybe none)
+        rest = track.flush()                  # the end of the stream: the frames still waiting
+
+    ``extractor``: the checkpoint's :class:`~dualtalker_lite.recogniser.RecogniserExtractor` (its ``lag_s``,
+    ``window_s``, ``blank_bias``, ``fps`` and recogniser are used, so the track means what the model was trained
+    on). hama runs only when at least ``hop_s`` of new audio has arrived. ``frames_done`` mesh frames have been
+    returned so far; ``recogniser_seconds`` is the time spent in hama (the cost).
+    """
+
+    def __init__(self, extractor: RecogniserExtractor, lookahead_s: float = 0.2, past_s: float = 0.6,
+                 hop_s: float = 0.2):
+        if not 0 <= lookahead_s <= 2.0:
+            raise ValueError(f"lookahead must be between 0 and 2000 ms, got {lookahead_s * 1000:g} ms")
+        if not 0 <= past_s <= 10.0 or not 0.02 <= hop_s <= 2.0:
+            raise ValueError(f"need 0 <= past_s <= 10 and 0.02 <= hop_s <= 2, got {past_s}, {hop_s}")
+        self.ex, self.rec = extractor, extractor.recogniser
+        self.lookahead = int(round(lookahead_s * SAMPLE_RATE))
+        self.past = int(round(past_s * RATE)) * FRAME_SAMPLES         # a multiple of 320: frames line up
+        self.hop = int(round(hop_s * SAMPLE_RATE))
+        self.buf, self.buf0 = np.empty(0, np.float32), 0               # samples [buf0, buf0 + len(buf)) of the stream
+        self.n = 0                                                     # samples received
+        self.rec_done = 0                                              # recogniser frames final so far
+        self.spike_t, self.spike_v = np.empty(0), np.empty(0, np.int64)  # final spikes (lag-corrected s), visemes
+        self.frames_done = 0
+        self.recogniser_seconds = 0.0
+        self._last_run = 0
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        """Append samples (float32 (n,), 16 kHz) -> viseme ids (k,) of the mesh frames that became final."""
+        samples = np.asarray(samples, dtype=np.float32).reshape(-1)
+        if samples.size and not np.isfinite(samples).all():
+            raise ValueError("audio samples must be finite")
+        if samples.size > 10 * SAMPLE_RATE:  # hama reads at most 30 s per call: long pieces go 10 s at a time
+            return np.concatenate([self.push(samples[i:i + 10 * SAMPLE_RATE])
+                                   for i in range(0, samples.size, 10 * SAMPLE_RATE)])
+        self.buf = np.concatenate([self.buf, samples])
+        self.n += samples.size
+        if self.n - self._last_run < self.hop:
+            return np.empty(0, np.int64)
+        return self._advance(final=False)
+
+    def flush(self) -> np.ndarray:
+        """End of stream: every remaining recogniser frame is final (with what look-ahead there is) -> the rest of
+        the mesh frames, up to ``round(n fps / 16000)`` in all (the offline frame count)."""
+        return self._advance(final=True)
+
+    def _advance(self, final: bool) -> np.ndarray:
+        self._last_run = self.n
+        total = 1 + self.n // FRAME_SAMPLES                            # recogniser frames of what has arrived
+        end = total if final else (max(0, (self.n - self.lookahead) // FRAME_SAMPLES + 1) if self.n >= self.lookahead
+                                   else 0)
+        end = min(end, total)
+        if end > self.rec_done:
+            lo = max(0, self.rec_done * FRAME_SAMPLES - self.past)     # a multiple of 320
+            piece = self.buf[lo - self.buf0:]
+            t0 = time.perf_counter()
+            out = self.rec._run(piece) if piece.size else np.zeros((0, len(self.rec.symbols)), np.float32)
+            self.recogniser_seconds += time.perf_counter() - t0
+            first = lo // FRAME_SAMPLES
+            block = out[self.rec_done - first:end - first]
+            if block.shape[0] < end - self.rec_done:                  # the stream's last frame: repeat (as offline)
+                pad = block[-1:] if block.shape[0] else np.zeros((1, out.shape[1]), np.float32)
+                block = np.concatenate([block, np.repeat(pad, end - self.rec_done - block.shape[0], 0)])
+            block = block.astype(np.float16)                           # offline rounds to float16 too
+            frames, vis = self.rec.spikes(block, self.ex.blank_bias)
+            self.spike_t = np.concatenate([self.spike_t, (self.rec_done + frames) / RATE - self.ex.lag_s])
+            self.spike_v = np.concatenate([self.spike_v, vis])
+            self.rec_done = end
+            keep = max(0, self.rec_done * FRAME_SAMPLES - self.past - self.buf0)   # the next call's context only
+            self.buf, self.buf0 = self.buf[keep:], self.buf0 + keep
+        fps = self.ex.fps
+        if final:
+            stop = max(1, int(round(self.n * fps / SAMPLE_RATE)))
+        else:  # mesh frame f is final once every spike within window_s of f / fps is known
+            known_s = self.rec_done / RATE - self.ex.lag_s             # spikes before this time are all known
+            stop = int(np.floor((known_s - self.ex.window_s) * fps - 1e-9)) + 1 if known_s > self.ex.window_s else 0
+            stop = min(stop, int(self.n * fps / SAMPLE_RATE))
+        if stop <= self.frames_done:
+            return np.empty(0, np.int64)
+        f0 = self.frames_done
+        old = self.spike_t < f0 / fps - self.ex.window_s - 1.0         # spikes no later frame can reach
+        if old.any():
+            self.spike_t, self.spike_v = self.spike_t[~old], self.spike_v[~old]
+        ids = spike_track(self.spike_t - f0 / fps, self.spike_v, stop - f0, fps, self.ex.window_s)
+        self.frames_done = stop
+        return ids
+
+
+class IncrementalDecoder:
+    """A model's autoregressive decoding, a few frames at a time, as features arrive.
+
+        dec = IncrementalDecoder(model, template, speaker=0, past_frames=60, ahead_frames=3)
+        verts = dec.push(one_hot)        # (n, D_a) features of the next frames -> (k, V*3) vertices, k <= n + ...
+        verts = dec.flush()              # end of stream: the frames still waiting for their look-ahead
+
+    For models with one :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (``model.decoder``) fed by
+    ``model.encode_audio`` (DualTalker, FaceFormer); others are refused with one line. Frame t is decoded once the
+    features of frame ``t + ahead_frames`` (plus the decoder's own alignment margin) have arrived; its encoded
+    features come from frames ``[t - past_frames, t + ahead_frames]`` only (module doc). ``window``: the decoder's
+    self-attention cache (default: the model's ``decoder_window``), so a long session runs in bounded memory.
+    """
+
+    def __init__(self, model: torch.nn.Module, template: np.ndarray, speaker: int = 0, past_frames: int = 60,
+                 ahead_frames: int = 3, window: int | str | None = "config"):
+        from ..blocks.decoder import MotionDecoder, check_window
+
+        if not isinstance(getattr(model, "decoder", None), MotionDecoder) or not hasattr(model, "encode_audio") \
+                or not hasattr(getattr(model, "extractor", None), "ppe"):
+            raise ValueError(f"live decoding supports models with one motion decoder fed by encode_audio "
+                             f"(DualTalker, FaceFormer), not {type(model).__name__}")
+        if past_frames < 0 or ahead_frames < 0:
+            raise ValueError(f"past_frames and ahead_frames must be >= 0, got {past_frames}, {ahead_frames}")
+        self.model = model.eval()
+        self.dec = model.decoder
+        self.template = torch.as_tensor(np.asarray(template, np.float32).reshape(1, -1))   # (1, V*3)
+        self.past, self.ahead = int(past_frames), int(ahead_frames)
+        self.left, self.right = self.dec.feature_margins()
+        self.period = model.extractor.ppe.period
+        cfg = getattr(model, "cfg", None)
+        window = check_window(window, getattr(cfg, "decoder_window", None))
+        with torch.no_grad():
+            self.style = self.dec.speaker_style(torch.tensor([int(speaker)]))               # (1, d)
+        self.states = self.dec.new_state(None, window)
+        self.token = self.style[:, None, :]                                               # S_n, the start token
+        keep = self.past + self.left + self.period + 8
+        self.feats = np.empty((0, 0), np.float32)                    # input features of frames [f0, f0 + n)
+        self.f0, self._keep = 0, keep
+        self.t = 0                                                    # frames decoded so far
+        self.model_seconds = 0.0
+
+    @property
+    def received(self) -> int:
+        return self.f0 + len(self.feats)
+
+    def push(self, features: np.ndarray) -> np.ndarray:
+        """Features (n, D_a) of the next n frames -> vertices (k, V*3) float32 of the frames now decodable."""
+        features = np.asarray(features, np.float32)
+        if features.size:
+            self.feats = features.copy() if self.feats.size == 0 else np.concatenate([self.feats, features])
+        return self._decode(self.received - self.ahead - self.right)
+
+    def flush(self) -> np.ndarray:
+        """End of stream: decode every frame received (the last ones with less look-ahead)."""
+        return self._decode(self.received)
+
+    @torch.no_grad()
+    def _decode(self, stop: int) -> np.ndarray:
+        t0, stop = self.t, min(stop, self.received)
+        if stop <= t0:
+            return np.empty((0, self.template.shape[1]), np.float32)
+        start_time = time.perf_counter()
+        lo = max(0, t0 - self.left)                                   # the decoder reads features [lo, hi)
+        hi = min(self.received, stop + self.right)
+        a = max(0, lo - self.past)
+        a -= a % self.period                                          # the encoder's PPE phase of absolute frames
+        assert a >= self.f0, "features dropped too early"           # _keep covers past + period: never binds
+        b = min(self.received, hi + self.ahead)
+        audio = torch.from_numpy(self.feats[a - self.f0:b - self.f0])[None]                  # (1, b - a, D_a)
+        x = self.model.encode_audio(audio, None)[:, lo - a:hi - a]                           # (1, hi - lo, d)
+        self.dec.load_features(self.states, x, lo)
+        out = np.empty((stop - t0, self.template.shape[1]), np.float32)
+        for t in range(t0, stop):
+            m = self.dec.cached_step(self.states, self.token, x, self.style, t, None, lo)     # (1, 1, V*3)
+            out[t - t0] = (self.template + m[:, 0]).numpy()[0]
+            self.token = self.dec.feedback(m, self.style)
+        bad = ~np.isfinite(out).all(1)
+        if bad.any():
+            from ..checks import NonFiniteError
+
+            raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
+                                 f"{t0 + int(np.argmax(bad))})")
+        self.t = stop
+        drop = max(0, self.t - self._keep - self.f0)                  # features no later frame reads
+        if drop:
+            self.feats, self.f0 = self.feats[drop:], self.f0 + drop
+        self.model_seconds += time.perf_counter() - start_time
+        return out
+
+
+@dataclass
+class LiveSettings:
+    """What a live session trades: look-ahead (latency) against agreement with the offline animation, and past
+    context and hop against cost. Defaults measured in ``docs/live.md``."""
+    lookahead_s: float = 0.2      # recogniser look-ahead
+    past_s: float = 0.6           # recogniser context before the first frame not yet final
+    hop_s: float = 0.2            # hama runs once per hop of new audio
+    past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
+    ahead_frames: int = 3         # audio-encoder look-ahead (mesh frames) after it
+
+    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
+        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
+        return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
+
+
+class LiveSession:
+    """Samples in, vertices out: :class:`StreamingVisemes` -> one-hot -> :class:`IncrementalDecoder`.
+
+        session = LiveSession(model, extractor, template, speaker=0, settings=LiveSettings())
+        first, verts = session.push(samples)    # first: the index of verts[0]; verts (k, V*3) float32
+        first, verts = session.flush()
+    """
+
+    def __init__(self, model, extractor: RecogniserExtractor, template: np.ndarray, speaker: int = 0,
+                 settings: LiveSettings | None = None):
+        if getattr(extractor, "output", None) != "visemes":
+            raise ValueError(f"live decoding needs a model trained on the recogniser's viseme track (features "
+                             f"'hama', output 'visemes'), this one reads {extractor!r}")
+        self.settings = s = settings or LiveSettings()
+        self.visemes = StreamingVisemes(extractor, s.lookahead_s, s.past_s, s.hop_s)
+        self.decoder = IncrementalDecoder(model, template, speaker, s.past_frames, s.ahead_frames)
+        self.n_classes = extractor.dim
+
+    def _one_hot(self, ids: np.ndarray) -> np.ndarray:
+        return np.eye(self.n_classes, dtype=np.float32)[ids]                               # (k, 15)
+
+    def push(self, samples: np.ndarray) -> tuple[int, np.ndarray]:
+        first = self.decoder.t
+        return first, self.decoder.push(self._one_hot(self.visemes.push(samples)))
+
+    def flush(self) -> tuple[int, np.ndarray]:
+        first = self.decoder.t
+        ids = self.visemes.flush()
+        a = self.decoder.push(self._one_hot(ids))
+        b = self.decoder.flush()
+        return first, np.concatenate([a, b])
+
+
+def offline_visemes(extractor: RecogniserExtractor, wave: np.ndarray, n_frames: int) -> np.ndarray:
+    """The offline track of ``wave`` (what ``animate`` feeds the model), for comparisons."""
+    return extractor.viseme_ids(wave, n_frames)
+
+
+def new_extractor(settings: dict | None = None, cache: bool = False) -> RecogniserExtractor:
+    """A recogniser extractor (from a checkpoint's ``features`` entry, or the defaults) without the disk cache."""
+    if settings:
+        return RecogniserExtractor.from_settings(settings, cache=cache)
+    return RecogniserExtractor(recogniser=PhonemeRecogniser(cache=cache, threads=1))

@@ -1,0 +1,500 @@
+"""Live lip sync (issue 33): the streaming front end, the server's safety rules and the page in a real browser.
+
+- the causal viseme track returns exactly the offline frame count and mostly the offline classes;
+- the server (aiohttp's test client, no browser): a foreign or missing Origin and a foreign Host are refused; text
+  garbage, an odd-length binary message, an oversized one, a flood and a client that vanishes mid-stream each close
+  that connection only (the server still serves); a shipped clip streamed in 100 ms messages yields every frame,
+  and their lip distance follows the offline ``animate`` of the same clip;
+- the page in headless chromium with a fake microphone playing the clip: the face moves, its lip distance follows
+  the offline animation, and every request goes to the local server.
+
+A tiny checkpoint is trained once (``train --clips 16 --epochs 1``, about 10 s): it barely moves its lips (a few
+micrometres), but the movement follows the visemes, which is what the correlations check.
+"""
+import asyncio
+import json
+import logging
+import os
+import shutil
+import threading
+import warnings
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+pytest.importorskip("aiohttp", reason="the live server needs aiohttp: pip install 'dualtalker-lite[live]'")
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+from pathlib import Path  # noqa: E402
+
+from aiohttp import WSMsgType, WSServerHandshakeError  # noqa: E402
+from aiohttp.test_utils import TestClient, TestServer  # noqa: E402
+
+from dualtalker_lite.live.server import HEADER, Limits, load_config, make_app  # noqa: E402
+from dualtalker_lite.live.stream import StreamingVisemes, new_extractor  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIP = ROOT / "notebooks" / "data" / "real" / "agent-pass.flac"
+
+
+def _wave():
+    from dualtalker_lite.audio import load_audio
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return load_audio(CLIP)  # 8 kHz telephone speech, upsampled to 16 kHz as animate does
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    from dualtalker_lite.cli import main
+
+    path = tmp_path_factory.mktemp("live") / "tiny.pt"
+    main(["train", "--clips", "16", "--epochs", "1", "--out", str(path), "--no-progress"])
+    return path
+
+
+@pytest.fixture(scope="module")
+def config(checkpoint):
+    return load_config(str(checkpoint), "SPK01")
+
+
+@pytest.fixture(scope="module")
+def offline(config):
+    """The offline ``animate`` of the clip: vertices (T, V*3) and their lip distance (T,) in mm."""
+    from dualtalker_lite.inference import animate_wave
+
+    verts = animate_wave(config.model, _wave(), config.template, config.speaker, extractor=config.extractor)
+    return verts, _lip(verts, config)
+
+
+def _lip(verts, config):
+    from dualtalker_lite.metrics import lip_distance
+
+    up, lo = config.lip_midpoints
+    return lip_distance(np.asarray(verts), [up], [lo])
+
+
+def test_streaming_track_has_the_offline_length_and_mostly_its_classes():
+    ex = new_extractor()
+    wave = _wave()
+    n = int(round(len(wave) * 30 / 16000))
+    track = StreamingVisemes(ex, lookahead_s=0.2)
+    ids = [track.push(wave[i:i + 1600]) for i in range(0, len(wave), 1600)] + [track.flush()]
+    ids = np.concatenate(ids)
+    assert len(ids) == n and track.frames_done == n
+    assert (ids == ex.viseme_ids(wave, n)).mean() > 0.8           # measured: 0.91 (docs/live.md)
+    assert track.recogniser_seconds < 3 * len(wave) / 16000       # generous: 0.25 s per s measured, one core
+    with pytest.raises(ValueError, match="lookahead"):
+        StreamingVisemes(ex, lookahead_s=5)
+
+
+def test_incremental_decoder_with_whole_context_is_the_offline_decoding(config):
+    """With past and look-ahead covering the clip, every frame's features are the offline ones, so pushing the
+    features a few frames at a time must give ``generate_chunks``'s vertices (to float rounding): the KV-cache step,
+    its offsets and the feedback are used as offline. With the default bounded context the result differs."""
+    import torch
+
+    from dualtalker_lite.live.stream import IncrementalDecoder
+
+    rng = np.random.default_rng(0)
+    feats = np.eye(15, dtype=np.float32)[rng.integers(0, 15, 70)]              # (70, 15) one-hot visemes
+    with torch.no_grad():
+        ref = torch.cat(list(config.model.generate_chunks(torch.from_numpy(feats)[None],
+                                                          torch.from_numpy(config.template)[None],
+                                                          torch.tensor([config.speaker]))), 1)[0].numpy()
+    dec = IncrementalDecoder(config.model, config.template, config.speaker, past_frames=500, ahead_frames=500)
+    out = [dec.push(feats[i:i + 4]) for i in range(0, 70, 4)] + [dec.flush()]
+    assert sum(len(o) for o in out[:-1]) == 0                                  # all waited for 500 frames ahead
+    np.testing.assert_allclose(out[-1], ref, atol=1e-6)
+    assert np.abs(ref - config.template).max() > 1e-6                           # the model does move the face
+    dec = IncrementalDecoder(config.model, config.template, config.speaker, past_frames=8, ahead_frames=2)
+    parts = [dec.push(feats[i:i + 4]) for i in range(0, 70, 4)]
+    assert sum(len(p) for p in parts) == 68                                     # all but the last 2: look-ahead
+    live = np.concatenate(parts + [dec.flush()])
+    assert live.shape == ref.shape and not np.allclose(live, ref, atol=1e-7)
+    with pytest.raises(ValueError, match="one motion decoder"):
+        IncrementalDecoder(torch.nn.Linear(2, 2), config.template)
+    dec = IncrementalDecoder(config.model, config.template, config.speaker, past_frames=8, ahead_frames=0)
+    with pytest.raises(ValueError, match="NaN/infinite values \\(first at frame 0\\)"):
+        dec.push(np.full((3, 15), np.nan, np.float32))                         # never silently wrong
+
+
+def test_incremental_decoder_waits_for_a_centred_alignment_window(config):
+    """A decoder whose integration reads features w//2 frames after t (FaceFormer's centred window; DualTalker with
+    ``query_from="decoder"``, ``align_window=5``) waits for them, and with whole context it reproduces
+    ``generate_chunks`` too (random weights, so the face moves)."""
+    import torch
+
+    from dualtalker_lite.live.stream import IncrementalDecoder
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=config.template.size // 3, audio_dim=15, n_speakers=2,
+                                query_from="decoder", align_window=5)
+    model = DualTalker(cfg).eval()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    right = model.decoder.feature_margins()[1]
+    assert right == 2
+    feats = np.eye(15, dtype=np.float32)[np.random.default_rng(1).integers(0, 15, 50)]
+    with torch.no_grad():
+        ref = torch.cat(list(model.generate_chunks(torch.from_numpy(feats)[None],
+                                                   torch.from_numpy(config.template)[None],
+                                                   torch.tensor([1]))), 1)[0].numpy()
+    assert np.abs(ref - config.template).max() > 1e-5
+    dec = IncrementalDecoder(model, config.template, 1, past_frames=8, ahead_frames=0)
+    assert len(dec.push(feats[:10])) == 10 - right            # waits for the alignment window's last frame
+    dec = IncrementalDecoder(model, config.template, 1, past_frames=500, ahead_frames=500)
+    whole = np.concatenate([dec.push(feats[i:i + 7]) for i in range(0, 50, 7)] + [dec.flush()])
+    np.testing.assert_allclose(whole, ref, atol=1e-5)
+
+
+# ------------------------------------------------------------------------------------------------ the server
+def _run(coro):
+    return asyncio.run(coro)
+
+
+async def _client(config, limits=None):
+    if limits is not None:
+        config = type(config)(**{**config.__dict__, "limits": limits})
+    client = TestClient(TestServer(make_app(config), host="127.0.0.1", handler_cancellation=True))
+    await client.start_server()
+    return client
+
+
+def _origin(client):
+    return f"http://127.0.0.1:{client.server.port}"
+
+
+async def _still_serves(client):
+    """The page loads and a fresh WebSocket says hello: the server survived what came before."""
+    assert (await client.get("/")).status == 200
+    ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+    hello = json.loads((await ws.receive(timeout=10)).data)
+    assert hello["type"] == "hello" and hello["fps"] == 30
+    await ws.close()
+
+
+async def _closed_with_error(ws):
+    """-> (the error message sent, the close code); frames computed before the error are skipped."""
+    text = None
+    while True:
+        msg = await ws.receive(timeout=20)
+        if msg.type == WSMsgType.TEXT:
+            text = json.loads(msg.data)["message"]
+        elif msg.type != WSMsgType.BINARY:
+            assert msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.CLOSING), msg
+            return text, ws.close_code
+
+
+def test_foreign_origin_and_host_are_refused(config, caplog):
+    async def main():
+        client = await _client(config)
+        try:
+            for headers in ({"Origin": "http://evil.example"}, {}, {"Origin": "null"},
+                            {"Origin": _origin(client).replace("127.0.0.1", "127.0.0.2")}):
+                with pytest.raises(WSServerHandshakeError) as e:
+                    await client.ws_connect("/ws", headers=headers)
+                assert e.value.status == 403, headers
+            rebind = await client.get("/", headers={"Host": f"attacker.example:{client.server.port}"})
+            assert rebind.status == 403
+            local = await client.get("/", headers={"Host": f"localhost:{client.server.port}"})
+            assert local.status == 200 and "default-src 'self'" in local.headers["Content-Security-Policy"]
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert "Origin 'http://evil.example' is not this server's" in caplog.text
+    assert "Host 'attacker.example" in caplog.text
+
+
+def test_garbage_oversized_flood_and_vanishing_clients_leave_the_server_serving(config, caplog):
+    async def main():
+        client = await _client(config, Limits(max_message_bytes=4000, max_messages_per_s=20, max_speed=2.0))
+        origin = {"Origin": _origin(client)}
+        try:
+            cases = {"text": lambda ws: ws.send_str("GET / HTTP/1.1"),
+                     "odd": lambda ws: ws.send_bytes(b"\x01\x02\x03"),
+                     "big": lambda ws: ws.send_bytes(bytes(4002))}
+            reasons = {}
+            for name, send in cases.items():
+                ws = await client.ws_connect("/ws", headers=origin)
+                await ws.receive(timeout=10)                         # hello
+                await send(ws)
+                reasons[name] = await _closed_with_error(ws)
+                await _still_serves(client)
+            assert "unknown text message" in reasons["text"][0] and reasons["text"][1] == 1003
+            assert "odd length 3" in reasons["odd"][0] and reasons["odd"][1] == 1003
+            assert reasons["big"][1] == 1009                        # aiohttp's max_msg_size: message too big
+            ws = await client.ws_connect("/ws", headers=origin)      # a flood of tiny messages
+            await ws.receive(timeout=10)
+            for _ in range(40):
+                await ws.send_bytes(bytes(2))
+            text, code = await _closed_with_error(ws)
+            assert "messages a second" in text and code == 1008
+            await _still_serves(client)
+            await client.close()
+            client = await _client(config, Limits(max_message_bytes=32000, max_speed=1.0))
+            origin = {"Origin": _origin(client)}
+            ws = await client.ws_connect("/ws", headers=origin)      # audio far faster than real time
+            await ws.receive(timeout=10)
+            for _ in range(8):
+                await ws.send_bytes(bytes(32000))                   # 8 s of silence in an instant
+            text, code = await _closed_with_error(ws)
+            assert "faster than 1x real time" in text and code == 1008
+            await _still_serves(client)
+            ws = await client.ws_connect("/ws", headers=origin)      # vanishes mid-stream
+            await ws.receive(timeout=10)
+            await ws.send_bytes(bytes(3200))
+            ws._response.connection.transport.abort()
+            await asyncio.sleep(0.5)
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("closed 127.0.0.1") == 6
+    assert "connection lost mid-stream (client gone or server stopping) after 0.1 s of audio" in caplog.text
+
+
+def test_a_stalled_client_is_closed_after_the_idle_timeout(config, caplog):
+    async def main():
+        client = await _client(config, Limits(idle_timeout_s=0.5))
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            await ws.receive(timeout=10)
+            await ws.send_bytes(bytes(3200))                        # 0.1 s, then nothing
+            text, code = await _closed_with_error(ws)
+            assert text == "no message for 0.5 s" and code == 1008
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("no message for 0.5 s") == 1
+
+
+def test_a_failing_session_is_one_log_line_and_a_1011_close(config, caplog, monkeypatch):
+    from dualtalker_lite.live.stream import LiveSession
+
+    def boom(self, samples):
+        raise ValueError("boom")
+
+    async def main():
+        client = await _client(config)
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            await ws.receive(timeout=10)
+            await ws.send_bytes(bytes(3200))
+            text, code = await _closed_with_error(ws)
+            assert text == "the live session failed: ValueError: boom" and code == 1011
+            monkeypatch.undo()
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    monkeypatch.setattr(LiveSession, "push", boom)
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("the live session failed: ValueError: boom") == 1
+
+
+def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(config, offline):
+    verts_off, lip_off = offline
+    wave = _wave()
+    pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
+
+    async def main():
+        client = await _client(config, Limits(max_speed=1e9, max_messages_per_s=1000))
+        frames = {}
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            assert json.loads((await ws.receive(timeout=10)).data)["type"] == "hello"
+            await ws.send_str(json.dumps({"type": "start"}))
+            for i in range(0, len(pcm), 1600):
+                await ws.send_bytes(pcm[i:i + 1600].tobytes())
+            await ws.send_str(json.dumps({"type": "stop"}))
+            while True:
+                msg = await ws.receive(timeout=60)
+                if msg.type == WSMsgType.BINARY:
+                    first, n, _ = HEADER.unpack_from(msg.data)
+                    v = np.frombuffer(msg.data, "<f4", offset=HEADER.size).reshape(n, -1)
+                    frames.update({first + i: v[i] for i in range(n)})
+                else:
+                    assert msg.type == WSMsgType.TEXT
+                    done = json.loads(msg.data)
+                    assert done["type"] == "done", done
+                    break
+            await ws.close()
+        finally:
+            await client.close()
+        return frames, done
+
+    frames, done = _run(main())
+    assert sorted(frames) == list(range(len(verts_off))) and done["frames"] == len(verts_off)
+    live = np.stack([frames[i] for i in range(len(frames))])
+    lip = _lip(live, config)
+    assert lip.std() > 0.2 * lip_off.std()                          # the face moves
+    assert np.corrcoef(lip, lip_off)[0, 1] > 0.6                    # measured: 0.84
+
+
+def test_live_command_refuses_bad_checkpoints(tmp_path, capsys):
+    import torch
+
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    with pytest.raises(SystemExit) as e:
+        main(["live", "--checkpoint", str(tmp_path / "none.pt")])
+    assert e.value.code == 2 and f"error: {tmp_path / 'none.pt'}: no such checkpoint" in capsys.readouterr().err
+    cfg = DualTalkerConfig.tiny(n_vertices=10, audio_dim=160, n_speakers=1)
+    torch.manual_seed(0)
+    save_checkpoint(tmp_path / "logmel.pt", DualTalker(cfg), cfg, speakers=["SPK01"], faces=np.zeros((1, 3), int))
+    with pytest.raises(SystemExit) as e:
+        main(["live", "--checkpoint", str(tmp_path / "logmel.pt")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "logmel.pt: live needs a model trained on the recogniser's viseme track" in err
+
+
+def test_live_command_refuses_bad_options_and_a_busy_port(checkpoint, config, capsys):
+    from dualtalker_lite.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["live", "--checkpoint", str(checkpoint), "--lookahead-ms", "5000"])
+    assert e.value.code == 2 and "error: --lookahead-ms 5000: must be between 0 and 2000" in capsys.readouterr().err
+    server = _Server(config)                                  # holds a port
+    try:
+        with pytest.raises(SystemExit) as e:
+            main(["live", "--checkpoint", str(checkpoint), "--port", str(server.port)])
+    finally:
+        server.close()
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and f"error: 127.0.0.1:{server.port}: cannot listen" in err and "--port" in err
+
+
+# ------------------------------------------------------------------------------------------------ a real browser
+def _chromium():
+    exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("no chromium: `apt-get install chromium` (Debian) or set DTL_CHROMIUM")
+    from playwright.sync_api import sync_playwright
+
+    return exe, sync_playwright
+
+
+class _Server:
+    """The live app on a free loopback port, in a thread with its own event loop (the test drives a browser)."""
+
+    def __init__(self, config):
+        from aiohttp import web
+
+        self.loop = asyncio.new_event_loop()
+        self.runner = web.AppRunner(make_app(config), access_log=None, handler_cancellation=True)
+        ready = threading.Event()
+
+        def run():
+            asyncio.set_event_loop(self.loop)
+            self.loop.run_until_complete(self.runner.setup())
+            site = web.TCPSite(self.runner, "127.0.0.1", 0)
+            self.loop.run_until_complete(site.start())
+            self.port = self.runner.addresses[0][1]
+            ready.set()
+            self.loop.run_forever()
+            self.loop.run_until_complete(self.runner.cleanup())
+
+        self.thread = threading.Thread(target=run, daemon=True)
+        self.thread.start()
+        assert ready.wait(30)
+
+    def close(self):
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(30)
+
+
+def _best_lag_corr(live: np.ndarray, ref: np.ndarray, max_lag: int = 30) -> tuple[float, int]:
+    """The highest correlation of ``ref`` with ``live`` shifted by -max_lag..max_lag frames, over their overlap
+    (at least 80% of ``ref``): the fake microphone plays from its own start, the page captures from when the
+    worklet runs, an offset of a few unknown frames either way."""
+    best = (-1.0, 0)
+    for lag in range(-max_lag, max_lag + 1):
+        a, b = (live[lag:], ref) if lag >= 0 else (live, ref[-lag:])
+        k = min(len(a), len(b))
+        if k < 0.8 * len(ref) or a[:k].std() == 0:
+            continue
+        best = max(best, (float(np.corrcoef(a[:k], b[:k])[0, 1]), lag))
+    return best
+
+
+def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, tmp_path):
+    exe, sync_playwright = _chromium()
+    _, lip_off = offline
+    wav = tmp_path / "clip.wav"
+    sf.write(wav, _wave(), 16000, subtype="PCM_16")
+    server = _Server(config)
+    base = f"127.0.0.1:{server.port}"
+    shots = Path(os.environ.get("DTL_SCREENSHOTS", ROOT / "runs" / "screenshots"))
+    shots.mkdir(parents=True, exist_ok=True)
+    requests = []
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=exe, args=[
+                "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+                f"--use-file-for-fake-audio-capture={wav}%noloop", "--autoplay-policy=no-user-gesture-required"])
+            try:
+                page = browser.new_page(viewport={"width": 800, "height": 600})
+                page.on("request", lambda r: requests.append(r.url))
+                page.on("websocket", lambda w: requests.append(w.url))
+                page.goto(f"http://{base}/")
+                page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)", timeout=60000)
+                assert page.evaluate("() => dtlLive.error") is None
+                page.click("button.start")
+                page.wait_for_function("() => dtlLive.running || dtlLive.status.startsWith('No microphone')",
+                                       timeout=60000)
+                assert page.evaluate("() => dtlLive.running"), page.evaluate("() => dtlLive.status")
+                n = len(lip_off)
+                page.wait_for_function(f"() => dtlLive.frames >= {n + 15}", timeout=60000)
+                page.screenshot(path=str(shots / "live_page.png"))
+                state = page.evaluate("() => [dtlLive.lip, dtlLive.latencyMs, dtlLive.shown, "
+                                      "document.querySelector('.latency').textContent]")
+                page.click("button.start")                          # stop
+                page.wait_for_function("() => dtlLive.status.startsWith('stopped')", timeout=60000)
+                # no microphone permission: one line says so; a file still plays through the live path
+                denied = browser.new_page(viewport={"width": 800, "height": 600})
+                denied.on("request", lambda r: requests.append(r.url))
+                denied.on("websocket", lambda w: requests.append(w.url))
+                denied.add_init_script("navigator.mediaDevices.getUserMedia = () => "
+                                       "Promise.reject(new DOMException('denied', 'NotAllowedError'));")
+                denied.goto(f"http://{base}/?native")               # the browser's rate: the worklet resamples
+                denied.wait_for_function("() => window.dtlLive && dtlLive.ready", timeout=60000)
+                denied.click("button.start")
+                denied.wait_for_function("() => dtlLive.status !== ''", timeout=60000)
+                no_mic = denied.evaluate("() => document.querySelector('.status').textContent")
+                denied.set_input_files("input.file", str(wav))
+                denied.wait_for_function(f"() => dtlLive.frames >= {n // 2}", timeout=60000)
+                file_lip, file_rate = denied.evaluate("() => [dtlLive.lip, dtlLive.contextRate]")
+            finally:
+                browser.close()
+    finally:
+        server.close()
+    lip, latency, shown, latency_text = state
+    lip = np.array([np.nan if v is None else v for v in lip], float)
+    assert np.isfinite(lip).all() and lip.std() > 0.2 * lip_off.std()   # the face moves
+    corr, lag = _best_lag_corr(lip, lip_off)
+    assert corr > 0.5, (corr, lag)
+    assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
+    assert no_mic == "No microphone permission: allow the microphone for this page (or play a file)."
+    file_lip = np.array([np.nan if v is None else v for v in file_lip], float)
+    assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std() and file_rate != 16000
+    corr, lag = _best_lag_corr(file_lip, lip_off[:len(file_lip)])
+    assert corr > 0.5, ("file at the browser's rate", corr, lag)
+    local = (f"http://{base}/", f"ws://{base}/")
+    assert requests and [u for u in requests if not u.startswith(local)] == []
