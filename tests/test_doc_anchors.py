@@ -6,6 +6,7 @@ contain it), any other key must occur in the cited line (a range: its first line
 inside one docstring. When code moves, the failure names each wrong anchor and where its key is now;
 ``python tools/fix_doc_anchors.py`` rewrites the line numbers (``--base REV`` also re-points the docstring ranges).
 """
+import re
 import sys
 from pathlib import Path
 
@@ -88,3 +89,24 @@ def test_every_anchor_cites_its_key(doc):
     wrong = [p for a in fda.parse(doc) if (p := fda.problem(a)) is not None]
     assert wrong == [], ("wrong file:line anchors (run `python tools/fix_doc_anchors.py`, then check the diff):\n"
                          + "\n".join(wrong))
+
+
+TEST_ID = re.compile(r"`(tests/[\w/]+\.py)?::(\w+)`")
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
+def test_every_cited_test_exists(doc):
+    """A cited test id (`tests/x.py::name`, or `::name` after one on the same line) names a test function that exists:
+    a renamed or replaced test must not leave an equation row pointing at nothing."""
+    missing = []
+    for n, line in enumerate(doc.read_text().splitlines(), 1):
+        path = None
+        for m in TEST_ID.finditer(line):
+            path = m.group(1) or path
+            if path is None:
+                missing.append(f"{doc.name}:{n}: `::{m.group(2)}` has no test file before it on its line")
+                continue
+            file = ROOT / path
+            if not file.exists() or not re.search(rf"^def {m.group(2)}\(", file.read_text(), re.M):
+                missing.append(f"{doc.name}:{n}: {path}::{m.group(2)}")
+    assert missing == [], "cited tests that do not exist:\n" + "\n".join(missing)
