@@ -265,6 +265,8 @@ def test_spiral_linear_gradcheck_and_chunking(monkeypatch):
 
 
 def test_spiral_conv_output_follows_a_relabelling():
+    """Eq. 3 on relabelled vertices (reading: label-free spiral starts): the relabelled layer's output, mapped back,
+    equals eq. 3 written out with loops (``_dense_reference``) on the original labels."""
     torch.manual_seed(0)
     perm = np.random.default_rng(1).permutation(16)  # old vertex i becomes perm[i]
     new_vertices = np.empty_like(GRID_VERTICES)
@@ -277,4 +279,6 @@ def test_spiral_conv_output_follows_a_relabelling():
     x = torch.randn(2, 4, 16, 2)
     x_new = torch.empty_like(x)
     x_new[:, :, perm] = x  # the same features under the new ids
-    torch.testing.assert_close(new(x_new)[:, :, perm], old(x))
+    want = _dense_reference(old, x).detach()  # eq. 3's loops, not the package's layer
+    torch.testing.assert_close(old(x), want, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(new(x_new)[:, :, perm], want, atol=1e-5, rtol=1e-5)
