@@ -263,7 +263,8 @@ def _mixing_model():
     torch.manual_seed(0)
     model = _perturbed(CorrTalk(_cfg()))
     with torch.no_grad():
-        for generator, c in ((model.weights_strong, (0.0, 1.0, -1.0, 0.5)), (model.weights_weak, (0.5, -1.0, 1.0, 0.0))):
+        for generator, c in ((model.weights_strong, (0.0, 1.0, -1.0, 0.5)),
+                             (model.weights_weak, (0.5, -1.0, 1.0, 0.0))):
             for score, c_l in zip(generator.score, c):
                 score.weight.mul_(2.0)
                 score.bias.fill_(c_l)

@@ -91,7 +91,8 @@ def test_paper_weights_equal_tiny_weights_on_vertex_terms():
     """Eq. 11, L = λ1 L_self + λ2 L_cross + λ3 L_vel + λ4 L_cls, both presets on one hand case (metres in):
     target 0; M^e = 1 mm and M^c = 2 mm on every coordinate; fused M = 0, 1, 3 mm on frames 0, 1, 2; logits (0, 0).
       L_self = 1 + 2 + (0 + 1 + 3) / 3 = 13/3 mm,  L_vel = |1 - 0| and |3 - 1| -> 3/2 mm,  L_cls = log 2
-      paper() (λ 1000 / 1000 / 500 / 1e-4 on metres): 1000 x 13/3e-3 + 500 x 1.5e-3 + 1e-4 log 2 = 13/3 + 3/4 + 1e-4 log 2
+      paper() (λ 1000 / 1000 / 500 / 1e-4 on metres): 1000 x 13/3e-3 + 500 x 1.5e-3 + 1e-4 log 2
+                                                       = 13/3 + 3/4 + 1e-4 log 2
       tiny (λ 1 / 1 / 0.5 / 0.01 on mm):               1 x 13/3 + 0.5 x 3/2 + 0.01 log 2
     so the vertex terms agree (13/3 + 3/4 = 61/12) and only λ4 differs (the documented deviation)."""
     mm = 1e-3
@@ -292,7 +293,8 @@ def test_cross_reconstruction_uses_the_partners_emotion_features(fusion):
         other_pair = model({**batch, "pair_audio": torch.randn_like(batch["pair_audio"])})  # clip 2's changed
         # eqs. 14-16 and 18 built from the parts, not from another forward pass
         fc1, fe1, style_e, style_c = _parts(model, batch, batch["emotion"], batch["level"])
-        _, fe2, _, _ = _parts(model, {**batch, "audio": batch["pair_audio"]}, batch["pair_emotion"], batch["pair_level"])
+        pair = {**batch, "audio": batch["pair_audio"]}
+        _, fe2, _, _ = _parts(model, pair, batch["pair_emotion"], batch["pair_level"])
         tpl = batch["template"][:, None]
         oe2 = model.emotion_decoder.teacher_forced(batch["pair_vertices"] - tpl, fe2, style_e)  # D_e(F_e2), eq. 16
         oc1 = model.content_decoder.teacher_forced(batch["vertices"] - tpl, fc1, style_c)  # D_c(F_c1), eq. 15

@@ -88,8 +88,10 @@ def test_mesh_attention_hand_computed_tiny_case():
     fc[0, :, 0] = torch.tensor([-1.0, 0.5])
     pre = torch.tensor([[[1.75, 0.75, -1.75], [2.375, 1.625, -1.375]]])
     a_hand = 1.0 / (1.0 + torch.exp(-pre))  # (1, 2, 3)
-    me = torch.tensor([[[1.0, 2.0, 3.0, -1.0, 0.0, 4.0, 2.0, 2.0, 2.0], [0.5, 0.5, 0.5, 1.0, 1.0, 1.0, -2.0, 0.0, 2.0]]])
-    mc = torch.tensor([[[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, -2.0, -2.0, -2.0], [3.0, 3.0, 3.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]]])
+    me = torch.tensor([[[1.0, 2.0, 3.0, -1.0, 0.0, 4.0, 2.0, 2.0, 2.0],
+                        [0.5, 0.5, 0.5, 1.0, 1.0, 1.0, -2.0, 0.0, 2.0]]])
+    mc = torch.tensor([[[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, -2.0, -2.0, -2.0],
+                        [3.0, 3.0, 3.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]]])
     fused, a = att(fe, fc, me, mc)
     torch.testing.assert_close(a, a_hand)
     w = a_hand.repeat_interleave(3, dim=-1)  # x, y, z of vertex v: A[v]
