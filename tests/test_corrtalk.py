@@ -89,17 +89,30 @@ def test_config_presets_and_validation():
 
 
 # ---------------------------------------------------------------- mask
-def test_mask_complement_and_parts_sum_to_output():
+def test_eqs_7_8_masked_branches_hand_computed():
+    """Eqs. 7-8 (reconstructed): M̂ = mask ⊙ M^s + (1 - mask) ⊙ M^w with a per-vertex mask shared by x, y, z, every
+    number by hand. Readings: the mask sits inside each branch's output; it is not squashed to [0, 1] (second case).
+    V = 2, M^s = (1, 2, 3 | 4, 5, 6), M^w = (10, 20, 30 | 40, 50, 60):
+      mask (0.25, 0.8):  strong part (0.25, 0.5, 0.75 | 3.2, 4, 4.8), weak part (7.5, 15, 22.5 | 8, 10, 12),
+                         M̂ (7.75, 15.5, 23.25 | 11.2, 14, 16.8)
+      mask (1.5, -0.5):  strong part (1.5, 3, 4.5 | -2, -2.5, -3), weak part (-5, -10, -15 | 60, 75, 90),
+                         M̂ (-3.5, -7, -10.5 | 58, 72.5, 87)"""
     torch.manual_seed(0)
-    model = _perturbed(CorrTalk(_cfg()))
-    m = model.coordinate_mask()
-    total, strong, weak = model.combine(torch.ones(1, 1, 3 * V), torch.ones(1, 1, 3 * V))
-    torch.testing.assert_close(total[0, 0], torch.ones(3 * V))  # strong mask + weak mask = 1
-    torch.testing.assert_close(strong[0, 0], m)
-    torch.testing.assert_close(m, model.mask.repeat_interleave(3))
-    assert torch.equal(m.view(V, 3)[:, 0], model.mask.detach())  # vertex-major: x, y, z of vertex v together
-    out = model(_batch())
-    torch.testing.assert_close(out["motion_strong"] + out["motion_weak"], out["motion"])
+    model = CorrTalk(CorrTalkConfig.tiny(n_vertices=2, audio_dim=DA, n_speakers=NS, d_model=32, d_ff=64,
+                                         encoder_ff=64, audio_hidden=32))
+    strong = torch.tensor([[[1.0, 2, 3, 4, 5, 6]]])  # (B=1, T=1, V*3)
+    weak = torch.tensor([[[10.0, 20, 30, 40, 50, 60]]])
+    cases = [((0.25, 0.8), (0.25, 0.5, 0.75, 3.2, 4, 4.8), (7.5, 15, 22.5, 8, 10, 12)),
+             ((1.5, -0.5), (1.5, 3, 4.5, -2, -2.5, -3), (-5, -10, -15, 60, 75, 90))]
+    for mask, s_part, w_part in cases:
+        model.init_mask(torch.tensor(mask))
+        total, s_out, w_out = model.combine(strong, weak)
+        torch.testing.assert_close(s_out[0, 0], torch.tensor(s_part))
+        torch.testing.assert_close(w_out[0, 0], torch.tensor(w_part, dtype=torch.float32))
+        torch.testing.assert_close(total[0, 0], torch.tensor(s_part) + torch.tensor(w_part, dtype=torch.float32))
+    torch.testing.assert_close(total[0, 0], torch.tensor([-3.5, -7, -10.5, 58, 72.5, 87]))
+    single = CorrTalk(CorrTalkConfig.tiny(n_vertices=2, audio_dim=DA, n_speakers=NS, dual_branch=False))
+    assert single.combine(strong, None)[0] is strong  # one branch: no mask
 
 
 def test_mask_initialisations():
@@ -188,6 +201,7 @@ def test_forward_feeds_the_strong_features_to_the_strong_branch():
     torch.testing.assert_close(out["alpha"]["weak"][..., 3], torch.ones(2, 14))
     torch.testing.assert_close(out["motion_strong"], want_s, atol=1e-8, rtol=0)  # motion ~ 5e-4 m
     torch.testing.assert_close(out["motion_weak"], want_w, atol=1e-8, rtol=0)
+    torch.testing.assert_close(out["motion"], want_s + want_w, atol=1e-8, rtol=0)  # eq. 8: the sum of the parts
 
 
 @pytest.mark.parametrize("use_cache", [True, False])
@@ -242,13 +256,64 @@ def test_chunks_and_window_equal_whole_generation():
         model.generate(b["audio"], b["template"], b["speaker"], window=0)
 
 
-def test_teacher_forcing_on_own_output_equals_generation():
+def _mixing_model():
+    """A perturbed dual-branch model whose weight generators give intermediate, frame-varying level weights: the
+    scorers' weights are doubled (w_l x 2) so that e^l_t moves by about a unit over the frames, and the biases c_l
+    spread the levels (strong: c = (0, 1, -1, 0.5), weak: c = (0.5, -1, 1, 0))."""
     torch.manual_seed(0)
     model = _perturbed(CorrTalk(_cfg()))
-    b = _batch(b=2, t=25, seed=5)
-    gen = model.generate(b["audio"], b["template"], b["speaker"])
-    out = model({**b, "vertices": gen})
-    torch.testing.assert_close(out["vertices"], gen, atol=1e-5, rtol=0)
+    with torch.no_grad():
+        for generator, c in ((model.weights_strong, (0.0, 1.0, -1.0, 0.5)),
+                             (model.weights_weak, (0.5, -1.0, 1.0, 0.0))):
+            for score, c_l in zip(generator.score, c):
+                score.weight.mul_(2.0)
+                score.bias.fill_(c_l)
+    model.init_mask(torch.linspace(0.1, 0.9, V))
+    return model
+
+
+def _eqs_4_to_6(generator, levels):
+    """Eqs. 4-6 (reconstructed) written out: e^l_t = w_l · tanh(W_l F^l_t + b_l) + c_l, α = softmax over the levels
+    per frame, F̃_t = sum_l α^l_t F^l_t. Reads only the generator's parameters. levels (B, T, L, d)."""
+    e = torch.stack([torch.tanh(levels[:, :, l] @ p.weight.t() + p.bias) @ s.weight[0] + s.bias[0]
+                     for l, (p, s) in enumerate(zip(generator.project, generator.score))], dim=-1)  # (B, T, L)
+    alpha = torch.exp(e) / torch.exp(e).sum(-1, keepdim=True)
+    return (alpha[..., None] * levels).sum(2), alpha
+
+
+def test_eq_6_mixes_the_levels_at_intermediate_weights_in_forward_and_generation():
+    """Eqs. 4-6 (reconstructed) inside CorrTalk at intermediate, frame-varying weights (the routing tests above use
+    the extremes 0 and 1): α and F̃ of each branch equal eqs. 4-6 written out on the model's levels, the strong branch
+    decodes F̃^s and the weak one F̃^w, and generation (reference loop: each branch teacher-forced on the motion
+    generated so far, eq. 8's masked sum fed back) reads the same mixtures. Reading: one scorer per level, softmax
+    over the 4 levels per frame."""
+    model = _mixing_model()
+    batch = _batch(b=2, t=12, seed=13)
+    f_frame, f_utt, style, m = _branch_inputs(model, batch)
+    with torch.no_grad():
+        levels = model.hierarchy(model.extractor(batch["audio"], batch["mask"]), batch["mask"])  # (B, T, 4, d)
+        f_s, a_s = _eqs_4_to_6(model.weights_strong, levels)
+        f_w, a_w = _eqs_4_to_6(model.weights_weak, levels)
+        out = model(batch)
+    assert 0.05 < float(a_s.min()) and float(a_s.max()) < 0.95  # intermediate: no level dominates
+    assert float((a_s[:, 1:] - a_s[:, :-1]).abs().max()) > 0.05  # and the weights change from frame to frame
+    torch.testing.assert_close(out["alpha"]["strong"], a_s, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out["alpha"]["weak"], a_w, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out["features"]["strong"], f_s, atol=1e-5, rtol=0)
+    torch.testing.assert_close(out["features"]["weak"], f_w, atol=1e-5, rtol=0)
+    fed = batch["vertices"] - batch["template"][:, None]
+    with torch.no_grad():
+        want = (m * model.strong.teacher_forced(fed, f_s, style, batch["mask"])
+                + (1 - m) * model.weak.teacher_forced(fed, f_w, style, batch["mask"]))
+        motion = torch.zeros(2, 12, 3 * V)
+        for t in range(12):
+            s_t = model.strong.teacher_forced(motion, f_s, style, batch["mask"])[:, t]
+            w_t = model.weak.teacher_forced(motion, f_w, style, batch["mask"])[:, t]
+            motion[:, t] = m * s_t + (1 - m) * w_t
+        gen = model.generate(batch["audio"], batch["template"], batch["speaker"])
+    torch.testing.assert_close(out["motion"], want, atol=1e-8, rtol=0)
+    torch.testing.assert_close(gen - batch["template"][:, None], motion, atol=1e-8, rtol=0)
+    assert _far(f_frame, f_s) and _far(f_utt, f_s)  # a mixture, not one level
 
 
 def test_level_weights_and_ablation_shapes():

@@ -88,15 +88,27 @@ def test_weighted_sum_by_hand():
 
 
 def test_paper_weights_equal_tiny_weights_on_vertex_terms():
-    """1000 x (L1 in metres) = 1 x (L1 in mm): the two presets agree on every vertex term."""
-    g = torch.Generator().manual_seed(0)
-    out = {k: torch.randn(2, 5, 6, generator=g) * 1e-3 for k in ("emotion", "content", "vertices")}
-    batch = {"vertices": torch.randn(2, 5, 6, generator=g) * 1e-3, "mask": torch.ones(2, 5, dtype=torch.bool)}
+    """Eq. 11, L = λ1 L_self + λ2 L_cross + λ3 L_vel + λ4 L_cls, both presets on one hand case (metres in):
+    target 0; M^e = 1 mm and M^c = 2 mm on every coordinate; fused M = 0, 1, 3 mm on frames 0, 1, 2; logits (0, 0).
+      L_self = 1 + 2 + (0 + 1 + 3) / 3 = 13/3 mm,  L_vel = |1 - 0| and |3 - 1| -> 3/2 mm,  L_cls = log 2
+      paper() (λ 1000 / 1000 / 500 / 1e-4 on metres): 1000 x 13/3e-3 + 500 x 1.5e-3 + 1e-4 log 2
+                                                       = 13/3 + 3/4 + 1e-4 log 2
+      tiny (λ 1 / 1 / 0.5 / 0.01 on mm):               1 x 13/3 + 0.5 x 3/2 + 0.01 log 2
+    so the vertex terms agree (13/3 + 3/4 = 61/12) and only λ4 differs (the documented deviation)."""
+    mm = 1e-3
+    fused = torch.tensor([0.0, 1.0, 3.0])[None, :, None].expand(1, 3, 6) * mm
+    out = {"emotion": torch.full((1, 3, 6), 1 * mm), "content": torch.full((1, 3, 6), 2 * mm), "vertices": fused,
+           "emotion_logits": torch.zeros(1, 2)}
+    batch = {"vertices": torch.zeros(1, 3, 6), "mask": torch.ones(1, 3, dtype=torch.bool), "emotion": torch.tensor([0])}
     paper, tiny = EmoFaceWeights.paper(), EmoFaceWeights()
     assert (paper.lambda_self, paper.lambda_cross, paper.lambda_vel, paper.lambda_cls) == (1000, 1000, 500, 1e-4)
-    t_paper, _ = emoface_loss(out, batch, paper)
-    t_tiny, _ = emoface_loss(out, batch, tiny)
-    assert float(t_paper) == pytest.approx(float(t_tiny), rel=1e-5)
+    t_paper, terms_paper = emoface_loss(out, batch, paper)
+    t_tiny, terms_tiny = emoface_loss(out, batch, tiny)
+    assert float(terms_paper["self"]) == pytest.approx(13 / 3 * mm, rel=1e-5)
+    assert float(terms_tiny["self"]) == pytest.approx(13 / 3, rel=1e-5)
+    assert float(terms_tiny["vel"]) == pytest.approx(1.5, rel=1e-5)
+    assert float(t_paper) == pytest.approx(61 / 12 + 1e-4 * math.log(2), rel=1e-5)
+    assert float(t_tiny) == pytest.approx(61 / 12 + 0.01 * math.log(2), rel=1e-5)
 
 
 # ---- the model ------------------------------------------------------------------------------------------
@@ -153,15 +165,72 @@ def test_cached_generation_equals_uncached(emotion, level, fusion):
     assert (fast - batch["template"][:, None]).abs().amax() > 1e-3  # not vacuous
 
 
+def _parts(model, batch, emotion, level):
+    """F_c, conditioned F_e and the two decoders' styles, built from the model's parts (eqs. 12-13 + the condition)."""
+    fc, fe_raw = model.encode(batch["audio"])
+    fe = model.condition(fe_raw, torch.as_tensor(emotion), torch.as_tensor(level))
+    de, dc = model.emotion_decoder, model.content_decoder
+    return fc, fe, de.speaker_style(batch["speaker"]), dc.speaker_style(batch["speaker"])
+
+
+def _fused(model, fe, fc, oe, oc):
+    """Eqs. 17-18 written out: ΔM = A ΔM^e + (1 - A) ΔM^c, A per vertex and frame (Mesh Attention's map, or 0.5 for
+    the "sum" ablation)."""
+    if model.mesh_attention is None:
+        return 0.5 * (oe + oc)
+    w = model.mesh_attention.attention(fe, fc).repeat_interleave(3, dim=-1)  # (B, T, V*3)
+    return w * oe + (1 - w) * oc
+
+
 @pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
-def test_generate_equals_teacher_forcing_on_own_predictions(fusion):
-    batch = _batch(t=20)
+def test_generation_equals_a_reference_loop_built_from_the_parts(fusion):
+    """Generation (section 3.3.1, eqs. 12-18 at inference): a loop written here from the parts, not from
+    ``generate``/``forward``: at frame t both decoders are teacher-forced on the fused motion generated so far
+    (causal: frame t reads frames < t), their frame-t offsets fused by eqs. 17-18, the fused frame fed back to both.
+    Reading: the *fused* prediction is fed back to both branches (the paper's Fig. 2 at inference)."""
+    batch = _batch(t=16)
     model = _model(fusion=fusion)
-    pred = model.generate(batch["audio"], batch["template"], batch["speaker"], emotion=batch["emotion"],
-                          level=batch["level"])
+    emotion, level = batch["emotion"], batch["level"]
     with torch.no_grad():
-        out = model({**batch, "vertices": pred})
-    torch.testing.assert_close(out["vertices"], pred, atol=1e-5, rtol=0)
+        fc, fe, style_e, style_c = _parts(model, batch, emotion, level)
+        motion = torch.zeros(2, 16, V * 3)
+        for t in range(16):
+            oe = model.emotion_decoder.teacher_forced(motion, fe, style_e)[:, :t + 1]
+            oc = model.content_decoder.teacher_forced(motion, fc, style_c)[:, :t + 1]
+            motion[:, t] = _fused(model, fe[:, :t + 1], fc[:, :t + 1], oe, oc)[:, t]
+        # fed the ground truth instead, the same loop gives other frames: the feedback matters here
+        gt = batch["vertices"] - batch["template"][:, None]
+        tf = _fused(model, fe, fc, model.emotion_decoder.teacher_forced(gt, fe, style_e),
+                    model.content_decoder.teacher_forced(gt, fc, style_c))
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"], emotion=emotion, level=level)
+    torch.testing.assert_close(pred - batch["template"][:, None], motion, atol=1e-5, rtol=0)
+    assert (tf - motion)[:, 1:].abs().amax() > 1e-3  # not vacuous
+
+
+@pytest.mark.parametrize("fusion,share", [("sum", 0.5), ("mesh_attention", 0.75)])
+def test_generation_tiny_case_by_hand(fusion, share):
+    """Eqs. 17-18 through generation and training, by hand: both decoder heads set to zero weights, so D_e outputs its
+    bias b_e and D_c its bias b_c at every frame whatever they read; Mesh Attention's last SpiralConv3D set to zero
+    weights and bias log 3, so A = sigmoid(log 3) = 3/4 at every vertex and frame ("sum": A = 1/2). Then every
+    generated frame is template + A b_e + (1 - A) b_c: with b_e = 4 mm and b_c = -2 mm on every coordinate,
+    3/4 x 4 - 1/4 x 2 = 2.5 mm (Mesh Attention), 1/2 x 4 - 1/2 x 2 = 1 mm ("sum")."""
+    batch = _batch(t=7)
+    model = _model(fusion=fusion)
+    with torch.no_grad():
+        for dec, bias in ((model.emotion_decoder, 4e-3), (model.content_decoder, -2e-3)):
+            dec.motion_decoder.weight.zero_()
+            dec.motion_decoder.bias.fill_(bias)  # motion_scale 1 in these tests: the head's output is its bias
+        if model.mesh_attention is not None:
+            model.mesh_attention.convs[-1].weight.zero_()
+            model.mesh_attention.convs[-1].bias.fill_(math.log(3.0))
+    expected_mm = {"sum": 1.0, "mesh_attention": 2.5}[fusion]
+    pred = model.generate(batch["audio"], batch["template"], batch["speaker"], emotion=1, level=2)
+    torch.testing.assert_close(pred - batch["template"][:, None], torch.full_like(pred, expected_mm * 1e-3))
+    with torch.no_grad():
+        out = model(batch)  # the training pass fuses the same way (eqs. 17-18), the cross pass too
+    torch.testing.assert_close(out["attention"], torch.full((2, 7, V), share))
+    for key in ("vertices", "cross_vertices"):
+        torch.testing.assert_close(out[key] - batch["template"][:, None], torch.full_like(pred, expected_mm * 1e-3))
 
 
 def test_emotion_condition_changes_the_output():
@@ -213,21 +282,29 @@ def test_init_from_data_standardises_the_level_stats_over_valid_frames():
 
 @pytest.mark.parametrize("fusion", ["sum", "mesh_attention"])
 def test_cross_reconstruction_uses_the_partners_emotion_features(fusion):
-    """Eqs. 15-16: M^e_{c1,e2} = D_e(F_e2) depends on clip 2's audio only, M^c_{c1,e2} = D_c(F_c1) on clip 1's."""
+    """Eqs. 14-16, 18: M^e_{c1,e2} = D_e(F_e2) depends on clip 2's audio only, M^c_{c1,e2} = D_c(F_c1) on clip 1's,
+    and the three cross outputs equal the parts composed here (D_e teacher-forced on clip 2's past, D_c on clip 1's,
+    fused by eq. 18 with the map of (F_e2, F_c1)). Reading: D_e of the cross pass is teacher-forced on clip 2's
+    ground-truth past (the target it reconstructs)."""
     model, batch = _model(fusion=fusion), _batch(t=14)
     with torch.no_grad():
         out = model(batch)
         other_own = model({**batch, "audio": torch.randn_like(batch["audio"])})  # clip 1's audio changed
         other_pair = model({**batch, "pair_audio": torch.randn_like(batch["pair_audio"])})  # clip 2's changed
-        # clip 2 seen as the main clip: its emotion branch is exactly the cross pass's emotion branch
-        as_main = model({**batch, "audio": batch["pair_audio"], "vertices": batch["pair_vertices"],
-                         "emotion": batch["pair_emotion"], "level": batch["pair_level"]})
+        # eqs. 14-16 and 18 built from the parts, not from another forward pass
+        fc1, fe1, style_e, style_c = _parts(model, batch, batch["emotion"], batch["level"])
+        pair = {**batch, "audio": batch["pair_audio"]}
+        _, fe2, _, _ = _parts(model, pair, batch["pair_emotion"], batch["pair_level"])
+        tpl = batch["template"][:, None]
+        oe2 = model.emotion_decoder.teacher_forced(batch["pair_vertices"] - tpl, fe2, style_e)  # D_e(F_e2), eq. 16
+        oc1 = model.content_decoder.teacher_forced(batch["vertices"] - tpl, fc1, style_c)  # D_c(F_c1), eq. 15
     torch.testing.assert_close(other_own["cross_emotion"], out["cross_emotion"], atol=0, rtol=0)
     assert (other_own["cross_content"] - out["cross_content"]).abs().amax() > 1e-4
     torch.testing.assert_close(other_pair["cross_content"], out["cross_content"], atol=0, rtol=0)
     assert (other_pair["cross_emotion"] - out["cross_emotion"]).abs().amax() > 1e-4
-    torch.testing.assert_close(as_main["emotion"], out["cross_emotion"], atol=1e-6, rtol=0)
-    assert (as_main["content"] - out["cross_content"]).abs().amax() > 1e-4  # content still from clip 1
+    torch.testing.assert_close(out["cross_emotion"], tpl + oe2, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out["cross_content"], tpl + oc1, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out["cross_vertices"], tpl + _fused(model, fe2, fc1, oe2, oc1), atol=1e-6, rtol=0)
 
 
 @pytest.mark.parametrize("past_motion", ["self_growing", "teacher_forcing"])
@@ -247,20 +324,43 @@ def test_eq_15_the_content_branch_cross_output_is_its_self_output(past_motion):
 
 
 def test_self_growing_stage_two_feeds_stage_one_predictions():
+    """Eq. 6: I_{n,t} = GT_t if rand() < cos(π (n - θ) / (N - θ)) (or n < θ), else P_t, stage one's prediction.
+    Stage one is replaced by a known P (-1 everywhere) so that every expected frame is GT or P by hand; the share at
+    n = 8, N = 20, θ = 0.2 N = 4 is cos(π 4 / 16) = sqrt(1/2). Readings: rand() drawn per clip and frame (one
+    torch.rand of shape (B, T), so the same seed reproduces it here); stage one teacher-forced on the ground truth."""
     model, batch = _model(), _batch(t=10)
-    with torch.no_grad():
-        reference = model(batch)  # eval: teacher forcing
-        model.train()
-        model.set_epoch(0, 10)  # n < θ: ground truth only
-        assert model.ground_truth_share == 1.0
-        torch.testing.assert_close(model(batch)["vertices"], reference["vertices"], atol=0, rtol=0)
-        model.set_epoch(9, 10)  # phase 3: stage one's predictions only
-        assert model.ground_truth_share == 0.0
-        grown = model(batch)["vertices"]
-        model.eval()
-        fed_own = model({**batch, "vertices": reference["vertices"]})  # stage two = TF on stage one's output
-    torch.testing.assert_close(grown, fed_own["vertices"], atol=1e-6, rtol=0)
-    assert (grown - reference["vertices"]).abs().amax() > 1e-4
+    motion = batch["vertices"] - batch["template"][:, None]  # GT offsets (B, T, V*3)
+    fe = fc = torch.zeros(2, 10, 32)
+    stage_one_inputs = []
+    P = torch.full_like(motion, -1.0)
+
+    def stage_one(fe_, fc_, past, *args, **kwargs):
+        stage_one_inputs.append(past)
+        return None, None, P, None
+
+    model._decode = stage_one
+    model.train()
+    model.set_epoch(8, 20)
+    assert model.ground_truth_share == pytest.approx(math.sqrt(0.5), abs=1e-12)
+    torch.manual_seed(7)
+    pick = torch.rand(2, 10)  # the rand() of eq. 6 that _past_motion will draw after the same seed
+    torch.manual_seed(7)
+    fed = model._past_motion(fe, fc, motion, batch["speaker"], batch["mask"])
+    from_gt = pick < math.sqrt(0.5)  # (B, T)
+    assert 0 < int(from_gt.sum()) < 20  # both sources occur
+    for b in range(2):
+        for t in range(10):
+            torch.testing.assert_close(fed[b, t], motion[b, t] if from_gt[b, t] else P[b, t], atol=0, rtol=0)
+    assert torch.equal(stage_one_inputs[0], motion)  # stage one read the ground truth
+    model.set_epoch(12, 20)  # n = (N + θ) / 2: cos(π / 2) = 0, predictions only
+    torch.testing.assert_close(model._past_motion(fe, fc, motion, batch["speaker"], batch["mask"]), P)
+    model.set_epoch(3, 20)  # n < θ: ground truth only (stage one not even run)
+    stage_one_inputs.clear()
+    assert torch.equal(model._past_motion(fe, fc, motion, batch["speaker"], batch["mask"]), motion)
+    assert stage_one_inputs == []
+    model.eval()  # generation / evaluation: always the given past
+    model.set_epoch(12, 20)
+    assert torch.equal(model._past_motion(fe, fc, motion, batch["speaker"], batch["mask"]), motion)
 
 
 def test_teacher_forcing_option_ignores_the_schedule():

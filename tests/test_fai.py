@@ -247,14 +247,39 @@ def test_mouth_moves_more_than_forehead_on_the_corpus(corpus):
         assert float(mask[regions["lips"]].mean()) > float(mask[regions["forehead"]].mean())
 
 
-def test_fai_from_dataset_equals_fai_from_corpus_and_ignores_crops(corpus):
+def reference_dc_fai(clips, n_fft=32, hop=8):
+    """Eq. 3, band "dc", written out in numpy from the printed formula (not the package): d_{t,v} = ||y_{t,v} - h_v||;
+    STFT frame m covers d[mH .. mH + N - 1] (frames start at 0, a tail that does not fill a hop is dropped; a clip
+    shorter than N is one zero-padded frame); bin 0 of a non-negative signal is A(0, m) = sum_n w_n d_{mH+n} /
+    sum_n w_n (w the periodic Hann window, the sum over the real samples); mean over frames, then over clips."""
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n_fft) / n_fft)
+    per_clip = []
+    for verts, tpl in clips:
+        d = np.linalg.norm(np.asarray(verts, np.float64).reshape(len(verts), -1, 3)
+                           - np.asarray(tpl, np.float64).reshape(-1, 3), axis=-1)  # (T, V)
+        starts = range(0, len(d) - n_fft + 1, hop) if len(d) >= n_fft else [0]
+        frames = [w[:len(d[s:s + n_fft])] @ d[s:s + n_fft] / w[:len(d[s:s + n_fft])].sum() for s in starts]
+        per_clip.append(np.mean(frames, axis=0))
+    return np.mean(per_clip, axis=0)
+
+
+def test_fai_from_dataset_and_corpus_equal_eq_3_written_out_and_ignore_crops(corpus):
+    """Eq. 3 (reconstructed, "dc" reading): both entry points on the shipped corpus's val split equal the numpy
+    reference above over the *whole* clips (the dataset crops to 20 frames for training; the FAI must not)."""
     from dualtalker_lite.data.dataset import TalkingFaceDataset
 
+    names = corpus.split("val")
+    whole = [(corpus.vertices(n), corpus.template(corpus.meta(n)["subject"])) for n in names]
+    expected = torch.tensor(reference_dc_fai(whole), dtype=torch.float32)
     dataset = TalkingFaceDataset(corpus, "val", max_frames=20)
-    torch.testing.assert_close(fai_from_dataset(dataset), fai_from_corpus(corpus, "val"))
+    torch.testing.assert_close(fai_from_dataset(dataset), expected, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(fai_from_corpus(corpus, "val"), expected, atol=1e-6, rtol=1e-5)
+    cropped = reference_dc_fai([(v[:20], t) for v, t in whole])  # what reading the crops would give
+    assert np.abs(cropped - expected.numpy()).max() > 1e-4
     items = [dataset.items[i] for i in range(3)]                          # a plain list of item dicts needs fps
     torch.testing.assert_close(fai_from_dataset(items, fps=corpus.fps),
-                               facial_activity_intensity(items, corpus.fps))
+                               torch.tensor(reference_dc_fai([(it["vertices"], it["template"]) for it in items]),
+                                            dtype=torch.float32), atol=1e-6, rtol=1e-5)
     with pytest.raises(ValueError, match=r"^fai_from_dataset: pass fps="):
         fai_from_dataset(items)
 

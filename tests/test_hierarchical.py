@@ -91,6 +91,12 @@ def test_extractor_frame_level_only():
 
 
 def test_weight_generator_hand_computed():
+    """Eqs. 4-6 (reconstructed; reading: one additive scorer e^l_t = w_l tanh(W_l F^l_t + b_l) + c_l per level,
+    softmax over the 4 levels per frame, per-frame weighted sum) on two frames whose weights differ, every value from
+    the formula with math.tanh / math.exp: W_l picks the first channel, w_l = l + 1, b_l = c_l = 0.
+    Frame 0, first channels (0, 1, -1, 2): e = (0, 2 tanh 1, 3 tanh(-1), 4 tanh 2);
+    frame 1, first channels (2, 0, 1, -1): e = (tanh 2, 0, 3 tanh 1, 4 tanh(-1)); the second channels (10, 20, 30, 40)
+    and (1, 2, 3, 4) are mixed with each frame's own weights (all strictly between 0 and 1, the largest 0.89)."""
     gen = WeightGenerator(d_model=2, n_levels=4, hidden=1)
     with torch.no_grad():
         for i, (p, s) in enumerate(zip(gen.project, gen.score)):
@@ -98,16 +104,21 @@ def test_weight_generator_hand_computed():
             p.bias.zero_()
             s.weight.fill_(float(i + 1))  # w_l = l + 1
             s.bias.fill_(0.0)
-    # one frame, levels' first channels 0, 1, -1, 2 (second channels carry the values to be mixed)
-    levels = torch.tensor([[[[0.0, 10.0], [1.0, 20.0], [-1.0, 30.0], [2.0, 40.0]]]])  # (1, 1, 4, 2)
-    e = [1 * math.tanh(0.0), 2 * math.tanh(1.0), 3 * math.tanh(-1.0), 4 * math.tanh(2.0)]
-    z = sum(math.exp(v) for v in e)
-    alpha = [math.exp(v) / z for v in e]
-    feats, weights = gen(levels)
-    torch.testing.assert_close(gen.scores(levels)[0, 0], torch.tensor(e))
-    torch.testing.assert_close(weights[0, 0], torch.tensor(alpha))
-    expected = [sum(a * lv[c] for a, lv in zip(alpha, [[0, 10], [1, 20], [-1, 30], [2, 40]])) for c in range(2)]
-    torch.testing.assert_close(feats[0, 0], torch.tensor(expected))
+    frames = [[[0.0, 10.0], [1.0, 20.0], [-1.0, 30.0], [2.0, 40.0]],
+              [[2.0, 1.0], [0.0, 2.0], [1.0, 3.0], [-1.0, 4.0]]]
+    levels = torch.tensor([frames])  # (1, T=2, 4, 2)
+    with torch.no_grad():
+        feats, weights = gen(levels)
+    for t, frame in enumerate(frames):
+        e = [(l + 1) * math.tanh(lv[0]) for l, lv in enumerate(frame)]
+        z = sum(math.exp(v) for v in e)
+        alpha = [math.exp(v) / z for v in e]
+        torch.testing.assert_close(gen.scores(levels)[0, t], torch.tensor(e))
+        torch.testing.assert_close(weights[0, t], torch.tensor(alpha))
+        expected = [sum(a * lv[c] for a, lv in zip(alpha, frame)) for c in range(2)]
+        torch.testing.assert_close(feats[0, t], torch.tensor(expected))
+    assert float(weights.min()) > 0.0 and float(weights.max()) < 0.9
+    assert float((weights[0, 0] - weights[0, 1]).abs().max()) > 0.3  # each frame has its own mixture
 
 
 def test_weight_generator_softmax_sums_to_one_per_frame():

@@ -23,7 +23,89 @@ def _inputs(B=2, T=9, seed=0):
             torch.randn(B, T, V * 3, generator=g), torch.randn(B, T, V * 3, generator=g))
 
 
+def spiral_conv_reference(conv, x):
+    """EmoFace eq. 3 written out with loops, independent of ``SpiralConv3D``'s gather: out[b, t, v] =
+    sum_{j, l} W[:, j, l, :] x[b, t - (delta - 1) + j, s(v, l)] + b, where frames before 0 read zeros (eq. 2's
+    Pad, "zeros") or frame 0 ("replicate"), and a padded spiral slot (the centre repeated after slot 0) reads zeros.
+    Only the layer's parameters and spiral table are read from ``conv``."""
+    B, T, V_, _ = x.shape
+    w, spirals, delta = conv.weight, conv.spirals.tolist(), conv.delta  # (C', delta, L, C)
+    out = conv.bias.expand(B, T, V_, w.shape[0]).clone()
+    for t in range(T):
+        for j in range(delta):
+            tt = t - (delta - 1) + j
+            if tt < 0 and conv.time_pad == "zeros":
+                continue
+            tt = max(tt, 0)
+            for v in range(V_):
+                for slot, u in enumerate(spirals[v]):
+                    if slot > 0 and u == v:
+                        continue  # padding slot
+                    out[:, t, v] = out[:, t, v] + x[:, tt, u] @ w[:, j, slot, :].t()
+    return out
+
+
+def _hand_mesh_attention(time_pad="zeros"):
+    """One triangle (V = 3), C = 16 (C/4 = 4, C/16 = 1), delta = 2, one SpiralConv3D layer, every weight set by hand:
+    spirals s(0) = (0, 1, 2), s(1) = (1, 2, 0), s(2) = (2, 0, 1) (written here, not built by ``spiral_indices``);
+    F_e1 = relu(F_e[..., 0]) in slot 0, F_c1 = relu(F_c[..., 0]) in slot 1; F_audio = F_e1[0] - F_c1[1] + 0.5;
+    embedding e = (0, 1, -1); SpiralConv3D weights: current frame (1, 0.5, -1) over the spiral slots, previous
+    frame (0.25, 0, 0), bias -0.5."""
+    att = MeshAttention(3, 16, torch.tensor([[0, 1, 2], [1, 2, 0], [2, 0, 1]]), delta=2, n_layers=1,
+                        time_pad=time_pad)
+    with torch.no_grad():
+        for p in att.parameters():
+            p.zero_()
+        att.emotion_proj.weight[0, 0] = 1.0
+        att.content_proj.weight[1, 0] = 1.0
+        att.audio_fuse.weight[0, 0] = 1.0  # F_e1 slot 0
+        att.audio_fuse.weight[0, 4 + 1] = -1.0  # F_c1 slot 1 (after the 4 emotion slots)
+        att.audio_fuse.bias.fill_(0.5)
+        att.vertex_embedding.copy_(torch.tensor([[0.0], [1.0], [-1.0]]))
+        conv = att.convs[0]  # weight (C'=1, delta=2, L=3, C=1): j = 0 the previous frame, j = 1 the current one
+        conv.weight[0, 0, :, 0] = torch.tensor([0.25, 0.0, 0.0])
+        conv.weight[0, 1, :, 0] = torch.tensor([1.0, 0.5, -1.0])
+        conv.bias.fill_(-0.5)
+    return att
+
+
+def test_mesh_attention_hand_computed_tiny_case():
+    """Eqs. 17-18 with ε = Mesh Attention (section 3.2; its eqs. 4-5 are missing, the prose is followed) on a
+    triangle, every number worked out by hand from the printed pipeline and eq. 3 (not from the package):
+      F_e[..., 0] = (1, 2), F_c[..., 0] = (-1, 0.5) over T = 2 frames (other channels random: weights 0 there)
+      F_audio = relu(F_e) - relu(F_c) + 0.5 = (1.5, 2.0)
+      F[t, u] = F_audio[t] + e[u]:  t0 (1.5, 2.5, 0.5),  t1 (2.0, 3.0, 1.0)
+      eq. 3, current frame: 1 F[t, s0] + 0.5 F[t, s1] - 1 F[t, s2]; previous frame: 0.25 F[t-1, s0] (t0: Pad = 0)
+        t0: v0 1.5 + 1.25 - 0.5 = 2.25,  v1 2.5 + 0.25 - 1.5 = 1.25,  v2 0.5 + 0.75 - 2.5 = -1.25;  - 0.5 bias
+        t1: v0 2 + 1.5 - 1 + 0.375 = 2.875,  v1 3 + 0.5 - 2 + 0.625 = 2.125,  v2 1 + 1 - 3 + 0.125 = -0.875;  - 0.5
+      A = sigmoid((1.75, 0.75, -1.75), (2.375, 1.625, -1.375))
+      fused = A ΔM^e + (1 - A) ΔM^c, the 3 coordinates of a vertex sharing A (eq. 18's ε, convex reading).
+    With ``time_pad="replicate"`` frame t0's previous frame is t0 itself: + 0.25 F[t0, s0] = (0.375, 0.625, 0.125)."""
+    att = _hand_mesh_attention()
+    g = torch.Generator().manual_seed(0)
+    fe, fc = torch.randn(1, 2, 16, generator=g), torch.randn(1, 2, 16, generator=g)
+    fe[0, :, 0] = torch.tensor([1.0, 2.0])
+    fc[0, :, 0] = torch.tensor([-1.0, 0.5])
+    pre = torch.tensor([[[1.75, 0.75, -1.75], [2.375, 1.625, -1.375]]])
+    a_hand = 1.0 / (1.0 + torch.exp(-pre))  # (1, 2, 3)
+    me = torch.tensor([[[1.0, 2.0, 3.0, -1.0, 0.0, 4.0, 2.0, 2.0, 2.0],
+                        [0.5, 0.5, 0.5, 1.0, 1.0, 1.0, -2.0, 0.0, 2.0]]])
+    mc = torch.tensor([[[0.0, 0.0, 0.0, 1.0, 1.0, 1.0, -2.0, -2.0, -2.0],
+                        [3.0, 3.0, 3.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0]]])
+    fused, a = att(fe, fc, me, mc)
+    torch.testing.assert_close(a, a_hand)
+    w = a_hand.repeat_interleave(3, dim=-1)  # x, y, z of vertex v: A[v]
+    torch.testing.assert_close(fused, w * me + (1 - w) * mc)
+    torch.testing.assert_close(fused[0, 0, :3], a_hand[0, 0, 0] * torch.tensor([1.0, 2.0, 3.0]))  # ΔM^c = 0 there
+    rep = _hand_mesh_attention("replicate").attention(fe, fc)
+    torch.testing.assert_close(rep[0, 0], 1.0 / (1.0 + torch.exp(-(pre[0, 0] + torch.tensor([0.375, 0.625, 0.125])))))
+    torch.testing.assert_close(rep[0, 1], a_hand[0, 1])
+
+
 def test_shapes_range_and_convex_fusion():
+    """Eq. 18's fusion given the map A: ΔM = A ΔM^e + (1 - A) ΔM^c per vertex (the map's values are pinned by hand in
+    ``test_mesh_attention_hand_computed_tiny_case``; here the fusion is written out on the module's own map, on a
+    larger mesh, and equal branches must pass through whatever the map)."""
     torch.manual_seed(0)
     att = MeshAttention(V, C, SPIRALS, delta=3, n_layers=2)
     fe, fc, me, mc = _inputs()
@@ -42,6 +124,9 @@ def test_shapes_range_and_convex_fusion():
 
 @pytest.mark.parametrize("time_pad", ["zeros", "replicate"])
 def test_attention_equals_the_pipeline_written_out(time_pad):
+    """Section 3.2's pipeline (eqs. 4-5 are missing from the extraction: reconstructed from the prose) written out:
+    MLPs, + embedding, then every SpiralConv3D layer by the loops of eq. 3 (``spiral_conv_reference``, not the
+    package's layer), ELU between, sigmoid. Reading: ELU between layers, sigmoid map (module docstring)."""
     torch.manual_seed(1)
     spirals = spiral_indices(GRID_FACES, V, rings=2, vertices=GRID_VERTICES)  # small disks at the edges: padding
     assert not spiral_mask(spirals).all()
@@ -51,10 +136,10 @@ def test_attention_equals_the_pipeline_written_out(time_pad):
     f_c1 = F.relu(fc @ att.content_proj.weight.t() + att.content_proj.bias)
     f_audio = torch.cat([f_e1, f_c1], -1) @ att.audio_fuse.weight.t() + att.audio_fuse.bias  # (B, T, C/16)
     h = f_audio[:, :, None, :].expand(2, 5, V, C // 16) + att.vertex_embedding[None, None]  # (B, T, V, C/16)
-    torch.testing.assert_close(att.first_layer(f_audio), att.convs[0](h))  # the split of eq. 3 is exact
-    h = F.elu(att.convs[0](h))
-    h = F.elu(att.convs[1](h))
-    a = torch.sigmoid(att.convs[2](h))[..., 0]
+    torch.testing.assert_close(att.first_layer(f_audio), spiral_conv_reference(att.convs[0], h))  # the split
+    h = F.elu(spiral_conv_reference(att.convs[0], h))  # SpiralConv3D layers by eq. 3's loops, not the package's
+    h = F.elu(spiral_conv_reference(att.convs[1], h))
+    a = torch.sigmoid(spiral_conv_reference(att.convs[2], h))[..., 0]
     torch.testing.assert_close(att.attention(fe, fc), a)
     assert [c.out_channels for c in att.convs] == [C // 16, C // 16, 1]
 
@@ -148,8 +233,10 @@ def test_mlp_ablation_is_a_per_vertex_linear_map():
 
 @pytest.mark.parametrize("T", [1, 2])
 def test_first_layer_split_holds_for_clips_shorter_than_delta(T):
+    """Eq. 3 on F = F_audio + F_vertices-emb for clips shorter than delta: the split first layer equals eq. 3's loops
+    (``spiral_conv_reference``), zero time padding removing the embedding term too (reading: Pad = zeros)."""
     torch.manual_seed(5)
     att = MeshAttention(V, C, SPIRALS, delta=3)
     audio = torch.randn(2, T, C // 16)
-    plain = att.convs[0](audio[:, :, None, :] + att.vertex_embedding)  # (B, T, V, C/16)
+    plain = spiral_conv_reference(att.convs[0], audio[:, :, None, :] + att.vertex_embedding)  # (B, T, V, C/16)
     torch.testing.assert_close(att.first_layer(audio), plain)

@@ -49,10 +49,13 @@ def test_spiral_of_the_grid_matches_the_hand_traced_order():
     assert s[5].tolist() == [5, 10, 9, 4, 0, 1, 6, 11, 15, 14, 13, 8, 2, 7, 12, 3]
     assert s.dtype == torch.int64 and s.shape == (16, 16)
     assert spiral_mask(s).all()  # every vertex reaches all 16 vertices: no padding
+    # Fixed length and dilation (eq. 1's k-disk read as SpiralNet++'s truncated spiral), from the hand trace above,
+    # not from the package's length-16 spiral: the first 5 entries, then every second of the first 6.
     short = spiral_indices(GRID_FACES, 16, length=5, vertices=GRID_VERTICES)
-    torch.testing.assert_close(short, s[:, :5])  # truncation = prefix
+    assert short[5].tolist() == [5, 10, 9, 4, 0]
+    assert short[0].tolist() == [0, 1, 5, 4, 2]  # corner: its one-ring (1, 5, 4), then ring 2 from 1's side
     dilated = spiral_indices(GRID_FACES, 16, length=3, dilation=2, vertices=GRID_VERTICES)
-    torch.testing.assert_close(dilated, s[:, :6:2])  # every second of the first 6 entries
+    assert dilated[5].tolist() == [5, 9, 0]  # entries 0, 2, 4 of (5, 10, 9, 4, 0, 1)
 
 
 def test_fallback_pads_with_the_centre_and_masks_it():
@@ -262,6 +265,8 @@ def test_spiral_linear_gradcheck_and_chunking(monkeypatch):
 
 
 def test_spiral_conv_output_follows_a_relabelling():
+    """Eq. 3 on relabelled vertices (reading: label-free spiral starts): the relabelled layer's output, mapped back,
+    equals eq. 3 written out with loops (``_dense_reference``) on the original labels."""
     torch.manual_seed(0)
     perm = np.random.default_rng(1).permutation(16)  # old vertex i becomes perm[i]
     new_vertices = np.empty_like(GRID_VERTICES)
@@ -274,4 +279,6 @@ def test_spiral_conv_output_follows_a_relabelling():
     x = torch.randn(2, 4, 16, 2)
     x_new = torch.empty_like(x)
     x_new[:, :, perm] = x  # the same features under the new ids
-    torch.testing.assert_close(new(x_new)[:, :, perm], old(x))
+    want = _dense_reference(old, x).detach()  # eq. 3's loops, not the package's layer
+    torch.testing.assert_close(old(x), want, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(new(x_new)[:, :, perm], want, atol=1e-5, rtol=1e-5)
