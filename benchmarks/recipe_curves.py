@@ -224,22 +224,31 @@ def _provenance(argv) -> dict:
 TARGETS = {"closure_2mm": 0.9, "closure_1mm": 0.8, "vowel_shut": 0.06, "r": 0.7}
 
 
-def report(runs: Path, out: Path) -> None:
+def report(runs: list[Path], out: Path) -> None:
     """results/time_to_quality.md (+ .json, .png): per model and recipe, the last point's figures over seeds
     (mean ± sd, each seed listed), and the curves against training CPU seconds."""
-    jobs = [json.loads(p.read_text()) for p in sorted(runs.glob("*_s*.json"))]
+    jobs = [json.loads(p.read_text()) for folder in runs for p in sorted(folder.glob("*_s*.json"))]
     if not jobs:
-        raise SystemExit(f"{runs}: no runs (step 2 first)")
+        raise SystemExit(f"{' '.join(map(str, runs))}: no runs (step 2 first)")
+    jobs.sort(key=lambda j: (j["model"], j["recipe"], j["seed"]))
     groups: dict = {}
     for j in jobs:
         groups.setdefault((j["model"], j["recipe"]), []).append(j)
-    made = json.loads((runs / "provenance.json").read_text()) if (runs / "provenance.json").is_file() else {}
-    lines = ["# Time to quality: lip sync against training CPU seconds (issue 31)", "",
-             f"Made by `{made.get('command', '?')}` at commit `{made.get('commit', '?')}` on {made.get('machine', '?')}"
-             f" ({made.get('date', '?')}), then `python benchmarks/recipe_curves.py report`. One torch thread per run;"
-             " CPU seconds are the training process's own (evaluation excluded). Targets (issue 31, DualTalker "
-             "after <= 30 CPU s): real closure < 2 mm >= 0.9, < 1 mm >= 0.8, vowel frames shut <= 0.06, r >= 0.7; "
-             "training-clip fit < 1 mm >= 0.85; test-A with the true labels < 1 mm >= 0.8.", "",
+    made = []  # each run folder's provenance.json: a list of the run commands that wrote into it
+    for folder in runs:
+        if (folder / "provenance.json").is_file():
+            entry = json.loads((folder / "provenance.json").read_text())
+            made += entry if isinstance(entry, list) else [entry]
+    lines = ["# Time to quality: lip sync against training CPU seconds (issue 31)", "", "Made by:", ""]
+    lines += [f"- `{m.get('command', '?')}` at commit `{m.get('commit', '?')}` on {m.get('machine', '?')} "
+              f"({m.get('date', '?')})" for m in made]
+    lines += ["- then `python benchmarks/recipe_curves.py report " + " ".join(f"--runs {r}" for r in runs) + "`", "",
+              "One torch thread per run; CPU seconds are the training process's own (evaluation excluded). "
+              "Recipes, each as what it changes from the old recipe " + json.dumps(OLD_RECIPE) + ": " + "; ".join(f"`{name}` = {json.dumps(cfg)}" for name, cfg in sorted(
+                  {j["recipe"]: {k: v for k, v in j["train_config"].items() if OLD_RECIPE.get(k, v) != v or
+                                 k == "epochs"} for j in jobs}.items())) + ". Targets (issue 31, DualTalker after <= 30 CPU s): real closure < 2 mm "
+              ">= 0.9, < 1 mm >= 0.8, vowel frames shut <= 0.06, r >= 0.7; training-clip fit < 1 mm >= 0.85; "
+              "test-A with the true labels < 1 mm >= 0.8.", "",
              "| model | recipe | epochs | train CPU s | real < 2 mm | real < 1 mm | vowels shut | r | "
              "test-A labels < 1 mm | test-A recogniser < 1 mm | LVE (recogniser), mm | training fit < 1 mm | "
              "room-tone lip range, mm | per seed (real < 1 mm) |",
@@ -278,14 +287,16 @@ def _plot(groups: dict, path: Path) -> None:
 
     models = sorted({m for m, _ in groups})
     fig, axes = plt.subplots(2, len(models), figsize=(4.2 * len(models), 6.4), squeeze=False)
-    colours = {"old": "tab:grey", "new": "tab:blue"}
+    names = sorted({name for _, name in groups} - {"old"})
+    palette = [c for i, c in enumerate(plt.get_cmap("tab10").colors) if i != 7] * 3  # grey (7) is the old recipe's
+    colours = {"old": "tab:grey", **{n: palette[i] for i, n in enumerate(names)}}
     for c, model in enumerate(models):
         for (m, name), js in sorted(groups.items()):
             if m != model:
                 continue
             for k, j in enumerate(js):
                 x = [p["cpu_s"] for p in j["curve"]]
-                kw = dict(color=colours.get(name, None), alpha=0.8, label=name if k == 0 else None, marker=".")
+                kw = dict(color=colours[name], alpha=0.8, label=name if k == 0 else None, marker=".")
                 axes[0, c].plot(x, [p["real"]["closure_1mm"] for p in j["curve"]], **kw)
                 axes[1, c].plot(x, [p["test_a"]["lve_mm"] for p in j["curve"]], **kw)
         axes[0, c].axhline(0.8, ls="--", color="k", lw=0.8)
@@ -313,7 +324,7 @@ def main() -> None:
     p.add_argument("--processes", type=int, default=2)
     p.add_argument("--out", type=Path, default=OUT)
     p = sub.add_parser("report", help="results/time_to_quality.md, .json, .png from the runs")
-    p.add_argument("--runs", type=Path, default=OUT)
+    p.add_argument("--runs", type=Path, action="append", default=None, help="run folder(s) (default: runs/recipe_curves)")
     p.add_argument("--out", type=Path, default=ROOT / "results" / "time_to_quality.md")
     args = ap.parse_args()
     if args.step == "inputs":
@@ -330,13 +341,16 @@ def main() -> None:
             jobs += [(m, name, s, cfg, points, str(args.out), str(args.inputs)) for m in args.models
                      for s in args.seeds]
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "provenance.json").write_text(json.dumps(_provenance(sys.argv), indent=1))
+        prov = args.out / "provenance.json"  # a list: several run commands may write into one folder
+        before = json.loads(prov.read_text()) if prov.is_file() else []
+        prov.write_text(json.dumps((before if isinstance(before, list) else [before]) + [_provenance(sys.argv)],
+                                   indent=1))
         jobs.sort(key=lambda j: -j[3]["epochs"] * (2 if j[0] == "corrtalk" else 1))  # the longest first
         with mp.get_context("fork").Pool(args.processes, maxtasksperchild=1) as pool:
             for _ in pool.imap_unordered(run_job, jobs):
                 pass
     else:
-        report(args.runs, args.out)
+        report(args.runs or [OUT], args.out)
 
 
 if __name__ == "__main__":

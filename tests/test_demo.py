@@ -53,3 +53,18 @@ def test_lip_distance_figure_shows_ipa_and_explains_it():
     labels = [t.get_text() for t in fig.axes[0].texts]
     assert labels == ["s", "ɪ", "ŋ", "ɔ", "n"]
     assert fig.get_supxlabel() == demo.PHONE_CAPTION and "IPA" in demo.PHONE_CAPTION
+
+
+def test_budget_notes_name_every_model_the_time_budget_cut_short():
+    """A model that the demo's --time-budget stopped before the recipe's last epoch is named in one line (stderr and
+    metrics.json's "truncated"); a model trained to the end, and the static template (no training), are not."""
+    from dualtalker_lite.demo import budget_notes
+
+    results = {"Static template": {"epochs": 0, "model_config": None},
+               "FaceFormer-style": {"epochs": 12, "model_config": {}},
+               "DualTalker": {"epochs": 7, "model_config": {}}}
+    notes = budget_notes(results, epochs=12, budget=150.0)
+    assert list(notes) == ["DualTalker"]
+    assert notes["DualTalker"].startswith("DualTalker stopped after 7 of 12 epochs: the --time-budget of 150 wall "
+                                          "seconds ran out")
+    assert budget_notes({"DualTalker": {"epochs": 12, "model_config": {}}}, epochs=12, budget=150.0) == {}

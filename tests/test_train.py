@@ -259,3 +259,94 @@ def test_resume_state_finds_the_generator_under_viseme_labels():
     base = Pairs()
     gens = _generators(DataLoader(VisemeLabels(base, n_visemes=15), generator=torch.Generator()))
     assert set(gens) == {"loader", "dataset1"} and gens["dataset1"] is base.generator
+
+
+# ---- the PCA-initialised motion head (issue 31) ----------------------------------------------------------------
+def _clips(motions, template):
+    """Items as a dataset gives them: vertices = template + motion (T, V*3), template (V*3,)."""
+    return [{"vertices": template + m, "template": template} for m in motions]
+
+
+def test_motion_basis_matches_an_exact_pca_written_in_numpy():
+    """train.motion_basis against an independent reference: the covariance's eigenvectors (numpy), each scaled by
+    the square root of its eigenvalue (the standard deviation along it). Directions carry an arbitrary sign, so rows
+    are compared up to sign; the variances must come out in decreasing order."""
+    import numpy as np
+
+    from dualtalker_lite.train import motion_basis
+
+    rng = np.random.default_rng(0)
+    v3, k = 12, 3
+    mix = rng.normal(size=(k, v3))                                  # 3 latent modes with stds 5, 2, 0.5 mm
+    frames = (rng.normal(size=(300, k)) * [5e-3, 2e-3, 5e-4]) @ mix + 1e-6 * rng.normal(size=(300, v3))
+    template = rng.normal(size=v3)
+    clips = _clips([torch.tensor(frames[i:i + 100], dtype=torch.float64) for i in (0, 100, 200)],
+                   torch.tensor(template, dtype=torch.float64))
+    basis = motion_basis(clips, k).double().numpy()                 # (k, V*3)
+    centred = frames - frames.mean(0)
+    eigval, eigvec = np.linalg.eigh(centred.T @ centred / (len(frames) - 1))
+    order = np.argsort(eigval)[::-1][:k]
+    expected = (eigvec[:, order] * np.sqrt(eigval[order])).T       # (k, V*3)
+    for got, want in zip(basis, expected):
+        sign = np.sign(got @ want)
+        assert np.allclose(sign * got, want, rtol=1e-3, atol=1e-7)
+    assert np.all(np.diff(np.linalg.norm(basis, axis=1)) < 0)
+
+
+def test_motion_basis_leaves_the_global_rng_alone_and_refuses_bad_input():
+    from dualtalker_lite.checks import NonFiniteError
+    from dualtalker_lite.train import motion_basis
+
+    clips = _clips([torch.randn(20, 6)], torch.zeros(6))
+    state = torch.get_rng_state()
+    first = motion_basis(clips, 2, seed=3)
+    assert torch.equal(torch.get_rng_state(), state)                # training's random stream is not consumed
+    assert torch.equal(first, motion_basis(clips, 2, seed=3))       # same seed, same basis
+    with pytest.raises(ValueError, match="k must be at least 1"):
+        motion_basis(clips, 0)
+    bad = _clips([torch.full((4, 6), float("nan"))], torch.zeros(6))
+    with pytest.raises(NonFiniteError, match="non-finite"):
+        motion_basis(bad, 2)
+
+
+def test_init_output_basis_maps_feature_j_to_the_j_th_direction():
+    """MotionDecoder.init_output_basis: with the head's input a one-hot e_j the decoded motion is the bias plus row j
+    of the basis (metres), and inputs beyond the basis's k rows contribute nothing."""
+    from dualtalker_lite.blocks.decoder import MotionDecoder
+
+    dec = MotionDecoder(n_vertices=4, d_model=8, n_heads=2, d_ff=16, n_speakers=2)
+    basis = torch.arange(1, 37, dtype=torch.float32).reshape(3, 12) * 1e-4   # k=3 rows of V*3=12 values, metres
+    dec.init_output_basis(basis)
+    bias = dec.decode_motion(torch.zeros(1, 8))
+    for j in range(8):
+        got = dec.decode_motion(torch.eye(8)[j][None]) - bias
+        want = basis[j] if j < 3 else torch.zeros(12)
+        assert torch.allclose(got[0], want, atol=1e-9)
+    with pytest.raises(ValueError, match=r"basis: expected shape \(k, 12\), got \(3, 11\)"):
+        dec.init_output_basis(basis[:, :11])
+    tied = MotionDecoder(n_vertices=4, d_model=8, n_heads=2, d_ff=16, n_speakers=2, tie_output=True)
+    with pytest.raises(ValueError, match="tied to the motion encoder"):
+        tied.init_output_basis(basis)
+
+
+def test_train_with_pca_init_starts_from_the_training_motion_basis(data):
+    """TrainConfig.pca_init = k: before the first step the motion head holds motion_basis(training set, k) (checked
+    with epochs=0: the weights are the initialisation itself); a model without init_output_basis is refused."""
+    from dualtalker_lite.train import motion_basis
+
+    corpus, train_set, _ = data
+    model = _model(corpus)
+    train(model, make_loader(train_set, 8, shuffle=True, seed=0), TrainConfig.tiny(epochs=0, pca_init=8,
+                                                                                  progress=False))
+    head = model.decoder.motion_decoder.weight / model.decoder.motion_scale      # (V*3, d), metres per unit
+    assert torch.allclose(head[:, :8].T, motion_basis(train_set, 8), atol=1e-7)
+    assert not head[:, 8:].any()
+
+    class NoBasis(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.zeros(1))
+
+    with pytest.raises(TypeError, match="NoBasis has no init_output_basis"):
+        train(NoBasis(), make_loader(train_set, 8, shuffle=True, seed=0),
+              TrainConfig.tiny(epochs=0, pca_init=4, progress=False, mean_init=False))

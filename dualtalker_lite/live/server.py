@@ -393,9 +393,9 @@ def serve(config: LiveConfig, host: str = "127.0.0.1", port: int = 8765) -> None
 
 def add_arguments(ap) -> None:
     ap.add_argument("--checkpoint", required=True, help="a model trained on the viseme track (train's default)")
-    ap.add_argument("--host", default="127.0.0.1", help="address to listen on (default: this machine only)")
-    ap.add_argument("--port", type=int, default=8765)
-    ap.add_argument("--lookahead-ms", type=float, default=200.0,
+    ap.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only)")
+    ap.add_argument("--port", type=int, default=8765, help="port to listen on")
+    ap.add_argument("--lookahead-ms", type=int, default=200,
                     help="recogniser look-ahead: more agrees better with the offline animation, costs latency")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
     ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
@@ -406,9 +406,11 @@ def main(argv: list[str]) -> None:
     """The ``dualtalker-lite live`` command (see the module doc)."""
     import argparse
 
+    from ..console import HelpFormatter
+
     ap = argparse.ArgumentParser(prog="dualtalker-lite live", description=__doc__.splitlines()[0],
                                  epilog="example:\n  dualtalker-lite live --checkpoint runs/m.pt --port 8765",
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+                                 formatter_class=HelpFormatter)
     add_arguments(ap)
     args = ap.parse_args(argv)
     if not 0 <= args.lookahead_ms <= 2000:
