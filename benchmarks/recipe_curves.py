@@ -1,7 +1,7 @@
 """Time to quality of the training recipe (issue 31): lip sync against training CPU seconds, old recipe against new.
 
     # 1. once, where real_voices.py's recordings, pocketsphinx and the recogniser are installed (its docstring):
-    .venv/bin/python benchmarks/recipe_curves.py inputs               # -> runs/recipe_curves/inputs.pt (~3 MB)
+    .venv/bin/python benchmarks/recipe_curves.py inputs               # -> runs/recipe_curves/inputs.pth (~3 MB)
     # 2. train and evaluate: needs only the package and the shipped corpus (so it runs on any machine)
     .venv/bin/python benchmarks/recipe_curves.py run --models dualtalker faceformer corrtalk \\
         --recipes old new --seeds 0 1 2 --processes 2                 # -> runs/recipe_curves/<job>.json
@@ -312,10 +312,10 @@ def main() -> None:
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     sub = ap.add_subparsers(dest="step", required=True)
     p = sub.add_parser("inputs", help="freeze the real prompts' and test-A's recogniser tracks")
-    p.add_argument("--out", type=Path, default=OUT / "inputs.pt")
+    p.add_argument("--out", type=Path, default=OUT / "inputs.pth")
     p.add_argument("--limit", type=int, default=None, help="first N prompts only (a quick check)")
     p = sub.add_parser("run", help="train and evaluate every (model, recipe, seed)")
-    p.add_argument("--inputs", type=Path, default=OUT / "inputs.pt")
+    p.add_argument("--inputs", type=Path, default=OUT / "inputs.pth")
     p.add_argument("--models", nargs="+", default=["dualtalker", "faceformer", "corrtalk"])
     p.add_argument("--recipes", nargs="+", default=["old", "new"])
     p.add_argument("--recipe", action="append", default=[], metavar="NAME=JSON",

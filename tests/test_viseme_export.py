@@ -176,7 +176,8 @@ def test_animate_writes_viseme_curves_peaking_at_the_recordings_bilabials(tmp_pa
                 "--format", "npy,visemes", env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "15 viseme curves x 99 frames (30 fps)" in proc.stdout and "hama 1.7.0 phoneme recogniser" in proc.stdout
-    assert sorted(p.name for p in out.iterdir()) == ["frame0.obj", "vertices.npy", "visemes.csv", "visemes.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "frame0.obj", "vertices.npy",
+                                                     "visemes.csv", "visemes.json"]
     curves = read_visemes(out / "visemes.json")
     assert len(curves.weights) == len(np.load(out / "vertices.npy")) == 99       # one row per mesh frame
     assert np.array_equal(read_visemes(out / "visemes.csv").weights, curves.weights)

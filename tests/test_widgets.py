@@ -117,6 +117,20 @@ def test_recording_panel_builds_with_the_checkpoints_speakers(recording_setup):
     assert not panel.button.disabled and panel.button.description == "Animate"
 
 
+def test_recording_panel_lists_only_checkpoints(recording_setup, tmp_path):
+    """A ``*.pt`` under runs/ that is not a model (a benchmark's frozen inputs, any torch.save) is left out of the
+    list, not loaded (it made notebook 00's panel fail); with no checkpoint at all, one line says so."""
+    from dualtalker_lite.viz.widgets import RecordingPanel
+
+    corpus, path, wave = recording_setup
+    other = tmp_path / "inputs.pt"
+    torch.save({"real": [1, 2, 3]}, other)
+    panel = RecordingPanel(corpus, [other, path], default_wave=wave)
+    assert [p for _, p in panel.checkpoint.options] == [path]
+    with pytest.raises(ValueError, match=r"needs at least one checkpoint; none among \['.*inputs.pt'\]"):
+        RecordingPanel(corpus, [other], default_wave=wave)
+
+
 def test_recording_panel_default_path_animates_like_the_cli(recording_setup):
     from dualtalker_lite.checkpoints import load_checkpoint
     from dualtalker_lite.inference import animate_wave

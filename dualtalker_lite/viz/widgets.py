@@ -235,9 +235,13 @@ class RecordingPanel:
                  root: str | Path | None = None, size: int = 256):
         import ipywidgets as widgets
 
-        checkpoints = [Path(p) for p in checkpoints]
+        from ..checkpoints import is_own_file
+
+        given = [Path(p) for p in checkpoints]
+        checkpoints = [p for p in given if is_own_file(p)]  # a *.pt under runs/ need not be a model (a benchmark's)
         if not checkpoints:
-            raise ValueError("RecordingPanel needs at least one checkpoint")
+            raise ValueError(f"RecordingPanel needs at least one checkpoint; none among {[str(p) for p in given]} "
+                             "(train one with dualtalker-lite train)")
         label = (lambda p: str(p.relative_to(root))) if root is not None else str
         self.corpus, self.default_wave, self.size = corpus, np.asarray(default_wave, np.float32), size
         self.upload = widgets.FileUpload(accept=".wav,.flac", multiple=False, description="WAV")
