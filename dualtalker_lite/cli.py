@@ -137,7 +137,8 @@ def _train(argv: list[str]) -> Path:
                                  formatter_class=HelpFormatter)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--model", choices=sorted(specs), default="dualtalker",
-                    help="which model of the experiment tables to train")
+                    help="which registered model to train (dualtalker_lite.models.registry; $DUALTALKER_PLUGINS "
+                         "names modules that register more: docs/architecture.md)")
     ap.add_argument("--epochs", type=int, default=45, help="passes over the training clips")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
