@@ -50,11 +50,9 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from .models.baselines import StaticTemplate, VocaConfig, VocaStyle
-from .models.corrtalk import CorrTalk, CorrTalkConfig
-from .models.dualtalker import DualTalker, DualTalkerConfig
-from .models.emoface import EmoFace, EmoFaceConfig
-from .models.faceformer import FaceFormer, FaceFormerConfig
+from .models import registry as _registry
+from .models.contract import hook
+from .models.faceformer import FaceFormerConfig
 from .checks import NonFiniteError
 from .files import atomic_torch_save
 
@@ -166,10 +164,9 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
 
 
 def model_registry() -> dict[str, tuple[type, type | None]]:
-    """``model_class`` name -> (class, config class or None)."""
-    return {"DualTalker": (DualTalker, DualTalkerConfig), "FaceFormer": (FaceFormer, FaceFormerConfig),
-            "VocaStyle": (VocaStyle, VocaConfig), "CorrTalk": (CorrTalk, CorrTalkConfig),
-            "EmoFace": (EmoFace, EmoFaceConfig), "StaticTemplate": (StaticTemplate, None)}
+    """``model_class`` name -> (class, config class or None): read from the one model registry
+    (:mod:`dualtalker_lite.models.registry`, plugins of ``$DUALTALKER_PLUGINS`` included)."""
+    return _registry.classes()
 
 
 def upgrade_state_dict(model_class: str, state: dict) -> dict:
@@ -413,7 +410,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if note:
         print(f"note: {path}: {note}", file=sys.stderr)
     info = {"format_version": 1, "package_version": None, "speakers": None, "topology": None, "features": None,
-            "n_vertices": getattr(getattr(model, "cfg", None), "n_vertices", None), "train_config": None,
+            "n_vertices": getattr(hook(model, "cfg"), "n_vertices", None), "train_config": None,
             "history": None}
     info.update(ckpt)
     return model, info

@@ -44,12 +44,15 @@ NO_TIMING = "the split's clips have no phoneme timing (metadata 'phonemes'), whi
 
 
 def _model_specs() -> dict:
-    """``--model`` name -> the RunSpec the experiment tables train it with (EmoFace: the emotional table's)."""
-    from .experiments import table_specs
+    """``--model`` name -> the RunSpec it trains with: every trainable model of the registry
+    (:mod:`dualtalker_lite.models.registry`, plugins included), with the recipe of the experiment tables where a table
+    has it (EmoFace: the emotional table's), else a plain row (the model's default loss weights, the neutral clips)."""
+    from .experiments import RunSpec, table_specs
+    from .models import registry
 
-    specs = {s.model: s for s in table_specs("main") if s.model != "template"}
-    specs.update({s.model: s for s in table_specs("emotion") if s.model == "emoface"})
-    return specs
+    tables = {s.model: s for s in table_specs("main")}
+    tables.update({s.model: s for s in table_specs("emotion") if s.model == "emoface"})
+    return {name: tables.get(name) or RunSpec(row=name, model=name) for name in registry.names(trainable_only=True)}
 
 
 def _pair_dataset(corpus, seed: int):
@@ -122,6 +125,7 @@ def _train(argv: list[str]) -> Path:
     from .data.dataset import TalkingFaceDataset, make_loader
     from .data.pairs import make_pair_loader
     from .experiments import _features, build_model
+    from .models import registry
     from .train import TrainConfig, loss_weights, train
 
     specs = _model_specs()
@@ -133,7 +137,8 @@ def _train(argv: list[str]) -> Path:
                                  formatter_class=HelpFormatter)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--model", choices=sorted(specs), default="dualtalker",
-                    help="which model of the experiment tables to train")
+                    help="which registered model to train (dualtalker_lite.models.registry; $DUALTALKER_PLUGINS "
+                         "names modules that register more: docs/architecture.md)")
     ap.add_argument("--epochs", type=int, default=45, help="passes over the training clips")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
@@ -226,7 +231,9 @@ def _train(argv: list[str]) -> Path:
     else:
         dataset_used = dataset
     train_set, audio_dim = _features(dataset_used, spec.features, len(corpus.phoneme_inventory), training=True)
-    if spec.model == "emoface":  # as many emotion classes as the corpus has
+    config_cls = registry.get(spec.model).config_cls
+    if config_cls is not None and "n_emotions" in {f.name for f in dataclasses.fields(config_cls)}:
+        # emotion-aware models (EmoFace): as many emotion classes as the corpus has
         spec = dataclasses.replace(spec, model_overrides={**spec.model_overrides, "n_emotions": len(corpus.emotions)})
     torch.manual_seed(args.seed)
     n_vertices = int(train_set[0]["template"].numel() // 3)

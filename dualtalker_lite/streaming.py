@@ -226,7 +226,9 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     extractor = extractor or LogMelExtractor()
     template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
     check_finite(template, "template")
-    cfg = getattr(model, "cfg", None)
+    from .models.contract import hook
+
+    cfg = hook(model, "cfg")
     n_vertices = getattr(cfg, "n_vertices", None)
     if n_vertices is not None and template.size != 3 * n_vertices:
         raise ValueError(f"template has {template.size // 3} vertices but the model was trained on {n_vertices}")

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .models.contract import hook
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights",
@@ -141,7 +142,7 @@ def predict(model: torch.nn.Module, batch: dict, use_cache: bool = True) -> torc
     batch = _to_device(batch, device)
     speaker = batch["speaker"].clamp(min=0)  # unseen speakers (-1) are conditioned on training speaker 0
     # extra conditions a model takes from the batch (EmoFace: the emotion level), named by the model itself
-    conditions = {k: batch[k] for k in getattr(model, "generation_conditions", ()) if k in batch}
+    conditions = {k: batch[k] for k in hook(model, "generation_conditions") if k in batch}
     return model.generate(batch["audio"], batch["template"], speaker, use_cache=use_cache, mask=batch.get("mask"),
                           **conditions)
 
@@ -374,15 +375,15 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
-    init = getattr(model, "init_output_bias", None)
+    init = hook(model, "init_output_bias")
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
-    init_basis = getattr(model, "init_output_basis", None)
+    init_basis = hook(model, "init_output_basis")
     if cfg.pca_init:
         if not callable(init_basis):
             raise TypeError(f"TrainConfig.pca_init: {type(model).__name__} has no init_output_basis(basis)")
         init_basis(motion_basis(getattr(train_loader, "dataset", train_loader), cfg.pca_init, seed=cfg.seed))
-    init_data = getattr(model, "init_from_data", None)  # e.g. CorrTalk's FAI-initialised mask
+    init_data = hook(model, "init_from_data")  # e.g. CorrTalk's FAI-initialised mask
     if cfg.mean_init and callable(init_data):
         init_data(getattr(train_loader, "dataset", train_loader))
     weights = _check_weights(model, cfg.weights)
@@ -402,7 +403,7 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
         t0, c0 = t0 - float(resume["wall"]), c0 - float(resume["cpu"])
     validate = val_loader is not None and lip_idx is not None and cfg.validate_every != 0
     bar = tqdm(range(first, cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
-    set_epoch = getattr(model, "set_epoch", None)  # epoch-dependent models (EmoFace's self-growing schedule)
+    set_epoch = hook(model, "set_epoch")  # epoch-dependent models (EmoFace's self-growing schedule)
     for epoch in bar:
         model.train()
         if callable(set_epoch):

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from dualtalker_lite.models import registry
+
 PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
 
 LAYERS = [  # lowest first
@@ -22,7 +24,9 @@ LAYERS = [  # lowest first
     ("applications", ("experiments", "inference", "streaming", "viz", "live")),
     ("front ends", ("cli", "demo", "viz.widgets", "experiments.__main__")),
 ]
-PAPERS = ("models.dualtalker", "models.corrtalk", "models.emoface", "models.faceformer")
+# the modules of the registered models (dualtalker_lite.models.registry): no one of them imports another
+PAPERS = tuple(sorted({e.model_cls.__module__.partition(".")[2] for e in registry.entries().values()
+                       if e.model_cls.__module__.startswith("dualtalker_lite.models.")}))
 
 
 def modules(root: Path) -> dict[str, Path]:
@@ -160,3 +164,8 @@ def test_a_module_outside_the_layers_is_named(tmp_path):
     root = _fake_package(tmp_path, {"misc.py": ""})
     with pytest.raises(KeyError, match="module 'misc' is in no layer"):
         [layer_of(m) for m in modules(root)]
+
+
+def test_papers_come_from_the_registry():
+    assert {"models.dualtalker", "models.corrtalk", "models.emoface", "models.faceformer",
+            "models.baselines"} == set(PAPERS)

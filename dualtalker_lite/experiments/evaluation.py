@@ -219,7 +219,9 @@ def emotion_split_metrics(model: torch.nn.Module, dataset: Dataset, out: dict, e
     expr = emotion_expression_metrics(out["preds"], out["gts"], out["templates"], [emotions[i] for i in labels],
                                       regions)
     res = {k: expr[k] for k in ("brow_raise_error_mm", "smile_error_mm")}
-    classify = getattr(model, "emotion_logits", None)
+    from ..models.contract import hook
+
+    classify = hook(model, "emotion_logits")
     if callable(classify):
         model.eval()
         with torch.no_grad():

@@ -130,36 +130,13 @@ def front_end(features: str, fps: int = 30):
 def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
                 vertices=None) -> tuple[torch.nn.Module, object]:
     """The model of a row at the tiny sizes; returns (model, config) where config is None for the template.
-    ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention)."""
-    from ..models.baselines import StaticTemplate, VocaConfig, VocaStyle
-    from ..models.corrtalk import CorrTalk, CorrTalkConfig
-    from ..models.dualtalker import DualTalker, DualTalkerConfig
-    from ..models.faceformer import FaceFormer, FaceFormerConfig
+    ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention).
+    The builder is the registry's (:mod:`dualtalker_lite.models.registry`): ``spec.model`` names a registered model."""
+    from ..models import registry
 
-    sizes = dict(n_vertices=n_vertices, audio_dim=audio_dim, n_speakers=n_speakers)
-    if spec.model == "template":
-        return StaticTemplate(n_vertices), None
-    if spec.model == "voca":
-        cfg = VocaConfig.tiny(**sizes, **spec.model_overrides)
-        return VocaStyle(cfg), cfg
-    if spec.model == "faceformer":
-        cfg = FaceFormerConfig.tiny(**sizes, **spec.model_overrides)
-        return FaceFormer(cfg), cfg
-    if spec.model == "dualtalker":
-        cfg = DualTalkerConfig.tiny(**sizes, **spec.model_overrides)
-        return DualTalker(cfg), cfg
-    if spec.model == "corrtalk":
-        cfg = CorrTalkConfig.tiny(**sizes, **spec.model_overrides)
-        return CorrTalk(cfg), cfg
-    if spec.model == "emoface":
-        from ..face.visemes import VISEMES
-        from ..models.emoface import EmoFace, EmoFaceConfig
-
-        if spec.features == "visemes+logmel":  # E_c reads the viseme one-hot, E_e the log-mel after it
-            sizes["content_dims"] = len(VISEMES)
-        cfg = EmoFaceConfig.tiny(**sizes, **spec.model_overrides)
-        return EmoFace(cfg, faces=faces, vertices=vertices), cfg
-    raise ValueError(f"unknown model {spec.model!r}")
+    entry = registry.get(spec.model)
+    return entry.build(n_vertices, audio_dim, n_speakers, dict(spec.model_overrides), features=spec.features,
+                       faces=faces, vertices=vertices)
 
 
 def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,

@@ -64,8 +64,8 @@ class RunSpec:
     """One row of a table: which model, which overrides, which features. A run is a (RunSpec, seed) pair."""
 
     row: str                                            # label in the table
-    model: str                                          # "template" | "voca" | "faceformer" | "dualtalker" |
-                                                        # "corrtalk" | "emoface"
+    model: str                                          # a name of models.registry: "template" | "voca" |
+                                                        # "faceformer" | "dualtalker" | "corrtalk" | "emoface"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
     features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids) |

@@ -7,6 +7,8 @@ paper's ``losses`` module; no model imports another model.
 - ``corrtalk``    CorrTalk: hierarchical speech features, strong and weak MotionDecoders joined by an FAI mask
 - ``emoface``     EmoFace: emotion and content branches (two MotionDecoders), Mesh Attention, self-growing training
 - ``baselines``   static template and a VOCA-style sliding-window regressor
+- ``contract``    what every model offers (the ``TalkingFaceModel`` Protocol) and the optional hooks (``contract.hook``)
+- ``registry``    the one table of models (name -> class, config, builder) that checkpoints, runner and CLI read
 """
 from .baselines import StaticTemplate, VocaConfig, VocaStyle
 from .corrtalk import CorrTalk, CorrTalkConfig
