@@ -27,7 +27,9 @@
 Both models train with the recipe (``train.TrainConfig.tiny()``: its epoch budget is about 120 s of one-thread
 CPU time per model on a quiet machine). To stay under four minutes on a busy machine, each model also stops once
 ``--time-budget`` wall seconds of training have passed (default 150 s; the learning-rate schedule then ends early
-with it); ``metrics.json`` records the epochs and steps actually trained.
+with it); ``metrics.json`` records the epochs actually trained and each model's training CPU seconds, and a model
+that the budget stopped before the recipe's last epoch is named in one ``warning:`` line on stderr and in
+``metrics.json``'s ``truncated`` (:func:`budget_notes`): its lips may not close yet.
 """
 from __future__ import annotations
 
