@@ -1907,3 +1907,47 @@ def test_a_full_disk_at_a_periodic_state_save_keeps_the_state(tmp_path, capsys, 
 
     assert main([str(a) for a in argv + ["--resume"]]) == 0
     assert sorted(p.name for p in out_dir.iterdir()) == ["m.pt"]
+
+
+# ------------------------------------------------------- issue 32, the cases left open: each ends right or in one line
+def _embedded_wav(page: str) -> bytes:
+    """The WAV bytes an animation.html plays (its ``<audio src="data:audio/wav;base64,...">``)."""
+    import base64
+
+    start = page.index('src="data:audio/wav;base64,') + len('src="data:audio/wav;base64,')
+    return base64.b64decode(page[start:page.index('"', start)], validate=True)
+
+
+@pytest.mark.parametrize("rate", [16000, 44100])
+def test_animate_html_streams_the_audio_into_the_page(ckpt, tmp_path, capsys, monkeypatch, rate):
+    """Was: ``--format html`` read the whole wave (``AudioStream.read``) because the page embeds the sound: under a
+    memory cap, a traceback. Now the page's WAV is written from the stream block by block (through an anonymous
+    temporary file) and base64-encoded in pieces. The whole-wave loaders raise here, and the embedded audio is
+    bit-identical to what the whole-wave path writes (``viewer_html`` of ``stream.read()``); at 44.1 kHz the
+    stream resamples block by block, and still the bytes are the same."""
+    import dualtalker_lite.audio as audio
+    import dualtalker_lite.inference as inference
+    from dualtalker_lite.export.html import _wav_bytes
+
+    wav = tmp_path / "in" / "me.wav"
+    wav.parent.mkdir()
+    rng = np.random.default_rng(1)
+    sf.write(wav, (0.3 * np.sin(np.arange(rate // 2) * 0.05) + 0.01 * rng.standard_normal(rate // 2)), rate)
+    inputs = snapshot(wav.parent)
+    whole = _wav_bytes(audio.AudioStream(wav).read(), 16000)  # the whole-wave path (what the page held before)
+
+    def whole_wave(*a, **k):
+        raise AssertionError("the html path read the whole wave")
+    monkeypatch.setattr(audio.AudioStream, "read", whole_wave)
+    monkeypatch.setattr(audio, "load_audio", whole_wave)
+    monkeypatch.setattr(inference, "load_audio", whole_wave)
+    from dualtalker_lite.cli import main
+
+    out = tmp_path / "anim"
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(wav), "--out", str(out), "--format", "html"])
+    capsys.readouterr()
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.html"]
+    embedded = _embedded_wav((out / "animation.html").read_text(encoding="utf-8"))
+    assert embedded[:4] == b"RIFF" and len(embedded) == len(whole) > 16000
+    assert embedded == whole
+    assert snapshot(wav.parent) == inputs
