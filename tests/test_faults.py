@@ -1951,3 +1951,38 @@ def test_animate_html_streams_the_audio_into_the_page(ckpt, tmp_path, capsys, mo
     assert embedded[:4] == b"RIFF" and len(embedded) == len(whole) > 16000
     assert embedded == whole
     assert snapshot(wav.parent) == inputs
+
+
+@pytest.mark.parametrize("error", [RuntimeError("hama_asr_run failed"), MemoryError()])
+def test_the_recogniser_failing_is_one_line_naming_the_recording(phonetic, tmp_path, capsys, monkeypatch, error):
+    """Was: under a memory cap the phonetic route died with a traceback ending in ``RuntimeError: hama_asr_run
+    failed`` (hama's engine could not allocate; it says nothing more). Now hama's RuntimeError or a MemoryError of
+    one call is ``recogniser.RecogniserError``: one line naming the recording, the seconds of the failed call and
+    what to do (memory, not a shorter recording: the stream is read 28 s at a time). The earlier animation that
+    ``--overwrite`` would replace is byte-identical, and no cache entry or temporary is left."""
+    from hama._engine import AsrSession
+
+    from dualtalker_lite.recogniser import PhonemeRecogniser, RecogniserError
+
+    def fails(self, *a, **k):  # what hama's AsrSession.run raises when hama_asr_run returns an error
+        raise error
+    monkeypatch.setattr(AsrSession, "run", fails)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    wav = tmp_path / "in" / "me.wav"
+    wav.parent.mkdir()
+    shutil.copy(phonetic["a"], wav)
+    out = earlier_animation(tmp_path / "anim")
+    before = snapshot(tmp_path)
+    seconds = phonetic["n"] / 16000
+    cause = "RuntimeError: hama_asr_run failed" if isinstance(error, RuntimeError) else "MemoryError"
+    line = refused_in_process(capsys, ["animate", "--checkpoint", phonetic["ckpt"], "--wav", wav, "--speaker",
+                                       "SPK01", "--out", out, "--overwrite", "--format", "npy"],
+                              f"error: {wav}: the phoneme recogniser (hama ", f"failed on its seconds 0.0-"
+                              f"{seconds:.1f} ({cause}), most likely out of memory", "close other programs or run "
+                              "with more memory")
+    assert "Traceback" not in line
+    assert snapshot(tmp_path) == before  # the earlier animation, the recording, an empty cache: all as they were
+    with pytest.raises(RecogniserError, match=r"^the recording: the phoneme recogniser .* failed on its seconds 0\.0"):
+        PhonemeRecogniser(cache=False).log_probs(sf.read(wav, dtype="float32")[0])  # the whole-wave path: no file
