@@ -32,6 +32,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.faceformer import (MAX_DEPTH, VOCASET_TEST, VOCASET_TRAIN, VOCASET_VAL, UnsafePickleError,
                                              safe_load_pickle)
+from dualtalker_lite.data.sentences import SENTENCES as SENTENCES_DEFAULT
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -1986,3 +1987,74 @@ def test_the_recogniser_failing_is_one_line_naming_the_recording(phonetic, tmp_p
     assert snapshot(tmp_path) == before  # the earlier animation, the recording, an empty cache: all as they were
     with pytest.raises(RecogniserError, match=r"^the recording: the phoneme recogniser .* failed on its seconds 0\.0"):
         PhonemeRecogniser(cache=False).log_probs(sf.read(wav, dtype="float32")[0])  # the whole-wave path: no file
+
+
+def _planned(monkeypatch, argv: list) -> tuple:
+    """``generate`` in-process up to its plan: -> (the spec it would generate, its texts), nothing synthesised."""
+    from dualtalker_lite.data import generate
+
+    seen = {}
+
+    def plan_only(spec, out, texts=SENTENCES_DEFAULT, **kw):
+        seen["spec"], seen["texts"] = spec, texts
+        raise SystemExit(0)
+    monkeypatch.setattr(generate, "generate_corpus", plan_only)
+    with pytest.raises(SystemExit) as e:
+        generate.main([str(a) for a in argv])
+    assert e.value.code == 0
+    return seen["spec"], seen["texts"]
+
+
+@pytest.mark.parametrize("extra, file_lines, fix", [
+    (["--sentences", "2", "--val-sentences", "1", "--test-sentences", "1"], 0, "--val-sentences 0 --test-sentences 1"),
+    (["--sentences", "2", "--test-sentences", "2"], 0, "--val-sentences 0 --test-sentences 1"),
+    (["--sentences", "1", "--test-sentences", "1"], 0, "--val-sentences 0 --test-sentences 0 --long-clips ''"),
+    (["--sentences", "10", "--test-sentences", "12"], 0, "--val-sentences 1 --test-sentences 2"),
+    (["--val-sentences", "1", "--test-sentences", "1"], 2, "--val-sentences 0 --test-sentences 1"),
+    (["--test-sentences", "1"], 1, "--val-sentences 0 --test-sentences 0 --long-clips ''"),
+])
+def test_generate_suggests_held_out_sentences_that_work(tmp_path, capsys, monkeypatch, extra, file_lines, fix):
+    """Was: too many held-out sentences for ``--sentences`` suggested ``--val-sentences 1 --test-sentences 2``
+    whatever the count (with 2 sentences that holds out 3 of 2, worse than before), and a plain ``generate
+    --sentences 2`` scaled its defaults to 1 and 1 and failed with that advice. Now the suggestion is computed
+    (``generate.fitting_held_out``: leaves one sentence for training; ``--long-clips ''`` where nothing would be
+    held out, since long clips are made of held-out sentences), and following it plans a corpus (``plan_corpus``;
+    nothing is synthesised). Nothing is written on the refusal."""
+    from dualtalker_lite.data import generate
+
+    argv = ["--out", tmp_path / "c", *extra]
+    if file_lines:
+        (tmp_path / "s.txt").write_text("".join(f"{t}\n" for t in SENTENCES_DEFAULT[:file_lines]))
+        argv += ["--sentences-file", tmp_path / "s.txt"]
+    before = snapshot(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        generate.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and one_line(err, "val_sentences + test_sentences must leave some training sentences",
+                                          f"lower them: {fix} leaves ")
+    assert snapshot(tmp_path) == before
+    # follow the advice as a shell would pass it (the later flag wins; '' is an empty argument)
+    spec, texts = _planned(monkeypatch, [*argv, *("" if f == "''" else f for f in fix.split())])
+    plans = generate.plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)
+    assert spec.val_sentences + spec.test_sentences < spec.sentences
+    assert {p.split for p in plans} >= {"train"} and snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("sentences, file_lines, val, test", [(2, 0, 0, 1), (1, 0, 0, 0), (2, 2, 0, 1)])
+def test_generate_with_two_sentences_plans_a_corpus(tmp_path, capsys, monkeypatch, sentences, file_lines, val, test):
+    """Was: ``generate --sentences 2`` scaled its held-out defaults to 1 and 1 (nothing left to train on) and was
+    refused. Now the defaults leave one for training, said in the ``note:`` line, and the corpus is planned."""
+    argv = ["--out", tmp_path / "c", "--sentences", sentences]
+    if file_lines:
+        (tmp_path / "s.txt").write_text("".join(f"{t}\n" for t in SENTENCES_DEFAULT[:file_lines]))
+        argv += ["--sentences-file", tmp_path / "s.txt"]
+    from dualtalker_lite.data import generate
+
+    spec, texts = _planned(monkeypatch, argv)
+    out = capsys.readouterr().out
+    assert (spec.val_sentences, spec.test_sentences) == (val, test)
+    assert f"note: {sentences} sentences: {val} for validation and {test} for test-A, {sentences - val - test} for " \
+           f"training" in out
+    plans = generate.plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)
+    assert sum(p.split == "train" for p in plans) == (spec.speakers - spec.unseen_speakers) * (sentences - val - test)
+    assert not (tmp_path / "c").exists()
