@@ -275,7 +275,7 @@ def write_html(path: str | os.PathLike, glb: str | os.PathLike | bytes, wave=Non
     wins). The audio never passes through memory whole: :func:`~dualtalker_lite.export.gltf.write_wav` writes it
     (block by block for a stream) into an anonymous temporary file, which is base64-encoded into the page
     ``_B64_PIECE`` bytes at a time; the temporary file vanishes when closed, even if the process is killed. The
-    bytes of the page equal ``viewer_html``'s for the same wave and ``viewer_id`` -> path.
+    page is ``viewer_html``'s for the same wave, but for its random element id -> path.
     """
     import tempfile
 
