@@ -220,8 +220,6 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
     viseme curves for the clip's frames (one per frame of ``verts``, at ``FPS``).
     """
     folder = Path(folder)
-    if hasattr(wave, "blocks") and "html" in formats:
-        wave = wave.read()  # the page inlines the sound: it takes the whole wave (the mp4 copies it block by block)
     own = isinstance(verts, (str, Path)) and Path(verts).resolve() == (folder / "vertices.npy").resolve()
     clip = _frames(verts)  # (T, V, 3)
     written = []

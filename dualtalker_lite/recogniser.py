@@ -77,7 +77,7 @@ from .files import _alive
 
 __all__ = ["NAME", "HAMA_VERSION", "RATE", "FRAME_SAMPLES", "MAX_FRAMES_PER_CALL", "SYMBOL_TO_VISEME",
            "NON_PHONES", "OUTPUTS", "LAG_S", "WINDOW_S", "MAX_LAG_S", "MAX_WINDOW_S", "MAX_BLANK_BIAS", "MAX_FPS",
-           "SETTING_KEYS", "check_settings", "default_cache_dir", "wave_hash", "n_recogniser_frames",
+           "SETTING_KEYS", "RecogniserError", "check_settings", "default_cache_dir", "wave_hash", "n_recogniser_frames",
            "PhonemeRecogniser", "symbol_visemes", "spike_track", "RecogniserExtractor"]
 
 NAME = "hama"                   # the front-end's name in checkpoints
@@ -233,6 +233,36 @@ def wave_hash(wave: np.ndarray, settings: dict) -> str:
 def n_recogniser_frames(n_samples: int) -> int:
     """Recogniser frames for ``n_samples`` at 16 kHz: ``1 + n_samples // 320`` (measured on hama 1.7.0)."""
     return 1 + int(n_samples) // FRAME_SAMPLES
+
+
+class RecogniserError(ValueError):
+    """hama failed on one call (its engine's ``RuntimeError("hama_asr_run failed")`` or a ``MemoryError``), as one
+    line naming the recording (issue 32): ``<recording>: the phoneme recogniser (hama 1.7.0) failed on its seconds
+    24.0-52.0 (RuntimeError: hama_asr_run failed), most likely out of memory: ...; close other programs or run with
+    more memory ...``.
+
+    A ``ValueError`` so that every command prints it as ``error: <recording>: ...`` with exit status 2
+    (``console.USER_ERRORS``), not a traceback. Under a memory cap, hama's engine cannot allocate its buffers and
+    reports only ``hama_asr_run failed``; that, or a ``MemoryError`` of the arrays around it, is what this stands
+    for. The length of the recording does not matter for a streamed one (``animate`` reads it 28 s at a time), so
+    the advice is memory, not a shorter file. ``source``: the recording's path where the caller knows it
+    (``None``: "the recording"); :meth:`PhonemeRecogniser.stream_log_probs` fills it in from an ``AudioStream``.
+    """
+
+    def __init__(self, start_s: float, end_s: float, cause: BaseException, version: str, threads: int,
+                 source: str | os.PathLike | None = None):
+        self.start_s, self.end_s, self.cause, self.version, self.threads = start_s, end_s, cause, version, threads
+        self.source = source
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        reason = (str(self.cause).strip().splitlines() or [""])[0]
+        calls = f"about 70 MB per call of up to 28 s, {self.threads} call{'s' * (self.threads > 1)} at once at most"
+        return (f"{self.source or 'the recording'}: the phoneme recogniser (hama {self.version}) failed on its "
+                f"seconds {self.start_s:.1f}-{self.end_s:.1f} ({type(self.cause).__name__}"
+                f"{': ' + reason if reason else ''}), most likely out of memory ({calls}); close other programs or "
+                f"run with more memory (a higher memory limit, ulimit -v); the recording's length does not matter, "
+                f"it is read 28 s at a time")
 
 
 def _import_hama():
@@ -419,6 +449,7 @@ class PhonemeRecogniser:
         self._swept = False                                            # stale temporaries removed yet (_sweep)
         self._old_noted = False                                        # an older version's entry noted yet
         self.threads = max(1, min(int(threads), os.cpu_count() or 1))
+        self.source = None                                             # the recording now read (RecogniserError)
 
     def settings(self) -> dict:
         """What the log-probs depend on (part of the cache key)."""
@@ -450,7 +481,11 @@ class PhonemeRecogniser:
         time) and yield ``(first, block)``: the core's frames, float16, in order."""
         def run(job, piece):
             first, last, lo, hi = job
-            out = self._run(piece)
+            try:
+                out = self._run(piece)
+            except (RuntimeError, MemoryError) as e:  # hama_asr_run failed: its engine could not allocate
+                raise RecogniserError(lo / SAMPLE_RATE, hi / SAMPLE_RATE, e, self.version, self.threads,
+                                      self.source) from e
             offset = (first * FRAME_SAMPLES - lo) // FRAME_SAMPLES
             block = out[offset:offset + (last - first)]
             if block.shape[0] < last - first:                          # the wave's last frame: repeat (rare)
@@ -640,11 +675,21 @@ class PhonemeRecogniser:
         wave, with ``threads`` calls in flight as there. Memory: those calls' samples (28 s each) plus one block.
         The cache entry is written as the blocks come (same path and bytes as :meth:`log_probs`), under a
         temporary name renamed when complete, and removed if the stream stops early. A cache that fails while
-        being written is dropped with one warning; the blocks still come.
+        being written is dropped with one warning; the blocks still come. If hama fails on a call (out of memory),
+        :class:`RecogniserError` names the recording: ``blocks.__self__.path`` when ``blocks`` is an
+        ``AudioStream``'s ``blocks`` method (what ``animate`` passes), and no cache entry is left.
         """
         n = int(n_samples)
         if n < 1:
             raise ValueError("wave is empty")
+        try:
+            self.source = getattr(getattr(blocks, "__self__", None), "path", None)
+            yield from self._stream_log_probs(blocks, n)
+        finally:
+            self.source = None
+
+    def _stream_log_probs(self, blocks, n: int) -> Iterator[tuple[int, np.ndarray]]:
+        """:meth:`stream_log_probs` after its checks."""
         settings, key, path = self.settings(), None, None
         source = blocks
         if callable(blocks):

@@ -32,6 +32,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.faceformer import (MAX_DEPTH, VOCASET_TEST, VOCASET_TRAIN, VOCASET_VAL, UnsafePickleError,
                                              safe_load_pickle)
+from dualtalker_lite.data.sentences import SENTENCES as SENTENCES_DEFAULT
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -1907,3 +1908,224 @@ def test_a_full_disk_at_a_periodic_state_save_keeps_the_state(tmp_path, capsys, 
 
     assert main([str(a) for a in argv + ["--resume"]]) == 0
     assert sorted(p.name for p in out_dir.iterdir()) == ["m.pt"]
+
+
+# ------------------------------------------------------- issue 32, the cases left open: each ends right or in one line
+def _embedded_wav(page: str) -> bytes:
+    """The WAV bytes an animation.html plays (its ``<audio src="data:audio/wav;base64,...">``)."""
+    import base64
+
+    start = page.index('src="data:audio/wav;base64,') + len('src="data:audio/wav;base64,')
+    return base64.b64decode(page[start:page.index('"', start)], validate=True)
+
+
+@pytest.mark.parametrize("rate", [16000, 44100])
+def test_animate_html_streams_the_audio_into_the_page(ckpt, tmp_path, capsys, monkeypatch, rate):
+    """Was: ``--format html`` read the whole wave (``AudioStream.read``) because the page embeds the sound: under a
+    memory cap, a traceback. Now the page's WAV is written from the stream block by block (through an anonymous
+    temporary file) and base64-encoded in pieces. The whole-wave loaders raise here, and the embedded audio is
+    bit-identical to what the whole-wave path writes (``viewer_html`` of ``stream.read()``); at 44.1 kHz the
+    stream resamples block by block, and still the bytes are the same."""
+    import dualtalker_lite.audio as audio
+    import dualtalker_lite.inference as inference
+    from dualtalker_lite.export.html import _wav_bytes
+
+    wav = tmp_path / "in" / "me.wav"
+    wav.parent.mkdir()
+    rng = np.random.default_rng(1)
+    sf.write(wav, (0.3 * np.sin(np.arange(rate // 2) * 0.05) + 0.01 * rng.standard_normal(rate // 2)), rate)
+    inputs = snapshot(wav.parent)
+    whole = _wav_bytes(audio.AudioStream(wav).read(), 16000)  # the whole-wave path (what the page held before)
+
+    def whole_wave(*a, **k):
+        raise AssertionError("the html path read the whole wave")
+    monkeypatch.setattr(audio.AudioStream, "read", whole_wave)
+    monkeypatch.setattr(audio, "load_audio", whole_wave)
+    monkeypatch.setattr(inference, "load_audio", whole_wave)
+    from dualtalker_lite.cli import main
+
+    out = tmp_path / "anim"
+    main(["animate", "--checkpoint", str(ckpt), "--wav", str(wav), "--out", str(out), "--format", "html"])
+    capsys.readouterr()
+    assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.html"]
+    embedded = _embedded_wav((out / "animation.html").read_text(encoding="utf-8"))
+    assert embedded[:4] == b"RIFF" and len(embedded) == len(whole) > 16000
+    assert embedded == whole
+    assert snapshot(wav.parent) == inputs
+
+
+@pytest.mark.parametrize("error", [RuntimeError("hama_asr_run failed"), MemoryError()])
+def test_the_recogniser_failing_is_one_line_naming_the_recording(phonetic, tmp_path, capsys, monkeypatch, error):
+    """Was: under a memory cap the phonetic route died with a traceback ending in ``RuntimeError: hama_asr_run
+    failed`` (hama's engine could not allocate; it says nothing more). Now hama's RuntimeError or a MemoryError of
+    one call is ``recogniser.RecogniserError``: one line naming the recording, the seconds of the failed call and
+    what to do (memory, not a shorter recording: the stream is read 28 s at a time). The earlier animation that
+    ``--overwrite`` would replace is byte-identical, and no cache entry or temporary is left."""
+    from hama._engine import AsrSession
+
+    from dualtalker_lite.recogniser import PhonemeRecogniser, RecogniserError
+
+    def fails(self, *a, **k):  # what hama's AsrSession.run raises when hama_asr_run returns an error
+        raise error
+    monkeypatch.setattr(AsrSession, "run", fails)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    monkeypatch.setenv("DUALTALKER_CACHE", str(cache))
+    wav = tmp_path / "in" / "me.wav"
+    wav.parent.mkdir()
+    shutil.copy(phonetic["a"], wav)
+    out = earlier_animation(tmp_path / "anim")
+    before = snapshot(tmp_path)
+    seconds = phonetic["n"] / 16000
+    cause = "RuntimeError: hama_asr_run failed" if isinstance(error, RuntimeError) else "MemoryError"
+    line = refused_in_process(capsys, ["animate", "--checkpoint", phonetic["ckpt"], "--wav", wav, "--speaker",
+                                       "SPK01", "--out", out, "--overwrite", "--format", "npy"],
+                              f"error: {wav}: the phoneme recogniser (hama ", f"failed on its seconds 0.0-"
+                              f"{seconds:.1f} ({cause}), most likely out of memory", "close other programs or run "
+                              "with more memory")
+    assert "Traceback" not in line
+    assert snapshot(tmp_path) == before  # the earlier animation, the recording, an empty cache: all as they were
+    with pytest.raises(RecogniserError, match=r"^the recording: the phoneme recogniser .* failed on its seconds 0\.0"):
+        PhonemeRecogniser(cache=False).log_probs(sf.read(wav, dtype="float32")[0])  # the whole-wave path: no file
+
+
+def _planned(monkeypatch, argv: list) -> tuple:
+    """``generate`` in-process up to its plan: -> (the spec it would generate, its texts), nothing synthesised."""
+    from dualtalker_lite.data import generate
+
+    seen = {}
+
+    def plan_only(spec, out, texts=SENTENCES_DEFAULT, **kw):
+        seen["spec"], seen["texts"] = spec, texts
+        raise SystemExit(0)
+    monkeypatch.setattr(generate, "generate_corpus", plan_only)
+    with pytest.raises(SystemExit) as e:
+        generate.main([str(a) for a in argv])
+    assert e.value.code == 0
+    return seen["spec"], seen["texts"]
+
+
+@pytest.mark.parametrize("extra, file_lines, fix", [
+    (["--sentences", "2", "--val-sentences", "1", "--test-sentences", "1"], 0, "--val-sentences 0 --test-sentences 1"),
+    (["--sentences", "2", "--test-sentences", "2"], 0, "--val-sentences 0 --test-sentences 1"),
+    (["--sentences", "1", "--test-sentences", "1"], 0, "--val-sentences 0 --test-sentences 0 --long-clips ''"),
+    (["--sentences", "10", "--test-sentences", "12"], 0, "--val-sentences 1 --test-sentences 2"),
+    (["--val-sentences", "1", "--test-sentences", "1"], 2, "--val-sentences 0 --test-sentences 1"),
+    (["--test-sentences", "1"], 1, "--val-sentences 0 --test-sentences 0 --long-clips ''"),
+])
+def test_generate_suggests_held_out_sentences_that_work(tmp_path, capsys, monkeypatch, extra, file_lines, fix):
+    """Was: too many held-out sentences for ``--sentences`` suggested ``--val-sentences 1 --test-sentences 2``
+    whatever the count (with 2 sentences that holds out 3 of 2, worse than before), and a plain ``generate
+    --sentences 2`` scaled its defaults to 1 and 1 and failed with that advice. Now the suggestion is computed
+    (``generate.fitting_held_out``: leaves one sentence for training; ``--long-clips ''`` where nothing would be
+    held out, since long clips are made of held-out sentences), and following it plans a corpus (``plan_corpus``;
+    nothing is synthesised). Nothing is written on the refusal."""
+    from dualtalker_lite.data import generate
+
+    argv = ["--out", tmp_path / "c", *extra]
+    if file_lines:
+        (tmp_path / "s.txt").write_text("".join(f"{t}\n" for t in SENTENCES_DEFAULT[:file_lines]))
+        argv += ["--sentences-file", tmp_path / "s.txt"]
+    before = snapshot(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        generate.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and one_line(err, "val_sentences + test_sentences must leave some training sentences",
+                                          f"lower them: {fix} leaves ")
+    assert snapshot(tmp_path) == before
+    # follow the advice as a shell would pass it (the later flag wins; '' is an empty argument)
+    spec, texts = _planned(monkeypatch, [*argv, *("" if f == "''" else f for f in fix.split())])
+    plans = generate.plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)
+    assert spec.val_sentences + spec.test_sentences < spec.sentences
+    assert {p.split for p in plans} >= {"train"} and snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("sentences, file_lines, val, test", [(2, 0, 0, 1), (1, 0, 0, 0), (2, 2, 0, 1)])
+def test_generate_with_two_sentences_plans_a_corpus(tmp_path, capsys, monkeypatch, sentences, file_lines, val, test):
+    """Was: ``generate --sentences 2`` scaled its held-out defaults to 1 and 1 (nothing left to train on) and was
+    refused. Now the defaults leave one for training, said in the ``note:`` line, and the corpus is planned."""
+    argv = ["--out", tmp_path / "c", "--sentences", sentences]
+    if file_lines:
+        (tmp_path / "s.txt").write_text("".join(f"{t}\n" for t in SENTENCES_DEFAULT[:file_lines]))
+        argv += ["--sentences-file", tmp_path / "s.txt"]
+    from dualtalker_lite.data import generate
+
+    spec, texts = _planned(monkeypatch, argv)
+    out = capsys.readouterr().out
+    assert (spec.val_sentences, spec.test_sentences) == (val, test)
+    assert f"note: {sentences} sentences: {val} for validation and {test} for test-A, {sentences - val - test} for " \
+           f"training" in out
+    plans = generate.plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)
+    assert sum(p.split == "train" for p in plans) == (spec.speakers - spec.unseen_speakers) * (sentences - val - test)
+    assert not (tmp_path / "c").exists()
+
+
+def _faceformer_copy(root: Path, clips: dict) -> Path:
+    """Shipped clips in FaceFormer's layout (absolute vertices, templates.npz, WAVs): ``clips`` {split: names}."""
+    sample = Corpus(sample_path())
+    (root / "vertices_npy").mkdir(parents=True)
+    (root / "wav").mkdir()
+    names = [n for split in clips.values() for n in split]
+    for name in names:
+        np.save(root / "vertices_npy" / f"{name}.npy", sample.vertices(name))
+        sf.write(root / "wav" / f"{name}.wav", sample.wave(name), 16000, subtype="FLOAT")
+    np.savez(root / "templates.npz", **{s: sample.template(s) for s in sample.speakers})
+    np.save(root / "faces.npy", sample.faces)
+    shutil.copy(sample_path() / "regions.json", root / "regions.json")
+    (root / "metadata.json").write_text(json.dumps({
+        "format": "faceformer", "fps": 30, "sample_rate": 16000, "n_vertices": sample.metadata["n_vertices"],
+        "speakers": sample.speakers, "splits": clips,
+        "clips": {n: {"subject": sample.meta(n)["subject"], "n_frames": len(sample.vertices(n))} for n in names}}))
+    return root
+
+
+def test_a_clip_labelled_with_another_speaker_is_refused(tmp_path, capsys, monkeypatch):
+    """Was: a clip whose ``subject`` named another real speaker trained unnoticed (its vertices were within
+    ``MAX_DISPLACEMENT`` of the wrong template: faces differ by millimetres). Now, in FaceFormer's layout, a clip
+    whose mean frame lies more than ``SPEAKER_MARGIN`` times nearer another speaker's template (median over
+    vertices) is refused with one line naming the clip, its label and the nearer speaker, before training; nothing
+    is written. Correctly labelled, the same corpus loads."""
+    from dualtalker_lite.data.corpus import SPEAKER_MARGIN
+
+    sample = Corpus(sample_path())
+    train = [n for n in sample.split("train") if n.startswith("SPK02_")][:2]
+    train += [n for n in sample.split("train") if n.startswith("SPK01_")][:2]
+    val = [n for n in sample.split("val") if n.startswith("SPK01_")][:1]
+    root = _faceformer_copy(tmp_path / "ff", {"train": train, "val": val})
+    good = Corpus(root)
+    assert [good.vertices(n).shape[0] for n in train + val] == [sample.vertices(n).shape[0] for n in train + val]
+    meta = json.loads((root / "metadata.json").read_text())
+    meta["clips"][train[0]]["subject"] = "SPK05"  # an SPK02 clip labelled with another real speaker
+    (root / "metadata.json").write_text(json.dumps(meta))
+    _no_training(monkeypatch)
+    before = snapshot(tmp_path)
+    line = refused_in_process(capsys, TRAIN_TINY + ["--features", "logmel", "--corpus", root, "--out",
+                                                    tmp_path / "m.pt"],
+                              f"error: {root / 'metadata.json'}: clip {train[0]!r} is labelled speaker 'SPK05', but "
+                              f"its vertices are those of 'SPK02': the median vertex of its mean frame lies ",
+                              " from the template of 'SPK02' and ", " from that of 'SPK05'; correct its 'subject' "
+                              f"(or its vertices_npy/{train[0]}.npy)")
+    near = float(line.split(" lies ")[1].split(" from the template")[0])
+    own = float(line.split(" and ")[1].split(" from that of")[0])
+    assert near < 1e-4 < 1e-3 < own and own > SPEAKER_MARGIN * near  # metres: SPK02's shape exactly, 'SPK05' mm away
+    assert snapshot(tmp_path) == before
+
+
+def test_no_shipped_clip_is_near_another_speakers_template():
+    """The margin of ``Corpus._check_speaker`` on every shipped clip (703, 10 speakers), measured with the same
+    code on a FaceFormer-layout view of the templates: own / nearest other at most 0.0062 (docs/faults.md), far
+    below ``SPEAKER_MARGIN`` (2), so no shipped clip, nor any generated by the same rig, can trip it."""
+    from dualtalker_lite.data.corpus import SPEAKER_MARGIN
+
+    sample = Corpus(sample_path())
+    view = Corpus(sample_path())
+    view._shapes = {s: sample.template(s).reshape(-1, 3) for s in sample.speakers}
+    view.format = "faceformer"
+    worst = 0.0
+    for name in sample.clips:
+        mean = sample.vertices(name).reshape(-1, sample.metadata["n_vertices"], 3).mean(0, dtype=np.float64)
+        far = {s: float(np.median(np.linalg.norm(mean - t, axis=1))) for s, t in view._shapes.items()}
+        own = far.pop(sample.meta(name)["subject"])
+        worst = max(worst, own / min(far.values()))
+        view._check_speaker(name, sample.vertices(name), sample.meta(name)["subject"])  # raises if it tripped
+    assert worst < 0.01 and worst * 100 < SPEAKER_MARGIN, worst

@@ -16,6 +16,18 @@ outside the vertex range. Optional metadata keys for real datasets (see :mod:`.f
 ``mesh_stride`` (keep every n-th mesh frame, e.g. 2 for VOCASET's 60 fps) and ``units`` (``"m"``: the
 template's size is checked to be plausible in metres; anything else skips that check).
 
+A clip labelled with another speaker of the corpus (issue 32): in the ``faceformer`` layout a clip's vertices are
+absolute, so its face shape says whose it is. When a clip's vertices are loaded, the median over vertices of the
+distance between its mean frame and each speaker's template is compared (:meth:`Corpus._check_speaker`; the median
+ignores the moving mouth, jaw and brows, a minority of the vertices). A clip lying more than
+``SPEAKER_MARGIN`` (2) times nearer another speaker's template than its own is refused, naming both. On the shipped
+``data_samples/`` (703 clips, 10 speakers whose templates differ by 1.7 to 8.8 mm RMS) the ratio own / nearest
+other is at most 0.0062 (median 0.00087; emotional clips the highest): a margin of 300x. The mean frame over all
+vertices (RMS) does not separate them (ratios up to 1.18: the expressions move the mean frame by up to 5.7 mm).
+Not checked: the ``compact`` layout (its vertices are rebuilt with the labelled speaker's own rig, so the shape
+always matches the label; a mislabel there shows only in the voice), a corpus of one speaker, and speakers whose
+templates are (nearly) the same (the ratio stays near 1: not refused, since it cannot tell).
+
 >>> corpus = Corpus("data_samples")                          # doctest: +SKIP
 >>> corpus.vertices(corpus.split("train")[0]).shape           # doctest: +SKIP
 (75, 3*V)
@@ -30,10 +42,11 @@ import numpy as np
 
 from ..checks import check_finite, check_name, load_npy, load_npz
 
-__all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH"]
+__all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH", "SPEAKER_MARGIN"]
 
 FORMATS = ("faceformer", "compact")
 MAX_FRAME_MISMATCH = 2  # |T - duration * fps| tolerated between a clip's mesh and its audio, in frames
+SPEAKER_MARGIN = 2.0    # a clip this many times nearer another speaker's template than its own is mislabelled
 
 
 def _need(path: Path) -> Path:
@@ -103,6 +116,7 @@ class Corpus:
         self._controls: dict[str, np.ndarray] | None = None
         self._faces: np.ndarray | None = None
         self._regions: dict[str, np.ndarray] | None = None
+        self._shapes: dict[str, np.ndarray] | None = None  # every loadable template, (V, 3): _check_speaker
 
     def _validate_metadata(self, path: Path) -> None:
         m = self.metadata
@@ -242,6 +256,7 @@ class Corpus:
             raise ValueError(f"clip {name!r} has {verts.shape[1] // 3} vertices per frame but the template of "
                              f"{meta['subject']!r} has {tpl.size // 3}")
         self._check_plausible(name, verts, tpl)
+        self._check_speaker(name, verts, meta["subject"])
         if "n_frames" in meta and verts.shape[0] != meta["n_frames"]:
             raise ValueError(f"clip {name!r} has {verts.shape[0]} mesh frames, metadata says {meta['n_frames']}")
         if "n_samples" in meta:
@@ -267,6 +282,32 @@ class Corpus:
                 why = "transposed (T, 3, V) data saved flat, another speaker's mesh, or absolute/offset mix-up?"
             raise ValueError(f"clip {name!r} ({self.root}): vertices lie up to {far:.4g} from the template of "
                              f"{self.meta(name)['subject']!r}, whose whole extent is {size:.4g}; {why}")
+
+    def _check_speaker(self, name: str, verts: np.ndarray, subject: str) -> None:
+        """Refuse a ``faceformer`` clip whose shape is another speaker's: its mean frame lies more than
+        ``SPEAKER_MARGIN`` times nearer another template than its own (median distance over vertices, which the
+        moving mouth does not reach; module doc). One pass over the frames and one distance per speaker."""
+        if self.format != "faceformer" or len(self.speakers) < 2:
+            return  # the compact layout builds each clip with its labelled speaker's rig: shape and label agree
+        if self._shapes is None:
+            self._shapes = {}
+            for speaker in self.speakers:
+                try:  # a speaker whose template cannot be read is reported when its own clips load
+                    self._shapes[speaker] = self.template(speaker).reshape(-1, 3)
+                except (KeyError, ValueError, OSError):
+                    pass
+        mean = verts.reshape(len(verts), -1, 3).mean(0, dtype=np.float64)
+        far = {s: float(np.median(np.linalg.norm(mean - t, axis=1))) for s, t in self._shapes.items()}
+        others = {s: d for s, d in far.items() if s != subject}
+        if subject not in far or not others:
+            return
+        nearer = min(others, key=others.get)
+        if far[subject] > SPEAKER_MARGIN * others[nearer]:
+            raise ValueError(
+                f"{self.root / 'metadata.json'}: clip {name!r} is labelled speaker {subject!r}, but its vertices "
+                f"are those of {nearer!r}: the median vertex of its mean frame lies {others[nearer]:.3g} from the "
+                f"template of {nearer!r} and {far[subject]:.3g} from that of {subject!r}; correct its 'subject' (or "
+                f"its vertices_npy/{name}.npy)")
 
     def wave(self, name: str) -> np.ndarray:
         """Speech of clip ``name``: float32 ``(N,)`` mono at ``sample_rate``."""

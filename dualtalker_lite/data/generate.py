@@ -21,7 +21,7 @@ shortest test sentences, every emotion and level (neutral twins in ``test_a``); 
 speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence neutral clips of 10-30 s
 (sentences outside ``train``), for length generalisation and speed. Sentences per split: ``--val-sentences`` and
 ``--test-sentences`` (4 and 10 of the default 48; on the command line, fewer for a smaller corpus, in proportion:
-:func:`held_out_sentences`), the rest for ``train``.
+:func:`held_out_sentences`, leaving at least one for training: :func:`fitting_held_out`), the rest for ``train``.
 
 Output. The corpus is built in a hidden temporary folder beside ``--out`` and moved into place when complete
 (:class:`~dualtalker_lite.files.AtomicOutputDir`): a failure, Ctrl-C or kill leaves an existing corpus untouched. An
@@ -45,8 +45,8 @@ import numpy as np
 from ..console import HelpFormatter, progress_mode
 from .sentences import SENTENCES, sentence_id
 
-__all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "held_out_sentences", "render_clip", "generate_corpus",
-           "read_sentences", "main", "SPLITS", "MAX_SENTENCE_CHARS"]
+__all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "held_out_sentences", "fitting_held_out", "render_clip",
+           "generate_corpus", "read_sentences", "main", "SPLITS", "MAX_SENTENCE_CHARS"]
 
 FPS = 30
 SAMPLE_RATE = 16000
@@ -83,10 +83,17 @@ class CorpusSpec:
         self.emotions, self.long_clips = tuple(self.emotions), tuple(int(n) for n in self.long_clips)
         if self.sentences < 1:
             raise ValueError(f"sentences must be at least 1, got {self.sentences}")
+        if self.val_sentences < 0 or self.test_sentences < 0:
+            raise ValueError(f"val_sentences and test_sentences must be 0 or more, got {self.val_sentences} and "
+                             f"{self.test_sentences}")
         if self.val_sentences + self.test_sentences >= self.sentences:
+            val, test = fitting_held_out(self.sentences)
+            fix = f"--val-sentences {val} --test-sentences {test}"
+            if val + test == 0 and self.long_clips:  # the long clips are made of held-out sentences only
+                fix += " --long-clips ''"
             raise ValueError(f"val_sentences + test_sentences must leave some training sentences: {self.val_sentences} + "
-                             f"{self.test_sentences} of {self.sentences}; for a short sentences file lower them, "
-                             f"e.g. --val-sentences 1 --test-sentences 2")
+                             f"{self.test_sentences} of {self.sentences}; lower them: {fix} leaves "
+                             f"{self.sentences - val - test} for training")
         if not 0 <= self.unseen_speakers < self.speakers:
             raise ValueError("unseen_speakers must be smaller than speakers")
         if not 0 <= self.emotion_speakers <= self.speakers - self.unseen_speakers:
@@ -155,6 +162,10 @@ def plan_corpus(spec: CorpusSpec, subjects: list[str], texts=SENTENCES) -> list[
                         plans.append(ClipPlan(name, subject, s, emotion, level, split))
     # Long clips: sentences outside `train` (test ones first, then unused ones), cycled; seen speakers in turn.
     pool = test + [i for i in range(spec.sentences, len(texts))] + val
+    if spec.long_clips and not pool:
+        hold = " hold one out (--test-sentences 1) or" if spec.sentences > 1 else ""
+        raise ValueError(f"long clips are made of sentences outside training, and all {spec.sentences} are training "
+                         f"sentences;{hold} pass --long-clips ''")
     k = 0
     for j, n in enumerate(spec.long_clips):
         ids = [pool[(k + i) % len(pool)] for i in range(n)]
@@ -176,6 +187,16 @@ def held_out_sentences(sentences: int) -> tuple[int, int]:
         return d.val_sentences, d.test_sentences
     return (max(1, round(sentences * d.val_sentences / d.sentences)),
             max(1, round(sentences * d.test_sentences / d.sentences)))
+
+
+def fitting_held_out(sentences: int) -> tuple[int, int]:
+    """``(val_sentences, test_sentences)`` that leave at least one of ``sentences`` for training: what the error of
+    :class:`CorpusSpec` suggests (issue 32: it used to suggest ``--val-sentences 1 --test-sentences 2`` whatever
+    the count, which makes 2 sentences worse). :func:`held_out_sentences`, then cut to ``sentences - 1`` held out,
+    test first (test-A is what a corpus is evaluated on): 2 -> (0, 1), 1 -> (0, 0), 3 -> (1, 1), 20 -> (2, 4)."""
+    val, test = held_out_sentences(sentences)
+    test = max(0, min(test, sentences - 1))
+    return max(0, min(val, sentences - 1 - test)), test
 
 
 def read_sentences(path: str | Path) -> tuple[str, ...]:
@@ -446,7 +467,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
             base["long_clips"] = tuple(int(n) for n in args.long_clips.split(",") if n.strip())
         base.update({k: v for k, v in vars(args).items() if k in base and v is not None and k != "long_clips"})
         scaled = []
-        for key, n in zip(("val_sentences", "test_sentences"), held_out_sentences(base["sentences"])):
+        # held_out_sentences, cut to leave one for training (2 sentences: 0 and 1, not 1 and 1)
+        for key, n in zip(("val_sentences", "test_sentences"), fitting_held_out(base["sentences"])):
             if args.preset is None and getattr(args, key) is None and n != base[key]:
                 base[key] = n
                 scaled.append(key)

@@ -14,7 +14,12 @@ The page holds everything it needs, so it can be mailed to anyone and opened in 
 - **the .glb of** :func:`~dualtalker_lite.export.gltf.write_gltf` (base64), loaded by three.js's own GLTFLoader:
   the page plays exactly the file that Blender or an engine would import (morph targets + weights animation).
 - **the audio** as a base64 16-bit WAV (lossless, decoded alike by every browser, no encoder delay to shift the
-  lips: 2.6 MB of page per minute of 16 kHz speech).
+  lips: 2.6 MB of page per minute of 16 kHz speech). :func:`write_html` takes the recording as an
+  :class:`~dualtalker_lite.audio.AudioStream` too and then never holds it whole (issue 32): the WAV is written
+  block by block to an anonymous temporary file and base64-encoded from there into the page in pieces, so memory
+  stays flat in the recording's length (the page itself is on disk, not in memory). The embedded bytes are the
+  same as for the whole wave (``stream.read()``): the same :func:`~dualtalker_lite.export.gltf.write_wav` of the
+  same samples.
 
 The **audio element is the clock**: every animation frame poses the face at ``audio.currentTime``, so sound and
 lips cannot drift; play/pause, a scrub bar (seeks both) and orbit controls (drag: rotate, wheel: zoom, right
@@ -194,31 +199,54 @@ try {
 """
 
 
+_AUDIO = "\x00audio\x00"  # where the base64 WAV goes in a page of _page_parts
+_B64_PIECE = 3 << 20  # bytes of WAV base64-encoded at a time by write_html (a multiple of 3: no padding inside)
+
+
+def _page_parts(glb: str | os.PathLike | bytes, n_samples: int, sample_rate: int, title: str,
+                viewer_id: str | None) -> tuple[str, str]:
+    """The page around its audio -> (head, tail): the page is ``head + base64(WAV) + tail``.
+
+    ``n_samples``: the recording's length at ``sample_rate`` (it sets the duration on the scrub bar)."""
+    data = glb if isinstance(glb, bytes) else Path(glb).read_bytes()
+    if data[:4] != b"glTF":
+        raise ValueError("not a binary glTF (.glb): the first bytes are not 'glTF'")
+    info = _glb_extras(data)
+    fps, frames = float(info.get("fps", 30.0)), int(info.get("frames", 1))
+    duration = max(n_samples / sample_rate, (frames - 1) / fps)
+    err = info.get("morph_max_error_m")
+    caption = f"{frames} frames at {fps:g} fps" + (f", morph targets within {err * 1e3:.3f} mm" if err else "")
+    page = _PAGE % {
+        "three": THREE_VERSION.split(".")[1], "title": html.escape(title),
+        "id": viewer_id or f"dtl-{uuid.uuid4().hex[:8]}",
+        "duration": duration, "audio": _AUDIO,
+        "importmap": _import_map(), "glb": base64.b64encode(data).decode(), "caption": json.dumps(caption)}
+    head, tail = page.split(_AUDIO)
+    return head, tail
+
+
+def _silence(glb: str | os.PathLike | bytes) -> tuple[np.ndarray, int]:
+    """A silent track as long as the animation of ``glb`` (8 kHz): play/pause and the scrub bar still drive it."""
+    data = glb if isinstance(glb, bytes) else Path(glb).read_bytes()
+    info = _glb_extras(data) if data[:4] == b"glTF" else {}
+    fps, frames = float(info.get("fps", 30.0)), int(info.get("frames", 1))
+    return np.zeros(max(1, int(round(frames / fps * 8000))), np.float32), 8000
+
+
 def viewer_html(glb: str | os.PathLike | bytes, wave: np.ndarray | None = None, sample_rate: int = 16000,
                 title: str = "dualtalker-lite animation", viewer_id: str | None = None) -> str:
     """One self-contained HTML page that plays ``glb`` (path or bytes of a .glb) with ``wave`` -> the page (str).
 
     ``wave``: mono float speech (N,) at ``sample_rate`` (embedded as 16-bit WAV; None: a silent track as long
     as the animation, so play/pause and the scrub bar still drive it). ``viewer_id``: the element id (default:
-    random, so several viewers can share a notebook). No network request is made by the page.
+    random, so several viewers can share a notebook). No network request is made by the page. The page is a string
+    in memory (what a notebook embeds); :func:`write_html` writes one from an ``AudioStream`` without either whole.
     """
-    data = glb if isinstance(glb, bytes) else Path(glb).read_bytes()
-    if data[:4] != b"glTF":
-        raise ValueError("not a binary glTF (.glb): the first bytes are not 'glTF'")
-    info = _glb_extras(data)
-    fps, frames = float(info.get("fps", 30.0)), int(info.get("frames", 1))
     if wave is None:
-        sample_rate = 8000
-        wave = np.zeros(max(1, int(round(frames / fps * sample_rate))), np.float32)
+        wave, sample_rate = _silence(glb)
     wave = np.asarray(wave).reshape(-1)
-    duration = max(len(wave) / sample_rate, (frames - 1) / fps)
-    err = info.get("morph_max_error_m")
-    caption = f"{frames} frames at {fps:g} fps" + (f", morph targets within {err * 1e3:.3f} mm" if err else "")
-    return _PAGE % {
-        "three": THREE_VERSION.split(".")[1], "title": html.escape(title),
-        "id": viewer_id or f"dtl-{uuid.uuid4().hex[:8]}",
-        "duration": duration, "audio": base64.b64encode(_wav_bytes(wave, sample_rate)).decode(),
-        "importmap": _import_map(), "glb": base64.b64encode(data).decode(), "caption": json.dumps(caption)}
+    head, tail = _page_parts(glb, len(wave), sample_rate, title, viewer_id)
+    return head + base64.b64encode(_wav_bytes(wave, sample_rate)).decode() + tail
 
 
 def _glb_extras(data: bytes) -> dict:
@@ -239,14 +267,37 @@ def iframe_html(page: str, height: int = 480) -> str:
             f'allow="autoplay"></iframe>')
 
 
-def write_html(path: str | os.PathLike, glb: str | os.PathLike | bytes, wave: np.ndarray | None = None,
+def write_html(path: str | os.PathLike, glb: str | os.PathLike | bytes, wave=None,
                sample_rate: int = 16000, title: str | None = None) -> Path:
-    """Write :func:`viewer_html` to ``path`` (atomically: ``<name>.partial`` renamed when complete) -> path."""
+    """Write the page of :func:`viewer_html` to ``path`` (atomically: ``<name>.partial`` renamed when complete).
+
+    ``wave``: an array, None (silence) or an :class:`~dualtalker_lite.audio.AudioStream` (its ``sample_rate``
+    wins). The audio never passes through memory whole: :func:`~dualtalker_lite.export.gltf.write_wav` writes it
+    (block by block for a stream) into an anonymous temporary file, which is base64-encoded into the page
+    ``_B64_PIECE`` bytes at a time; the temporary file vanishes when closed, even if the process is killed. The
+    page is ``viewer_html``'s for the same wave, but for its random element id -> path.
+    """
+    import tempfile
+
+    from .gltf import write_wav
+
     path = Path(path)
-    page = viewer_html(glb, wave, sample_rate, title or path.stem)
+    if wave is None:
+        wave, sample_rate = _silence(glb)
+    if hasattr(wave, "blocks"):
+        sample_rate = wave.sample_rate
+    else:
+        wave = np.asarray(wave).reshape(-1)
+    head, tail = _page_parts(glb, len(wave), sample_rate, title or path.stem, None)
     partial = path.with_name(path.name + ".partial")
     try:
-        partial.write_text(page, encoding="utf-8")
+        with tempfile.TemporaryFile() as wav, open(partial, "w", encoding="utf-8") as out:
+            write_wav(wav, wave, sample_rate)
+            wav.seek(0)
+            out.write(head)
+            while piece := wav.read(_B64_PIECE):
+                out.write(base64.b64encode(piece).decode())
+            out.write(tail)
         os.replace(partial, path)
     finally:
         if partial.exists():
