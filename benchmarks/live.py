@@ -22,10 +22,36 @@ time from sending the message that completes frame f's audio (sample ``(f + 1) 1
 vertices. That is the page's figure minus the browser's own buffering; it includes the algorithmic latency
 (``LiveSettings.latency_s``), waiting for the next hop and the compute, so it grows on a busy machine.
 Nothing here is a pass/fail test; the figures are quoted in ``docs/live.md``.
+
+Issue 33 item 4, the live path against its targets (``figures``; each step writes ``runs/live_figures/<step>.json``,
+``report`` joins them into ``results/live.md`` / ``.json``):
+
+    OMP_NUM_THREADS=1 python benchmarks/live.py figures quality --checkpoint runs/live_dt.pt --every 3
+    OMP_NUM_THREADS=1 python benchmarks/live.py figures keepup --checkpoint runs/live_dt.pt --minutes 10
+    OMP_NUM_THREADS=1 python benchmarks/live.py figures latency --checkpoint runs/live_dt.pt
+    OMP_NUM_THREADS=1 python benchmarks/live.py figures report
+
+* ``quality``: the real-voice benchmark's prompts (``benchmarks/real_voices.py``: asterisk recordings, pocketsphinx
+  alignment, the rig driven by the aligned phones as reference; every ``--every``-th prompt in name order), each
+  run through the live path (a :class:`LiveSession` built from :func:`~dualtalker_lite.live.server.load_config`,
+  fed 100 ms pieces, then ``flush``, as the server does on ``stop``) at look-ahead 100 and 200 ms, and through
+  ``animate``'s path (:func:`~dualtalker_lite.inference.animate_wave`); closure < 2 / < 1 mm, vowel frames shut and
+  r from ``real_voices.curve_metrics`` (bilabial windows widened by ``real_voices.REAL_TOL`` frames, as there).
+* ``keepup``: ``--minutes`` of real speech (the prompts concatenated, cycled) through a :class:`LiveSession` with
+  the server's scheduling (:func:`simulate`: 100 ms messages arrive on a virtual clock at real-time pace; the worker
+  takes everything that arrived, at most ``MAX_BATCH_S``, and the clock moves by the push's measured wall time),
+  so 10 minutes take the compute's time, not 10 minutes. Per push: wall and thread-CPU seconds, the backlog
+  (audio arrived, not yet pushed), RSS now and peak (``resource.getrusage``) at 1, 5 and 10 minutes of audio.
+* ``latency``: per frame, the time from the arrival of the message completing its audio (sample
+  ``ceil((f + 1) 16000 / 30)``) to its vertices leaving the session, at look-ahead 0, 100 and 200 ms, from
+  :func:`simulate` on ``--latency-minutes`` of the same speech; plus through the real server (aiohttp test server,
+  in real time) on the shipped clips. Neither includes the network, the browser's 100 ms worklet messages or
+  its rendering.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -49,6 +75,9 @@ def feed(obj, wave: np.ndarray, piece: int = 1600):
 
 
 def main(argv=None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["figures"]:
+        return figures(argv[1:])
     import torch
 
     from dualtalker_lite.audio import load_audio
@@ -121,7 +150,8 @@ def main(argv=None) -> None:
                 print(f"{name:>22} {np.median(lat):7.0f} {np.percentile(lat, 95):7.0f} {lat.max():7.0f}")
 
 
-def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray) -> list[float]:
+def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray, lookahead_s: float | None = None
+                        ) -> list[float]:
     """Stream ``wave`` through the live server in real time -> seconds from the message completing each frame's
     audio to that frame's arrival (frames flushed by the final ``stop`` are left out)."""
     import asyncio
@@ -131,7 +161,9 @@ def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray) -> list
 
     from dualtalker_lite.live.server import HEADER, load_config, make_app
 
-    config = load_config(checkpoint, speaker)
+    from dualtalker_lite.live.stream import LiveSettings
+
+    config = load_config(checkpoint, speaker, settings=None if lookahead_s is None else LiveSettings(lookahead_s))
     pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
 
     async def main():
@@ -169,6 +201,261 @@ def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray) -> list
 
     return asyncio.run(main())
 
+
+# ------------------------------------------------------------------------- issue 33 item 4: the figures
+FIG_DIR = ROOT / "runs" / "live_figures"
+TARGETS = {"latency_median_ms": 250, "latency_p95_ms": 400, "closure_gap": 0.05, "vowel_shut": 0.06}
+
+
+def _commit() -> str:
+    import subprocess
+
+    def git(*a):
+        return subprocess.run(["git", "-C", str(ROOT), *a], capture_output=True, text=True).stdout.strip()
+    return git("rev-parse", "HEAD") + ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def _rss_mb() -> tuple[float, float]:
+    """(RSS now, peak RSS) of this process, MB."""
+    import resource
+
+    now = 0.0
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            now = int(line.split()[1]) / 1024
+    return now, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _real_prompts(every: int = 1, references: bool = True):
+    """The real-voice benchmark's prompts (every ``every``-th, name order): [{name, wave, segments, ref_curve}]."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import real_voices as rv
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus, read_json
+    from dualtalker_lite.face import FaceRig, Speaker
+    from dualtalker_lite.metrics import lip_distance
+
+    corpus = Corpus(sample_path())
+    subject = corpus.train_speakers[0]
+    lip_mid = tuple(corpus.regions["lip_midpoints"])
+    prompts = rv.read_prompts()
+    chosen = prompts[::every]
+    if not references:
+        return chosen, subject, lip_mid, len(prompts), []
+    speaker = Speaker.from_dict(read_json(corpus.root / "speakers.json")[subject])
+    rig = FaceRig(speaker)
+    items, failed = [], []
+    for p in chosen:
+        segs = rv.align(p["wave"], p["words"])
+        if segs is None:
+            failed.append(p["name"])
+            continue
+        n = max(1, int(round(len(p["wave"]) * 30 / 16000)))
+        ref = rv.rig_vertices(segs, n, speaker, rig, p["wave"])
+        items.append({"name": p["name"], "wave": p["wave"], "segments": segs,
+                      "ref_curve": lip_distance(ref, *lip_mid)})
+    return items, subject, lip_mid, len(prompts), failed
+
+
+def fig_quality(args) -> dict:
+    """Live (look-ahead 100, 200 ms) and offline (animate) on the real prompts, real_voices' metrics."""
+    from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+    from dualtalker_lite.inference import animate_wave
+    from dualtalker_lite.live.server import load_config
+    from dualtalker_lite.live.stream import LiveSession, LiveSettings
+    from dualtalker_lite.metrics import lip_distance
+
+    items, subject, lip_mid, n_all, failed = _real_prompts(args.every)
+    import real_voices as rv  # importable now: _real_prompts put benchmarks/ on the path
+
+    config = load_config(args.checkpoint, subject)
+    _, ckpt = load_checkpoint(args.checkpoint)
+    offline_ex = extractor_from_settings(ckpt.get("features"), args.checkpoint, cache=False)
+    rows = {"reference rig (aligned phones)": [], "offline (animate)": []}
+    rows.update({f"live, look-ahead {la} ms": [] for la in args.lookaheads})
+    cpu = {k: 0.0 for k in rows}
+    corr = {f"live, look-ahead {la} ms": [] for la in args.lookaheads}
+    mismatched = 0
+    t_start = time.time()
+    for i, it in enumerate(items):
+        n = len(it["ref_curve"])
+        rows["reference rig (aligned phones)"].append(it["ref_curve"])
+        c0 = time.process_time()
+        off = lip_distance(animate_wave(config.model, it["wave"], config.template, config.speaker,
+                                        extractor=offline_ex), *lip_mid)
+        cpu["offline (animate)"] += time.process_time() - c0
+        mismatched += len(off) != n
+        rows["offline (animate)"].append(off[:n])
+        for la in args.lookaheads:
+            key = f"live, look-ahead {la} ms"
+            session = LiveSession(config.model, config.extractor, config.template, config.speaker,
+                                  LiveSettings(lookahead_s=la / 1000))
+            out, c, _ = feed(session, it["wave"])
+            cpu[key] += c
+            live = lip_distance(np.concatenate([v for _, v in out]), *lip_mid)
+            mismatched += len(live) != n
+            rows[key].append(live[:n])
+            m = min(len(live), len(off))
+            if m > 2 and live[:m].std() > 0 and off[:m].std() > 0:
+                corr[key].append(float(np.corrcoef(live[:m], off[:m])[0, 1]))
+        if (i + 1) % 10 == 0:
+            print(f"  {i + 1}/{len(items)} prompts, {time.time() - t_start:.0f} s", flush=True)
+    audio_s = sum(len(it["wave"]) for it in items) / 16000
+    segs = [it["segments"] for it in items]
+    refs = [it["ref_curve"] for it in items]
+    metrics = {k: rv.curve_metrics(v, refs, segs, rv.REAL_TOL) for k, v in rows.items()}
+    for k in rows:
+        metrics[k]["cpu_s_per_audio_s"] = cpu[k] / audio_s if cpu[k] else None
+        if k in corr:
+            metrics[k]["lip_corr_with_offline_mean"] = float(np.mean(corr[k]))
+    return {"prompts_used": len(items), "prompts_total": n_all, "every": args.every, "failed_alignments": failed,
+            "audio_s": audio_s, "frame_count_mismatches": mismatched, "speaker": subject, "rows": metrics}
+
+
+def simulate(session, wave: np.ndarray, piece: int = 1600, clock: str = "wall", marks_s=(60, 300, 600)) -> dict:
+    """The server's scheduling on a virtual clock: message k (``piece`` samples) arrives when its last sample is
+    captured (real-time pace); when idle, the worker pushes everything arrived so far (at most MAX_BATCH_S) and the
+    clock moves on by the push's measured time (``clock``: "wall" = perf_counter, "cpu" = this thread's CPU time).
+    -> per push (audio end s, clock s, wall s, cpu s, backlog s, frames) and per frame (output time, latency)."""
+    from dualtalker_lite.live.server import MAX_BATCH_S
+
+    N, rate = len(wave), 16000
+    K = -(-N // piece)
+    arrive = np.minimum((np.arange(K) + 1) * piece, N) / rate      # arrival of message k
+    now, k, pushes, out_t, rss = 0.0, 0, [], [], {}
+    marks = list(marks_s)
+    while k < K:
+        now = max(now, arrive[k])
+        m = int(np.searchsorted(arrive, now, side="right"))           # messages arrived by now
+        j, n = k, 0
+        while j < m and n < MAX_BATCH_S * rate:
+            n += min((j + 1) * piece, N) - j * piece
+            j += 1
+        backlog = (min(m * piece, N) - k * piece) / rate
+        batch = wave[k * piece:min(j * piece, N)]
+        w0, c0 = time.perf_counter(), time.thread_time()
+        _, verts = session.push(batch)
+        dw, dc = time.perf_counter() - w0, time.thread_time() - c0
+        now += dw if clock == "wall" else dc
+        out_t += [now] * len(verts)
+        end_s = min(j * piece, N) / rate
+        pushes.append((end_s, now, dw, dc, backlog, len(verts)))
+        while marks and end_s >= marks[0]:
+            rss[marks.pop(0)] = _rss_mb()
+        k = j
+    out_t = np.asarray(out_t)
+    need = np.ceil((np.arange(len(out_t)) + 1) * rate / 30).astype(np.int64)     # samples frame f needs
+    done_at = np.minimum(np.ceil(need / piece) * piece, N) / rate                # message completing them arrives
+    return {"pushes": np.asarray(pushes), "latency": out_t - done_at, "rss": rss}
+
+
+def _speech(minutes: float) -> tuple[np.ndarray, int]:
+    """``minutes`` of real speech: the real-voice prompts concatenated in name order, cycled."""
+    prompts, *_ = _real_prompts(1, references=False)
+    one = np.concatenate([p["wave"] for p in prompts]).astype(np.float32)
+    need = int(minutes * 60 * 16000)
+    return np.resize(one, need) if need > len(one) else one[:need], len(one)
+
+
+def _lat(x: np.ndarray) -> dict:
+    x = np.asarray(x) * 1000
+    return {"frames": int(x.size), "median_ms": float(np.median(x)), "p95_ms": float(np.percentile(x, 95)),
+            "max_ms": float(x.max())}
+
+
+def fig_keepup(args) -> dict:
+    from dualtalker_lite.live.server import load_config
+    from dualtalker_lite.live.stream import LiveSession, LiveSettings
+
+    wave, one = _speech(args.minutes)
+    rss0 = _rss_mb()
+    config = load_config(args.checkpoint, "SPK01")
+    session = LiveSession(config.model, config.extractor, config.template, config.speaker, LiveSettings())
+    rss_loaded = _rss_mb()
+    c0, w0 = time.process_time(), time.perf_counter()
+    sim = simulate(session, wave, clock=args.clock,
+                   marks_s=[s for s in (60, 300, 600, 900, 1200) if s <= len(wave) / 16000])
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    p = sim["pushes"]
+    minute = (p[:, 0] // 60).astype(int)
+    per_min = []
+    for mi in range(minute.max() + 1):
+        q = p[minute == mi]
+        per_min.append({"minute": mi + 1, "pushes": len(q), "wall_s": float(q[:, 2].sum()),
+                        "cpu_s": float(q[:, 3].sum()), "backlog_max_s": float(q[:, 4].max()),
+                        "backlog_mean_s": float(q[:, 4].mean()), "behind_max_s": float((q[:, 1] - q[:, 0]).max()),
+                        "push_wall_p95_ms": float(np.percentile(q[:, 2], 95) * 1000)})
+    return {"audio_s": len(wave) / 16000, "source_s": one / 16000, "clock": args.clock, "pushes": len(p),
+            "wall_s": wall, "cpu_s": cpu, "latency": _lat(sim["latency"]),
+            "rss_mb_before_model": rss0, "rss_mb_loaded": rss_loaded,
+            "rss_mb_at": {f"{int(s) // 60} min": {"now": v[0], "peak": v[1]} for s, v in sim["rss"].items()},
+            "per_minute": per_min, "frames": int(len(sim["latency"])),
+            "decoder_window": getattr(config.model.cfg, "decoder_window", None)}
+
+
+def fig_latency(args) -> dict:
+    from dualtalker_lite.audio import load_audio
+    from dualtalker_lite.live.server import load_config
+    from dualtalker_lite.live.stream import LiveSession, LiveSettings
+
+    wave, _ = _speech(args.latency_minutes)
+    config = load_config(args.checkpoint, "SPK01")
+    out = {"audio_s": len(wave) / 16000, "clock": args.clock, "lookaheads": {}}
+    import warnings
+    clips = []
+    for p in sorted((ROOT / "notebooks" / "data" / "real").glob("*.flac")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            clips.append(load_audio(p))
+    for la in (0, 100, 200):
+        s = LiveSettings(lookahead_s=la / 1000)
+        session = LiveSession(config.model, config.extractor, config.template, config.speaker, s)
+        sim = simulate(session, wave, clock=args.clock)
+        algo = s.latency_s(config.extractor.fps, config.extractor.lag_s, config.extractor.window_s)
+        lat = np.concatenate([asyncio_run_latency(args.checkpoint, "SPK01", w, la / 1000) for w in clips])
+        out["lookaheads"][str(la)] = {"algorithmic_ms": algo * 1000, "hop_ms": s.hop_s * 1000,
+                                      "session": _lat(sim["latency"]),
+                                      "push_wall_median_ms": float(np.median(sim["pushes"][:, 2]) * 1000),
+                                      "server_real_time_shipped_clips": _lat(lat)}
+        print(f"  look-ahead {la} ms: {out['lookaheads'][str(la)]}", flush=True)
+    return out
+
+
+def figures(argv) -> None:
+    import torch
+
+    ap = argparse.ArgumentParser(prog="benchmarks/live.py figures")
+    ap.add_argument("step", choices=["quality", "keepup", "latency", "report"])
+    ap.add_argument("--checkpoint", default="runs/live_dt.pt")
+    ap.add_argument("--every", type=int, default=3, help="quality: every n-th real prompt")
+    ap.add_argument("--lookaheads", type=int, nargs="+", default=[100, 200])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--latency-minutes", type=float, default=2.0)
+    ap.add_argument("--clock", choices=["wall", "cpu"], default="wall")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    FIG_DIR.mkdir(parents=True, exist_ok=True)
+    if args.step == "report":
+        return report(args.out)
+    t0, c0 = time.time(), time.process_time()
+    res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency}[args.step](args)
+    res["meta"] = {"command": "OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv),
+                   "commit": _commit(), "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
+                   "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                   "load_avg": list(__import__("os").getloadavg())}
+    path = FIG_DIR / f"{args.step}.json"
+    path.write_text(json.dumps(res, indent=1, default=float))
+    print(json.dumps({k: v for k, v in res.items() if k not in ("per_minute",)}, indent=1, default=float)[:6000])
+    print(f"-> {path}")
+
+
+def report(out: Path) -> None:
+    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in ("quality", "keepup", "latency")
+             if (FIG_DIR / f"{k}.json").is_file()}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(parts, indent=1))
+    print(f"-> {out.with_suffix('.json')} ({', '.join(parts)})")
 
 if __name__ == "__main__":
     main()
