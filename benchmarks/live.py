@@ -47,6 +47,8 @@ Issue 33 item 4, the live path against its targets (``figures``; each step write
   :func:`simulate` on ``--latency-minutes`` of the same speech; plus through the real server (aiohttp test server,
   in real time) on the shipped clips. Neither includes the network, the browser's 100 ms worklet messages or
   its rendering.
+* ``diagnose``: where the live path loses closures (:func:`fig_diagnose`): the offline track through the
+  incremental decoder, and the live track through the offline decoder, on every ``--every``-th prompt.
 """
 from __future__ import annotations
 
@@ -421,11 +423,59 @@ def fig_latency(args) -> dict:
     return out
 
 
+def fig_diagnose(args) -> dict:
+    """Which approximation costs the live path its closures: the causal viseme track or the encoder's bounded
+    context? On every ``--every``-th prompt: offline; the offline track through the incremental decoder; the live
+    track (look-ahead 200 ms) through the offline decoder (``animate_wave`` fed that track); the live path."""
+    import torch
+
+    from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+    from dualtalker_lite.inference import animate_wave
+    from dualtalker_lite.live.server import load_config
+    from dualtalker_lite.live.stream import IncrementalDecoder, LiveSession, LiveSettings, StreamingVisemes
+    from dualtalker_lite.metrics import lip_distance
+
+    items, subject, lip_mid, n_all, failed = _real_prompts(args.every)
+    import real_voices as rv
+
+    config = load_config(args.checkpoint, subject)
+    _, ckpt = load_checkpoint(args.checkpoint)
+    offline_ex = extractor_from_settings(ckpt.get("features"), args.checkpoint, cache=False)
+    eye = np.eye(config.extractor.dim, dtype=np.float32)
+    names = ["offline (animate)", "offline track -> incremental decoder (encoder 60 back / 3 ahead)",
+             "live track (200 ms) -> offline decoder", "live, look-ahead 200 ms"]
+    rows = {k: [] for k in names}
+    for i, it in enumerate(items):
+        wave, n = it["wave"], len(it["ref_curve"])
+        off_ids = offline_ex.viseme_ids(wave, n)
+        rows[names[0]].append(lip_distance(animate_wave(config.model, wave, config.template, config.speaker,
+                                                        extractor=lambda w, k: torch.from_numpy(eye[off_ids])),
+                                           *lip_mid)[:n])
+        dec = IncrementalDecoder(config.model, config.template, config.speaker, 60, 3)
+        v = np.concatenate([dec.push(eye[off_ids]), dec.flush()])
+        rows[names[1]].append(lip_distance(v, *lip_mid)[:n])
+        track = StreamingVisemes(config.extractor, 0.2)
+        out, _, _ = feed(track, wave)
+        live_ids = np.concatenate(out)[:n]
+        rows[names[2]].append(lip_distance(animate_wave(config.model, wave, config.template, config.speaker,
+                                                        extractor=lambda w, k: torch.from_numpy(eye[live_ids])),
+                                           *lip_mid)[:n])
+        session = LiveSession(config.model, config.extractor, config.template, config.speaker,
+                              LiveSettings(lookahead_s=0.2))
+        out, _, _ = feed(session, wave)
+        rows[names[3]].append(lip_distance(np.concatenate([v for _, v in out]), *lip_mid)[:n])
+        if (i + 1) % 10 == 0:
+            print(f"  {i + 1}/{len(items)} prompts", flush=True)
+    segs, refs = [it["segments"] for it in items], [it["ref_curve"] for it in items]
+    return {"prompts_used": len(items), "prompts_total": n_all, "every": args.every, "failed_alignments": failed,
+            "rows": {k: rv.curve_metrics(v, refs, segs, rv.REAL_TOL) for k, v in rows.items()}}
+
+
 def figures(argv) -> None:
     import torch
 
     ap = argparse.ArgumentParser(prog="benchmarks/live.py figures")
-    ap.add_argument("step", choices=["quality", "keepup", "latency", "report"])
+    ap.add_argument("step", choices=["quality", "keepup", "latency", "diagnose", "report"])
     ap.add_argument("--checkpoint", default="runs/live_dt.pt")
     ap.add_argument("--every", type=int, default=3, help="quality: every n-th real prompt")
     ap.add_argument("--lookaheads", type=int, nargs="+", default=[100, 200])
@@ -439,7 +489,8 @@ def figures(argv) -> None:
     if args.step == "report":
         return report(args.out)
     t0, c0 = time.time(), time.process_time()
-    res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency}[args.step](args)
+    res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
+           "diagnose": fig_diagnose}[args.step](args)
     res["meta"] = {"command": "OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv),
                    "commit": _commit(), "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
                    "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
@@ -451,7 +502,7 @@ def figures(argv) -> None:
 
 
 def report(out: Path) -> None:
-    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in ("quality", "keepup", "latency")
+    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in ("quality", "keepup", "latency", "diagnose")
              if (FIG_DIR / f"{k}.json").is_file()}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(parts, indent=1))
