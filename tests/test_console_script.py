@@ -108,6 +108,10 @@ def test_train_exits_0_and_refuses_to_overwrite(voca_ckpt):
     before = voca_ckpt.read_bytes()
     user_error(run("train", "--model", "voca", "--epochs", "1", "--out", voca_ckpt), "already exists", "--overwrite")
     assert voca_ckpt.read_bytes() == before  # untouched
+    # the README's "--resume  # continue a killed run" typed after the run completed: said so, not "already exists"
+    user_error(run("train", "--model", "voca", "--epochs", "1", "--clips", "16", "--out", voca_ckpt, "--resume"),
+               "that run completed, there is nothing to resume", "--overwrite")
+    assert voca_ckpt.read_bytes() == before
     user_error(run("train", "--model", "voca", "--epochs", "0", "--out", voca_ckpt.with_name("z.pt")),
                "--epochs 0")
     assert not voca_ckpt.with_name("z.pt").exists()
