@@ -13,7 +13,10 @@ Each command runs from the repository root as its own process (``subprocess.run`
   (RUSAGE_CHILDREN)`` difference around it: every process it started and waited for, pytest's workers and
   ffmpeg included), i.e. what the work costs whatever the number of cores;
 - the machine: cores (``os.cpu_count``), the 1-minute load average just before it started (above ~1.5 on 2 cores,
-  another job was competing and the wall time is too long: measure again when the machine is quiet),
+  another job was competing and the wall time is too long: measure again when the machine is quiet) and its
+  highest value while the command ran, sampled every ~5 s (the command's own busy threads count there too: one
+  single-threaded command on a quiet machine approaches 1, ``make unit`` with its two OpenMP threads up to 2;
+  much more means company),
   ``OMP_NUM_THREADS`` as the command saw it, the commit (``+dirty`` with uncommitted changes) and the date.
 
 Rows are kept in ``results/command_times.json`` by name, so ``--only`` replaces those rows and keeps the others
@@ -111,20 +114,28 @@ def measure(cmd: Command) -> dict:
     """Run ``cmd`` once as a process -> its row (wall and CPU seconds, status, machine, commit)."""
     OUT.mkdir(parents=True, exist_ok=True)
     argv = command_line(cmd)
-    load = os.getloadavg()[0]
+    load, tree = os.getloadavg()[0], commit()  # the code measured: as it was at the start
     print(f"== {cmd.name}: {shlex.join(argv)} (load {load:.2f})", flush=True)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
     with open(OUT / f"{cmd.name}.log", "w") as log:
-        proc = subprocess.run(argv, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(argv, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        peak_load = load
+        while proc.poll() is None:  # the 1-minute load every ~5 s: its highest includes this command's own threads
+            peak_load = max(peak_load, os.getloadavg()[0])
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                pass
     wall = time.monotonic() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     lines = (OUT / f"{cmd.name}.log").read_text(errors="replace").strip().splitlines()
     row = {"name": cmd.name, "command": shown(cmd), "quoted": cmd.quoted, "status": proc.returncode,
-           "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "cores": os.cpu_count(), "load_1min_at_start": round(load, 2),
+           "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "cores": os.cpu_count(),
+           "load_1min_at_start": round(load, 2), "load_1min_max": round(peak_load, 2),
            "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset (make: 2)" if cmd.argv[0] == "make" else "unset"),
-           "commit": commit(), "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
+           "commit": tree, "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
            "python": platform.python_version(), "last_line": lines[-1][:300] if lines else ""}
     print(f"   {about(row)}, status {proc.returncode}; last line: {row['last_line']}", flush=True)
     return row
@@ -143,19 +154,25 @@ def about(row: dict) -> str:
             f"({_amount(row['cpu_s'], 'CPU s', 'CPU min')})")
 
 
+def _load(row: dict, key: str) -> str:
+    return f"{row[key]:.2f}" if isinstance(row.get(key), (int, float)) else "not recorded"
+
+
 def write(rows: dict) -> None:
     ordered = [rows[c.name] for c in COMMANDS if c.name in rows]
     RESULTS.with_suffix(".json").write_text(json.dumps(ordered, indent=1) + "\n")
     lines = ["# Command times", "",
              "Written by `benchmarks/command_times.py` (each command a real process from the repository root; CPU = "
              "user + system time of the process and its children). A load above ~1.5 at the start on 2 cores means "
-             "another job competed: the wall time is then too long.", "",
-             "| name | command | as quoted | wall s | CPU s | status | cores | load at start | OMP_NUM_THREADS "
+             "another job competed: the wall time is then too long; the highest load while it ran counts its own "
+             "threads too.", "",
+             "| name | command | as quoted | wall s | CPU s | status | cores | load at start / highest | OMP_NUM_THREADS "
              "| commit | date (UTC) | quoted in |",
              "|---|---|---|---:|---:|---:|---:|---:|---|---|---|---|"]
     for r in ordered:
         lines.append(f"| {r['name']} | `{r['command']}` | {about(r)} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
-                     f"{r['status']} | {r['cores']} | {r['load_1min_at_start']:.2f} | {r['omp_num_threads']} | "
+                     f"{r['status']} | {r['cores']} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
+                     f"{r['omp_num_threads']} | "
                      f"{r['commit']} | {r['date_utc']} | {r['quoted']} |")
     missing = [c for c in COMMANDS if c.name not in rows]
     if missing:
