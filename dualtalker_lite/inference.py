@@ -368,7 +368,7 @@ def run(args: argparse.Namespace) -> list[Path]:
                                       conditions=conditions)
     mode = progress_mode(args.quiet)
     with target as tmp:
-        npy = write_npy_stream(tmp / "vertices.npy", _frame_progress(blocks, n_frames, mode), n_frames,
+        npy = write_npy_stream(tmp / "vertices.npy", _frame_progress(blocks, n_frames, args.chunk, mode), n_frames,
                                template.size)
         written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate, template=template,
                                 progress=mode == "bar")
@@ -379,13 +379,15 @@ def run(args: argparse.Namespace) -> list[Path]:
     return names
 
 
-def _frame_progress(blocks, n_frames: int, mode: str):
+def _frame_progress(blocks, n_frames: int, chunk: int, mode: str):
     """Yield the prediction's ``blocks`` (n, V*3) unchanged while showing how many of the ``n_frames`` frames are
     done, as :func:`~dualtalker_lite.console.progress_mode` chose: ``"bar"`` a tqdm bar in frames, ``"lines"``
     :class:`~dualtalker_lite.console.ProgressLines` (``animate: frame 600/1800, 0:12 elapsed, about 0:24 left``,
     at most one every ~10 s plus the first and the last block's), ``"off"`` (``--quiet``) nothing. Counted in
-    frames, not blocks: a model may cut its blocks shorter than ``--chunk``."""
-    if mode == "off":
+    frames, not blocks: a model may cut its blocks shorter than ``--chunk``. A recording of one block (``n_frames
+    <= chunk``: 30 s at the default 900) shows nothing: there is no moment between its start and its end to report,
+    and its stderr stays as clean as before (warnings and the error line only)."""
+    if mode == "off" or n_frames <= chunk:
         yield from blocks
         return
     if mode == "bar":
