@@ -134,7 +134,8 @@ def measure(cmd: Command) -> dict:
     row = {"name": cmd.name, "command": shown(cmd), "quoted": cmd.quoted, "status": proc.returncode,
            "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "cores": os.cpu_count(),
            "load_1min_at_start": round(load, 2), "load_1min_max": round(peak_load, 2),
-           "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset (make: 2)" if cmd.argv[0] == "make" else "unset"),
+           "omp_num_threads": os.environ.get("OMP_NUM_THREADS",
+                                             "unset (make: 2)" if cmd.argv[0] == "make" else "unset"),
            "commit": tree, "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
            "python": platform.python_version(), "last_line": lines[-1][:300] if lines else ""}
     print(f"   {about(row)}, status {proc.returncode}; last line: {row['last_line']}", flush=True)
@@ -166,8 +167,8 @@ def write(rows: dict) -> None:
              "user + system time of the process and its children). A load above ~1.5 at the start on 2 cores means "
              "another job competed: the wall time is then too long; the highest load while it ran counts its own "
              "threads too.", "",
-             "| name | command | as quoted | wall s | CPU s | status | cores | load at start / highest | OMP_NUM_THREADS "
-             "| commit | date (UTC) | quoted in |",
+             "| name | command | as quoted | wall s | CPU s | status | cores | load at start / highest "
+             "| OMP_NUM_THREADS | commit | date (UTC) | quoted in |",
              "|---|---|---|---:|---:|---:|---:|---:|---|---|---|---|"]
     for r in ordered:
         lines.append(f"| {r['name']} | `{r['command']}` | {about(r)} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
