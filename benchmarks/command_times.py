@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/command_times.py --only make-unit   # one (or several: --only a --only b)
     .venv/bin/python benchmarks/command_times.py --all              # every one (about an hour on 2 cores)
     .venv/bin/python benchmarks/command_times.py --list             # the names, commands and where each is quoted
+    .venv/bin/python benchmarks/command_times.py --note "make-unit=..."  # what a row's numbers cannot say
 
 Each command runs from the repository root as its own process (``subprocess.run``, stdout and stderr into
 ``runs/command_times/<name>.log``, outputs under ``runs/command_times/``) and gets one row:
@@ -175,6 +176,9 @@ def write(rows: dict) -> None:
                      f"{r['status']} | {r['cores']} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
                      f"{r['omp_num_threads']} | "
                      f"{r['commit']} | {r['date_utc']} | {r['quoted']} |")
+    notes = [r for r in ordered if r.get("note")]
+    if notes:
+        lines += ["", "Notes:", ""] + [f"- `{r['name']}`: {r['note']}" for r in notes]
     missing = [c for c in COMMANDS if c.name not in rows]
     if missing:
         lines += ["", "Not measured yet: " + ", ".join(f"`{c.name}` (`{shown(c)}`)" for c in missing) + "."]
@@ -188,10 +192,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--only", action="append", choices=list(BY_NAME), help="run only this one (repeatable)")
     ap.add_argument("--all", action="store_true", help="run every command, the heavy ones included")
     ap.add_argument("--list", action="store_true", help="print the commands and exit")
+    ap.add_argument("--note", action="append", default=[], metavar="NAME=TEXT",
+                    help="attach a note to a measured row (what the numbers cannot say: failures, company), "
+                         "without running anything")
     args = ap.parse_args(argv)
     if args.list:
         for c in COMMANDS:
             print(f"{c.name:20s} {'heavy' if c.heavy else 'quick':5s} {shown(c)}\n{'':26s} quoted: {c.quoted}")
+        return
+    if args.note:
+        path = RESULTS.with_suffix(".json")
+        rows = {r["name"]: r for r in json.loads(path.read_text())} if path.is_file() else {}
+        for item in args.note:
+            name, _, text = item.partition("=")
+            if name not in rows:
+                sys.exit(f"--note {item!r}: no measured row {name!r} in {path}")
+            rows[name]["note"] = text
+        write(rows)
         return
     chosen = [BY_NAME[n] for n in args.only] if args.only else [c for c in COMMANDS if args.all or not c.heavy]
     path = RESULTS.with_suffix(".json")
