@@ -15,16 +15,22 @@ time, but a busy machine still slows each core (shared caches, memory bandwidth)
 """
 import argparse
 import collections
+import os
 import time
 
-import torch
-from torch.profiler import ProfilerActivity, profile, record_function
-from torch.utils.flop_counter import FlopCounterMode
+# torch.profiler's CPU tracer (kineto, inside libtorch) logs its own start and stop to stderr ("USDT: ...
+# SyncActivityProfilerHandler.cpp:52] profiler_start"); it reads KINETO_LOG_LEVEL once, when torch loads, and 6
+# is above its highest level (USDT, 5), so nothing of it reaches `make bench`'s output. Set before importing torch.
+os.environ.setdefault("KINETO_LOG_LEVEL", "6")
 
-from dualtalker_lite.data.dataset import make_loader
-from dualtalker_lite.experiments import build_model, load_data, table_specs
-from dualtalker_lite.losses import rbf_kernel_weights
-from dualtalker_lite.train import TrainConfig, _crop, loss_weights, model_loss
+import torch  # noqa: E402
+from torch.profiler import ProfilerActivity, profile, record_function  # noqa: E402
+from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
+
+from dualtalker_lite.data.dataset import make_loader  # noqa: E402
+from dualtalker_lite.experiments import build_model, load_data, table_specs  # noqa: E402
+from dualtalker_lite.losses import rbf_kernel_weights  # noqa: E402
+from dualtalker_lite.train import TrainConfig, _crop, loss_weights, model_loss  # noqa: E402
 
 ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style", "corrtalk": "CorrTalk"}
 

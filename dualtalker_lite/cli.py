@@ -184,6 +184,10 @@ def _train(argv: list[str]) -> Path:
             Path(os.path.realpath(out)).parents:
         raise ValueError(f"--out {out}: is a file of the corpus {corpus_root} that this run trains on; writing --out "
                          f"would replace it; choose another --out")
+    if out.exists() and not args.overwrite and args.resume \
+            and not out.with_name(out.name + ".resume").exists():  # a killed run has no checkpoint yet, only this
+        raise FileExistsError(f"checkpoint {out} already exists and there is no {out.name}.resume beside it: that run "
+                              f"completed, there is nothing to resume; pass --overwrite (not --resume) to train again")
     if out.exists() and not args.overwrite:
         raise FileExistsError(f"checkpoint {out} already exists; pass --overwrite to replace it")
     if out.exists() and not is_own_file(out):

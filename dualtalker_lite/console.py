@@ -25,8 +25,10 @@ is a terminal; when it is not (a log file, CI, ``nohup``), where a bar would be 
 plain :class:`ProgressLines` instead, at most one every ~10 s plus the first and the last, each with the elapsed
 time and an estimate of the time left (``train: epoch 3/45, loss 0.01234, 0:12 elapsed, about 2:48 left``).
 ``--quiet`` (old name ``--no-progress``) shows neither, so a failing run's stderr is its ``error:`` line alone
-(without it, the lines printed before the failure stay above that line). ``animate`` shows a bar while rendering
-its mp4, on a terminal only.
+(without it, the lines printed before the failure stay above that line). ``animate`` shows the same while it
+predicts a recording longer than one block (``animate: frame 1800/36000, ...``, counted in frames as its blocks
+of ``--chunk`` frames are decoded)
+and, on a terminal only, a bar while rendering its mp4.
 :class:`HelpFormatter` is every command's ``--help`` layout (each option's default shown, the examples kept as
 written).
 """

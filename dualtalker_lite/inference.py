@@ -32,7 +32,8 @@ Ctrl-C/SIGTERM leaves ``--out`` exactly as it was. User errors print one line (`
 traceback) and exit with status 2.
 
 Memory is bounded whatever the recording's length (issue 11): the prediction is decoded in blocks of ``--chunk``
-frames (:func:`~dualtalker_lite.streaming.predict_chunks`, bounded caches) and streamed to ``vertices.npy``;
+frames (:func:`~dualtalker_lite.streaming.predict_chunks`, bounded caches) and streamed to ``vertices.npy``,
+with progress in frames on stderr (a bar on a terminal, else a line at most every ~10 s; ``--quiet``: none);
 every other format is then written frame by frame from that memory-mapped file (the mp4 with
 :func:`~dualtalker_lite.viz.animate.render_video` and a progress bar). Short and long recordings take the same
 path; ``animate_wave`` joins the same blocks in memory for notebooks and scripts.
@@ -51,7 +52,7 @@ from .checkpoints import describe, extractor_from_settings, load_checkpoint, top
 from .data.corpus import Corpus, check_face_size
 from .streaming import predict_chunks, write_npy_stream
 from .checks import check_finite
-from .console import HelpFormatter, progress_mode
+from .console import HelpFormatter, ProgressLines, progress_mode
 from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
@@ -298,8 +299,8 @@ def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
     ap.add_argument("--chunk", type=int, default=900,
                     help="frames decoded and written per block (memory vs. overhead; the result is the same)")
     ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
-                    help="no progress bar while rendering the video (it is shown only when stderr is a terminal "
-                         "anyway); the final line stays")
+                    help="no progress on stderr (otherwise bars while predicting and rendering the video on a "
+                         "terminal, else a line at most every ~10 s while predicting); the final line stays")
     ap.add_argument("--no-cache", action="store_true",
                     help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
                          "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite); log-mel models "
@@ -363,15 +364,43 @@ def run(args: argparse.Namespace) -> list[Path]:
     n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=extractor.sample_rate,
                                       extractor=extractor, device=device, amp=args.amp, chunk=args.chunk, fps=FPS,
                                       conditions=conditions)
+    mode = progress_mode(args.quiet)
     with target as tmp:
-        npy = write_npy_stream(tmp / "vertices.npy", blocks, n_frames, template.size)
+        npy = write_npy_stream(tmp / "vertices.npy", _frame_progress(blocks, n_frames, args.chunk, mode), n_frames,
+                               template.size)
         written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate, template=template,
-                                progress=progress_mode(args.quiet) == "bar")
+                                progress=mode == "bar")
     out = Path(args.out)
     names = [out / p.relative_to(tmp) for p in written]
     print(f"{n_frames} frames ({n_frames / FPS:.1f} s){_conditions_used(model, args.emotion, conditions, corpus)} -> "
           + ", ".join(map(str, names)))
     return names
+
+
+def _frame_progress(blocks, n_frames: int, chunk: int, mode: str):
+    """Yield the prediction's ``blocks`` (n, V*3) unchanged while showing how many of the ``n_frames`` frames are
+    done, as :func:`~dualtalker_lite.console.progress_mode` chose: ``"bar"`` a tqdm bar in frames, ``"lines"``
+    :class:`~dualtalker_lite.console.ProgressLines` (``animate: frame 600/1800, 0:12 elapsed, about 0:24 left``,
+    at most one every ~10 s plus the first and the last block's), ``"off"`` (``--quiet``) nothing. Counted in
+    frames, not blocks: a model may cut its blocks shorter than ``--chunk``. A recording of one block (``n_frames
+    <= chunk``: 30 s at the default 900) shows nothing: there is no moment between its start and its end to report,
+    and its stderr stays as clean as before (warnings and the error line only)."""
+    if mode == "off" or n_frames <= chunk:
+        yield from blocks
+        return
+    if mode == "bar":
+        from tqdm.auto import tqdm
+
+        with tqdm(total=n_frames, desc="predicting", unit="frame", leave=False) as bar:
+            for block in blocks:
+                yield block
+                bar.update(len(block))
+        return
+    lines, done = ProgressLines("animate: frame", total=n_frames), 0
+    for block in blocks:
+        yield block  # the consumer writes it; the next block is decoded when it asks again
+        done += len(block)
+        lines.update(done)
 
 
 def _conditions_used(model: torch.nn.Module, asked: str | None, conditions: dict, corpus: Corpus | None) -> str:

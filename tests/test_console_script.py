@@ -37,7 +37,8 @@ def run(*argv, cwd=None, stderr=None, env=None) -> subprocess.CompletedProcess:
 
 
 # A progress line of a long command when stderr is not a terminal (console.ProgressLines)
-PROGRESS = re.compile(r"(train: epoch|evaluate: clips|generate: speech clip|generate: face clip) (\d+)/(\d+), "
+PROGRESS = re.compile(r"(train: epoch|evaluate: clips|generate: speech clip|generate: face clip|animate: frame) "
+                      r"(\d+)/(\d+), "
                       r"(loss (\S+), )?(\d+(?::\d\d)+) elapsed(, about (\d+(?::\d\d)+) left)?")
 
 
@@ -107,6 +108,10 @@ def test_train_exits_0_and_refuses_to_overwrite(voca_ckpt):
     before = voca_ckpt.read_bytes()
     user_error(run("train", "--model", "voca", "--epochs", "1", "--out", voca_ckpt), "already exists", "--overwrite")
     assert voca_ckpt.read_bytes() == before  # untouched
+    # the README's "--resume  # continue a killed run" typed after the run completed: said so, not "already exists"
+    user_error(run("train", "--model", "voca", "--epochs", "1", "--clips", "16", "--out", voca_ckpt, "--resume"),
+               "that run completed, there is nothing to resume", "--overwrite")
+    assert voca_ckpt.read_bytes() == before
     user_error(run("train", "--model", "voca", "--epochs", "0", "--out", voca_ckpt.with_name("z.pt")),
                "--epochs 0")
     assert not voca_ckpt.with_name("z.pt").exists()
@@ -256,6 +261,29 @@ def test_train_prints_progress_lines_into_a_log_and_quiet_silences_them(tmp_path
             proc = run(*argv, "--overwrite", quiet, stderr=stderr)
         assert (proc.returncode, log.read_text()) == (0, "")
         assert proc.stdout == f"trained voca for 3 epochs on 16 clips -> {out}\n"  # the final line stays
+
+
+def test_animate_prints_progress_lines_while_predicting_and_quiet_silences_them(voca_ckpt, tmp_path):
+    """A long recording into a log: ``animate`` decodes it in blocks of ``--chunk`` frames and reports the frames
+    done (``animate: frame 60/600, 0:01 elapsed, about 0:09 left``): at least the first block's line and the
+    last, whose count is every frame, in order. ``--quiet``: stderr stays empty and the final line stays."""
+    clip, rate = sf.read(sample_path() / "audio" / "SPK01_long01.flac", dtype="float32")
+    long_wave = np.tile(clip, int(np.ceil(20 * rate / len(clip))))[:20 * rate]  # ~20 s from a shipped clip
+    wav_path, log = tmp_path / "long.wav", tmp_path / "animate.log"
+    sf.write(wav_path, long_wave, rate)
+    argv = ("animate", "--checkpoint", voca_ckpt, "--wav", wav_path, "--format", "npy", "--chunk", "60")
+    with open(log, "w") as stderr:
+        proc = run(*argv, "--out", tmp_path / "a", stderr=stderr)
+    assert proc.returncode == 0, log.read_text()
+    lines = progress_lines(log.read_text())
+    assert lines and all(m[1] == "animate: frame" for m in lines), log.read_text()
+    done, total = [int(m[2]) for m in lines], int(lines[0][3])
+    assert done[0] == 60 and done[-1] == total == 600 and done == sorted(set(done)), done
+    assert np.load(tmp_path / "a" / "vertices.npy").shape[0] == total
+    with open(log, "w") as stderr:
+        proc = run(*argv, "--out", tmp_path / "q", "--quiet", stderr=stderr)
+    assert (proc.returncode, log.read_text()) == (0, "")
+    assert proc.stdout.startswith("600 frames (20.0 s)")  # the final line stays
 
 
 def test_progress_lines_come_at_most_every_10_s_with_an_honest_estimate():

@@ -466,7 +466,8 @@ def test_vertices_npy_is_not_left_when_not_asked_for(moving_ckpt, wav, tmp_path)
 
 def test_failure_in_a_later_block_leaves_nothing_behind(setup, moving_ckpt, wav, tmp_path, capsys, monkeypatch):
     """The third of five blocks comes out NaN: one-line error naming the first bad frame (14 = 2 x 7), no --out,
-    no hidden folder, no vertices.npy.partial; an existing --out with --overwrite is left exactly as it was."""
+    no hidden folder, no vertices.npy.partial; an existing --out with --overwrite is left exactly as it was
+    (``--quiet``: without it the progress lines of the first two blocks stay above the error line)."""
     real = DualTalker.generate_chunks
 
     def broken(self, *args, **kw):
@@ -475,14 +476,14 @@ def test_failure_in_a_later_block_leaves_nothing_behind(setup, moving_ckpt, wav,
 
     monkeypatch.setattr(DualTalker, "generate_chunks", broken)
     out = tmp_path / "anim"
-    line = _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7"],
+    line = _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7", "--quiet"],
                   "model output contains NaN/infinite values (first at frame 14)", "nothing was written")
     assert "Traceback" not in line
     _nothing_written(tmp_path, out)
     out.mkdir()  # an earlier animation (with the manifest --overwrite asks for, issue 32)
     (out / "animation.mp4").write_bytes(b"old video")
     (out / ".dualtalker-output.json").write_text('{"command": "animate", "files": ["animation.mp4"]}')
-    _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7", "--overwrite"],
+    _fails(capsys, ["--checkpoint", moving_ckpt, "--wav", wav, "--out", out, "--chunk", "7", "--overwrite", "--quiet"],
            "first at frame 14")
     assert sorted(p.name for p in out.iterdir()) == [".dualtalker-output.json", "animation.mp4"]
     assert (out / "animation.mp4").read_bytes() == b"old video"
