@@ -79,7 +79,7 @@ COMMANDS = (
                                  "{out}/my_emoface.pt", "--overwrite"),
             "README command block; train --help example", heavy=True, makes="my_emoface.pt"),
     Command("make-unit", ("make", "unit"), "README Quick start (`make unit`)", heavy=True),
-    Command("make-bench", ("make", "bench"), "benchmarks/run_all.py docstring (\"a few minutes on 2 cores\")",
+    Command("make-bench", ("make", "bench"), "benchmarks/run_all.py docstring (\"about 12 minutes on a busy 2-core machine\")",
             heavy=True),
     Command("make-test", ("make", "test"), "(no time quoted: CI's run)", heavy=True),
 )

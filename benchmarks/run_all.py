@@ -1,4 +1,7 @@
-"""Run the benchmark scripts in turn (what `make bench` does; a few minutes on 2 cores).
+"""Run the benchmark scripts in turn (what `make bench` does).
+
+It took about 12 minutes of wall time on a busy 2-core machine (issue 34's report); not yet measured on a quiet one:
+``python benchmarks/command_times.py --only make-bench`` does, into results/command_times.md.
 
 Left out because they take longer (run them by hand, see benchmarks/README.md): ``time_to_quality.py`` (about
 2.5 CPU minutes per seed), ``collapse.py`` and ``long_audio.py --minutes 60`` / ``--cli``.
