@@ -79,8 +79,8 @@ COMMANDS = (
                                  "{out}/my_emoface.pt", "--overwrite"),
             "README command block; train --help example", heavy=True, makes="my_emoface.pt"),
     Command("make-unit", ("make", "unit"), "README Quick start (`make unit`)", heavy=True),
-    Command("make-bench", ("make", "bench"), "benchmarks/run_all.py docstring (\"about 12 minutes on a busy 2-core machine\")",
-            heavy=True),
+    Command("make-bench", ("make", "bench"),
+            "benchmarks/run_all.py docstring (\"about 12 minutes ... on a busy 2-core machine\")", heavy=True),
     Command("make-test", ("make", "test"), "(no time quoted: CI's run)", heavy=True),
 )
 BY_NAME = {c.name: c for c in COMMANDS}
