@@ -279,8 +279,9 @@ def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.T
     float32, metres (VOCA's output-layer initialisation; :meth:`MotionDecoder.init_output_basis`).
 
     Motion = vertices - template over every valid frame (``data`` as for :func:`mean_motion`), centred on its mean.
-    At most ``max_frames`` frames enter the decomposition (evenly spaced over all of them: the directions of a
-    corpus's motion are found within a few thousand frames), and it is a randomised SVD
+    At most ``max_frames`` frames enter the decomposition, evenly spaced over all of them and gathered in one pass
+    with at most ``2 x max_frames`` rows held (the directions of a corpus's motion are found within a few thousand
+    frames, and a large corpus is never held whole), and it is a randomised SVD
     (``torch.svd_lowrank``, 4 power iterations, its own generator seeded by ``seed``): about a second on one CPU
     thread for the sample's 1558 vertices, against ~50 s for an exact SVD of every frame. Rows are ordered by
     decreasing variance; directions carry an arbitrary sign (either sign spans the same motion)."""
@@ -290,22 +291,28 @@ def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.T
         batches = ({**data[i], "mask": None} for i in range(len(data)))
     else:
         batches = iter(data)
-    frames = []
+    kept, n_kept, stride, seen = [], 0, 1, 0  # every stride-th frame; memory bounded by 2 x max_frames rows
     for b in batches:
         motion = b["vertices"] - b["template"].unsqueeze(-2)  # (T, V*3) or (B, T, V*3)
         if b.get("mask") is not None:
             motion = motion[b["mask"]]
-        frames.append(motion.reshape(-1, motion.shape[-1]).float())
-    if not frames:
-        raise ValueError("motion_basis: the training set has no frames")
-    x = torch.cat(frames)  # (N, V*3)
-    if not bool(torch.isfinite(x).all()):
-        from .checks import NonFiniteError
+        motion = motion.reshape(-1, motion.shape[-1])
+        if not bool(torch.isfinite(motion).all()):
+            from .checks import NonFiniteError
 
-        raise NonFiniteError("training data: non-finite vertices or template; nothing was trained")
-    n = x.shape[0]
-    if n > max_frames:
-        x = x[torch.linspace(0, n - 1, max_frames).round().long()]
+            raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
+                                 "nothing was trained")
+        first = (-seen) % stride  # the first row of this block whose overall index is a multiple of stride
+        kept.append(motion[first::stride].float())
+        n_kept, seen = n_kept + kept[-1].shape[0], seen + motion.shape[0]
+        if n_kept > 2 * max_frames:  # keep every other kept frame: the stride doubles
+            kept = [torch.cat(kept)[::2]]
+            n_kept, stride = kept[0].shape[0], 2 * stride
+    if not seen:
+        raise ValueError("motion_basis: the training set has no frames")
+    x = torch.cat(kept)  # (N', V*3), N' <= 2 max_frames
+    if x.shape[0] > max_frames:
+        x = x[torch.linspace(0, x.shape[0] - 1, max_frames).round().long()]
     x = x - x.mean(0)
     q = min(k + 8, *x.shape)
     state = torch.get_rng_state()  # svd_lowrank draws from the global generator: leave the training's RNG alone
