@@ -16,7 +16,9 @@
 #    rig driven by the recogniser's classes against the ground truth.
 # 4. A real recording (two CC-BY-SA telephone prompts shipped in `notebooks/data/real/`): the rig driven by the
 #    recogniser next to the rig driven by the force-aligned phones.
-# 5. What each front-end can and cannot do.
+# 5. Your own voice: record from the browser's microphone and animate it here, or go live with
+#    `dualtalker-lite live`.
+# 6. What each front-end can and cannot do.
 #
 # | symbol | code name | shape |
 # |---|---|---|
@@ -353,7 +355,52 @@ video = animate_clip({"aligned phones": r["ref"][:n3], "recogniser": r["rec"][:n
 HTML(video._repr_html_())
 
 # %% [markdown]
-# ## 5. What each front-end can and cannot do
+# ## 5. Your own voice
+#
+# The panel below records from the browser's microphone (`dualtalker_lite.viz.microphone.MicrophonePanel`, an
+# [anywidget](https://anywidget.dev)): press **Record**, allow the microphone, speak, press **Stop**. The browser
+# resamples the recording to 16 kHz mono and sends it to the kernel as float32 samples, and the kernel runs this
+# notebook's phonetic route on it: the recogniser's viseme track (eq. 3) driving the rig of the first training
+# speaker, as in section 4, shown with your speech under the button. No microphone, or a recording that is empty,
+# silent or too short, gives one `error:` line instead. When the notebook runs without anyone at it (nbval, CI),
+# the same cell sends the shipped `agent-pass` prompt through the same path, exactly as a recording would.
+#
+# A trained phonetic checkpoint (e.g. `make demo`'s) animates instead with
+# `MicrophonePanel(lambda w: animate_recording(w, "runs/m.pt", "SPK01", corpus)[0])`
+# (`dualtalker_lite.viz.widgets.animate_recording`, the `animate` command's path).
+#
+# **Live, while you speak.** The recording above is animated after you stop. For a face that follows you as you
+# speak, serve such a checkpoint with [`dualtalker-lite live --checkpoint runs/m.pt`](../docs/live.md) and open
+# <http://127.0.0.1:8765/>: the page streams the microphone to a local server that runs a causal version of
+# this viseme track (200 ms of look-ahead) and the model's cached decoder step, and draws the face, and beside
+# it a second head driven by the 15 standard viseme curves (`viseme_sil`, `viseme_PP`, ...), about half a
+# second behind the voice (`docs/live.md`).
+
+# %%
+# NBVAL_IGNORE_OUTPUT
+from IPython.display import display
+
+from dualtalker_lite.viz.microphone import MicrophonePanel, encode_recording
+
+
+def animate_speech(wave):
+    """16 kHz speech (N,) -> the rig of `subject` driven by the recogniser's track (section 4), with the speech."""
+    n = max(1, int(round(len(wave) * FPS / SR)))
+    verts = rig_from_phones(track_to_phones(extractor.viseme_ids(wave, n)), n, subject, wave)   # (n, V*3)
+    return animate_clip(verts.reshape(n, -1, 3), corpus.faces, wave=wave, sample_rate=SR, size=192,
+                        renderer="raster")
+
+
+mic = MicrophonePanel(animate_speech, max_seconds=10)
+display(mic.widget)
+mic.run(encode_recording(r["wave"][:3 * SR]));    # what a 3 s recording does: the shipped prompt, once
+
+# %%
+assert mic.status.value.startswith("3.0 s of speech animated in "), mic.status.value
+assert mic.wave.shape == (3 * SR,) and "<video" in mic.result._repr_html_()
+
+# %% [markdown]
+# ## 6. What each front-end can and cannot do
 #
 # From `docs/front-ends.md` and `results/real_voices.md` (`python benchmarks/real_voices.py --seeds 3`; 255 real
 # prompts of the same voice, 437 /p b m/, 3 seeds; closure with windows widened by one frame):
@@ -390,3 +437,5 @@ HTML(video._repr_html_())
 #    in the rig of section 3?
 # 4. Feed the rig the track of 3 s of `0.003 * np.random.randn(48000)` (room tone). What does the mouth do, and
 #    why would a trained autoregressive decoder behave differently (`results/real_voices.md`, room tone)?
+# 5. Record one sentence twice with the panel of section 5, once slowly and once as fast as you can. Which
+#    bilabials does the recogniser's track lose at speed (plot `extractor.viseme_ids(mic.wave, n)` of each)?
