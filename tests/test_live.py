@@ -6,7 +6,10 @@
   that connection only (the server still serves); a shipped clip streamed in 100 ms messages yields every frame,
   and their lip distance follows the offline ``animate`` of the same clip;
 - the page in headless chromium with a fake microphone playing the clip: the face moves, its lip distance follows
-  the offline animation, and every request goes to the local server.
+  the offline animation, the second head (driven by the streamed viseme curves only) opens and shuts with the
+  speech, and every request goes to the local server;
+- the viseme curves: the streamed ones come with their frames and follow ``animate --format visemes``'; the
+  streaming coarticulation is the offline one given the whole track; docs/live.md's mapping table is the server's.
 
 A tiny checkpoint is trained once (``train --clips 16 --epochs 1``, about 10 s): it barely moves its lips (a few
 micrometres), but the movement follows the visemes, which is what the correlations check.
@@ -345,6 +348,104 @@ def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(con
     assert np.corrcoef(lip, lip_off)[0, 1] > 0.6                    # measured: 0.84
 
 
+def test_streaming_viseme_weights_are_the_offline_coarticulation_with_whole_context():
+    """StreamingVisemeWeights against the offline function on the whole track (``viseme_weights`` of
+    ``track_segments``): equal when nothing is taken before the end; within 1e-3 with 60 frames of past and 30
+    ahead (the bounded past costs nothing); with the live 3 frames ahead the anticipation is cut short."""
+    from dualtalker_lite.export.visemes import track_segments, viseme_weights
+    from dualtalker_lite.face.visemes import VISEMES
+    from dualtalker_lite.live.stream import StreamingVisemeWeights
+
+    rng = np.random.default_rng(0)
+    ids = np.repeat(rng.integers(0, 15, 40), rng.integers(2, 9, 40))                    # runs of 2-8 frames
+    ref = viseme_weights(track_segments(ids, 30, VISEMES), len(ids), 30)               # (T, 15)
+
+    def stream(past, ahead):
+        curves, out = StreamingVisemeWeights(30, past), []
+        for i in range(0, len(ids), 7):
+            curves.push(ids[i:i + 7])
+            first, w = curves.take(curves.received - ahead)
+            assert first == sum(len(o) for o in out)                                    # consecutive frames
+            out.append(w)
+        return np.concatenate(out + [curves.take()[1]])
+
+    np.testing.assert_allclose(stream(10_000, 10_000), ref, atol=1e-6)
+    np.testing.assert_allclose(stream(60, 30), ref, atol=1e-3)
+    live = stream(60, 3)
+    assert live.shape == ref.shape and np.allclose(live.sum(1), 1, atol=1e-5)
+    assert 1e-3 < np.abs(live - ref).mean() < 0.02                                      # measured: 0.005
+    with pytest.raises(ValueError, match="viseme ids must be in 0..14"):
+        StreamingVisemeWeights().push(np.array([15]))
+
+
+def test_streamed_viseme_curves_come_with_their_frames_and_follow_the_offline_curves(config):
+    """Asked for (``{"type": "start", "visemes": true}``), every frames message comes after a ``visemes`` message
+    of the same frames; the curves follow ``animate --format visemes``' (export.visemes.viseme_curves) of the clip."""
+    from dualtalker_lite.export.visemes import NAMES, viseme_curves
+
+    wave = _wave()
+    pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
+
+    async def main():
+        client = await _client(config, Limits(max_speed=1e9, max_messages_per_s=1000))
+        weights, frames, last = {}, set(), None
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            hello = json.loads((await ws.receive(timeout=10)).data)
+            assert hello["viseme_names"] == list(NAMES)
+            await ws.send_str(json.dumps({"type": "start", "visemes": True}))
+            for i in range(0, len(pcm), 1600):
+                await ws.send_bytes(pcm[i:i + 1600].tobytes())
+            await ws.send_str(json.dumps({"type": "stop"}))
+            while True:
+                msg = await ws.receive(timeout=60)
+                if msg.type == WSMsgType.BINARY:
+                    first, n, _ = HEADER.unpack_from(msg.data)
+                    assert last is not None and last["first"] == first and len(last["weights"]) == n
+                    frames.update(range(first, first + n))
+                    last = None
+                else:
+                    m = json.loads(msg.data)
+                    if m["type"] == "done":
+                        break
+                    assert m["type"] == "visemes" and last is None, m
+                    last = m
+                    weights.update({m["first"] + i: w for i, w in enumerate(m["weights"])})
+            await ws.close()
+        finally:
+            await client.close()
+        return weights, frames
+
+    weights, frames = _run(main())
+    n = int(round(len(wave) * 30 / 16000))
+    assert sorted(weights) == sorted(frames) == list(range(n))
+    live = np.array([weights[i] for i in range(n)])                                    # (T, 15)
+    assert np.allclose(live.sum(1), 1, atol=2e-3) and live.min() >= 0
+    assert live[:, NAMES.index("viseme_nn")].max() == 0                                 # no /n l/ class live
+    offline = viseme_curves(wave, n, extractor=config.extractor).weights
+    offline[:, NAMES.index("viseme_DD")] += offline[:, NAMES.index("viseme_nn")]        # live: /n l/ is DD
+    offline[:, NAMES.index("viseme_nn")] = 0
+    assert np.abs(live - offline).mean() < 0.01                                         # measured: 0.0007
+    assert np.corrcoef(live.ravel(), offline.ravel())[0, 1] > 0.9                    # measured: 0.999
+
+
+def test_the_second_heads_mapping_in_the_docs_is_what_the_server_sends():
+    """docs/live.md's table of viseme -> rig mouth controls is /mesh's ``avatar`` document, number for number; the
+    targets are the rig's (face/visemes.py, clipped to the control ranges), checked on three rows by hand."""
+    from dualtalker_lite.live.server import avatar_controls
+
+    spec = avatar_controls()
+    rows = [line.strip().strip("|").split("|") for line in (ROOT / "docs" / "live.md").read_text().splitlines()
+            if line.strip().startswith("| `viseme_")]
+    table = {r[0].strip(" `"): [float(x) if x.strip() else 0.0 for x in r[1:]] for r in rows}
+    assert list(table) == spec["names"] and len(spec["names"]) == 15
+    np.testing.assert_allclose([table[n] for n in spec["names"]], spec["targets"], atol=1e-9)
+    t = dict(zip(spec["names"], spec["targets"]))
+    k = {c: i for i, c in enumerate(spec["controls"])}
+    assert t["viseme_sil"] == [0.0] * len(k) and t["viseme_PP"][k["lip_press"]] == 1.0     # 1.25 clipped to 1
+    assert t["viseme_aa"][k["jaw_open"]] == 0.62 and t["viseme_U"][k["lip_pucker"]] == 0.85
+
+
 def test_live_command_refuses_bad_checkpoints(tmp_path, capsys):
     import torch
 
@@ -433,6 +534,18 @@ def _best_lag_corr(live: np.ndarray, ref: np.ndarray, max_lag: int = 30) -> tupl
     return best
 
 
+def _rig_lip_from_viseme_curves(config):
+    """The clip's lip distance (mm) on the project's rig posed by its offline viseme curves (``animate --format
+    visemes`` + the rig's 15 blendshapes): what the second head's lip gap should follow, made without the page."""
+    from dualtalker_lite.export.visemes import apply_viseme_weights, rig_viseme_offsets, viseme_curves
+    from dualtalker_lite.face import FaceRig
+
+    rig = FaceRig()
+    curves = viseme_curves(_wave(), extractor=config.extractor)
+    verts = apply_viseme_weights(curves.weights, rig.template, rig_viseme_offsets(rig))            # (T, V, 3)
+    return _lip(verts.reshape(len(verts), -1), config)
+
+
 def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, tmp_path):
     exe, sync_playwright = _chromium()
     _, lip_off = offline
@@ -465,6 +578,7 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 page.screenshot(path=str(shots / "live_page.png"))
                 state = page.evaluate("() => [dtlLive.lip, dtlLive.latencyMs, dtlLive.shown, "
                                       "document.querySelector('.latency').textContent]")
+                second = page.evaluate("() => [dtlLive.avatarGap, dtlLive.avatarShown, dtlLive.avatar.rest.gap]")
                 page.click("button.start")                          # stop
                 page.wait_for_function("() => dtlLive.status.startsWith('stopped')", timeout=60000)
                 # no microphone permission: one line says so; a file still plays through the live path
@@ -491,6 +605,14 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     corr, lag = _best_lag_corr(lip, lip_off)
     assert corr > 0.5, (corr, lag)
     assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
+    # the second head: driven by the viseme curves alone, its lips part and close with the mesh's
+    gap, drawn, rest_gap = second
+    gap = np.array([np.nan if v is None else v for v in gap], float)
+    assert len(gap) >= n and np.isfinite(gap).all()                                   # every frame has its pose
+    assert gap.max() > rest_gap + 0.1 and gap.min() < rest_gap + 0.02                   # opens, and closes
+    assert len(set(np.round(drawn, 4))) >= 3                                          # and was drawn so
+    corr2, lag2 = _best_lag_corr(gap, _rig_lip_from_viseme_curves(config))
+    assert corr2 > 0.7, ("second head", corr2, lag2)                                   # measured: 0.85
     assert no_mic == "No microphone permission: allow the microphone for this page (or play a file)."
     file_lip = np.array([np.nan if v is None else v for v in file_lip], float)
     assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std() and file_rate != 16000

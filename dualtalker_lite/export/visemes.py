@@ -63,7 +63,8 @@ from ..face.visemes import REST_DOMINANCE, VISEME_PARAMS, VISEMES, dominance, ph
 
 __all__ = ["NAMES", "CLASSES", "COLUMN", "RIG_VISEME", "FORMAT", "VisemeCurves", "phoneme_segments",
            "track_segments", "recognised_segments", "viseme_weights", "viseme_curves", "write_visemes",
-           "read_visemes", "rig_viseme_offsets", "retarget_offsets", "apply_viseme_weights", "check_available"]
+           "read_visemes", "rig_viseme_targets", "rig_viseme_offsets", "retarget_offsets", "apply_viseme_weights",
+           "check_available"]
 
 FORMAT = "dualtalker-lite viseme curves 1"
 NAMES = ("viseme_sil", "viseme_PP", "viseme_FF", "viseme_TH", "viseme_DD", "viseme_kk", "viseme_CH", "viseme_SS",
@@ -301,22 +302,33 @@ def read_visemes(path) -> VisemeCurves:
 
 
 # ------------------------------------------------------------------------------ driving a mesh
-def rig_viseme_offsets(rig=None) -> np.ndarray:
-    """The rig's shape of each of the 15 names as offsets from its template: (15, V, 3) float32, metres.
+def rig_viseme_targets(controls=CONTROL_NAMES) -> np.ndarray:
+    """The rig's target of each of the 15 names: (15, K) float64 values of ``controls`` (default: all of them).
 
-    Shape of a name = ``rig.animate(target) - template`` with the target of its class (``viseme_U``: ``U``'s,
-    ``viseme_nn``: ``DD``'s; ``viseme_sil``: zero) clipped to the controls' ranges, as the generator clips them.
-    ``rig``: a :class:`~dualtalker_lite.face.rig.FaceRig` (default: the canonical head's)."""
-    from ..face.rig import FaceRig
-
-    rig = rig or FaceRig()
+    The target of a name is its class's (``viseme_U``: ``U``'s, ``viseme_nn``: ``DD``'s; ``viseme_sil``: zero),
+    clipped to the controls' ranges as the generator clips them. Blended with the weights, ``sum_c w_c T_c``, they
+    give the rig's control track (module doc): what a rig-like avatar reads (the live page's second head)."""
+    unknown = [c for c in controls if c not in CONTROL_INDEX]
+    if unknown:
+        raise ValueError(f"unknown rig controls {unknown}; the rig has {', '.join(CONTROL_NAMES)}")
     lo = np.array([CONTROL_RANGES[n][0] for n in CONTROL_NAMES])
     hi = np.array([CONTROL_RANGES[n][1] for n in CONTROL_NAMES])
     targets = []
     for name in NAMES:
         cls = next(c for c in CLASSES if COLUMN[c] == name and c != "WW")      # viseme_U: U, not WW
         targets.append(np.clip(control_vector(VISEME_PARAMS[RIG_VISEME[cls]].target), lo, hi))
-    return (rig.animate(np.stack(targets)) - rig.template[None]).astype(np.float32)
+    return np.stack(targets)[:, [CONTROL_INDEX[c] for c in controls]]
+
+
+def rig_viseme_offsets(rig=None) -> np.ndarray:
+    """The rig's shape of each of the 15 names as offsets from its template: (15, V, 3) float32, metres.
+
+    Shape of a name = ``rig.animate(target) - template`` with its :func:`rig_viseme_targets` target.
+    ``rig``: a :class:`~dualtalker_lite.face.rig.FaceRig` (default: the canonical head's)."""
+    from ..face.rig import FaceRig
+
+    rig = rig or FaceRig()
+    return (rig.animate(rig_viseme_targets()) - rig.template[None]).astype(np.float32)
 
 
 def retarget_offsets(base: np.ndarray, offsets: np.ndarray, warp) -> tuple[np.ndarray, np.ndarray]:

@@ -18,12 +18,20 @@ The protocol (``/ws``):
 
 ==========================  =====================================================================================
 client -> server, binary    int16 little-endian PCM, 16 kHz mono, at most ``max_message_bytes`` (1 s by default)
-client -> server, text      JSON ``{"type": "start"}`` (a new session), ``{"type": "stop"}`` (flush the rest)
-server -> client, text      JSON ``{"type": "hello", ...}`` (settings), ``{"type": "done", "frames": n}``,
-                            ``{"type": "error", "message": ...}`` (then the server closes the connection)
+client -> server, text      JSON ``{"type": "start"}`` (a new session), ``{"type": "stop"}`` (flush the rest);
+                            ``{"type": "start", "visemes": true}`` also asks for the viseme curves
+server -> client, text      JSON ``{"type": "hello", ...}`` (settings, ``viseme_names``), ``{"type": "done",
+                            "frames": n}``, ``{"type": "error", "message": ...}`` (then the server closes the
+                            connection); when asked, before each binary message, ``{"type": "visemes", "first":
+                            first, "weights": [[15 numbers] x n]}``: the standard viseme weights of the same frames
 server -> client, binary    uint32 LE ``first``, ``n``, ``samples`` (audio received when computed), then
                             float32 LE (n, V, 3) vertices of frames ``first .. first + n - 1``
 ==========================  =====================================================================================
+
+The viseme curves (``viseme_sil`` ... ``viseme_U``, :mod:`dualtalker_lite.export.visemes`; live:
+:class:`~dualtalker_lite.live.stream.StreamingVisemeWeights`) drive avatars other than this project's mesh: the
+page shows them on a second, stylised head (``page/avatar.js``), and ``/mesh`` carries what it needs
+(``avatar``: the rig's mouth controls of each viseme, :func:`avatar_controls`).
 
 Safety rules (each tested in ``tests/test_live.py``):
 
@@ -53,16 +61,29 @@ from pathlib import Path
 
 import numpy as np
 
+from ..export.visemes import NAMES, rig_viseme_targets
 from .stream import SAMPLE_RATE, LiveSession, LiveSettings
 
-__all__ = ["LiveConfig", "Limits", "make_app", "serve", "PAGE_DIR", "HEADER"]
+__all__ = ["LiveConfig", "Limits", "make_app", "serve", "PAGE_DIR", "HEADER", "avatar_controls"]
 
 log = logging.getLogger("dualtalker_lite.live")
 PAGE_DIR = Path(__file__).with_name("page")
 HEADER = struct.Struct("<III")          # first frame, frame count, samples received
 _VENDOR = ("three.module.min.js", "OrbitControls.js", "LICENSE")  # what the page imports of export/vendor/three
 MAX_BATCH_S = 5.0                       # at most this much backlog per push (hama reads at most 30 s per call)
-_PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript"}
+_PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript", "avatar.js": "text/javascript"}
+AVATAR_CONTROLS = ("jaw_open", "lip_press", "lip_pucker", "lip_stretch", "smile_left", "smile_right",
+                   "upper_lip_raise", "lower_lip_depress")          # the mouth controls the stylised head reads
+
+
+def avatar_controls() -> dict:
+    """What the page's second head needs: for each standard viseme name, the rig's target values of the mouth
+    controls :data:`AVATAR_CONTROLS` (``export.visemes.rig_viseme_targets``). The page blends them with the
+    streamed weights, ``c_k(t) = sum_v w_v(t) T_vk``: the rig's own control track (``export/visemes.py``), which the
+    stylised head turns into its shapes (``page/avatar.js``; the mapping is in ``docs/live.md``)."""
+    targets = rig_viseme_targets(AVATAR_CONTROLS)                              # (15, K)
+    return {"names": list(NAMES), "controls": list(AVATAR_CONTROLS),
+            "targets": np.round(targets, 4).tolist()}
 
 
 @dataclass
@@ -165,13 +186,14 @@ def make_app(config: LiveConfig):
         "speaker": config.speaker_name, "checkpoint": Path(config.checkpoint).name,
         "latency_s": config.settings.latency_s(config.extractor.fps, config.extractor.lag_s,
                                                config.extractor.window_s),
-        "lookahead_ms": round(config.settings.lookahead_s * 1000)})
+        "lookahead_ms": round(config.settings.lookahead_s * 1000), "avatar": avatar_controls()})
 
     async def mesh(request):
         return web.Response(text=mesh_doc, content_type="application/json")
 
-    def new_session() -> LiveSession:
-        return LiveSession(config.model, config.extractor, config.template, config.speaker, config.settings)
+    def new_session(visemes: bool = False) -> LiveSession:
+        return LiveSession(config.model, config.extractor, config.template, config.speaker, config.settings,
+                           visemes=visemes)
 
     async def websocket(request):
         peer = _peer(request)
@@ -188,7 +210,7 @@ def make_app(config: LiveConfig):
         sessions.add(ws)
         loop = asyncio.get_running_loop()
         session = await loop.run_in_executor(executor, new_session)
-        started, samples, stopped = time.monotonic(), 0, False
+        started, samples, stopped, visemes = time.monotonic(), 0, False, False
         window_start, window_count = started, 0
 
         async def close(code, reason: str):
@@ -200,9 +222,20 @@ def make_app(config: LiveConfig):
                 except ConnectionResetError:                           # it went away meanwhile
                     pass
 
-        async def send(first: int, verts: np.ndarray):
+        async def send(first: int, verts: np.ndarray, weights: np.ndarray):
             if len(verts) and not ws.closed:
+                if visemes:                                   # the same frames' viseme curves, first
+                    await ws.send_str(json.dumps({"type": "visemes", "first": first,
+                                                  "weights": np.round(weights, 4).tolist()}))
                 await ws.send_bytes(HEADER.pack(first, len(verts), samples) + verts.astype("<f4").tobytes())
+
+        def push(current, audio):
+            first, verts = current.push(audio)
+            return first, verts, current.pop_weights()
+
+        def flush(current):
+            first, verts = current.flush()
+            return first, verts, current.pop_weights()
 
         # Audio waits in ``backlog`` while the session computes; ``work`` takes all of it at once (at most
         # MAX_BATCH_S), so a server that fell behind runs hama once on the whole backlog instead of once per
@@ -217,8 +250,7 @@ def make_app(config: LiveConfig):
                     while backlog and n < MAX_BATCH_S * SAMPLE_RATE:
                         take.append(backlog.pop(0))
                         n += take[-1].size
-                    first, verts = await loop.run_in_executor(executor, current.push, np.concatenate(take))
-                    await send(first, verts)
+                    await send(*await loop.run_in_executor(executor, push, current, np.concatenate(take)))
             except ConnectionResetError as e:                           # the client went away while computing
                 log.warning("closed %s: %s", peer, e or "the client went away mid-stream")
                 backlog.clear()
@@ -227,7 +259,7 @@ def make_app(config: LiveConfig):
                 await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
 
         await ws.send_str(json.dumps({"type": "hello", "fps": config.extractor.fps, "sample_rate": SAMPLE_RATE,
-                                      "max_message_bytes": limits.max_message_bytes}))
+                                      "max_message_bytes": limits.max_message_bytes, "viseme_names": list(NAMES)}))
         try:
             while not ws.closed:
                 try:
@@ -260,19 +292,21 @@ def make_app(config: LiveConfig):
                         worker = asyncio.create_task(work(session))
                 elif msg.type == WSMsgType.TEXT:
                     try:
-                        kind = json.loads(msg.data).get("type")
+                        command = json.loads(msg.data)
+                        kind = command.get("type")
                     except (ValueError, AttributeError):
-                        kind = None
+                        command, kind = {}, None
                     if worker is not None:
                         await worker                              # the audio before the command, first
                     stopped = kind == "stop"
                     if kind == "stop":
-                        first, verts = await loop.run_in_executor(executor, session.flush)
-                        await send(first, verts)
+                        first, verts, weights = await loop.run_in_executor(executor, flush, session)
+                        await send(first, verts, weights)
                         await ws.send_str(json.dumps({"type": "done", "frames": first + len(verts),
                                                       "samples": samples}))
                     elif kind == "start":
-                        session = await loop.run_in_executor(executor, new_session)
+                        visemes = command.get("visemes") is True
+                        session = await loop.run_in_executor(executor, new_session, visemes)
                         started, samples = time.monotonic(), 0
                     else:
                         await close(WSCloseCode.UNSUPPORTED_DATA, f"unknown text message {msg.data[:40]!r} "

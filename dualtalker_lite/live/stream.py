@@ -23,6 +23,14 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
 
 The two meet in :class:`LiveSession`: samples -> one-hot visemes -> vertices, what a connection runs. Nothing here
 is asynchronous: the server calls ``push`` in a worker thread.
+
+* :class:`StreamingVisemeWeights` -- the same track as the 15 standard viseme curves (``viseme_sil``,
+  ``viseme_PP``, ...: :mod:`dualtalker_lite.export.visemes`, what ``animate --format visemes`` writes), for avatars
+  that are not this project's mesh. Each run of equal classes is a segment, coarticulated with the rig's dominance
+  functions (:func:`~dualtalker_lite.export.visemes.viseme_weights`) over the last ``past_frames`` frames; a
+  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (100 ms) of the track:
+  anticipation reaches that far and no further (offline it reaches a segment's whole dominance span). The live
+  track has no /n l/ class of its own, so those phones weigh on ``viseme_DD`` and ``viseme_nn`` stays 0.
 """
 from __future__ import annotations
 
@@ -32,9 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..export.visemes import NAMES, track_segments, viseme_weights
+from ..face.visemes import VISEMES
 from ..recogniser import FRAME_SAMPLES, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track
 
-__all__ = ["StreamingVisemes", "IncrementalDecoder", "LiveSession", "LiveSettings"]
+__all__ = ["StreamingVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "LiveSession", "LiveSettings"]
 
 SAMPLE_RATE = 16000
 
@@ -130,6 +140,49 @@ class StreamingVisemes:
         ids = spike_track(self.spike_t - f0 / fps, self.spike_v, stop - f0, fps, self.ex.window_s)
         self.frames_done = stop
         return ids
+
+
+class StreamingVisemeWeights:
+    """The 15 standard viseme curves of a class track given in pieces (module doc).
+
+        curves = StreamingVisemeWeights(fps=30, past_frames=60)
+        curves.push(ids)                  # (n,) viseme ids (indices into face.visemes.VISEMES) of the next frames
+        first, w = curves.take(stop)      # w (stop - first, 15) float32: weights of frames first .. stop - 1
+
+    ``take(stop)`` computes frames up to ``stop`` (at most the frames pushed) from the segments of the last
+    ``past_frames`` frames before them and of every frame pushed after them; with the whole track pushed and
+    ``past_frames`` covering it, that is ``viseme_weights(track_segments(ids))`` exactly. Rows sum to 1.
+    """
+
+    def __init__(self, fps: float = 30.0, past_frames: int = 60, channel: str = "lips"):
+        if past_frames < 0:
+            raise ValueError(f"past_frames must be >= 0, got {past_frames}")
+        self.fps, self.past, self.channel = float(fps), int(past_frames), channel
+        self.ids = np.empty(0, np.int64)           # classes of frames [f0, f0 + len(ids))
+        self.f0 = 0
+        self.done = 0                              # frames whose weights were taken
+
+    @property
+    def received(self) -> int:
+        return self.f0 + len(self.ids)
+
+    def push(self, ids: np.ndarray) -> None:
+        ids = np.asarray(ids, np.int64).reshape(-1)
+        if ids.size and (ids.min() < 0 or ids.max() >= len(VISEMES)):
+            raise ValueError(f"viseme ids must be in 0..{len(VISEMES) - 1}, got {ids.min()}..{ids.max()}")
+        self.ids = np.concatenate([self.ids, ids])
+
+    def take(self, stop: int | None = None) -> tuple[int, np.ndarray]:
+        first, stop = self.done, self.received if stop is None else min(int(stop), self.received)
+        if stop <= first:
+            return first, np.empty((0, len(NAMES)), np.float32)
+        lo = max(self.f0, first - self.past)
+        window = self.ids[lo - self.f0:]                                          # frames [lo, received)
+        w = viseme_weights(track_segments(window, self.fps, VISEMES), len(window), self.fps, self.channel)
+        self.done = stop
+        drop = max(0, stop - self.past - self.f0)                                # frames no later take reads
+        self.ids, self.f0 = self.ids[drop:], self.f0 + drop
+        return first, w[first - lo:stop - lo]
 
 
 class IncrementalDecoder:
@@ -247,28 +300,46 @@ class LiveSession:
     """
 
     def __init__(self, model, extractor: RecogniserExtractor, template: np.ndarray, speaker: int = 0,
-                 settings: LiveSettings | None = None):
+                 settings: LiveSettings | None = None, visemes: bool = False):
         if getattr(extractor, "output", None) != "visemes":
             raise ValueError(f"live decoding needs a model trained on the recogniser's viseme track (features "
                              f"'hama', output 'visemes'), this one reads {extractor!r}")
         self.settings = s = settings or LiveSettings()
         self.visemes = StreamingVisemes(extractor, s.lookahead_s, s.past_s, s.hop_s)
         self.decoder = IncrementalDecoder(model, template, speaker, s.past_frames, s.ahead_frames)
+        # visemes=True: also the standard viseme curves of the same frames (pop_weights)
+        self.curves = StreamingVisemeWeights(extractor.fps, s.past_frames) if visemes else None
         self.n_classes = extractor.dim
+        self._weights: list[np.ndarray] = []
 
     def _one_hot(self, ids: np.ndarray) -> np.ndarray:
         return np.eye(self.n_classes, dtype=np.float32)[ids]                               # (k, 15)
 
     def push(self, samples: np.ndarray) -> tuple[int, np.ndarray]:
         first = self.decoder.t
-        return first, self.decoder.push(self._one_hot(self.visemes.push(samples)))
+        ids = self.visemes.push(samples)
+        verts = self.decoder.push(self._one_hot(ids))
+        if self.curves is not None:
+            self.curves.push(ids)
+            self._weights.append(self.curves.take(self.decoder.t)[1])     # the same frames as verts
+        return first, verts
 
     def flush(self) -> tuple[int, np.ndarray]:
         first = self.decoder.t
         ids = self.visemes.flush()
         a = self.decoder.push(self._one_hot(ids))
         b = self.decoder.flush()
+        if self.curves is not None:
+            self.curves.push(ids)
+            self._weights.append(self.curves.take()[1])
         return first, np.concatenate([a, b])
+
+    def pop_weights(self) -> np.ndarray:
+        """The standard viseme weights (k, 15) of the frames whose vertices ``push``/``flush`` returned since the
+        last call (the same frames, in order; :class:`StreamingVisemeWeights`); none unless ``visemes=True``."""
+        out = np.concatenate(self._weights) if self._weights else np.empty((0, len(NAMES)), np.float32)
+        self._weights = []
+        return out
 
 
 def offline_visemes(extractor: RecogniserExtractor, wave: np.ndarray, n_frames: int) -> np.ndarray:

@@ -1,8 +1,12 @@
 // The live page: microphone (or a file) -> AudioWorklet -> 16 kHz int16 over a WebSocket -> frames back -> three.js.
 // Everything is served by the dualtalker-lite live server (no other request is made). For tests and curious
-// users, window.dtlLive exposes the state: {ready, error, running, frames, lip, latencyMs, shown, samplesSent}.
+// users, window.dtlLive exposes the state: {ready, error, running, frames, lip, latencyMs, shown, samplesSent,
+// visemes (per frame: the 15 standard viseme weights), avatarGap (per frame: the second head's lip gap, as the
+// lip distance is per frame received), avatarShown (the gaps the second head was drawn with, in order)}.
+// Left: the project's mesh (the model's vertices); right: a stylised head driven by the viseme curves (avatar.js).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { controlsOf, makeAvatar, mouthShape } from './avatar.js';
 
 const root = document.getElementById('live');
 const view = root.querySelector('.view'), msg = root.querySelector('.msg');
@@ -10,7 +14,8 @@ const button = root.querySelector('.start'), meter = root.querySelector('.level'
 const latencyEl = root.querySelector('.latency'), statusEl = root.querySelector('.status');
 const fileInput = root.querySelector('.file');
 const state = window.dtlLive = { ready: false, error: null, running: false, frames: 0, lip: [], latencyMs: null,
-                                 shown: -1, samplesSent: 0, status: '' };
+                                 shown: -1, samplesSent: 0, status: '', visemes: [], avatarGap: [],
+                                 avatarShown: [] };
 const say = (text) => { statusEl.textContent = text; state.status = text; };
 
 try {
@@ -42,15 +47,26 @@ try {
   camera.position.copy(center).add(new THREE.Vector3(0, 0, 1.5 * size));
   camera.near = size / 100; camera.far = size * 100; camera.updateProjectionMatrix();
   controls.target.copy(center); controls.update();
+  // the second head, in the right 40 % of the canvas (its own scene and camera; the orbit controls move the mesh's)
+  const avatar = info.avatar ? makeAvatar(info.avatar) : null;
+  const split = avatar ? 0.6 : 1;
+  if (avatar) {
+    const label = document.createElement('div');
+    label.className = 'msg2';
+    label.textContent = 'viseme curves (viseme_sil … viseme_U) on a stylised head';
+    view.appendChild(label);
+  }
   const resize = () => {
     const w = view.clientWidth, h = Math.max(view.clientHeight, 200);
-    renderer.setSize(w, h, false); camera.aspect = w / h; camera.updateProjectionMatrix();
+    renderer.setSize(w, h, false); camera.aspect = split * w / h; camera.updateProjectionMatrix();
+    if (avatar) avatar.fit((1 - split) * w / h);
   };
   new ResizeObserver(resize).observe(view);
   resize();
 
   // ---- frames in, played in time: frame f is shown when the capture clock reaches f / fps + the latency
   const pending = new Map();              // frame index -> Float32Array (V*3)
+  const pendingW = new Map();             // frame index -> its 15 viseme weights
   const sent = [];                        // [samples sent so far, performance.now()] per message
   let latest = -1, clockAt = 0, delay = info.latency_s;
   const lips = info.lip_midpoints;
@@ -84,12 +100,21 @@ try {
       latencyEl.textContent = `latency ${ms.toFixed(0)} ms`;
     }
   };
+  const onVisemes = (m) => {
+    m.weights.forEach((w, i) => {
+      pendingW.set(m.first + i, w); state.visemes[m.first + i] = w;
+      state.avatarGap[m.first + i] = mouthShape(controlsOf(w, info.avatar)).gap;
+    });
+  };
   const show = (f) => {
     const v = pending.get(f);
     if (!v) return;
     position.array.set(v); position.needsUpdate = true; geometry.computeVertexNormals();
+    const w = pendingW.get(f);
+    if (avatar && w) state.avatarShown.push(avatar.update(w).gap);
     state.shown = f;
     for (const k of pending.keys()) if (k < f) pending.delete(k);
+    for (const k of pendingW.keys()) if (k < f) pendingW.delete(k);
   };
   renderer.setAnimationLoop(() => {
     if (latest >= 0) {
@@ -99,7 +124,15 @@ try {
       while (f > state.shown && !pending.has(f)) f--;
       if (f > state.shown) show(f);
     }
-    controls.update(); renderer.render(scene, camera);
+    controls.update();
+    const w = view.clientWidth, h = Math.max(view.clientHeight, 200);
+    renderer.setScissorTest(true);
+    renderer.setViewport(0, 0, split * w, h); renderer.setScissor(0, 0, split * w, h);
+    renderer.render(scene, camera);
+    if (avatar) {
+      renderer.setViewport(split * w, 0, (1 - split) * w, h); renderer.setScissor(split * w, 0, (1 - split) * w, h);
+      renderer.render(avatar.scene, avatar.camera);
+    }
   });
 
   // ---- audio out: a WebSocket per run
@@ -107,12 +140,13 @@ try {
   const connect = () => new Promise((ok, no) => {
     const sock = new WebSocket(`ws://${location.host}/ws`);
     sock.binaryType = 'arraybuffer';
-    sock.onopen = () => { sock.send(JSON.stringify({ type: 'start' })); ok(sock); };
+    sock.onopen = () => { sock.send(JSON.stringify({ type: 'start', visemes: !!avatar })); ok(sock); };
     sock.onerror = () => no(new Error('cannot reach the live server'));
     sock.onmessage = (e) => {
       if (typeof e.data !== 'string') { onFrames(e.data); return; }
       const m = JSON.parse(e.data);
-      if (m.type === 'done') { say(`stopped: ${m.frames} frames`); sock.close(); }
+      if (m.type === 'visemes') onVisemes(m);
+      else if (m.type === 'done') { say(`stopped: ${m.frames} frames`); sock.close(); }
       else if (m.type === 'error') say(`server closed the connection: ${m.message}`);
     };
     sock.onclose = () => { if (state.running) { say('connection closed by the server'); stop(false); } };
@@ -126,7 +160,8 @@ try {
     try { return new AudioContext({ sampleRate: rate }); } catch (e) { return new AudioContext(); }
   };
   const begin = async (makeSource, native = false) => {
-    pending.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = []; state.frames = 0;
+    pending.clear(); pendingW.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = [];
+    state.frames = 0; state.visemes = []; state.avatarGap = []; state.avatarShown = [];
     state.samplesSent = 0; delay = info.latency_s;
     ctx = audioContext(native);
     state.contextRate = ctx.sampleRate;
@@ -186,7 +221,7 @@ try {
   };
   button.onclick = () => { if (state.running) stop(); else startMicrophone().catch(failed); };
   fileInput.onchange = () => { if (fileInput.files[0]) { if (state.running) stop(); startFile(fileInput.files[0]).catch(failed); } };
-  Object.assign(state, { ready: true, mesh, info, start: () => startMicrophone().catch(failed), stop,
+  Object.assign(state, { ready: true, mesh, info, avatar, start: () => startMicrophone().catch(failed), stop,
                          playFile: (f) => startFile(f).catch(failed) });
   msg.textContent = `${info.checkpoint}, speaker ${info.speaker}: press Start and speak ` +
                     `(look-ahead ${info.lookahead_ms} ms, expected latency ${(1000 * info.latency_s).toFixed(0)} ms)`;
