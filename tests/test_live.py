@@ -309,21 +309,27 @@ def test_a_failing_session_is_one_log_line_and_a_1011_close(config, caplog, monk
     assert caplog.text.count("the live session failed: ValueError: boom") == 1
 
 
+async def _stream_clip(client, start: dict):
+    """Connect, send ``start``, the shipped clip in 100 ms int16 messages and ``stop`` -> (the socket, hello)."""
+    pcm = np.round(np.clip(_wave(), -1, 1) * 32767).astype("<i2")
+    ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+    hello = json.loads((await ws.receive(timeout=10)).data)
+    await ws.send_str(json.dumps(start))
+    for i in range(0, len(pcm), 1600):
+        await ws.send_bytes(pcm[i:i + 1600].tobytes())
+    await ws.send_str(json.dumps({"type": "stop"}))
+    return ws, hello
+
+
 def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(config, offline):
     verts_off, lip_off = offline
-    wave = _wave()
-    pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
 
     async def main():
         client = await _client(config, Limits(max_speed=1e9, max_messages_per_s=1000))
         frames = {}
         try:
-            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
-            assert json.loads((await ws.receive(timeout=10)).data)["type"] == "hello"
-            await ws.send_str(json.dumps({"type": "start"}))
-            for i in range(0, len(pcm), 1600):
-                await ws.send_bytes(pcm[i:i + 1600].tobytes())
-            await ws.send_str(json.dumps({"type": "stop"}))
+            ws, hello = await _stream_clip(client, {"type": "start"})
+            assert hello["type"] == "hello"
             while True:
                 msg = await ws.receive(timeout=60)
                 if msg.type == WSMsgType.BINARY:
@@ -384,19 +390,13 @@ def test_streamed_viseme_curves_come_with_their_frames_and_follow_the_offline_cu
     from dualtalker_lite.export.visemes import NAMES, viseme_curves
 
     wave = _wave()
-    pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
 
     async def main():
         client = await _client(config, Limits(max_speed=1e9, max_messages_per_s=1000))
         weights, frames, last = {}, set(), None
         try:
-            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
-            hello = json.loads((await ws.receive(timeout=10)).data)
+            ws, hello = await _stream_clip(client, {"type": "start", "visemes": True})
             assert hello["viseme_names"] == list(NAMES)
-            await ws.send_str(json.dumps({"type": "start", "visemes": True}))
-            for i in range(0, len(pcm), 1600):
-                await ws.send_bytes(pcm[i:i + 1600].tobytes())
-            await ws.send_str(json.dumps({"type": "stop"}))
             while True:
                 msg = await ws.receive(timeout=60)
                 if msg.type == WSMsgType.BINARY:

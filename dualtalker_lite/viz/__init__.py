@@ -9,6 +9,8 @@
                ``render_video``: long clips (memory-mapped .npy, fast renderer, progress bar, clean-up)
 - ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
 - ``spirals``  ``plot_spirals``: EmoFace's spiral sequences on the face, coloured by ring, with a numbered close-up
+- ``microphone`` ``MicrophonePanel``: record from the browser's microphone in a notebook (an anywidget) and animate
+               the recording in the kernel (import it from the module: it needs the notebooks extra)
 """
 from .animate import ClipAnimation, animate_clip, render_video
 from .heatmap import branch_mean_errors, plot_branch_error_maps, plot_vertex_maps, plot_vertex_spectrograms
