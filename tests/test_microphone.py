@@ -174,6 +174,7 @@ def _best_lag_corr(a, b, max_lag=50):
     return best
 
 
+@pytest.mark.tools
 def test_front_end_records_a_fake_microphone_in_headless_chromium(tmp_path):
     exe, sync_playwright = _chromium()
     with warnings.catch_warnings():
