@@ -179,7 +179,7 @@ class CorrTalk(nn.Module):
         shared table (``n_speakers=None``)."""
         cfg = self.cfg
         return MotionDecoder(cfg.n_vertices, cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
-                             query_from="decoder", align_window=1, add_style_to_motion=cfg.add_style_to_motion,
+                             align_window=1, add_style_to_motion=cfg.add_style_to_motion,
                              dropout=cfg.dropout, motion_scale=cfg.motion_scale)
 
     def speaker_style(self, speaker: Tensor) -> Tensor:

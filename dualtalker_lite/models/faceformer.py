@@ -94,7 +94,7 @@ class FaceFormer(nn.Module):
         self.extractor = AudioFeatureExtractor.from_config(cfg)
         self.audio_encoder = nn.Linear(c, d)  # C -> d
         self.decoder = MotionDecoder(cfg.n_vertices, d, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
-                                     n_speakers=cfg.n_speakers, query_from="decoder", align_window=1,
+                                     n_speakers=cfg.n_speakers, align_window=1,
                                      add_style_to_motion=True, dropout=cfg.dropout, motion_scale=cfg.motion_scale)
 
     def num_parameters(self) -> int:
@@ -116,7 +116,7 @@ class FaceFormer(nn.Module):
         if self.training and self.cfg.motion_dropout > 0:
             drop = torch.rand(motion.shape[:2], device=motion.device)[..., None] < self.cfg.motion_dropout
             fed = torch.where(drop, dec.encode_motion(torch.zeros_like(motion[:, :1])), fed)  # hidden = template
-        motion_hat = dec.decode_motion(dec.fuse(dec.stream(fed, style), x, style, "primal", mask))  # (B, T, V*3)
+        motion_hat = dec.decode_motion(dec.fuse(dec.stream(fed, style), x, style, mask))  # (B, T, V*3)
         return {"vertices": template[:, None, :] + motion_hat, "motion": motion_hat, "x": x,
                 "audio": None, "y": None, "x_fused": None, "y_fused": None}
 
