@@ -6,7 +6,7 @@ them (strong and weak branch), EmoFace two (emotion and content branch). :class:
 
     past motion M_{<t} (B, T, V*3) -> motion encoder Me (mm scale folded in)      (B, T, d)
     stream [S_n, Me(m_1), ..., Me(m_{T-1})] (+ S_n on every token, FaceFormer)     (B, T, d)   :meth:`stream`
-    + periodic positional encoding -> fusion layer(s) attending to features X      (B, T, d)   :meth:`fuse`
+    + periodic positional encoding -> decoder layer(s) attending to features X     (B, T, d)   :meth:`fuse`
     -> motion head (d -> V*3, zero-initialised: the untrained model outputs the template) (B, T, V*3)
 
 Its layers are FaceFormer's (:class:`~dualtalker_lite.blocks.faceformer_layer.FaceFormerLayer`: ALiBi-biased causal
@@ -21,8 +21,9 @@ Three ways to run it, all computing the same numbers (the tests pin that):
 
 - :meth:`MotionDecoder.teacher_forced`: the whole clip at once from the true past (training);
 - :meth:`MotionDecoder.prefix_step`: the reference autoregressive step, re-running the layers on the whole prefix;
-- :meth:`MotionDecoder.cached_step`: one frame with bounded key/value caches (``blocks.windowed``): the self-attention
-  keeps the last ``window`` tokens, the integration only the frames its alignment mask admits, so an hour of audio
+- :meth:`MotionDecoder.cached_step`: one frame with bounded key/value caches (``blocks.windowed``), each layer's own
+  one-frame step (``layer.step``, beside its whole-stream maths): the self-attention keeps the last ``window``
+  tokens, the cross-attention only the frames its alignment mask admits, so an hour of audio
   decodes in constant memory per frame. It reads block-local features: X of frames [offset, offset + n) and their
   K/V projections (:meth:`MotionDecoder.load_features`), at least the alignment window of t
   (:meth:`MotionDecoder.feature_margins`; FaceFormer's centred window reads w//2 frames *after* t).
@@ -212,7 +213,7 @@ class MotionDecoder(nn.Module):
         (k, V*3), metres, row j the j-th principal direction scaled by its standard deviation
         (``train.motion_basis``). Column j of the head then maps feature j to that direction, so a unit of
         feature j moves the face by one standard deviation of the j-th mode; the first k <= d columns are set,
-        the rest zeroed. With a zero head (the default) no gradient reaches the fusion layers until the head
+        the rest zeroed. With a zero head (the default) no gradient reaches the decoder layers until the head
         has grown; with this one the whole network learns from the first step."""
         v3 = 3 * self.n_vertices
         if not isinstance(self.motion_decoder, nn.Linear):

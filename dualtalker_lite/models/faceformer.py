@@ -9,8 +9,8 @@ frame from the frames before it:
          (frame t sees X_t only) -> feed-forward -> motion head (zero-initialised) -> M̂   (B, T, V*3)
     vertices = template + M̂
 
-Every piece is a block: ``blocks.audio_encoder`` and ``blocks.decoder.MotionDecoder`` (queries from the motion
-stream, diagonal alignment, S_n added to every token, no speaker-aware gate). The sizes of :meth:`tiny` are those of
+Every piece is a block: ``blocks.audio_encoder`` and ``blocks.decoder.MotionDecoder`` with FaceFormer's own layers
+(``blocks.faceformer_layer``: queries from the motion stream, diagonal alignment; S_n added to every token). The sizes of :meth:`tiny` are those of
 ``DualTalkerConfig.tiny`` so that the tables compare equal budgets.
 
 Training uses a plain vertex reconstruction MSE, λ1 L_rec (FaceFormer's loss, ``losses.reconstruction``; it gives
