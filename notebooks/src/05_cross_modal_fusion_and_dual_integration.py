@@ -460,8 +460,10 @@ rows = [("audio extractor: input LN + frame projection",
         ("audio encoder (C -> d)", model.audio_encoder, "both"),
         ("motion encoder Me (V*3 -> d)", model.decoder.motion_encoder, "both"),
         ("style embeddings S_n", model.decoder.style, "both"),
-        ("primal fusion: self-attn + gate + FF + LNs", layer.primal, "primal"),
-        ("dual fusion: self-attn + gate + FF + LNs", layer.dual, "dual")]
+        ("primal fusion: self-attn + FF + LNs", layer.primal, "primal"),
+        ("primal speaker-aware gate", layer.primal_gate, "primal"),
+        ("dual fusion: self-attn + FF + LNs", layer.dual, "dual"),
+        ("dual speaker-aware gate", layer.dual_gate, "dual")]
 rows += [(f"integration: {n}", getattr(integ, n), u) for n, u in integ_names.items()]
 rows += [("motion decoder (d -> V*3)", model.decoder.motion_decoder, "primal"),
          ("audio decoder (d -> C -> D_a)", model.audio_decoder, "dual")]
