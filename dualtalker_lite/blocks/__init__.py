@@ -9,7 +9,7 @@ model composes, CorrTalk's facial activity intensity (``fai``) and hierarchical 
 at four levels, the weight generator), and EmoFace's spirals and SpiralConv3D (eqs. 1-3) and Mesh Attention
 (section 3.2)."""
 from .audio_encoder import AudioFeatureExtractor, TransformerEncoderLayer
-from .attention import FeedForward, KVCache, MultiHeadAttention, multi_head_attention, scaled_dot_product_attention
+from .attention import FeedForward, MultiHeadAttention, multi_head_attention, scaled_dot_product_attention
 from .decoder import MotionDecoder, autoregressive_chunks, autoregressive_reference
 from .faceformer_layer import FaceFormerLayer
 from .feature_windows import FeatureWindows, encoder_window
@@ -24,7 +24,7 @@ from .windowed import SlidingKVCache, banded_attention, banded_multi_head_attent
 __all__ = ["AudioFeatureExtractor", "TransformerEncoderLayer", "MotionDecoder", "autoregressive_chunks",
            "autoregressive_reference", "FeatureWindows", "encoder_window", "scaled_dot_product_attention",
            "multi_head_attention", "MultiHeadAttention",
-           "KVCache", "FeedForward",
+           "FeedForward",
            "PeriodicPositionalEncoding", "alibi_slopes", "alibi_causal_bias", "alignment_mask",
            "SpeakerAwareGate", "FaceFormerLayer", "DualIntegration", "DualFusionLayer",
            "banded_attention", "banded_multi_head_attention", "SlidingKVCache", "dropped_mass_bound",
