@@ -1,6 +1,6 @@
 """The baselines' training loss: a plain vertex reconstruction MSE (FaceFormer's, VOCA's position term).
 
-    L_rec = λ1 \\frac{1}{|T|\\,3V} \\sum_{t \\in T} \\| s \\tilde V_t - s V_t \\|^2        (B, T, V*3), s = ``vertex_scale``
+    L_rec = λ1 \\frac{1}{|T|\\,3V} \\sum_{t \\in T} \\| s \\tilde V_t - s V_t \\|^2     (B, T, V*3), s = vertex_scale
 
 a mean over the valid (unpadded) frames of the batch, pooled, with the vertices in mm (s = 1000: metres x 1000).
 It is DualTalker's L_primal with DualTalker's other terms absent: before issue 30 the baselines were trained with

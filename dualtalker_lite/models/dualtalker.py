@@ -15,7 +15,8 @@ Composition: the audio path is ``blocks.audio_encoder`` (a small wav2vec 2.0 sta
 the primal task is a ``blocks.decoder.MotionDecoder`` whose layers are DualTalker's fusion layers
 (``blocks.fusion.DualFusionLayer``: FaceFormer's decoder layer with the speaker-aware gate, the integration with
 queries from the audio and shared W_Q/W_K, and both directions composed around it); the dual task reuses that
-decoder's style table, PPE and layers (``direction="dual"``) and adds the audio decoder. The losses are ``losses.dualtalker`` (eqs. 8-11).
+decoder's style table, PPE and layers (``direction="dual"``) and adds the audio decoder. The losses are
+``losses.dualtalker`` (eqs. 8-11).
 
 Readings taken (the paper leaves these open; ``blocks.fusion`` has the reading of eq. 6):
 

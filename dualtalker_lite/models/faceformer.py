@@ -10,13 +10,14 @@ frame from the frames before it:
     vertices = template + M̂
 
 Every piece is a block: ``blocks.audio_encoder`` and ``blocks.decoder.MotionDecoder`` with FaceFormer's own layers
-(``blocks.faceformer_layer``: queries from the motion stream, diagonal alignment; S_n added to every token). The sizes of :meth:`tiny` are those of
-``DualTalkerConfig.tiny`` so that the tables compare equal budgets.
+(``blocks.faceformer_layer``: queries from the motion stream, diagonal alignment; S_n added to every token). The
+sizes of :meth:`tiny` are those of ``DualTalkerConfig.tiny`` so that the tables compare equal budgets.
 
 Training uses a plain vertex reconstruction MSE, λ1 L_rec (FaceFormer's loss, ``losses.reconstruction``; it gives
-the value DualTalker's joint loss gave this model before issue 30, whose other terms were zero for it). The same project additions as DualTalker's apply:
-past-motion dropout (``motion_dropout``, 0.5 in ``tiny()``) and the mean-motion initialisation of the head
-(docs/design-notes.md), so the baseline is trained as well as the papers' models.
+the value DualTalker's joint loss gave this model before issue 30, whose other terms were zero for it). The same
+project additions as DualTalker's apply: past-motion dropout (``motion_dropout``, 0.5 in ``tiny()``) and the
+mean-motion initialisation of the head (docs/design-notes.md), so the baseline is trained as well as the papers'
+models.
 """
 from __future__ import annotations
 
