@@ -3,7 +3,7 @@
 A checkpoint (format 2) is a plain dict, loadable with ``torch.load(weights_only=True)``:
 
 ====================  ==========================================================================================
-``format_version``    3 (format 1 has no such key; formats 1-2 are upgraded on load, :func:`upgrade_checkpoint`)
+``format_version``    4 (format 1 has no such key; formats 1-3 are upgraded on load, :func:`upgrade_checkpoint`)
 ``package_version``   ``dualtalker_lite.__version__`` that wrote it
 ``model_class``       ``"DualTalker"``, ``"VocaStyle"``, ... (see :func:`model_registry`)
 ``model_config``      the config dataclass as a dict
@@ -27,6 +27,14 @@ Format 3 (issue 18) moved the decoder of DualTalker and of the FaceFormer-style 
 are now ``decoder.*``, and a FaceFormer-style baseline, saved before as a ``DualTalker`` with FaceFormer's switches, is
 a ``FaceFormer``. :func:`upgrade_checkpoint` renames both on load (one note on stderr); the numbers are unchanged.
 
+Format 4 (issue 30) gave the decoders FaceFormer's own layer (``blocks.faceformer_layer``) in place of DualTalker's
+fusion layer with ``direction="primal"``. In the FaceFormer-style decoders (FaceFormer, CorrTalk's branches,
+EmoFace's branches) ``layers.N.primal.*`` is now ``layers.N.*`` and the integration's ``proj_motion`` /
+``proj_audio`` / ``value_primal`` / ``out_primal`` are the cross-attention's ``q_proj`` / ``k_proj`` / ``v_proj`` /
+``out_proj``; in DualTalker the speaker-aware gates left the shared layer: ``layers.N.primal.gate.*`` is
+``layers.N.primal_gate.*`` (``dual`` likewise). :func:`upgrade_state_dict` renames them; the weights are the same
+tensors (``tests/test_legacy_checkpoints.py`` loads checkpoints written before the change and checks their outputs).
+
 Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
 refused both when saving and when loading. :func:`load_checkpoint` also checks the file's integrity (the zip CRC of
 every record of the torch archive: one flipped byte is refused, never loaded) and validates hand-edited fields
@@ -40,6 +48,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import re
 import sys
 import zipfile
 import zlib
@@ -60,10 +69,15 @@ __all__ = ["FORMAT_VERSION", "is_own_file", "save_checkpoint", "load_checkpoint"
            "extractor_settings", "extractor_from_settings", "describe", "upgrade_checkpoint",
            "upgrade_state_dict", "verify_integrity", "validate_fields", "FEATURE_NAMES"]
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 # format <= 2: the decoder's parts sat on the model itself (DualTalker, and the baseline saved as a DualTalker)
 _DECODER_PARTS = ("motion_encoder.", "style.", "ppe.", "layers.", "motion_decoder.")
 # the switches that made a format <= 2 DualTalker the FaceFormer-style baseline (old faceformer_config)
+# format <= 3: the FaceFormer-style decoders ran DualTalker's fusion layer (direction "primal"); format 4 names
+_FACEFORMER_DECODERS = ("FaceFormer", "CorrTalk", "EmoFace")
+_LAYER = re.compile(r"(^|\.)layers\.(\d+)\.")
+_CROSS_NAMES = {"integration.proj_motion.": "cross_attn.q_proj.", "integration.proj_audio.": "cross_attn.k_proj.",
+                "integration.value_primal.": "cross_attn.v_proj.", "integration.out_primal.": "cross_attn.out_proj."}
 _FACEFORMER_SWITCHES = {"dual": False, "speaker_gate": False, "query_from": "decoder", "align_window": 1,
                         "add_style_to_motion": True, "share_enc_dec": False, "scheduled_sampling": 0.0}
 REQUIRED_KEYS = ("model_class", "model_config", "state_dict")
@@ -169,31 +183,59 @@ def model_registry() -> dict[str, tuple[type, type | None]]:
     return _registry.classes()
 
 
-def upgrade_state_dict(model_class: str, state: dict) -> dict:
-    """Weights of a format <= 2 DualTalker / FaceFormer-style model -> format 3 names (``decoder.`` prefix on the
-    decoder's parts); other models and format-3 weights come back unchanged."""
-    if model_class not in ("DualTalker", "FaceFormer") or not any(k.startswith(_DECODER_PARTS) for k in state):
-        return state
-    return {("decoder." + k if k.startswith(_DECODER_PARTS) else k): v for k, v in state.items()}
+def _rename_layer_key(model_class: str, key: str) -> str:
+    """One weight name of a format-3 decoder layer -> its format-4 name (unchanged when it did not move)."""
+    found = _LAYER.search(key)
+    if found is None:
+        return key
+    head, rest = key[:found.end()], key[found.end():]
+    if model_class == "DualTalker":
+        for task in ("primal", "dual"):
+            if rest.startswith(f"{task}.gate."):
+                return head + f"{task}_gate." + rest[len(f"{task}.gate."):]
+        return key
+    for old, new in _CROSS_NAMES.items():
+        if rest.startswith(old):
+            return head + new + rest[len(old):]
+    return head + rest[len("primal."):] if rest.startswith("primal.") else key
+
+
+def upgrade_state_dict(model_class: str, state: dict, format_version: int = 1) -> dict:
+    """Weights of an older format -> format 4 names; other models and format-4 weights come back unchanged.
+
+    Format <= 2 (DualTalker, FaceFormer-style): the ``decoder.`` prefix on the decoder's parts. Format <= 3: the
+    decoder layers' names (module docstring); a format-3 key is recognised by the ``integration.`` or ``primal.``
+    of the old layer, so weights already in format 4 are never renamed twice."""
+    if format_version <= 2 and model_class in ("DualTalker", "FaceFormer") and any(
+            k.startswith(_DECODER_PARTS) for k in state):
+        state = {("decoder." + k if k.startswith(_DECODER_PARTS) else k): v for k, v in state.items()}
+    if format_version <= 3 and model_class in ("DualTalker", *_FACEFORMER_DECODERS):
+        renamed = {_rename_layer_key(model_class, k): v for k, v in state.items()}
+        if list(renamed) != list(state):
+            state = renamed
+    return state
 
 
 def upgrade_checkpoint(ckpt: dict) -> tuple[dict, str | None]:
-    """A checkpoint dict of format 1 or 2 -> (the same in format 3, a one-line note), or (ckpt, None) if current.
+    """A checkpoint dict of format 1 to 3 -> (the same in format 4, a one-line note), or (ckpt, None) if current.
 
     Renames the decoder's weights (:func:`upgrade_state_dict`) and turns a DualTalker saved with FaceFormer's
     switches (the baseline before format 3) into a ``FaceFormer`` with the same sizes."""
-    if ckpt.get("format_version", 1) >= FORMAT_VERSION or not isinstance(ckpt.get("state_dict"), dict):
+    version = ckpt.get("format_version", 1)
+    if version >= FORMAT_VERSION or not isinstance(ckpt.get("state_dict"), dict):
         return ckpt, None
     name, cfg = ckpt.get("model_class"), ckpt.get("model_config")
-    state = upgrade_state_dict(name, ckpt["state_dict"])
+    baseline = name == "DualTalker" and version <= 2 and isinstance(cfg, dict) and all(
+        cfg.get(k, v) == v for k, v in _FACEFORMER_SWITCHES.items())
+    if baseline:  # the FaceFormer-style baseline before format 3: its layers are FaceFormer's today
+        keep = {f.name for f in dataclasses.fields(FaceFormerConfig)}
+        name, cfg = "FaceFormer", {k: v for k, v in cfg.items() if k in keep}
+    state = upgrade_state_dict(name, ckpt["state_dict"], version)
     if state is ckpt["state_dict"]:  # nothing of this model moved
         return ckpt, None
-    out = {**ckpt, "state_dict": state}
-    note = f"upgraded a format-{ckpt.get('format_version', 1)} checkpoint ({name}) to format {FORMAT_VERSION}"
-    if name == "DualTalker" and isinstance(cfg, dict) and all(cfg.get(k, v) == v for k, v in
-                                                              _FACEFORMER_SWITCHES.items()):
-        keep = {f.name for f in dataclasses.fields(FaceFormerConfig)}
-        out["model_class"], out["model_config"] = "FaceFormer", {k: v for k, v in cfg.items() if k in keep}
+    out = {**ckpt, "state_dict": state, "model_class": name, "model_config": cfg}
+    note = f"upgraded a format-{version} checkpoint ({ckpt.get('model_class')}) to format {FORMAT_VERSION}"
+    if baseline:
         note += " (the FaceFormer-style baseline is now the FaceFormer class)"
     return out, note + "; save it again to skip this step"
 

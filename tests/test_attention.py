@@ -1,11 +1,12 @@
-"""Attention (eqs. 3-4) against PyTorch's fused kernel and a per-head loop; masks, biases and KV caches."""
+"""Attention (eqs. 3-4) against PyTorch's fused kernel and a per-head loop; masks and biases (the one-frame
+cached forms live beside the decoder layer: tests/test_decoder.py)."""
 import math
 
 import pytest
 import torch
 import torch.nn.functional as F
 
-from dualtalker_lite.blocks.attention import KVCache, MultiHeadAttention, scaled_dot_product_attention
+from dualtalker_lite.blocks.attention import MultiHeadAttention, scaled_dot_product_attention
 from dualtalker_lite.blocks.positional import alibi_causal_bias
 
 
@@ -78,31 +79,6 @@ def test_key_mask_ignores_padded_keys():
     key_mask = torch.tensor([[True, True, True, False, False]])
     padded, _ = mha(x, mem, key_mask=key_mask)
     torch.testing.assert_close(padded, mha(x, mem[:, :3])[0])
-
-
-def test_kv_cache_incremental_equals_full_causal():
-    torch.manual_seed(0)
-    mha = MultiHeadAttention(16, 4).eval()
-    x = torch.randn(2, 9, 16)
-    full, _ = mha(x, bias=alibi_causal_bias(4, 9, 9, period=3))
-    cache, steps = KVCache(), []
-    for t in range(9):
-        out, _ = mha(x[:, t:t + 1], bias=alibi_causal_bias(4, 1, t + 1, period=3, offset=t), cache=cache)
-        steps.append(out)
-    assert len(cache) == 9
-    torch.testing.assert_close(torch.cat(steps, 1), full)
-
-
-def test_static_cache_projects_keys_once():
-    torch.manual_seed(0)
-    mha = MultiHeadAttention(8, 2)
-    x, mem = torch.randn(1, 4, 8), torch.randn(1, 6, 8)
-    cache = KVCache(static=True)
-    first, _ = mha(x[:, :2], mem, cache=cache)
-    k_first = cache.k
-    second, _ = mha(x[:, 2:], mem, cache=cache)
-    assert cache.k is k_first
-    torch.testing.assert_close(torch.cat([first, second], 1), mha(x, mem)[0])
 
 
 def test_heads_must_divide_width():

@@ -2,7 +2,7 @@
 import pytest
 import torch
 
-from dualtalker_lite.models.baselines import DUAL_ONLY_KEYS, StaticTemplate, VocaConfig, VocaStyle
+from dualtalker_lite.models.baselines import StaticTemplate, VocaConfig, VocaStyle
 
 B, T, V, D_A, N_SPK = 2, 12, 10, 160, 3
 
@@ -35,19 +35,18 @@ def test_static_template_predicts_the_template():
     out = StaticTemplate(n_vertices=V)(batch)
     assert out["vertices"].shape == out["motion"].shape == (B, T, V * 3)
     assert torch.equal(out["vertices"], batch["template"][:, None].expand(B, T, V * 3))
-    assert all(out[k] is None for k in DUAL_ONLY_KEYS)
+    assert set(out) == {"vertices", "motion"}  # no DualTalker-only keys
     gen = StaticTemplate().generate(batch["audio"], batch["template"], batch["speaker"])
     assert torch.equal(gen, out["vertices"])
     with pytest.raises(ValueError, match="V\\*3"):
         StaticTemplate(n_vertices=V + 1)(batch)
 
 
-def test_voca_shapes_and_dual_only_keys():
+def test_voca_shapes_and_no_dualtalker_keys():
     batch = _batch()
     out = _model()(batch)
     assert out["vertices"].shape == out["motion"].shape == (B, T, V * 3)
-    assert set(out) == {"vertices", "motion", *DUAL_ONLY_KEYS}
-    assert all(out[k] is None for k in DUAL_ONLY_KEYS)
+    assert set(out) == {"vertices", "motion"}
     assert _model().generate(batch["audio"], batch["template"], batch["speaker"]).shape == (B, T, V * 3)
 
 
@@ -104,15 +103,55 @@ def test_wrong_vertex_count_is_a_clear_error():
         model(dict(batch, audio=batch["audio"][..., :80]))
 
 
-def test_outputs_plug_into_the_shared_joint_loss():
-    from dualtalker_lite.losses import LossWeights, joint_loss
+def _hand_mse_mm2(pred, target, mask) -> float:
+    """Mean over valid frames and all V*3 coordinates of ((pred - target) in mm)^2, one frame at a time."""
+    total, count = 0.0, 0
+    for b in range(pred.shape[0]):
+        for t in range(pred.shape[1]):
+            if mask[b, t]:
+                total += float((((pred[b, t] - target[b, t]).double() * 1000.0) ** 2).sum())
+                count += pred.shape[2]
+    return total / count
 
-    model, batch = _model(zero_init_decoder=False), _batch()
-    total, terms = joint_loss(model(batch), batch, LossWeights())       # λ2..λ4 > 0 but their inputs are None
-    assert terms["dual"] == terms["dr"] == terms["ccrl"] == 0
-    torch.testing.assert_close(total, terms["primal"])
+
+def _faceformer():
+    from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+
+    torch.manual_seed(0)
+    model = FaceFormer(FaceFormerConfig.tiny(n_vertices=V, audio_dim=D_A, n_speakers=N_SPK, d_model=16, d_ff=32,
+                                             audio_hidden=16))
+    torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.05)
+    return model
+
+
+@pytest.mark.parametrize("which", ["voca", "faceformer"])
+def test_the_baselines_loss_is_the_vertex_mse_and_the_value_the_joint_loss_gave_them(which):
+    """Before issue 30 the baselines were trained by DualTalker's joint loss, whose other terms are zero for them
+    (their outputs lack what those terms read; the tables also set λ2..λ4 = 0): the new loss must give that value,
+    so the committed results tables stay valid. Both are checked against an MSE written out here."""
+    from dualtalker_lite.losses import LossWeights, ReconstructionWeights, joint_loss
+
+    model = _model(zero_init_decoder=False) if which == "voca" else _faceformer()
+    batch = _batch()
+    batch["mask"][1, 8:] = False  # a padded clip: padding stays out of the mean
+    batch["vertices"][1, 8:] = float("nan")
+    assert type(model).loss_weights_cls is ReconstructionWeights
+    out = model.train()(batch)
+    assert set(out) == {"vertices", "motion"}  # nothing of DualTalker's
+    total, terms = model.loss(out, batch, None)
+    assert set(terms) == {"primal", "total"}
+    expected = _hand_mse_mm2(out["vertices"].detach(), batch["vertices"], batch["mask"])
+    assert float(total) == pytest.approx(expected, rel=1e-5) and float(terms["primal"]) == float(total)
+    old = {**out, **dict.fromkeys(("audio", "x", "y", "x_fused", "y_fused"))}  # what the baselines emitted then
+    for lambdas in ({}, {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}):  # default λ's and the tables' PRIMAL_ONLY
+        assert float(joint_loss(old, batch, LossWeights(**lambdas))[0]) == float(total)
+    half, _ = model.loss(out, batch, ReconstructionWeights(lambda1=0.5))
+    assert float(half) == 0.5 * float(total)
     total.backward()
-    assert model.decoder.weight.grad.abs().sum() > 0
+    head = model.decoder if which == "voca" else model.decoder.motion_decoder
+    assert head.weight.grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="reconstruction loss alone.*lambda4"):
+        ReconstructionWeights(lambda4=0.01)
 
 
 def _overfit(seed: int, steps: int = 60) -> tuple[list[float], VocaStyle]:
@@ -169,13 +208,8 @@ def test_generate_in_blocks_equals_forward():
     assert torch.equal(torch.cat(static, 1), batch["template"][:, None].expand(B, 31, -1))
 
 
-def test_voca_loss_method_and_output_bias_init():
-    from dualtalker_lite.losses import LossWeights, joint_loss
-
+def test_voca_output_bias_init():
     model, batch = _model(), _batch()
-    out = model(batch)
-    total, terms = model.loss(out, batch, LossWeights())
-    assert float(total) == float(joint_loss(out, batch, LossWeights())[0]) and float(terms["dual"]) == 0.0
     mean = torch.arange(V * 3, dtype=torch.float32) * 1e-4
     model.init_output_bias(mean)  # zero decoder weights: output = template + mean motion in every frame
     pred = model.generate(batch["audio"], batch["template"], batch["speaker"])

@@ -1,10 +1,15 @@
-"""blocks.decoder: the FaceFormer-style MotionDecoder every model composes, its three ways to run, the generation
-loops, and the upgrade of checkpoints written before the decoder was a block (format <= 2)."""
+"""blocks.decoder and blocks.faceformer_layer: the FaceFormer-style MotionDecoder every model composes, FaceFormer's
+layer against a reference written out here, the three ways to run the decoder, the generation loops, and the upgrade
+of checkpoints written before the decoder was a block (format <= 2)."""
+import math
+
 import pytest
 import torch
 
 from dualtalker_lite.blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference,
                                             check_window, lookup_style)
+from dualtalker_lite.blocks.faceformer_layer import FaceFormerLayer
+from dualtalker_lite.blocks.fusion import DualFusionLayer
 
 V, D, B, T = 5, 8, 2, 7
 
@@ -51,9 +56,58 @@ def test_untrained_head_outputs_template_plus_the_mean_motion():
         dec.init_output_bias(mean[:-1])
 
 
-@pytest.mark.parametrize("reading", [dict(), dict(query_from="encoder", align_window=2, speaker_gate=True,
-                                                  gate_reduction=2)])
+def _dual_layer(query_from):  # DualTalker's layer (gate, shared Q/K, eq. 6 reading or FaceFormer's), primal only
+    return DualFusionLayer(D, 2, 16, reduction=2, window=2 if query_from == "encoder" else 3, query_from=query_from,
+                           period=4, speaker_gate=True, dual=False)
+
+
+def _reference_layer(layer: FaceFormerLayer, stream, x):
+    """FaceFormer's layer written out with the layer's weights (eval mode): ALiBi causal self-attention, centred
+    alignment window, post-norm residuals, ReLU feed-forward. stream, x (B, T, d) -> (B, T, d)."""
+    h, t, w = layer.n_heads, stream.shape[1], layer.align_window
+    slopes = torch.tensor([2.0 ** (-8 * (i + 1) / h) for i in range(h)])  # ALiBi slopes for a power-of-2 H
+
+    def attend(lin, q_in, kv_in, allowed, bias):
+        def heads(y):  # (B, T, d) -> (B, H, T, d/H)
+            return y.view(y.shape[0], y.shape[1], h, -1).transpose(1, 2)
+        q, k, v = heads(lin[0](q_in)), heads(lin[1](kv_in)), heads(lin[2](kv_in))
+        scores = (q @ k.transpose(-1, -2)) / math.sqrt(q.shape[-1]) + bias
+        out = torch.softmax(scores.masked_fill(~allowed, float("-inf")), -1) @ v
+        return lin[3](out.transpose(1, 2).reshape(stream.shape))
+
+    i, j = torch.arange(t)[:, None], torch.arange(t)[None, :]
+    alibi = -slopes[:, None, None] * torch.div(i - j, layer.period, rounding_mode="floor").clamp(min=0)
+    sa = layer.self_attn
+    y = layer.norm1(stream + attend((sa.q_proj, sa.k_proj, sa.v_proj, sa.out_proj), stream, stream, j <= i, alibi))
+    ca = layer.cross_attn
+    allowed = (j >= i - (w - 1) // 2) & (j <= i + w // 2)  # centred window of w frames
+    z = layer.norm2(y + attend((ca.q_proj, ca.k_proj, ca.v_proj, ca.out_proj), y, x, allowed, 0.0))
+    lin1, lin2 = layer.ff.net[0], layer.ff.net[3]
+    return layer.norm3(z + lin2(torch.relu(lin1(z))))
+
+
+@pytest.mark.parametrize("window", [1, 3])
+def test_faceformer_layer_equals_the_written_out_reference_and_its_step_equals_its_forward(window):
+    torch.manual_seed(0)
+    layer = FaceFormerLayer(D, 4, 16, period=2, align_window=window).eval()  # slopes 1/4, 1/16, 1/64, 1/256
+    x = _inputs()[0]
+    stream = torch.randn(B, T, D, generator=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        out, weights = layer(stream, x, need_weights=True)
+        torch.testing.assert_close(out, _reference_layer(layer, stream, x), rtol=1e-5, atol=1e-5)
+        w = weights["cross"]
+        assert w.shape == (B, 4, T, T) and bool((w[0, 0].triu(window // 2 + 1) == 0).all())  # no key past t + w//2
+        state = layer.new_state(None)
+        layer.load_features(state, x)
+        steps = torch.cat([layer.step(state, stream[:, t:t + 1], x, None, t) for t in range(T)], 1)
+    torch.testing.assert_close(steps, out, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("reading", ["faceformer", "faceformer_window_3", "dualtalker_encoder", "dualtalker_decoder"])
 def test_cached_steps_equal_the_reference_and_teacher_forcing_on_the_same_past(reading):
+    reading = {"faceformer": {}, "faceformer_window_3": dict(align_window=3),
+               "dualtalker_encoder": dict(layer=lambda: _dual_layer("encoder")),
+               "dualtalker_decoder": dict(layer=lambda: _dual_layer("decoder"))}[reading]
     dec = _decoder(**reading)
     x, template, speaker = _inputs()
     style = dec.speaker_style(speaker)
@@ -120,9 +174,29 @@ def test_tied_head_uses_the_transposed_encoder():
 
 
 # ---- checkpoints written before the decoder was a block ----------------------------------------------------------
+_OLD_CROSS = {"cross_attn.q_proj.": "integration.proj_motion.", "cross_attn.k_proj.": "integration.proj_audio.",
+              "cross_attn.v_proj.": "integration.value_primal.", "cross_attn.out_proj.": "integration.out_primal."}
+
+
+def _old_name(key: str, dualtalker: bool) -> str:
+    """Today's weight name -> the one a format-2 file used (decoder parts on the model, DualTalker's fusion layer)."""
+    key = key.removeprefix("decoder.")
+    if not key.startswith("layers."):
+        return key
+    head, rest = key.split(".", 2)[:2], key.split(".", 2)[2]
+    if dualtalker:
+        rest = rest.replace("primal_gate.", "primal.gate.").replace("dual_gate.", "dual.gate.")
+    else:
+        rest = next((old + rest[len(new):] for new, old in _OLD_CROSS.items() if rest.startswith(new)),
+                    "primal." + rest)
+    return ".".join(head + [rest])
+
+
 def _legacy_file(tmp_path, model, cfg_dict, name="DualTalker"):
-    """A format-2 checkpoint as the package wrote it before: the decoder's parts sat on the model itself."""
-    state = {k.removeprefix("decoder."): v for k, v in model.state_dict().items()}
+    """A format-2 checkpoint as the package wrote it before: the decoder's parts sat on the model itself, and its
+    layers were DualTalker's fusion layers (FaceFormer's switches for the baseline)."""
+    dualtalker = type(model).__name__ == "DualTalker"
+    state = {_old_name(k, dualtalker): v for k, v in model.state_dict().items()}
     path = tmp_path / "old.pt"
     torch.save({"format_version": 2, "package_version": "0.1.0", "model_class": name, "model_config": cfg_dict,
                 "train_config": None, "history": None, "speakers": ["A", "B", "C"], "n_vertices": V,
@@ -151,7 +225,7 @@ def test_a_format_2_faceformer_style_baseline_loads_as_a_faceformer_with_the_sam
     loaded, info = load_checkpoint(_legacy_file(tmp_path, model, old_cfg))
     assert type(loaded).__name__ == "FaceFormer" and info["model_class"] == "FaceFormer"
     err = capsys.readouterr().err
-    assert "upgraded a format-2 checkpoint (DualTalker) to format 3 (the FaceFormer-style baseline is now the " \
+    assert "upgraded a format-2 checkpoint (DualTalker) to format 4 (the FaceFormer-style baseline is now the " \
            "FaceFormer class)" in err and err.count("\n") == 1
     audio, template, speaker = _batch()
     torch.testing.assert_close(loaded.generate(audio, template, speaker), model.generate(audio, template, speaker),
@@ -170,10 +244,11 @@ def test_a_format_2_dualtalker_loads_with_its_weights_renamed(tmp_path, capsys):
     model = DualTalker(cfg).eval()
     torch.nn.init.normal_(model.decoder.motion_decoder.weight, std=0.1)
     path = _legacy_file(tmp_path, model, asdict(cfg))
-    assert "motion_encoder.weight" in torch.load(path, weights_only=True)["state_dict"]
+    old = torch.load(path, weights_only=True)["state_dict"]
+    assert "motion_encoder.weight" in old and "layers.0.primal.gate.fc1.weight" in old
     loaded, _ = load_checkpoint(path)
     assert type(loaded).__name__ == "DualTalker"
-    assert "upgraded a format-2 checkpoint (DualTalker) to format 3; save it again" in capsys.readouterr().err
+    assert "upgraded a format-2 checkpoint (DualTalker) to format 4; save it again" in capsys.readouterr().err
     audio, template, speaker = _batch()
     torch.testing.assert_close(loaded.generate(audio, template, speaker), model.generate(audio, template, speaker),
                                rtol=0, atol=0)

@@ -2,6 +2,7 @@
 import pytest
 import torch
 
+from dualtalker_lite.blocks.faceformer_layer import FaceFormerLayer
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
 
@@ -143,12 +144,11 @@ def test_shared_encoder_decoder_ablation_ties_weights():
 def test_faceformer_baseline_is_the_decoder_block_with_faceformers_switches():
     model = FaceFormer(FaceFormerConfig.tiny(n_vertices=V, audio_dim=DA, n_speakers=4)).eval()
     layer = model.decoder.layers[0]
-    assert layer.dual is None and layer.primal.gate is None  # primal only, no speaker-aware gate
-    assert (layer.integration.query_is_given, layer.integration.window, model.decoder.add_style_to_motion) == \
-        (False, 1, True)  # queries from the motion stream, diagonal alignment, S_n on every token
+    assert type(layer) is FaceFormerLayer and layer.cross_attn is not None  # FaceFormer's own layer, no gate
+    assert (layer.align_window, model.decoder.add_style_to_motion) == (1, True)  # diagonal alignment, S_n per token
     batch = _batch()
     out = model(batch)
-    assert out["audio"] is None and out["motion"].shape == (2, 12, V * 3)
+    assert set(out) == {"vertices", "motion"} and out["motion"].shape == (2, 12, V * 3)  # no DualTalker keys
     assert model.generate(batch["audio"], batch["template"], batch["speaker"]).shape == (2, 12, V * 3)
     assert not any(isinstance(m, DualTalker) for m in model.modules())
 
@@ -233,13 +233,13 @@ def test_windowed_generation_is_exact_on_clips_within_the_window(kw):
 
 @pytest.mark.parametrize("kw", CONFIGS)
 def test_windowed_generation_on_long_clips_equals_a_dense_masked_reference(kw, monkeypatch):
-    from dualtalker_lite.blocks import fusion
+    from dualtalker_lite.blocks import faceformer_layer
 
     batch, window = _batch(t=45, seed=3), 8
     model = _model(**{"period": 3, **kw})
     unbounded = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=False)
     got = model.generate(batch["audio"], batch["template"], batch["speaker"], window=window)
-    monkeypatch.setattr(fusion, "alibi_causal_bias", _windowed_alibi(window))
+    monkeypatch.setattr(faceformer_layer, "alibi_causal_bias", _windowed_alibi(window))
     ref = model.generate(batch["audio"], batch["template"], batch["speaker"], use_cache=False)
     torch.testing.assert_close(got, ref, atol=1e-5, rtol=0)
     torch.testing.assert_close(got[:, :window], unbounded[:, :window], atol=1e-5, rtol=0)  # exact up to W frames

@@ -742,7 +742,7 @@ def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path
     assert "trained voca for 4 epochs" in resumed.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["killed.pt", "straight.pt"]  # the state is removed
     (_, a), (_, b) = load_checkpoint(tmp_path / "straight.pt"), load_checkpoint(out)
-    assert a["format_version"] == b["format_version"] == 3
+    assert a["format_version"] == b["format_version"] == 4
     assert a["state_dict"].keys() == b["state_dict"].keys()
     for k in a["state_dict"]:  # bit for bit: every RNG and the loader's order are restored
         assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k

@@ -3,6 +3,7 @@ import pytest
 import torch
 
 from dualtalker_lite.blocks.fusion import DualFusionLayer, DualIntegration
+from dualtalker_lite.blocks.gates import SpeakerAwareGate
 
 D, H = 16, 4
 
@@ -83,14 +84,27 @@ def test_paper_reading_is_causal_in_the_stream(direction):
 
 
 @pytest.mark.parametrize("query_from", ["encoder", "decoder"])
-def test_fusion_layer_cache_equals_full_sequence(query_from):
+def test_fusion_layer_step_equals_full_sequence(query_from):
+    """The one-frame step the decoder's incremental path runs (FaceFormer's layer step, the gate, the integration
+    over its cached window) gives the whole-stream forward, frame by frame."""
     layer = _layer(query_from, window=2)
     stream, given, style = _inputs(t=7, seed=3)
-    full, _ = layer(stream, given, style, "primal")
-    cache, steps = layer.new_cache(), []
-    for t in range(7):
-        steps.append(layer(stream[:, t:t + 1], given, style, "primal", offset=t, cache=cache)[0])
+    with torch.no_grad():
+        full, _ = layer(stream, given, style, "primal")
+        state = layer.new_state(None)
+        layer.load_features(state, given)
+        steps = [layer.step(state, stream[:, t:t + 1], given, style, t) for t in range(7)]
     torch.testing.assert_close(torch.cat(steps, 1), full, atol=1e-5, rtol=1e-5)
+
+
+def test_the_gates_and_the_integration_are_dualtalkers_the_rest_is_faceformers_layer():
+    from dualtalker_lite.blocks.faceformer_layer import FaceFormerLayer
+
+    layer = _layer()
+    assert type(layer.primal) is type(layer.dual) is FaceFormerLayer
+    assert layer.primal.cross_attn is None and layer.dual.cross_attn is None  # the shared integration replaces it
+    assert not any(isinstance(m, SpeakerAwareGate) for m in layer.primal.modules())
+    assert isinstance(layer.primal_gate, SpeakerAwareGate) and isinstance(layer.dual_gate, SpeakerAwareGate)
 
 
 def test_dual_fusion_missing_when_built_primal_only():

@@ -211,7 +211,7 @@ def test_checkpoint_is_0644_under_default_umask(setup, tmp_path):
     assert (path.stat().st_mode & 0o777) == 0o644
     assert [p.name for p in tmp_path.iterdir()] == ["m.pt"]
     _, info = load_checkpoint(path)
-    assert info["format_version"] == 3 and info["n_vertices"] == cfg.n_vertices
+    assert info["format_version"] == 4 and info["n_vertices"] == cfg.n_vertices
     assert info["features"]["name"] == "logmel" and info["features"]["settings"]["n_mels"] == 80
 
 

@@ -61,16 +61,17 @@ def test_same_seed_same_history(data):
     assert h3.terms != h1.terms
 
 
-def test_checkpoint_round_trip_with_weights_only(data, tmp_path):
+def test_checkpoint_is_plain_data_written_atomically(data, tmp_path):
+    """What a checkpoint holds and how it is written. That a loaded model computes what the saved one did is
+    checked against files written by older code (tests/test_legacy_checkpoints.py), not against itself."""
     corpus, train_set, val_set = data
     model, hist = _run(corpus, train_set, val_set, epochs=1)
     path = save_checkpoint(tmp_path / "dt.pt", model, model.cfg, TrainConfig.tiny(), hist)
     assert not list(tmp_path.glob("*.tmp"))  # atomic write leaves no temporary file
     raw = torch.load(path, weights_only=True)  # plain values and tensors only
     assert raw["model_class"] == "DualTalker" and raw["history"]["terms"] == hist.terms
-    loaded, _ = load_checkpoint(path)
-    batch = next(iter(make_loader(val_set, 2, shuffle=False)))
-    torch.testing.assert_close(predict(loaded, batch), predict(model, batch), rtol=0, atol=0)
+    loaded, info = load_checkpoint(path)
+    assert loaded.cfg == model.cfg and info["history"]["terms"] == hist.terms
 
 
 def test_checkpoint_errors_are_clear(tmp_path):
@@ -89,7 +90,7 @@ def test_baselines_train_with_the_same_loop(data):
     before = validation_lve(model, make_loader(val_set, 4, shuffle=False), lips)
     hist = train(model, make_loader(train_set, 8, shuffle=True), TrainConfig.tiny(epochs=6, progress=False))
     after = validation_lve(model, make_loader(val_set, 4, shuffle=False), lips)
-    assert hist.terms[0]["dual"] == 0.0 and after < before
+    assert set(hist.terms[0]) == {"primal", "total"} and after < before  # the baselines' own loss
 
 
 def test_lr_factor_warmup_and_cosine_by_hand():

@@ -16,20 +16,19 @@ Conventions used by every attention in the package:
 - ``bias`` is added to the scores; shape (1 or B, H, Tq, Tk) (or anything broadcastable);
 - a query whose keys are all masked gets all-zero weights and a zero output (never NaN).
 
-A :class:`KVCache` keeps the projected keys/values of earlier steps so an autoregressive decoder projects
-each new frame once: a step costs O(T) instead of recomputing the O(T^2) prefix.
+An autoregressive decoder keeps the projected keys/values of earlier steps so that it projects each new frame once
+(a step costs O(T) instead of recomputing the O(T^2) prefix): that one-frame form sits beside the layer that uses
+it (``blocks.faceformer_layer``), with the bounded caches of ``blocks.windowed``.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["scaled_dot_product_attention", "KVCache", "split_heads", "merge_heads", "multi_head_attention",
+__all__ = ["scaled_dot_product_attention", "split_heads", "merge_heads", "multi_head_attention",
            "MultiHeadAttention", "FeedForward"]
 
 
@@ -52,24 +51,6 @@ def scaled_dot_product_attention(q: Tensor, k: Tensor, v: Tensor, bias: Tensor |
     return dropped @ v, weights  # (..., Tq, d_v), (..., Tq, Tk)
 
 
-@dataclass
-class KVCache:
-    """Projected keys/values (B, H, Tk, d_h) of the steps decoded so far.
-
-    ``static=False``: each call appends the keys/values of its new key inputs (self-attention over a
-    growing autoregressive stream). ``static=True``: keys/values come from a fully known sequence
-    (e.g. the audio features); they are projected on the first call and reused afterwards.
-    """
-
-    k: Tensor | None = None
-    v: Tensor | None = None
-    static: bool = False
-
-    def __len__(self) -> int:
-        """Number of cached key frames Tk."""
-        return 0 if self.k is None else self.k.shape[2]
-
-
 def split_heads(x: Tensor, n_heads: int) -> Tensor:
     """(B, T, H*d_h) -> (B, H, T, d_h): the H subspaces Q W^Q_h of eq. 4."""
     b, t, d = x.shape
@@ -85,23 +66,14 @@ def merge_heads(x: Tensor) -> Tensor:
 def multi_head_attention(query: Tensor, key: Tensor, value: Tensor, q_proj: nn.Module, k_proj: nn.Module,
                          v_proj: nn.Module, out_proj: nn.Module, n_heads: int, *, bias: Tensor | None = None,
                          mask: Tensor | None = None, key_mask: Tensor | None = None,
-                         cache: KVCache | None = None, dropout_p: float = 0.0) -> tuple[Tensor, Tensor]:
+                         dropout_p: float = 0.0) -> tuple[Tensor, Tensor]:
     """Eq. 4 with the projections passed in (so two modules can share W^Q / W^K, see ``blocks.fusion``).
 
-    query (B, Tq, d); key/value (B, Tk_new, d). With a cache, ``bias``/``mask``/``key_mask`` must cover
-    all keys (cached + new). Returns (out (B, Tq, d), weights (B, H, Tq, Tk)).
+    query (B, Tq, d); key/value (B, Tk, d). Returns (out (B, Tq, d), weights (B, H, Tq, Tk)).
     """
     q = split_heads(q_proj(query), n_heads)  # (B, H, Tq, d_h)
-    if cache is not None and cache.static and cache.k is not None:
-        k, v = cache.k, cache.v  # projected once, on the first call
-    else:
-        k = split_heads(k_proj(key), n_heads)  # (B, H, Tk_new, d_h)
-        v = split_heads(v_proj(value), n_heads)  # (B, H, Tk_new, d_h)
-        if cache is not None:
-            if cache.k is not None:
-                k = torch.cat([cache.k, k], dim=2)  # (B, H, Tk, d_h)
-                v = torch.cat([cache.v, v], dim=2)
-            cache.k, cache.v = k, v
+    k = split_heads(k_proj(key), n_heads)  # (B, H, Tk, d_h)
+    v = split_heads(v_proj(value), n_heads)  # (B, H, Tk, d_h)
     if key_mask is not None:
         km = key_mask[:, None, None, :]  # (B, 1, 1, Tk)
         mask = km if mask is None else mask & km
@@ -124,13 +96,13 @@ class MultiHeadAttention(nn.Module):
 
     def forward(self, query: Tensor, key: Tensor | None = None, value: Tensor | None = None, *,
                 bias: Tensor | None = None, mask: Tensor | None = None, key_mask: Tensor | None = None,
-                cache: KVCache | None = None, need_weights: bool = False) -> tuple[Tensor, Tensor | None]:
+                need_weights: bool = False) -> tuple[Tensor, Tensor | None]:
         """Eq. 4. ``key``/``value`` default to ``query`` (self-attention). -> (out (B, Tq, d), weights or None)."""
         key = query if key is None else key
         value = key if value is None else value
         out, weights = multi_head_attention(query, key, value, self.q_proj, self.k_proj, self.v_proj,
                                             self.out_proj, self.n_heads, bias=bias, mask=mask,
-                                            key_mask=key_mask, cache=cache,
+                                            key_mask=key_mask,
                                             dropout_p=self.dropout if self.training else 0.0)
         return out, (weights if need_weights else None)
 

@@ -6,19 +6,24 @@ them (strong and weak branch), EmoFace two (emotion and content branch). :class:
 
     past motion M_{<t} (B, T, V*3) -> motion encoder Me (mm scale folded in)      (B, T, d)
     stream [S_n, Me(m_1), ..., Me(m_{T-1})] (+ S_n on every token, FaceFormer)     (B, T, d)   :meth:`stream`
-    + periodic positional encoding -> fusion layer(s) attending to features X      (B, T, d)   :meth:`fuse`
+    + periodic positional encoding -> decoder layer(s) attending to features X     (B, T, d)   :meth:`fuse`
     -> motion head (d -> V*3, zero-initialised: the untrained model outputs the template) (B, T, V*3)
 
-One fusion layer is :class:`~dualtalker_lite.blocks.fusion.DualFusionLayer`: ALiBi-biased causal self-attention,
-an optional speaker-aware gate (DualTalker eq. 5), the audio-visual integration (queries from the motion stream
-with FaceFormer's diagonal alignment, or from the audio, DualTalker eq. 6) and a feed-forward layer.
+Its layers are FaceFormer's (:class:`~dualtalker_lite.blocks.faceformer_layer.FaceFormerLayer`: ALiBi-biased causal
+self-attention, cross-attention to X with the alignment mask, feed-forward) unless the model passes its own
+(``layer``): DualTalker passes :class:`~dualtalker_lite.blocks.fusion.DualFusionLayer`, FaceFormer's layer with its
+speaker-aware gate, shared-projection integration and dual direction composed around it. A decoder layer is any
+module with the interface of :class:`FaceFormerLayer`: ``layer(stream, features, style, key_mask=,
+need_weights=) -> (out, weights)`` for a whole stream, and ``feature_margins()``, ``new_state(window)``,
+``load_features(state, features)``, ``step(state, h, features, style, t, mask, offset)`` for one frame.
 
 Three ways to run it, all computing the same numbers (the tests pin that):
 
 - :meth:`MotionDecoder.teacher_forced`: the whole clip at once from the true past (training);
 - :meth:`MotionDecoder.prefix_step`: the reference autoregressive step, re-running the layers on the whole prefix;
-- :meth:`MotionDecoder.cached_step`: one frame with bounded key/value caches (``blocks.windowed``): the self-attention
-  keeps the last ``window`` tokens, the integration only the frames its alignment mask admits, so an hour of audio
+- :meth:`MotionDecoder.cached_step`: one frame with bounded key/value caches (``blocks.windowed``), each layer's own
+  one-frame step (``layer.step``, beside its whole-stream maths): the self-attention keeps the last ``window``
+  tokens, the cross-attention only the frames its alignment mask admits, so an hour of audio
   decodes in constant memory per frame. It reads block-local features: X of frames [offset, offset + n) and their
   K/V projections (:meth:`MotionDecoder.load_features`), at least the alignment window of t
   (:meth:`MotionDecoder.feature_margins`; FaceFormer's centred window reads w//2 frames *after* t).
@@ -35,7 +40,6 @@ the training set's mean motion (:meth:`MotionDecoder.init_output_bias`).
 """
 from __future__ import annotations
 
-import math
 from typing import Callable, Iterator, Sequence
 
 import torch
@@ -43,11 +47,9 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
-from .attention import merge_heads, scaled_dot_product_attention, split_heads
+from .faceformer_layer import FaceFormerLayer
 from .feature_windows import FeatureWindows
-from .fusion import DualFusionLayer, QueryFrom
 from .positional import PeriodicPositionalEncoding
-from .windowed import SlidingKVCache, alibi_lag_bias
 
 __all__ = ["TransposedLinear", "MotionDecoder", "check_inputs", "training_inputs", "check_window", "zero_padding",
            "lookup_style", "autoregressive_chunks", "autoregressive_reference"]
@@ -121,31 +123,31 @@ def lookup_style(table: nn.Embedding, speaker: Tensor) -> Tensor:
 
 
 class MotionDecoder(nn.Module):
-    """FaceFormer-style autoregressive decoder: motion encoder, style table, PPE, fusion layers, motion head.
+    """FaceFormer-style autoregressive decoder: motion encoder, style table, PPE, decoder layers, motion head.
 
     ``n_speakers``: rows of the style table S_1..S_n (None: the caller owns the styles, as CorrTalk's two branches
-    share one table). ``query_from``/``align_window``: the reading of the integration (``blocks.fusion``);
-    ``speaker_gate``: DualTalker's eq. 5; ``dual``: build the dual-task fusion too (DualTalker's lip reading uses
-    :meth:`fuse` with ``direction="dual"``); ``add_style_to_motion``: FaceFormer's S_n on every stream token;
-    ``tie_output``: the motion head is the transposed motion encoder (DualTalker's shared enc/dec ablation; the
-    zero initialisation is then impossible).
+    share one table). ``align_window``: w of FaceFormer's centred alignment (1: the diagonal); ``layer``: builds one
+    decoder layer (default :class:`FaceFormerLayer` of these sizes; DualTalker passes its fusion layer), called
+    ``n_layers`` times in place so that parameters are drawn in the order of the modules; ``add_style_to_motion``:
+    FaceFormer's S_n on every stream token; ``tie_output``: the motion head is the transposed motion encoder
+    (DualTalker's shared enc/dec ablation; the zero initialisation is then impossible).
     """
 
     def __init__(self, n_vertices: int, d_model: int, n_heads: int, d_ff: int, n_layers: int = 1,
-                 period: int = 30, *, n_speakers: int | None = None, query_from: QueryFrom = "decoder",
-                 align_window: int = 1, speaker_gate: bool = False, gate_reduction: int = 16, dual: bool = False,
-                 add_style_to_motion: bool = True, tie_output: bool = False, dropout: float = 0.0,
-                 motion_scale: float = 1000.0):
+                 period: int = 30, *, n_speakers: int | None = None, align_window: int = 1,
+                 layer: Callable[[], nn.Module] | None = None, add_style_to_motion: bool = True,
+                 tie_output: bool = False, dropout: float = 0.0, motion_scale: float = 1000.0):
         super().__init__()
         d, v3 = d_model, 3 * n_vertices
         self.n_vertices, self.motion_scale, self.add_style_to_motion = n_vertices, motion_scale, add_style_to_motion
+        if layer is None:
+            def layer() -> nn.Module:
+                return FaceFormerLayer(d, n_heads, d_ff, period, align_window, dropout)
         # creation order = parameter initialisation order (kept as it was: same seed, same weights)
         self.motion_encoder = nn.Linear(v3, d)  # Me: V*3 -> d
         self.style = nn.Embedding(n_speakers, d) if n_speakers else None  # S_1..S_n
         self.ppe = PeriodicPositionalEncoding(d, period, dropout)
-        self.layers = nn.ModuleList(
-            DualFusionLayer(d, n_heads, d_ff, gate_reduction, align_window, query_from, period, speaker_gate, dual,
-                            dropout) for _ in range(n_layers))
+        self.layers = nn.ModuleList(layer() for _ in range(n_layers))
         if tie_output:
             self.motion_decoder = TransposedLinear(self.motion_encoder)  # d -> V*3
         else:
@@ -184,13 +186,14 @@ class MotionDecoder(nn.Module):
         token = self.encode_motion(m_t)  # (B, 1, d)
         return token + style[:, None, :] if self.add_style_to_motion else token
 
-    def fuse(self, stream: Tensor, given: Tensor, style: Tensor, direction: str = "primal",
-             key_mask: Tensor | None = None, weights: list | None = None) -> Tensor:
-        """PPE, then the fusion layers over a whole shifted stream (teacher forcing) -> (B, T, d).
-        ``weights``: a list that receives each layer's attention weights."""
+    def fuse(self, stream: Tensor, given: Tensor, style: Tensor, key_mask: Tensor | None = None,
+             weights: list | None = None, **layer_options) -> Tensor:
+        """PPE, then the decoder layers over a whole shifted stream (teacher forcing) -> (B, T, d).
+        ``weights``: a list that receives each layer's attention weights; ``layer_options`` go to every layer
+        (DualTalker's ``direction="dual"``)."""
         h = self.ppe(stream)  # (B, T, d)
         for layer in self.layers:
-            h, w = layer(h, given, style, direction, key_mask=key_mask, need_weights=weights is not None)
+            h, w = layer(h, given, style, key_mask=key_mask, need_weights=weights is not None, **layer_options)
             if weights is not None:
                 weights.append(w)
         return h  # (B, T, d)
@@ -210,7 +213,7 @@ class MotionDecoder(nn.Module):
         (k, V*3), metres, row j the j-th principal direction scaled by its standard deviation
         (``train.motion_basis``). Column j of the head then maps feature j to that direction, so a unit of
         feature j moves the face by one standard deviation of the j-th mode; the first k <= d columns are set,
-        the rest zeroed. With a zero head (the default) no gradient reaches the fusion layers until the head
+        the rest zeroed. With a zero head (the default) no gradient reaches the decoder layers until the head
         has grown; with this one the whole network learns from the first step."""
         v3 = 3 * self.n_vertices
         if not isinstance(self.motion_decoder, nn.Linear):
@@ -231,7 +234,7 @@ class MotionDecoder(nn.Module):
 
         ``weights``: a list that receives each layer's attention weights."""
         return self.decode_motion(self.fuse(self.stream(self.encode_motion(past_motion), style), features, style,
-                                            "primal", mask, weights))
+                                            mask, weights))
 
     def prefix_step(self, tokens: Sequence[Tensor], features: Tensor, style: Tensor,
                     mask: Tensor | None = None) -> Tensor:
@@ -239,97 +242,42 @@ class MotionDecoder(nn.Module):
         """
         h = self.ppe(torch.cat(list(tokens), dim=1))  # (B, t+1, d)
         for layer in self.layers:
-            h, _ = layer(h, features, style, "primal", key_mask=mask)
+            h, _ = layer(h, features, style, key_mask=mask)
         return self.decode_motion(h[:, -1:])  # (B, 1, V*3)
 
     def feature_margins(self) -> tuple[int, int]:
-        """Frames (before, after) t whose features frame t reads: FaceFormer's centred alignment window of w frames,
-        ((w-1)//2, w//2), over the layers; (0, 0) when the query is the audio frame X_t itself (eq. 6)."""
-        left = right = 0
-        for layer in self.layers:
-            integ = layer.integration
-            if not integ.query_is_given:
-                left, right = max(left, (integ.window - 1) // 2), max(right, integ.window // 2)
-        return left, right
+        """Frames (before, after) t whose features frame t reads, over the layers (FaceFormer's centred window of w
+        frames: ((w-1)//2, w//2); (0, 0) when the query is the audio frame X_t itself, DualTalker's eq. 6)."""
+        margins = [layer.feature_margins() for layer in self.layers]
+        return max(m[0] for m in margins), max(m[1] for m in margins)
 
     def new_state(self, features: Tensor | None, window: int | None, offset: int = 0) -> list[dict]:
         """Bounded caches of every layer for :meth:`cached_step`; ``features`` X of frames offset.. (B, n, d) (the
         whole clip, or None to :meth:`load_features` block by block)."""
-        states = []
-        for layer in self.layers:
-            state = {"self": SlidingKVCache(window), "bias": None}
-            if layer.integration.query_is_given:
-                state["integration"] = SlidingKVCache(layer.integration.window)  # Ȳ_{t-w+1..t}: all it admits
-            states.append(state)
+        states = [layer.new_state(window) for layer in self.layers]
         if features is not None:
             self.load_features(states, features, offset)
         return states
 
     def load_features(self, states: list[dict], features: Tensor, offset: int = 0) -> None:
-        """The integration keys/values of features X of frames [offset, offset + n) (B, n, d): per layer reading
-        X as keys (FaceFormer), its K/V projections (B, H, n, d_h). Per frame, so a block's projections are those
-        of the whole clip's: :meth:`cached_step` then needs only the block (plus its alignment window)."""
+        """The cross-attention keys/values of features X of frames [offset, offset + n) (B, n, d) in every layer's
+        state (per frame, so a block's projections are those of the whole clip): :meth:`cached_step` then needs only
+        the block, plus its alignment window."""
         for layer, state in zip(self.layers, states):
-            if not layer.integration.query_is_given:
-                _, k_proj, v_proj, _ = layer.integration.projections("primal")
-                state["k"] = split_heads(k_proj(features), layer.n_heads)  # (B, H, n, d_h)
-                state["v"] = split_heads(v_proj(features), layer.n_heads)
+            layer.load_features(state, features)
 
     def cached_step(self, states: list[dict], token: Tensor, features: Tensor, style: Tensor, t: int,
                     mask: Tensor | None = None, offset: int = 0) -> Tensor:
-        """Frame t from its stream token (B, 1, d) with bounded caches -> m̂_t (B, 1, V*3) (eval-mode computation).
+        """Frame t from its stream token (B, 1, d) with bounded caches -> m̂_t (B, 1, V*3) (eval-mode computation):
+        each layer's own one-frame step (``layer.step``), the same maths as its whole-stream forward.
 
         ``features`` (B, n, d) hold frames [offset, offset + n) (the states' features likewise): at least t's
         alignment window clipped to the clip, [t - (w-1)//2, t + w//2] ∩ [0, T) (:meth:`feature_margins`); ``mask``
         (B, T) is the whole clip's."""
         h = token + self.ppe.table[t % self.ppe.period].to(token.dtype)  # (B, 1, d) PPE of frame t, no dropout
         for layer, state in zip(self.layers, states):
-            h = self._layer_step(layer, state, h, features, style, t, mask, offset)
+            h = layer.step(state, h, features, style, t, mask, offset)  # (B, 1, d)
         return self.decode_motion(h)  # (B, 1, V*3)
-
-    @staticmethod
-    def _lag_bias(state: dict, n_heads: int, period: int, n: int, device) -> Tensor:
-        """ALiBi bias of one query over its n most recent keys (lags n-1..0) -> (1, H, 1, n), cached."""
-        bias = state["bias"]
-        if bias is None or bias.shape[-1] < n:
-            size = max(n, state["self"].window or 2 * n)
-            lags = torch.arange(size - 1, -1, -1, device=device)  # oldest key first
-            bias = state["bias"] = alibi_lag_bias(n_heads, lags, period)[None, :, None, :]  # (1, H, 1, size)
-        return bias[..., bias.shape[-1] - n:]
-
-    def _layer_step(self, layer: DualFusionLayer, state: dict, h: Tensor, x: Tensor, style: Tensor, t: int,
-                    mask: Tensor | None, offset: int = 0) -> Tensor:
-        """One frame of one fusion layer (primal): the computation of ``layer(h, x, style, offset=t)`` in eval mode,
-        with the self-attention keys limited to the sliding window and the integration keys to the alignment;
-        x (B, n, d) holds frames offset..offset+n-1."""
-        fusion, integ, n_heads = layer.primal, layer.integration, layer.n_heads
-        mha = fusion.self_attn
-        q = split_heads(mha.q_proj(h), n_heads)  # (B, H, 1, d_h)
-        k, v = state["self"].append(split_heads(mha.k_proj(h), n_heads), split_heads(mha.v_proj(h), n_heads))
-        bias = self._lag_bias(state, n_heads, layer.period, k.shape[2], h.device)  # (1, H, 1, n)
-        scores = q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]) + bias  # (B, H, 1, n), never masked
-        sa = mha.out_proj(merge_heads(torch.softmax(scores, dim=-1) @ v))  # (B, 1, d)
-        attended = fusion.norm1(h + sa)  # (B, 1, d) Y̌
-        gated = attended if fusion.gate is None else fusion.gate(attended, style)  # (B, 1, d) Ȳ
-        q_proj, k_proj, v_proj, out_proj = integ.projections("primal")
-        key_mask = None
-        if integ.query_is_given:  # DualTalker eq. 6: query X_t, keys Ȳ_{t-w+1..t}
-            query = x[:, t - offset:t - offset + 1]  # (B, 1, d) X_t
-            k, v = state["integration"].append(split_heads(k_proj(gated), n_heads),
-                                               split_heads(v_proj(gated), n_heads))
-        else:  # FaceFormer: query Ȳ_t, keys X_j in the centred window
-            query = gated
-            lo = max(offset, t - (integ.window - 1) // 2)  # absolute frames [lo, hi): the window within the clip
-            hi = min(offset + x.shape[1], t + integ.window // 2 + 1)
-            k, v = state["k"][:, :, lo - offset:hi - offset], state["v"][:, :, lo - offset:hi - offset]  # (B,H,<=w,d_h)
-            key_mask = None if mask is None else mask[:, None, None, lo:hi]
-        q = split_heads(q_proj(query), n_heads)  # (B, H, 1, d_h)
-        if key_mask is None:  # every key admissible: the plain softmax
-            out = torch.softmax(q @ k.transpose(-2, -1) / math.sqrt(q.shape[-1]), dim=-1) @ v  # (B, H, 1, d_h)
-        else:  # padded keys: a query with none left gets zeros (blocks.attention convention)
-            out = scaled_dot_product_attention(q, k, v, mask=key_mask)[0]
-        z = fusion.norm2(query + out_proj(merge_heads(out)))  # (B, 1, d)
-        return fusion.norm3(z + fusion.ff(z))  # (B, 1, d) Y̆_t
 
 
 Combine = Callable[[int, list[Tensor]], Tensor]  # (t, raw outputs (B, 1, V*3) per decoder) -> m̂_t (B, 1, V*3)

@@ -30,19 +30,29 @@ diagonal, exactly FaceFormer), residual on the autoregressive stream.
 Weight sharing of Fig. 3, W_{Q_X} = W_{K_X̄} and W_{Q_Y} = W_{K_Ȳ}, is structural: one projection for
 audio-side inputs (``proj_audio``) and one for motion-side inputs (``proj_motion``), used as the query or
 the key projection depending on the direction. Value and output projections belong to one direction.
+
+Composition: the self-attention, the layer norms and the FF of each task are FaceFormer's decoder layer
+(:class:`~.faceformer_layer.FaceFormerLayer`, built without its own cross-attention); this module adds what is
+DualTalker's around it: the speaker-aware gate between the self-attention and the integration, the shared
+:class:`DualIntegration` in place of FaceFormer's cross-attention, and the dual direction (a second layer and gate).
+The one-frame step (:meth:`DualFusionLayer.step`) reuses the layer's one-frame self-attention and FF; only the
+integration's causal window over Ȳ (the paper's reading) is DualTalker's own code.
 """
 from __future__ import annotations
 
 from typing import Literal
 
+import torch
 import torch.nn as nn
 from torch import Tensor
 
-from .attention import FeedForward, KVCache, MultiHeadAttention, multi_head_attention
+from .attention import merge_heads, multi_head_attention, scaled_dot_product_attention, split_heads
+from .faceformer_layer import FaceFormerLayer
 from .gates import SpeakerAwareGate
-from .positional import alibi_causal_bias, alignment_mask
+from .positional import alignment_mask
+from .windowed import SlidingKVCache
 
-__all__ = ["DualIntegration", "CrossModalFusion", "DualFusionLayer"]
+__all__ = ["DualIntegration", "DualFusionLayer"]
 
 Direction = Literal["primal", "dual"]
 QueryFrom = Literal["encoder", "decoder"]
@@ -91,58 +101,43 @@ class DualIntegration(nn.Module):
             raise ValueError("this integration was built with dual=False: it has no dual direction (eq. 7)")
         raise ValueError(f"direction must be 'primal' or 'dual', got {direction!r}")
 
-    def route(self, given: Tensor, stream: Tensor, offset: int = 0) -> tuple[Tensor, Tensor]:
+    def route(self, given: Tensor, stream: Tensor) -> tuple[Tensor, Tensor]:
         """(query input, key/value input) for the reading in use.
 
-        given (B, T_g, d): X (primal) or Y (dual), all frames; stream (B, T_s, d): Ȳ or X̄ for frames
-        offset..offset+T_s-1. With queries from the given modality, it is cut to the stream's frames.
+        given (B, T, d): X (primal) or Y (dual), all frames; stream (B, T_s, d): Ȳ or X̄ of frames 0..T_s-1 (a
+        prefix, when generation re-runs the layer). With queries from the given modality, it is cut to those frames.
         """
         if self.query_is_given:
-            return given[:, offset:offset + stream.shape[1]], stream  # (B, T_s, d), (B, T_s, d)
-        return stream, given  # (B, T_s, d), (B, T_g, d)
+            return given[:, :stream.shape[1]], stream  # (B, T_s, d), (B, T_s, d)
+        return stream, given  # (B, T_s, d), (B, T, d)
 
     def alignment(self, t_q: int, t_k: int, offset: int = 0, device=None) -> Tensor:
         """Allowed (query, key) frame pairs: causal window over Ȳ/X̄ (paper) or centred window over X/Y (FaceFormer)."""
         mode = "causal" if self.query_is_given else "centred"
         return alignment_mask(t_q, t_k, self.window, mode=mode, offset=offset, device=device)  # (Tq, Tk)
 
-    def new_cache(self) -> KVCache:
-        """Cache for incremental decoding: grows with Ȳ/X̄ (paper) or holds the given modality's K/V (FaceFormer)."""
-        return KVCache(static=not self.query_is_given)
-
-    def forward(self, query: Tensor, key_value: Tensor, direction: Direction, *, offset: int = 0,
-                key_mask: Tensor | None = None, cache: KVCache | None = None) -> tuple[Tensor, Tensor]:
+    def forward(self, query: Tensor, key_value: Tensor, direction: Direction, *,
+                key_mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Eq. 6 (direction="primal") or eq. 7 ("dual") on inputs from :meth:`route`.
 
         Returns (out (B, Tq, d), weights (B, H, Tq, Tk)).
-
-        ``offset``: frame index of the first query (frames already decoded, when ``cache`` is used).
         """
         q_proj, k_proj, v_proj, out_proj = self.projections(direction)
-        t_k = key_value.shape[1] + (len(cache) if cache is not None and not cache.static else 0)
-        if cache is not None and cache.static and cache.k is not None:
-            t_k = cache.k.shape[2]
-        mask = self.alignment(query.shape[1], t_k, offset, device=query.device)  # (Tq, Tk)
+        mask = self.alignment(query.shape[1], key_value.shape[1], device=query.device)  # (Tq, Tk)
         return multi_head_attention(query, key_value, key_value, q_proj, k_proj, v_proj, out_proj, self.n_heads,
-                                    mask=mask, key_mask=key_mask, cache=cache,
-                                    dropout_p=self.dropout if self.training else 0.0)
+                                    mask=mask, key_mask=key_mask, dropout_p=self.dropout if self.training else 0.0)
 
 
-class CrossModalFusion(nn.Module):
-    """The task-specific parts of Fig. 2: biased self-attention (eqs. 3-4), speaker-aware gate (eq. 5), norms, FF."""
-
-    def __init__(self, d_model: int, n_heads: int, d_ff: int, reduction: int = 16, speaker_gate: bool = True,
-                 dropout: float = 0.0):
-        super().__init__()
-        self.self_attn = MultiHeadAttention(d_model, n_heads, dropout)  # motion- / audio-attentive module
-        self.gate = SpeakerAwareGate(d_model, reduction) if speaker_gate else None  # speaker-aware module
-        self.norm1, self.norm2, self.norm3 = nn.LayerNorm(d_model), nn.LayerNorm(d_model), nn.LayerNorm(d_model)
-        self.ff = FeedForward(d_model, d_ff, dropout)
-        self.drop = nn.Dropout(dropout)
+def _task(d_model: int, n_heads: int, d_ff: int, period: int, window: int, reduction: int, speaker_gate: bool,
+          dropout: float) -> tuple[FaceFormerLayer, SpeakerAwareGate | None]:
+    """One task's layer (FaceFormer's, no cross-attention of its own) and its speaker-aware gate."""
+    layer = FaceFormerLayer(d_model, n_heads, d_ff, period, window, dropout, cross_attention=False)
+    return layer, (SpeakerAwareGate(d_model, reduction) if speaker_gate else None)
 
 
 class DualFusionLayer(nn.Module):
-    """One fusion layer of both tasks: primal and dual :class:`CrossModalFusion`, one shared :class:`DualIntegration`."""
+    """One fusion layer of both tasks (Fig. 2): per task a :class:`FaceFormerLayer` (``primal``, ``dual``) and a
+    speaker-aware gate (``primal_gate``, ``dual_gate``), and one shared :class:`DualIntegration`."""
 
     def __init__(self, d_model: int, n_heads: int, d_ff: int, reduction: int = 16, window: int = 2,
                  query_from: QueryFrom = "encoder", period: int = 30, speaker_gate: bool = True,
@@ -150,34 +145,78 @@ class DualFusionLayer(nn.Module):
         super().__init__()
         self.n_heads, self.period = n_heads, period
         self.integration = DualIntegration(d_model, n_heads, window, query_from, dropout, dual)
-        self.primal = CrossModalFusion(d_model, n_heads, d_ff, reduction, speaker_gate, dropout)
-        self.dual = CrossModalFusion(d_model, n_heads, d_ff, reduction, speaker_gate, dropout) if dual else None
+        rng = torch.random.get_rng_state()
+        args = (d_model, n_heads, d_ff, period, window, reduction, speaker_gate, dropout)
+        self.primal, self.primal_gate = _task(*args)
+        self.dual, self.dual_gate = _task(*args) if dual else (None, None)
+        # Initialise as the layer did before issue 30 (self-attention, gate, FF per task), so a seed gives the weights
+        # it gave then: rewind the generator and redraw every linear map in that order.
+        torch.random.set_rng_state(rng)
+        for layer, gate in ((self.primal, self.primal_gate), (self.dual, self.dual_gate)):
+            for part in (() if layer is None else (layer.self_attn, gate, layer.ff)):
+                for m in (() if part is None else part.modules()):
+                    if isinstance(m, nn.Linear):
+                        m.reset_parameters()
 
-    def new_cache(self) -> dict[str, KVCache]:
-        """Key/value caches of the self-attention and the integration, for :meth:`forward` with ``cache``."""
-        return {"self": KVCache(), "integration": self.integration.new_cache()}
+    def _task(self, direction: Direction) -> tuple[FaceFormerLayer, SpeakerAwareGate | None]:
+        if direction == "primal":
+            return self.primal, self.primal_gate
+        if direction == "dual" and self.dual is not None:
+            return self.dual, self.dual_gate
+        if direction == "dual":
+            raise ValueError("this layer was built with dual=False: it has no dual-task fusion")
+        raise ValueError(f"direction must be 'primal' or 'dual', got {direction!r}")
 
     def forward(self, stream: Tensor, given: Tensor, style: Tensor, direction: Direction = "primal", *,
-                offset: int = 0, key_mask: Tensor | None = None, cache: dict[str, KVCache] | None = None,
-                need_weights: bool = False) -> tuple[Tensor, dict[str, Tensor | None]]:
-        """Fig. 2 (primal) or its dual: stream Ŷ (B, T_s, d) of frames offset.., given X (or Y) (B, T, d), S_n (B, d).
+                key_mask: Tensor | None = None, need_weights: bool = False) -> tuple[Tensor, dict[str, Tensor | None]]:
+        """Fig. 2 (primal) or its dual: stream Ŷ (B, T, d), given X (or Y) (B, T, d), S_n (B, d).
 
         ``key_mask`` (B, T) marks the valid frames of ``given`` (only needed when it supplies keys, i.e.
-        FaceFormer's reading). Returns (fused features (B, T_s, d), {"self": weights, "integration": weights}).
+        FaceFormer's reading). Returns (fused features (B, T, d), {"self": weights, "integration": weights}).
         """
-        fusion = self.primal if direction == "primal" else self.dual
-        if fusion is None:
-            raise ValueError("this layer was built with dual=False: it has no dual-task fusion")
-        t_s = stream.shape[1]
-        bias = alibi_causal_bias(self.n_heads, t_s, offset + t_s, self.period, offset, device=stream.device)
-        sa, w_self = fusion.self_attn(stream, bias=bias, cache=None if cache is None else cache["self"],
-                                      need_weights=need_weights)  # eqs. 3-4
-        attended = fusion.norm1(stream + fusion.drop(sa))  # (B, T_s, d) Y̌
-        gated = attended if fusion.gate is None else fusion.gate(attended, style)  # (B, T_s, d) Ȳ, eq. 5
-        query, key_value = self.integration.route(given, gated, offset)
+        layer, gate = self._task(direction)
+        attended, w_self = layer.self_attention(stream, need_weights)  # (B, T, d) Y̌, eqs. 3-4
+        gated = attended if gate is None else gate(attended, style)  # (B, T, d) Ȳ, eq. 5
+        query, key_value = self.integration.route(given, gated)
         km = None if self.integration.query_is_given else key_mask  # causal keys never reach padding
-        att, w_int = self.integration(query, key_value, direction, offset=offset, key_mask=km,
-                                      cache=None if cache is None else cache["integration"])  # eq. 6 / 7
-        z = fusion.norm2(query + fusion.drop(att))  # (B, T_s, d)
-        out = fusion.norm3(z + fusion.drop(fusion.ff(z)))  # (B, T_s, d) Y̆ (primal) / X̆ (dual)
+        att, w_int = self.integration(query, key_value, direction, key_mask=km)  # eq. 6 / 7
+        out = layer.feed_forward(query, att)  # (B, T, d) Y̆ (primal) / X̆ (dual)
         return out, {"self": w_self, "integration": w_int if need_weights else None}
+
+    # ---- one frame of the primal task with bounded caches (blocks.decoder.MotionDecoder.cached_step) -----------
+    def feature_margins(self) -> tuple[int, int]:
+        """Frames (before, after) t of X that frame t reads: (0, 0) when the query is X_t itself (eq. 6), else the
+        centred window's."""
+        return (0, 0) if self.integration.query_is_given else self.primal.feature_margins()
+
+    def new_state(self, window: int | None) -> dict:
+        """Caches of :meth:`step`: the layer's, plus Ȳ of the last ``self.integration.window`` frames (eq. 6 reading:
+        all the causal alignment admits)."""
+        state = self.primal.new_state(window)
+        if self.integration.query_is_given:
+            state["integration"] = SlidingKVCache(self.integration.window)
+        return state
+
+    def load_features(self, state: dict, features: Tensor) -> None:
+        """FaceFormer's reading: the K/V projections of X (B, n, d) (shared W_K) for the step; nothing otherwise."""
+        if not self.integration.query_is_given:
+            self.primal.load_features(state, features, self.integration.projections("primal"))
+
+    def step(self, state: dict, h: Tensor, features: Tensor, style: Tensor, t: int, mask: Tensor | None = None,
+             offset: int = 0) -> Tensor:
+        """Frame t of :meth:`forward` (primal, eval mode) from its token h (B, 1, d); ``features`` X of frames
+        [offset, offset + n) (B, n, d) -> Y̆_t (B, 1, d)."""
+        layer, integ = self.primal, self.integration
+        gated = layer.self_attention_step(state, h)  # (B, 1, d) Y̌_t
+        if self.primal_gate is not None:
+            gated = self.primal_gate(gated, style)  # Ȳ_t
+        projections = integ.projections("primal")
+        if not integ.query_is_given:  # FaceFormer's reading, with the shared W_Q / W_K
+            return layer.feed_forward(gated, layer.cross_attention_step(state, gated, t, mask, offset, projections))
+        q_proj, k_proj, v_proj, out_proj = projections  # eq. 6: query X_t, keys/values Ȳ_{t-w+1..t}
+        query = features[:, t - offset:t - offset + 1]  # (B, 1, d) X_t
+        k, v = state["integration"].append(split_heads(k_proj(gated), self.n_heads),
+                                           split_heads(v_proj(gated), self.n_heads))  # (B, H, <= w, d_h)
+        q = split_heads(q_proj(query), self.n_heads)  # (B, H, 1, d_h)
+        att = out_proj(merge_heads(scaled_dot_product_attention(q, k, v)[0]))  # (B, 1, d)
+        return layer.feed_forward(query, att)  # (B, 1, d) Y̆_t

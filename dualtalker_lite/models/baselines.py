@@ -13,9 +13,9 @@
   VOCA used DeepSpeech features and initialised D with a PCA basis of the training motion; here A is the log-mel of
   docs/design.md and D starts at zero (the first prediction is the template), with `init_decoder_pca` as the option.
 
-Both follow the call signature of the other models: ``forward(batch) -> dict`` with "vertices" and "motion" (B, T, V*3)
-and None for the DualTalker-only keys ("audio", "x", "y", "x_fused", "y_fused"), so the shared joint loss can be used
-with lambda_2..4 ignored; ``generate(audio, template, speaker) -> (B, T, V*3)``.
+Both follow the model contract (``models.contract``): ``forward(batch) -> dict`` with "vertices" and "motion"
+(B, T, V*3) and nothing else; ``loss`` is their own plain reconstruction MSE (``losses.reconstruction``, the value
+DualTalker's joint loss gave them before issue 30); ``generate(audio, template, speaker) -> (B, T, V*3)``.
 """
 from __future__ import annotations
 
@@ -25,18 +25,14 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..losses.dualtalker import LossWeights, joint_loss
 from ..checks import check_shape
+from ..losses.reconstruction import ReconstructionWeights, reconstruction_loss
 
-__all__ = ["StaticTemplate", "VocaConfig", "VocaStyle", "DUAL_ONLY_KEYS"]
-
-DUAL_ONLY_KEYS = ("audio", "x", "y", "x_fused", "y_fused")  # outputs only DualTalker has; None here
+__all__ = ["StaticTemplate", "VocaConfig", "VocaStyle"]
 
 
 def _outputs(template: torch.Tensor, motion: torch.Tensor) -> dict:
-    out = {"vertices": template[:, None, :] + motion, "motion": motion}  # (B, T, V*3) each
-    out.update(dict.fromkeys(DUAL_ONLY_KEYS))
-    return out
+    return {"vertices": template[:, None, :] + motion, "motion": motion}  # (B, T, V*3) each
 
 
 def _check_vertices(batch_or_template: torch.Tensor, n_vertices: int | None, name: str) -> None:
@@ -48,7 +44,7 @@ def _check_vertices(batch_or_template: torch.Tensor, n_vertices: int | None, nam
 class StaticTemplate(nn.Module):
     """Predicts the template for every frame (zero motion). ``n_vertices`` (optional) only validates shapes."""
 
-    loss_weights_cls = LossWeights  # the dataclass of this model's loss weights (train.loss_weights)
+    loss_weights_cls = ReconstructionWeights  # the dataclass of this model's loss weights (train.loss_weights)
 
     def __init__(self, n_vertices: int | None = None):
         super().__init__()
@@ -63,10 +59,10 @@ class StaticTemplate(nn.Module):
         motion = template.new_zeros(B, T, template.shape[-1])          # M_{1:T} = 0
         return _outputs(template, motion)
 
-    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[torch.Tensor, dict]:
-        """Training objective (``train.model_loss``): the shared joint loss, of which only the reconstruction
-        term λ1 L_primal applies here (the DualTalker-only outputs are None, so their terms are 0)."""
-        return joint_loss(out, batch, weights)
+    def loss(self, out: dict, batch: dict, weights: ReconstructionWeights | None = None
+             ) -> tuple[torch.Tensor, dict]:
+        """Training objective (``train.model_loss``): the vertex MSE λ1 L_rec (``losses.reconstruction``)."""
+        return reconstruction_loss(out, batch, weights)
 
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor | None = None,
@@ -105,7 +101,7 @@ class VocaConfig:
 class VocaStyle(nn.Module):
     """VOCA-style sliding-window regressor: audio window -> conv encoder -> [; speaker] -> MLP -> linear decoder."""
 
-    loss_weights_cls = LossWeights  # the dataclass of this model's loss weights (train.loss_weights)
+    loss_weights_cls = ReconstructionWeights  # the dataclass of this model's loss weights (train.loss_weights)
 
     def __init__(self, cfg: VocaConfig):
         super().__init__()
@@ -180,10 +176,10 @@ class VocaStyle(nn.Module):
         latent = self.mlp(torch.cat([z, s], dim=-1))                    # (B*T, latent)
         return self.decoder(latent).reshape(B, T, -1)                   # (B, T, V*3): M_{1:T}
 
-    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[torch.Tensor, dict]:
-        """Training objective (``train.model_loss``): the shared joint loss, of which only the reconstruction
-        term λ1 L_primal applies here (the DualTalker-only outputs are None, so their terms are 0)."""
-        return joint_loss(out, batch, weights)
+    def loss(self, out: dict, batch: dict, weights: ReconstructionWeights | None = None
+             ) -> tuple[torch.Tensor, dict]:
+        """Training objective (``train.model_loss``): the vertex MSE λ1 L_rec (``losses.reconstruction``)."""
+        return reconstruction_loss(out, batch, weights)
 
     @torch.no_grad()
     def generate(self, audio: torch.Tensor, template: torch.Tensor, speaker: torch.Tensor,

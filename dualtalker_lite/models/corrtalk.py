@@ -41,8 +41,8 @@ Readings taken:
   talking-style vector S_n (start token S_n), periodic positional encoding, a transformer decoder layer with the
   ALiBi-biased causal self-attention and cross-attention to the branch's features under the diagonal alignment,
   and a linear motion decoder (zero-initialised: an untrained model outputs the template). These pieces *are*
-  :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (primal only, no gate, queries from the decoder), the
-  block the FaceFormer-style baseline is made of; CorrTalk composes two of them.
+  :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (FaceFormer's layers: no gate, queries from the motion
+  stream), the block the FaceFormer-style baseline is made of; CorrTalk composes two of them.
 - One style embedding shared by both branches (one "talking style vector" per speaker in the text).
 - Past-motion dropout (``motion_dropout``, the project's exposure-bias remedy, 0.5 in ``tiny()`` as for every
   autoregressive model of the recipe): a fed-back frame is hidden (zero motion) for both branches at once.
@@ -179,7 +179,7 @@ class CorrTalk(nn.Module):
         shared table (``n_speakers=None``)."""
         cfg = self.cfg
         return MotionDecoder(cfg.n_vertices, cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
-                             query_from="decoder", align_window=1, add_style_to_motion=cfg.add_style_to_motion,
+                             align_window=1, add_style_to_motion=cfg.add_style_to_motion,
                              dropout=cfg.dropout, motion_scale=cfg.motion_scale)
 
     def speaker_style(self, speaker: Tensor) -> Tensor:

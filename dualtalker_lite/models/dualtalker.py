@@ -12,9 +12,11 @@ Two tasks share the audio encoder, the motion encoder and the style embeddings (
         X̆ -> audio decoder -> Ã                                                  (B, T, D_a)
 
 Composition: the audio path is ``blocks.audio_encoder`` (a small wav2vec 2.0 stand-in) plus a linear audio encoder;
-the primal task is a ``blocks.decoder.MotionDecoder`` with DualTalker's fusion layers (speaker-aware gate, queries
-from the audio, both directions); the dual task reuses that decoder's style table, PPE and layers
-(``direction="dual"``) and adds the audio decoder. The losses are ``losses.dualtalker`` (eqs. 8-11).
+the primal task is a ``blocks.decoder.MotionDecoder`` whose layers are DualTalker's fusion layers
+(``blocks.fusion.DualFusionLayer``: FaceFormer's decoder layer with the speaker-aware gate, the integration with
+queries from the audio and shared W_Q/W_K, and both directions composed around it); the dual task reuses that
+decoder's style table, PPE and layers (``direction="dual"``) and adds the audio decoder. The losses are
+``losses.dualtalker`` (eqs. 8-11).
 
 Readings taken (the paper leaves these open; ``blocks.fusion`` has the reading of eq. 6):
 
@@ -44,6 +46,7 @@ from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
 from ..blocks.feature_windows import FeatureWindows
+from ..blocks.fusion import DualFusionLayer
 from ..blocks.decoder import (MotionDecoder, TransposedLinear, autoregressive_chunks, autoregressive_reference,
                               check_inputs, check_window, training_inputs, zero_padding)
 from ..losses.dualtalker import LossWeights, joint_loss, rbf_kernel_weights
@@ -123,9 +126,7 @@ class DualTalker(nn.Module):
         self.extractor = AudioFeatureExtractor.from_config(cfg)
         self.audio_encoder = nn.Linear(c, d)  # linear "MLP" audio encoder: C -> d (supplementary A)
         self.decoder = MotionDecoder(cfg.n_vertices, d, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
-                                     n_speakers=cfg.n_speakers, query_from=cfg.query_from,
-                                     align_window=cfg.align_window, speaker_gate=cfg.speaker_gate,
-                                     gate_reduction=cfg.gate_reduction, dual=cfg.dual,
+                                     n_speakers=cfg.n_speakers, layer=self._fusion_layer,
                                      add_style_to_motion=cfg.add_style_to_motion, tie_output=cfg.share_enc_dec,
                                      dropout=cfg.dropout, motion_scale=cfg.motion_scale)  # Me, S_n, PPE, Fig. 2
         self.audio_decoder = None
@@ -135,6 +136,13 @@ class DualTalker(nn.Module):
                                                    TransposedLinear(self.extractor.feature_projection))
             else:
                 self.audio_decoder = nn.Sequential(nn.Linear(d, c), nn.ReLU(), nn.Linear(c, cfg.audio_dim))
+
+    def _fusion_layer(self) -> DualFusionLayer:
+        """One fusion layer of Fig. 2 for the decoder: FaceFormer's layer per task, DualTalker's speaker-aware gate
+        (eq. 5), shared-projection integration (eqs. 6-7, Fig. 3) and dual direction around it (``blocks.fusion``)."""
+        cfg = self.cfg
+        return DualFusionLayer(cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.gate_reduction, cfg.align_window, cfg.query_from,
+                               cfg.period, cfg.speaker_gate, cfg.dual, cfg.dropout)
 
     def num_parameters(self) -> int:
         """Number of trainable scalars (shared tensors, Fig. 3 / section IV-F, counted once)."""
@@ -160,7 +168,7 @@ class DualTalker(nn.Module):
         fed = y  # motion features fed back to the stream (teacher forcing)
         if self.training and self.cfg.scheduled_sampling > 0:
             with torch.no_grad():
-                guess = dec.decode_motion(dec.fuse(dec.stream(y, style), x, style, "primal", mask))  # (B, T, V*3)
+                guess = dec.decode_motion(dec.fuse(dec.stream(y, style), x, style, mask))  # (B, T, V*3)
             pick = torch.rand(motion.shape[:2], device=motion.device)[..., None] < self.cfg.scheduled_sampling
             fed = dec.encode_motion(torch.where(pick, guess, motion))  # (B, T, d)
         if self.training and self.cfg.motion_dropout > 0:
@@ -168,14 +176,15 @@ class DualTalker(nn.Module):
             drop = torch.rand(motion.shape[:2], device=motion.device)[..., None] < self.cfg.motion_dropout
             fed = torch.where(drop, dec.encode_motion(torch.zeros_like(motion[:, :1])), fed)  # (B, T, d)
         w_primal = [] if need_weights else None
-        y_fused = dec.fuse(dec.stream(fed, style), x, style, "primal", mask, w_primal)  # (B, T, d) Y̆
+        y_fused = dec.fuse(dec.stream(fed, style), x, style, mask, w_primal)  # (B, T, d) Y̆
         motion_hat = dec.decode_motion(y_fused)  # (B, T, V*3) M̂
         out = {"vertices": template[:, None, :] + motion_hat, "motion": motion_hat, "audio": None,
                "x": x, "y": y, "x_fused": None, "y_fused": y_fused}
         w_dual = [] if need_weights else None
         if self.cfg.dual:
             past_audio = self.audio_encoder(self.extractor.embed_frames(audio))  # (B, T, d) Ae(a_t), per frame
-            x_fused = dec.fuse(dec.stream(past_audio, style), y, style, "dual", mask, w_dual)  # (B, T, d) X̆
+            x_fused = dec.fuse(dec.stream(past_audio, style), y, style, mask, w_dual,
+                               direction="dual")  # (B, T, d) X̆
             out["x_fused"], out["audio"] = x_fused, self.audio_decoder(x_fused)  # Ã (B, T, D_a)
         if need_weights:
             out["attention"] = {"primal": w_primal, "dual": w_dual}

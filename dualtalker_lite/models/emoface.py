@@ -230,7 +230,7 @@ class EmoFace(nn.Module):
         alignment, S_n on every token, zero-initialised head) attending to its branch's features."""
         cfg = self.cfg
         return MotionDecoder(cfg.n_vertices, cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
-                             n_speakers=cfg.n_speakers, query_from="decoder", align_window=1,
+                             n_speakers=cfg.n_speakers, align_window=1,
                              add_style_to_motion=True, dropout=cfg.dropout, motion_scale=cfg.motion_scale)
 
     # ---- schedule ---------------------------------------------------------------------------------

@@ -9,14 +9,15 @@ frame from the frames before it:
          (frame t sees X_t only) -> feed-forward -> motion head (zero-initialised) -> M̂   (B, T, V*3)
     vertices = template + M̂
 
-Every piece is a block: ``blocks.audio_encoder`` and ``blocks.decoder.MotionDecoder`` (queries from the motion
-stream, diagonal alignment, S_n added to every token, no speaker-aware gate). The sizes of :meth:`tiny` are those of
-``DualTalkerConfig.tiny`` so that the tables compare equal budgets.
+Every piece is a block: ``blocks.audio_encoder`` and ``blocks.decoder.MotionDecoder`` with FaceFormer's own layers
+(``blocks.faceformer_layer``: queries from the motion stream, diagonal alignment; S_n added to every token). The
+sizes of :meth:`tiny` are those of ``DualTalkerConfig.tiny`` so that the tables compare equal budgets.
 
-Training uses the reconstruction term of the joint loss, λ1 L_primal (the vertex MSE of FaceFormer; the terms that
-need DualTalker's outputs are zero for this model). The same project additions as DualTalker's apply:
-past-motion dropout (``motion_dropout``, 0.5 in ``tiny()``) and the mean-motion initialisation of the head
-(docs/design-notes.md), so the baseline is trained as well as the papers' models.
+Training uses a plain vertex reconstruction MSE, λ1 L_rec (FaceFormer's loss, ``losses.reconstruction``; it gives
+the value DualTalker's joint loss gave this model before issue 30, whose other terms were zero for it). The same
+project additions as DualTalker's apply: past-motion dropout (``motion_dropout``, 0.5 in ``tiny()``) and the
+mean-motion initialisation of the head (docs/design-notes.md), so the baseline is trained as well as the papers'
+models.
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ from ..blocks.audio_encoder import AudioFeatureExtractor
 from ..blocks.feature_windows import FeatureWindows
 from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
                               check_window, training_inputs, zero_padding)
-from ..losses.dualtalker import LossWeights, joint_loss
+from ..losses.reconstruction import ReconstructionWeights, reconstruction_loss
 
 __all__ = ["FaceFormerConfig", "FaceFormer"]
 
@@ -85,7 +86,7 @@ class FaceFormerConfig:
 class FaceFormer(nn.Module):
     """Audio front-end + one FaceFormer-style :class:`~dualtalker_lite.blocks.decoder.MotionDecoder`."""
 
-    loss_weights_cls = LossWeights  # trained with λ1 L_primal (the runner sets λ2..λ4 = 0)
+    loss_weights_cls = ReconstructionWeights  # trained with the vertex MSE λ1 L_rec
 
     def __init__(self, cfg: FaceFormerConfig):
         super().__init__()
@@ -94,7 +95,7 @@ class FaceFormer(nn.Module):
         self.extractor = AudioFeatureExtractor.from_config(cfg)
         self.audio_encoder = nn.Linear(c, d)  # C -> d
         self.decoder = MotionDecoder(cfg.n_vertices, d, cfg.n_heads, cfg.d_ff, cfg.n_layers, cfg.period,
-                                     n_speakers=cfg.n_speakers, query_from="decoder", align_window=1,
+                                     n_speakers=cfg.n_speakers, align_window=1,
                                      add_style_to_motion=True, dropout=cfg.dropout, motion_scale=cfg.motion_scale)
 
     def num_parameters(self) -> int:
@@ -106,7 +107,7 @@ class FaceFormer(nn.Module):
         return self.audio_encoder(self.extractor(audio, mask))  # (B, T, d)
 
     def forward(self, batch: dict) -> dict:
-        """Teacher-forced pass -> {"vertices", "motion" (B, T, V*3), "x" (B, T, d)}; DualTalker's other outputs None."""
+        """Teacher-forced pass -> {"vertices", "motion"} (B, T, V*3)."""
         audio, motion, mask = training_inputs(batch, self.cfg.n_vertices, self.cfg.audio_dim)
         template, speaker = batch["template"], batch["speaker"]
         dec = self.decoder
@@ -116,13 +117,13 @@ class FaceFormer(nn.Module):
         if self.training and self.cfg.motion_dropout > 0:
             drop = torch.rand(motion.shape[:2], device=motion.device)[..., None] < self.cfg.motion_dropout
             fed = torch.where(drop, dec.encode_motion(torch.zeros_like(motion[:, :1])), fed)  # hidden = template
-        motion_hat = dec.decode_motion(dec.fuse(dec.stream(fed, style), x, style, "primal", mask))  # (B, T, V*3)
-        return {"vertices": template[:, None, :] + motion_hat, "motion": motion_hat, "x": x,
-                "audio": None, "y": None, "x_fused": None, "y_fused": None}
+        motion_hat = dec.decode_motion(dec.fuse(dec.stream(fed, style), x, style, mask))  # (B, T, V*3)
+        return {"vertices": template[:, None, :] + motion_hat, "motion": motion_hat}
 
-    def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
-        """λ1 L_primal (``losses.joint_loss``; the terms of DualTalker's other outputs are 0 here)."""
-        return joint_loss(out, batch, weights)
+    def loss(self, out: dict, batch: dict, weights: ReconstructionWeights | None = None
+             ) -> tuple[Tensor, dict[str, Tensor]]:
+        """λ1 L_rec, the vertex MSE in mm² (``losses.reconstruction``)."""
+        return reconstruction_loss(out, batch, weights)
 
     def init_output_bias(self, mean_motion: Tensor) -> None:
         """Motion head bias = the training set's mean motion (V*3,), metres."""

@@ -111,8 +111,9 @@ torch.testing.assert_close(stream[:, 0], style + model.decoder.ppe.encoding(1)[0
 # %% [markdown]
 # ## 2. Fig. 2, the primal task's fusion, piece by piece
 #
-# One `DualFusionLayer` holds the task-specific parts of both tasks (`layer.primal`, `layer.dual`, each a
-# `CrossModalFusion`: self-attention, gate, layer norms, FF) and **one** `DualIntegration` shared by both.
+# One `DualFusionLayer` holds the task-specific parts of both tasks: `layer.primal`, `layer.dual` (each FaceFormer's
+# decoder layer, `FaceFormerLayer`, without a cross-attention of its own: self-attention, layer norms, FF), the
+# speaker-aware gates `layer.primal_gate`, `layer.dual_gate`, and **one** `DualIntegration` shared by both tasks.
 #
 # ### 2.1 Motion-attentive module (eqs. 3-4)
 #
@@ -127,7 +128,7 @@ torch.testing.assert_close(stream[:, 0], style + model.decoder.ppe.encoding(1)[0
 
 # %%
 layer = model.decoder.layers[0]
-fusion, integ = layer.primal, layer.integration
+fusion, gate, integ = layer.primal, layer.primal_gate, layer.integration
 with torch.no_grad():
     bias = alibi_causal_bias(H, T, T, cfg.period)  # (1, H, T, T)
     sa, w_self = fusion.self_attn(stream, bias=bias, need_weights=True)  # eqs. 3-4
@@ -167,15 +168,15 @@ plt.show()
 
 # %%
 with torch.no_grad():
-    g = fusion.gate.gate(attended, style)  # MLP(Concat(S_n, Y̌)) in (0, 1)
+    g = gate.gate(attended, style)  # MLP(Concat(S_n, Y̌)) in (0, 1)
     gated = g * attended  # Ȳ
-    g_swapped = fusion.gate.gate(attended, style.flip(0))  # the same frames, the other clip's speaker
+    g_swapped = gate.gate(attended, style.flip(0))  # the same frames, the other clip's speaker
 
 check_shape(g, (B, T, d), "gate")
 check_shape(gated, (B, T, d), "Ȳ")
-assert fusion.gate.fc1.out_features == 2 * d // cfg.gate_reduction  # 2d/r hidden channels
+assert gate.fc1.out_features == 2 * d // cfg.gate_reduction  # 2d/r hidden channels
 assert bool(((g > 0) & (g < 1)).all())
-torch.testing.assert_close(gated, fusion.gate(attended, style))
+torch.testing.assert_close(gated, gate(attended, style))
 change = (g - g_swapped).abs().mean().item()
 assert change > 1e-3, "the gate must depend on the speaker"
 print(f"mean |gate(S_n) - gate(S_other)| = {change:.3f} (same frames, swapped style)")
@@ -275,7 +276,7 @@ with torch.no_grad():
     past_audio = model.audio_encoder(model.extractor.embed_frames(batch["audio"]))  # Ae(a_t), per frame
     stream_a = model.decoder.ppe(torch.cat([style[:, None, :], past_audio[:, :-1]], dim=1))  # X̂
     attended_a = fusion_d.norm1(stream_a + fusion_d.self_attn(stream_a, bias=bias)[0])  # X̌ (audio-attentive)
-    gated_a = fusion_d.gate(attended_a, style)  # X̄ (eq. 5, the dual task's own gate)
+    gated_a = layer.dual_gate(attended_a, style)  # X̄ (eq. 5, the dual task's own gate)
     query_d, key_value_d = integ.route(y, gated_a)  # queries from Y, keys/values from X̄
     att_d, w_dual = integ(query_d, key_value_d, "dual")  # eq. 7
     z_d = fusion_d.norm2(query_d + att_d)
@@ -459,8 +460,10 @@ rows = [("audio extractor: input LN + frame projection",
         ("audio encoder (C -> d)", model.audio_encoder, "both"),
         ("motion encoder Me (V*3 -> d)", model.decoder.motion_encoder, "both"),
         ("style embeddings S_n", model.decoder.style, "both"),
-        ("primal fusion: self-attn + gate + FF + LNs", layer.primal, "primal"),
-        ("dual fusion: self-attn + gate + FF + LNs", layer.dual, "dual")]
+        ("primal fusion: self-attn + FF + LNs", layer.primal, "primal"),
+        ("primal speaker-aware gate", layer.primal_gate, "primal"),
+        ("dual fusion: self-attn + FF + LNs", layer.dual, "dual"),
+        ("dual speaker-aware gate", layer.dual_gate, "dual")]
 rows += [(f"integration: {n}", getattr(integ, n), u) for n, u in integ_names.items()]
 rows += [("motion decoder (d -> V*3)", model.decoder.motion_decoder, "primal"),
          ("audio decoder (d -> C -> D_a)", model.audio_decoder, "dual")]
