@@ -179,6 +179,7 @@ def main() -> None:
         return
     if args.vertices:
         os.environ["DTL_BENCH_VERTICES"] = str(args.vertices)  # read by the child processes
+    stamp = provenance("python benchmarks/exports.py " + shlex.join(sys.argv[1:]))  # the code measured, at the start
     rows = []
     for minutes in args.minutes:
         # in a child too: ru_maxrss survives fork + exec (getrusage(2)), so this parent stays small (no torch)
@@ -200,7 +201,6 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row), flush=True)
         rows.append({"minutes": minutes, "format": "npy (raw)", "bytes": npy.stat().st_size})
-    stamp = provenance("python benchmarks/exports.py " + shlex.join(sys.argv[1:]))
     lines = ["# Exports: glTF morph targets with sound, and the self-contained HTML viewer (issue 22)", "",
              f"Command: `{stamp['command']}`; commit {stamp['commit']}; {stamp['created']}; "
              f"{machine_line(stamp['machine'])}; one BLAS thread. "
