@@ -158,7 +158,8 @@ def _load(row: dict, key: str) -> str:
 
 def write(rows: dict) -> None:
     ordered = [rows[c.name] for c in COMMANDS if c.name in rows]
-    RESULTS.with_suffix(".json").write_text(json.dumps(ordered, indent=1) + "\n")
+    RESULTS.with_suffix(".tmp").write_text(json.dumps(ordered, indent=1) + "\n")
+    os.replace(RESULTS.with_suffix(".tmp"), RESULTS.with_suffix(".json"))  # atomic: the whole file or the old one
     lines = ["# Command times", "",
              "Written by `benchmarks/command_times.py` (each command a real process from the repository root; CPU = "
              "user + system time of the process and its children). A load above ~1.5 at the start on 2 cores means "
@@ -168,8 +169,10 @@ def write(rows: dict) -> None:
              "| OMP_NUM_THREADS | commit | date (UTC) | quoted in |",
              "|---|---|---|---:|---:|---:|---:|---:|---|---|---|---|"]
     for r in ordered:
+        m = r.get("machine")  # rows measured before issue 30 name only the cores
+        cores = f"{r['cores']} ({m['cpu']}; Python {m['python']}, torch {m['torch']})" if m else r["cores"]
         lines.append(f"| {r['name']} | `{r['command']}` | {about(r)} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
-                     f"{r['status']} | {r['cores']} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
+                     f"{r['status']} | {cores} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
                      f"{r['omp_num_threads']} | "
                      f"{r['commit']} | {r['date_utc']} | {r['quoted']} |")
     notes = [r for r in ordered if r.get("note")]
@@ -178,7 +181,8 @@ def write(rows: dict) -> None:
     missing = [c for c in COMMANDS if c.name not in rows]
     if missing:
         lines += ["", "Not measured yet: " + ", ".join(f"`{c.name}` (`{shown(c)}`)" for c in missing) + "."]
-    RESULTS.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    RESULTS.with_suffix(".tmp").write_text("\n".join(lines) + "\n")
+    os.replace(RESULTS.with_suffix(".tmp"), RESULTS.with_suffix(".md"))
 
 
 def main(argv: list[str] | None = None) -> None:
