@@ -145,13 +145,19 @@ def problems(path: Path, tracked: set[str], outputs: set[str]) -> list[str]:
     return found
 
 
+@pytest.fixture(scope="module")
+def repository() -> tuple[set[str], set[str]]:
+    """(tracked files, outputs of the recorded commands), read once for every results file."""
+    return _tracked(), _all_outputs()
+
+
 @pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(RESULTS)))
-def test_results_file_is_traceable(path, request):
+def test_results_file_is_traceable(path, request, repository):
     name = str(path.relative_to(RESULTS))
     if name in PENDING:
         request.applymarker(pytest.mark.xfail(strict=True, reason=f"{PENDING[name]}: run tools/rerun_results.sh, "
                                                                  "then remove it from PENDING"))
-    found = problems(path, _tracked(), _all_outputs())
+    found = problems(path, *repository)
     assert not found, f"results/{name}: " + "; ".join(found)
 
 
