@@ -191,6 +191,9 @@ def main(argv=None) -> None:
     done = {(r["row"], r["seed"]) for r in payload["runs"]}
     todo = [(cfg, seed) for cfg, seed in jobs if (label(cfg), seed) not in done]
     payload["status"] = "Complete." if not todo else f"**Partial: {len(done)} of {len(jobs)} runs finished.**"
+    if not todo:  # every run kept: the files still take this invocation's stamp
+        atomic_write_text(args.out / "spiral.json", json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+        atomic_write_text(args.out / "spiral.md", markdown(payload))
     pool = ProcessPoolExecutor(max_workers=max(1, args.processes), mp_context=get_context("spawn"),
                                initializer=torch.set_num_threads, initargs=(1,))
     with pool:
