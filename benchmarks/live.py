@@ -483,9 +483,9 @@ def figures(argv) -> None:
     if args.step == "report":
         return report(args.out)
     t0, c0 = time.time(), time.process_time()
+    stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))  # the code measured
     res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
            "diagnose": fig_diagnose}[args.step](args)
-    stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))
     res["meta"] = {"command": stamp["command"], "commit": stamp["commit"], "machine": stamp["machine"],
                    "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
                    "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
