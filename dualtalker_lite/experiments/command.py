@@ -18,7 +18,7 @@ import torch
 
 from ..files import repo_root
 from .evaluation import typical_bandwidth
-from ..provenance import _git, is_clean_commit, provenance
+from ..provenance import is_clean_commit, provenance
 from .report import refresh_table, write_table
 from .runner import data_split, load_data, run_specs
 from .specs import FEATURES, TABLES, RunSpec, table_specs, table_split
