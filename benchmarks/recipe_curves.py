@@ -233,8 +233,9 @@ def report(runs: list[Path], out: Path) -> None:
     lines += [f"- `{m.get('command', '?')}` at commit `{m.get('commit', '?')}` on {m.get('machine', '?')} "
               f"({m.get('date', '?')})" for m in made]
     this = _provenance(sys.argv)
-    lines += [f"- then `{this['command']}` at commit `{this['commit']}`{' (uncommitted changes)' if this['dirty'] else ''}"
-              f" on {this['machine']} ({this['date']})", "",
+    dirty = " (uncommitted changes)" if this["dirty"] else ""
+    lines += [f"- then `{this['command']}` at commit `{this['commit']}`{dirty} on {this['machine']} "
+              f"({this['date']})", "",
               "One torch thread per run; CPU seconds are the training process's own (evaluation excluded). "
               "Recipes, each as what it changes from the old recipe " + json.dumps(OLD_RECIPE) + ": " + "; ".join(f"`{name}` = {json.dumps(cfg)}" for name, cfg in sorted(
                   {j["recipe"]: {k: v for k, v in j["train_config"].items() if OLD_RECIPE.get(k, v) != v or

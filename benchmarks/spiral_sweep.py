@@ -174,8 +174,9 @@ def main(argv=None) -> None:
     payload = {"table": "spiral", "command": stamp["command"],
                "argv": argv, "seeds": args.seeds, "epochs": args.epochs, "sentences": args.sentences,
                "train_clips": clips, "n_train_clips": sum(map(len, clips.values())), "test_split": SPLIT,
-               "n_test_clips": len(corpus.metadata["splits"][SPLIT]), "git": stamp["commit"], "torch": torch.__version__,
-               "machine": stamp["machine"], "created": stamp["created"], "adopted": list(ADOPTED),
+               "n_test_clips": len(corpus.metadata["splits"][SPLIT]), "git": stamp["commit"],
+               "torch": torch.__version__, "machine": stamp["machine"], "created": stamp["created"],
+               "adopted": list(ADOPTED),
                "configs": [list(c) for c in configs], "rows": rows,
                "paper_table4": [{"config": list(c), "lve": v[0], "eve": v[1]} for c, v in PAPER.items()], "runs": []}
     jobs = [(c, s) for s in args.seeds for c in configs]  # seed-major: an interrupted sweep has whole seeds

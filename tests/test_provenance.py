@@ -48,7 +48,8 @@ PENDING = {
     "phonetic/sweep.json": "λ4=0.01 (DualTalker) seeds 0-2 computed at 8088455+dirty",
 }
 PENDING.update({f"phonetic/{t}.md": PENDING[f"phonetic/{t}.json"] for t in ("main", "ablation", "corrtalk", "sweep")})
-COMMAND = re.compile(r"^(?:[A-Z_]+=\S+ )*(?:nice -n \d+ )?(?:\.venv/bin/)?(?:python3?|dualtalker-lite|make|benchmarks/)\b")
+COMMAND = re.compile(r"^(?:[A-Z_]+=\S+ )*(?:nice -n \d+ )?(?:\.venv/bin/)?"
+                     r"(?:python3?|dualtalker-lite|make|benchmarks/)\b")
 DIRTY = re.compile(r"[+-]dirty\b|\"dirty\": true|\"dirty\": null")
 OUTPUTS = ("--out", "--save-models")
 

@@ -70,9 +70,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False,
                   commit: str | None = None) -> tuple[dict, list[dict]]:
     """Runs of earlier tables that a new invocation may take over: {(key, seed): run}, plus one provenance entry
-    per table (file name, the commits of the runs taken, runs taken, runs left to recompute). Only tables with the same epoch budget,
-    the same corpus and the same ``--quick`` setting qualify; a table that does not is refused with one line naming
-    it and the mismatch.
+    per table (file name, the commits of the runs taken, runs taken, runs left to recompute). Only tables with the
+    same epoch budget, the same corpus and the same ``--quick`` setting qualify; a table that does not is refused
+    with one line naming it and the mismatch.
 
     Each run keeps the commit it was computed at (its ``git``; a run without one takes its table's, unless that
     table itself reused runs: then its origin is unknown). A run from a dirty tree or of unknown origin is not

@@ -433,8 +433,8 @@ fig_a
 # 5 seeds. A CorrTalk run trains 2-4 times as long as DualTalker's (`results/main.md`'s train column: 526 against
 # 131 wall seconds on a shared 2-core machine; `results/time_to_quality.md`: 264 against 153 CPU seconds, old recipe),
 # so `--reuse` takes over every run that was already computed: the Table III analogue's CorrTalk row from the main
-# table, and seeds 0-2 of its other rows from an earlier 3-seed version of the table. This section reads them; the cell below checks that the files are the ones
-# the commands quoted in it wrote.
+# table, and seeds 0-2 of its other rows from an earlier 3-seed version of the table. This section reads them; the
+# cell below checks that the files are the ones the commands quoted in it wrote.
 
 # %%
 RESULTS = repo_root() / "results"
