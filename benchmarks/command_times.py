@@ -45,6 +45,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from dualtalker_lite.provenance import provenance  # noqa: E402  (no torch: this parent stays small)
 OUT = ROOT / "runs" / "command_times"
 RESULTS = ROOT / "results" / "command_times"
 CLI = str(Path(sys.executable).with_name("dualtalker-lite"))
@@ -104,18 +106,11 @@ def shown(cmd: Command) -> str:
     return " ".join(shlex.quote(a.format(cli="dualtalker-lite", out="runs/command_times")) for a in cmd.argv)
 
 
-def commit() -> str:
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                           capture_output=True, text=True)
-    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "") if head.returncode == 0 else "unknown"
-
-
 def measure(cmd: Command) -> dict:
     """Run ``cmd`` once as a process -> its row (wall and CPU seconds, status, machine, commit)."""
     OUT.mkdir(parents=True, exist_ok=True)
     argv = command_line(cmd)
-    load, tree = os.getloadavg()[0], commit()  # the code measured: as it was at the start
+    load, stamp = os.getloadavg()[0], provenance(shown(cmd))  # the code measured: as it was at the start
     print(f"== {cmd.name}: {shlex.join(argv)} (load {load:.2f})", flush=True)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
@@ -137,7 +132,8 @@ def measure(cmd: Command) -> dict:
            "load_1min_at_start": round(load, 2), "load_1min_max": round(peak_load, 2),
            "omp_num_threads": os.environ.get("OMP_NUM_THREADS",
                                              "unset (make: 2)" if cmd.argv[0] == "make" else "unset"),
-           "commit": tree, "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
+           "commit": stamp["commit"], "machine": stamp["machine"],
+           "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
            "python": platform.python_version(), "last_line": lines[-1][:300] if lines else ""}
     print(f"   {about(row)}, status {proc.returncode}; last line: {row['last_line']}", flush=True)
     return row
@@ -162,7 +158,8 @@ def _load(row: dict, key: str) -> str:
 
 def write(rows: dict) -> None:
     ordered = [rows[c.name] for c in COMMANDS if c.name in rows]
-    RESULTS.with_suffix(".json").write_text(json.dumps(ordered, indent=1) + "\n")
+    RESULTS.with_suffix(".tmp").write_text(json.dumps(ordered, indent=1) + "\n")
+    os.replace(RESULTS.with_suffix(".tmp"), RESULTS.with_suffix(".json"))  # atomic: the whole file or the old one
     lines = ["# Command times", "",
              "Written by `benchmarks/command_times.py` (each command a real process from the repository root; CPU = "
              "user + system time of the process and its children). A load above ~1.5 at the start on 2 cores means "
@@ -172,8 +169,10 @@ def write(rows: dict) -> None:
              "| OMP_NUM_THREADS | commit | date (UTC) | quoted in |",
              "|---|---|---|---:|---:|---:|---:|---:|---|---|---|---|"]
     for r in ordered:
+        m = r.get("machine")  # rows measured before issue 30 name only the cores
+        cores = f"{r['cores']} ({m['cpu']}; Python {m['python']}, torch {m['torch']})" if m else r["cores"]
         lines.append(f"| {r['name']} | `{r['command']}` | {about(r)} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
-                     f"{r['status']} | {r['cores']} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
+                     f"{r['status']} | {cores} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
                      f"{r['omp_num_threads']} | "
                      f"{r['commit']} | {r['date_utc']} | {r['quoted']} |")
     notes = [r for r in ordered if r.get("note")]
@@ -182,7 +181,8 @@ def write(rows: dict) -> None:
     missing = [c for c in COMMANDS if c.name not in rows]
     if missing:
         lines += ["", "Not measured yet: " + ", ".join(f"`{c.name}` (`{shown(c)}`)" for c in missing) + "."]
-    RESULTS.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    RESULTS.with_suffix(".tmp").write_text("\n".join(lines) + "\n")
+    os.replace(RESULTS.with_suffix(".tmp"), RESULTS.with_suffix(".md"))
 
 
 def main(argv: list[str] | None = None) -> None:

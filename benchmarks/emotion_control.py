@@ -18,7 +18,8 @@ branch wins.
 """
 import argparse
 import json
-import subprocess
+import shlex
+import sys
 import time
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
 from dualtalker_lite.metrics.emotion import expression_measures
+from dualtalker_lite.provenance import provenance
 from dualtalker_lite.files import atomic_write_text
 
 SENTENCE = "s02"  # the sentence of test_emo_a
@@ -136,10 +138,10 @@ def main() -> None:
 
 
     if args.out is not None:
-        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-        payload = {"command": "python benchmarks/emotion_control.py " + " ".join(
-                       f"{Path(p).parent.name}/{Path(p).name}" if Path(p).is_absolute() else str(p)
-                       for p in args.checkpoints), "git": git, "speakers": speakers, "sentence": SENTENCE,
+        shown = [f"{Path(a).parent.name}/{Path(a).name}" if Path(a).is_absolute() else a for a in sys.argv[1:]]
+        stamp = provenance("python benchmarks/emotion_control.py " + shlex.join(shown))
+        payload = {"command": stamp["command"], "git": stamp["commit"], "machine": stamp["machine"],
+                   "created": stamp["created"], "speakers": speakers, "sentence": SENTENCE,
                    "columns": ["brow_raise_mm", "smile_mm"], "models": per_model}
         atomic_write_text(args.out, json.dumps(payload, indent=1) + "\n")
         print(f"wrote {args.out}")

@@ -28,12 +28,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
+import shlex
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from dualtalker_lite.provenance import machine_line, provenance  # no torch: the parent stays small
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -177,6 +179,7 @@ def main() -> None:
         return
     if args.vertices:
         os.environ["DTL_BENCH_VERTICES"] = str(args.vertices)  # read by the child processes
+    stamp = provenance("python benchmarks/exports.py " + shlex.join(sys.argv[1:]))  # the code measured, at the start
     rows = []
     for minutes in args.minutes:
         # in a child too: ru_maxrss survives fork + exec (getrusage(2)), so this parent stays small (no torch)
@@ -199,8 +202,8 @@ def main() -> None:
             print(json.dumps(row), flush=True)
         rows.append({"minutes": minutes, "format": "npy (raw)", "bytes": npy.stat().st_size})
     lines = ["# Exports: glTF morph targets with sound, and the self-contained HTML viewer (issue 22)", "",
-             f"`python benchmarks/exports.py {' '.join(sys.argv[1:])}` "
-             f"({platform.processor() or platform.machine()}, one BLAS thread, {time.strftime('%Y-%m-%d')}). "
+             f"Command: `{stamp['command']}`; commit {stamp['commit']}; {stamp['created']}; "
+             f"{machine_line(stamp['machine'])}; one BLAS thread. "
              "Motion: the rig's ground truth of the three long sample clips, repeated (see the script's "
              f"docstring); {args.vertices or 1558:,} vertices"
              f"{' (the rig repeated, see prepare())' if args.vertices else ''}, 30 fps; speech 16 kHz. "
@@ -232,8 +235,12 @@ def main() -> None:
     if not args.no_write:
         (ROOT / "results").mkdir(exist_ok=True)
         name = f"exports_v{args.vertices}" if args.vertices else "exports"
-        (ROOT / "results" / f"{name}.json").write_text(json.dumps(rows, indent=1) + "\n")
-        (ROOT / "results" / f"{name}.md").write_text(text)
+        payload = {"command": stamp["command"], "git": stamp["commit"], "machine": stamp["machine"],
+                   "created": stamp["created"], "rows": rows}
+        for path, content in ((ROOT / "results" / f"{name}.json", json.dumps(payload, indent=1) + "\n"),
+                              (ROOT / "results" / f"{name}.md", text)):  # atomic: a whole file or the old one
+            path.with_suffix(".tmp").write_text(content)
+            os.replace(path.with_suffix(".tmp"), path)
 
 
 if __name__ == "__main__":

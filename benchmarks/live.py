@@ -62,6 +62,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from dualtalker_lite.files import atomic_write_text  # noqa: E402
+from dualtalker_lite.provenance import provenance  # noqa: E402
 
 SETTINGS = [  # (lookahead_s, past_s, hop_s)
     (0.2, 0.6, 0.2), (0.2, 1.0, 0.1), (0.2, 0.4, 0.3), (0.1, 0.6, 0.2), (0.3, 0.6, 0.2), (0.0, 0.6, 0.2)]
@@ -207,14 +209,6 @@ def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray, lookahe
 # ------------------------------------------------------------------------- issue 33 item 4: the figures
 FIG_DIR = ROOT / "runs" / "live_figures"
 TARGETS = {"latency_median_ms": 250, "latency_p95_ms": 400, "closure_gap": 0.05, "vowel_shut": 0.06}
-
-
-def _commit() -> str:
-    import subprocess
-
-    def git(*a):
-        return subprocess.run(["git", "-C", str(ROOT), *a], capture_output=True, text=True).stdout.strip()
-    return git("rev-parse", "HEAD") + ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
 
 
 def _rss_mb() -> tuple[float, float]:
@@ -489,10 +483,11 @@ def figures(argv) -> None:
     if args.step == "report":
         return report(args.out)
     t0, c0 = time.time(), time.process_time()
+    stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))  # the code measured
     res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
            "diagnose": fig_diagnose}[args.step](args)
-    res["meta"] = {"command": "OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv),
-                   "commit": _commit(), "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
+    res["meta"] = {"command": stamp["command"], "commit": stamp["commit"], "machine": stamp["machine"],
+                   "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
                    "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                    "load_avg": list(__import__("os").getloadavg())}
     path = FIG_DIR / f"{args.step}.json"
@@ -505,7 +500,8 @@ def report(out: Path) -> None:
     parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in ("quality", "keepup", "latency", "diagnose")
              if (FIG_DIR / f"{k}.json").is_file()}
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(parts, indent=1))
+    parts["report"] = provenance("python benchmarks/live.py figures report")  # each step's stamp is in its meta
+    atomic_write_text(out.with_suffix(".json"), json.dumps(parts, indent=1))
     print(f"-> {out.with_suffix('.json')} ({', '.join(parts)})")
 
 if __name__ == "__main__":

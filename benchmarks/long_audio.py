@@ -9,6 +9,8 @@ video >= 3x real time).
     python benchmarks/long_audio.py --cli                # the `dualtalker-lite animate` command end to end:
                                                          # 1 and 10 min --no-video, 1 min with the mp4
     python benchmarks/long_audio.py --cli --minutes 60 --cli-video   # the hour through the CLI (heavy)
+    python benchmarks/long_audio.py --cli --minutes 60 120 --no-cli-video --results results/long_audio.md
+        # the README's peak memory for one and two hours (about 5 CPU minutes)
 
 Each length runs in a fresh process (``--one``), so its peak resident memory (``ru_maxrss``: every numpy and torch
 allocation, plus the interpreter and libraries) is its own. The speech is the shipped sample's clips concatenated
@@ -29,11 +31,14 @@ import argparse
 import json
 import os
 import resource
+import shlex
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from dualtalker_lite.provenance import machine_line, provenance  # no torch: the parent stays small
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
@@ -211,17 +216,35 @@ def cli_case(minutes: float, video: bool, tmp: Path, env: dict, fmt: str = "npy"
             "stdout": stdout.decode().strip()}
 
 
-def cli_report(rows: list[dict]) -> None:
-    print("\n`dualtalker-lite animate` end to end (child process; tiny DualTalker, V = 1558, OMP_NUM_THREADS=1)")
-    print(f"{'audio':>7} | {'format':>7} | {'wall s':>7} | {'CPU s':>7} | {'RTF (CPU)':>9} | {'x real time':>11} | "
-          f"{'peak RSS':>9} | files")
+def cli_report(rows: list[dict]) -> list[str]:
+    """Print the ``--cli`` table -> its lines."""
+    lines = ["`dualtalker-lite animate` end to end (child process; tiny DualTalker, V = 1558, OMP_NUM_THREADS=1)",
+             f"{'audio':>7} | {'format':>7} | {'wall s':>7} | {'CPU s':>7} | {'RTF (CPU)':>9} | {'x real time':>11} | "
+             f"{'peak RSS':>9} | files"]
     for r in rows:
         secs = 60 * r["minutes"]
         files = ", ".join(f"{k} {v:.1f} MB" for k, v in sorted(r["files_mb"].items()))
-        print(f"{r['minutes']:>5g} m | {r['format']:>7} | {r['wall_s']:7.1f} | {r['cpu_s']:7.1f} | "
-              f"{r['cpu_s'] / secs:9.4f} | {secs / r['cpu_s']:10.1f}x | {r['peak_rss_mb']:6.0f} MB | {files}")
-    print("(CPU = the command plus ffmpeg; RTF = CPU seconds per second of audio; wall time is inflated by "
-          "other jobs on a shared machine)")
+        lines.append(f"{r['minutes']:>5g} m | {r['format']:>7} | {r['wall_s']:7.1f} | {r['cpu_s']:7.1f} | "
+                     f"{r['cpu_s'] / secs:9.4f} | {secs / r['cpu_s']:10.1f}x | {r['peak_rss_mb']:6.0f} MB | {files}")
+    lines.append("(CPU = the command plus ffmpeg; RTF = CPU seconds per second of audio; wall time is inflated by "
+                 "other jobs on a shared machine)")
+    print("\n" + "\n".join(lines))
+    return lines
+
+
+def write_results(path: Path, stamp: dict, lines: list[str], rows: list[dict]) -> None:
+    """``--results MD``: the ``--cli`` table as a results page (command, commit, machine) and its rows as MD's
+    .json, each written atomically."""
+    page = ["# Long recordings through `dualtalker-lite animate`: peak memory and CPU time", "",
+            f"Command: `{stamp['command']}`; commit {stamp['commit']}; {stamp['created']}; "
+            f"{machine_line(stamp['machine'])}. Peak RSS: `ru_maxrss` of the `animate` child process "
+            "(`os.wait4`); the inputs are a 16 kHz 16-bit WAV of the sample's speech and the benchmark's untrained "
+            "tiny log-mel DualTalker.", "", "```", *lines, "```", ""]
+    for target, text in ((path, "\n".join(page)),
+                         (path.with_suffix(".json"), json.dumps({**stamp, "git": stamp["commit"], "rows": rows},
+                                                                indent=1) + "\n")):
+        target.with_suffix(".tmp").write_text(text)
+        os.replace(target.with_suffix(".tmp"), target)
 
 
 def window_check(train_seconds: float, minutes: float, threads: int) -> None:
@@ -282,7 +305,10 @@ def main() -> None:
                     help="with --cli: the --format of the runs without video (gltf: the engine export, .glb + .wav)")
     ap.add_argument("--no-cli-video", action="store_true", help="with --cli: no run with the mp4")
     ap.add_argument("--make-cli-inputs", nargs="+", help=argparse.SUPPRESS)  # internal: DIR MINUTES...
+    ap.add_argument("--results", type=Path, metavar="MD", help="with --cli: also write the table to MD (e.g. "
+                    "results/long_audio.md) and its rows to MD's .json, with the command, commit and machine")
     args = ap.parse_args()
+    stamp = provenance("python benchmarks/long_audio.py " + shlex.join(sys.argv[1:]))
     if args.make_cli_inputs:
         make_cli_inputs(Path(args.make_cli_inputs[0]), [float(m) for m in args.make_cli_inputs[1:]])
         return
@@ -301,7 +327,9 @@ def main() -> None:
                 r = rows[-1]
                 print(f"{minutes:g} min --format {r['format']}: {r['wall_s']:.1f} s wall, "
                       f"{r['cpu_s']:.1f} s CPU, peak {r['peak_rss_mb']:.0f} MB", flush=True)
-        cli_report(rows)
+        lines = cli_report(rows)
+        if args.results:
+            write_results(args.results, stamp, lines, rows)
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return

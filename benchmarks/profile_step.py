@@ -1,7 +1,7 @@
 """Where the time of one training step goes, and how far it is from the arithmetic lower bound.
 
     .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca|corrtalk] [--steps 12]
-        [--batch-size 8] [--max-frames 90] [--threads 1]
+        [--batch-size 8] [--max-frames 90] [--threads 1] [--out results/profile_step.md]
 
 1. Throughput of this machine's matrix multiply (float32 GEMM, torch.mm) at 1 and 2 threads, on the shape of the
    biggest product of a step (B*T frames x V*3 coordinates x d features) and on a square 1024 product.
@@ -15,8 +15,12 @@ time, but a busy machine still slows each core (shared caches, memory bandwidth)
 """
 import argparse
 import collections
+import json
 import os
+import shlex
+import sys
 import time
+from pathlib import Path
 
 # torch.profiler's CPU tracer (kineto, inside libtorch) logs its own start and stop to stderr ("USDT: ...
 # SyncActivityProfilerHandler.cpp:52] profiler_start"); it reads KINETO_LOG_LEVEL once, when torch loads, and 6
@@ -29,6 +33,8 @@ from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
 from dualtalker_lite.data.dataset import make_loader  # noqa: E402
 from dualtalker_lite.experiments import build_model, load_data, table_specs  # noqa: E402
+from dualtalker_lite.files import atomic_write_text  # noqa: E402
+from dualtalker_lite.provenance import machine_line, provenance  # noqa: E402
 from dualtalker_lite.losses import rbf_kernel_weights  # noqa: E402
 from dualtalker_lite.train import TrainConfig, _crop, loss_weights, model_loss  # noqa: E402
 
@@ -58,7 +64,16 @@ def main() -> None:
     ap.add_argument("--batch-size", type=int, default=None, help="default: the recipe's")
     ap.add_argument("--max-frames", type=int, default=None, help="default: the recipe's crop")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--out", type=Path, default=None, metavar="MD",
+                    help="also write the printout to MD (e.g. results/profile_step.md) and its figures to MD's .json, "
+                         "with the command, commit and machine")
     args = ap.parse_args()
+    stamp = provenance("python benchmarks/profile_step.py " + shlex.join(sys.argv[1:]))
+    lines: list[str] = []
+
+    def say(*parts) -> None:
+        print(*parts, flush=True)
+        lines.append(" ".join(map(str, parts)))
     recipe = TrainConfig.tiny()
     bs = args.batch_size or recipe.batch_size
     crop = args.max_frames or recipe.max_frames
@@ -72,13 +87,13 @@ def main() -> None:
 
     # 1. GEMM throughput
     rows = bs * crop
-    print(f"GEMM float32 throughput (torch.mm), {torch.__version__}:")
+    say(f"GEMM float32 throughput (torch.mm), {torch.__version__}:")
     peak = {}  # GFLOP per CPU second
     for threads in (1, 2):
         big, big_wall = gemm_gflops(rows, v3, 64, threads)
         sq, sq_wall = gemm_gflops(1024, 1024, 1024, threads)
         peak[threads] = max(big, sq)
-        print(f"  {threads} thread(s): ({rows} x {v3}) @ ({v3} x 64) {big:6.1f} GFLOP per CPU s ({big_wall:6.1f} per "
+        say(f"  {threads} thread(s): ({rows} x {v3}) @ ({v3} x 64) {big:6.1f} GFLOP per CPU s ({big_wall:6.1f} per "
               f"wall s) | 1024^3 {sq:6.1f} per CPU s ({sq_wall:6.1f} per wall s)")
     torch.set_num_threads(args.threads)
 
@@ -92,9 +107,9 @@ def main() -> None:
         total, _ = model_loss(model, model(batches[0]), batches[0], weights)
         total.backward()
     flops = fc.get_total_flops() * batches[1]["mask"].numel() / batches[0]["mask"].numel()  # ~ per average batch
-    print(f"\n{ROWS[args.model]}: {sum(p.numel() for p in model.parameters()):,} parameters; batch {bs} x up to {crop} "
+    say(f"\n{ROWS[args.model]}: {sum(p.numel() for p in model.parameters()):,} parameters; batch {bs} x up to {crop} "
           f"frames ({frames:.0f} valid frames per step on average), V*3 = {v3}")
-    print(f"FLOPs per step (forward + backward, matmul/conv): {flops / 1e9:.2f} GFLOP")
+    say(f"FLOPs per step (forward + backward, matmul/conv): {flops / 1e9:.2f} GFLOP")
 
     # 3. step time, split by phase
     opt = torch.optim.Adam(model.parameters(), 1e-3)
@@ -132,35 +147,49 @@ def main() -> None:
         c_k = time.process_time()
         for b in raw:
             model.kernel_weights(b, weights)
-        print(f"(filling DualTalker's per-clip CCRL kernel cache, once per run: {time.process_time() - c_k:.2f} s CPU)")
+        say(f"(filling DualTalker's per-clip CCRL kernel cache, once per run: {time.process_time() - c_k:.2f} s CPU)")
     w0, c0 = time.perf_counter(), time.process_time()
     for b in raw[1:args.steps + 1]:
         step(b, True)
     cpu = (time.process_time() - c0) / args.steps
     wall = (time.perf_counter() - w0) / args.steps
-    print(f"\nstep time ({args.threads} thread(s)): {cpu * 1e3:.1f} ms CPU, {wall * 1e3:.1f} ms wall "
+    say(f"\nstep time ({args.threads} thread(s)): {cpu * 1e3:.1f} ms CPU, {wall * 1e3:.1f} ms wall "
           f"(+ {collate_s * 1e3:.1f} ms to collate a batch in the loader)")
     for k, v in parts.items():
-        print(f"  {k:26s} {v / args.steps * 1e3:7.1f} ms  {100 * v / args.steps / cpu:5.1f} %")
+        say(f"  {k:26s} {v / args.steps * 1e3:7.1f} ms  {100 * v / args.steps / cpu:5.1f} %")
+    kern = None
     if getattr(weights, "lambda4", 0):  # the CCRL kernel is rebuilt from the ground truth in the loss, every step
         c0 = time.process_time()
         for b in raw[1:args.steps + 1]:
             rbf_kernel_weights(b["vertices"] - b["template"][:, None], weights.bandwidth, b["mask"],
                                weights.kernel_distance)
         kern = (time.process_time() - c0) / args.steps
-        print(f"  {'(CCRL kernel, uncached)':26s} {kern * 1e3:7.1f} ms  {100 * kern / cpu:5.1f} %  "
+        say(f"  {'(CCRL kernel, uncached)':26s} {kern * 1e3:7.1f} ms  {100 * kern / cpu:5.1f} %  "
               "(dense (T x T) Gram over all V*3 ground-truth coordinates: what each step paid before the cache)")
     bound = flops / (peak[1] * 1e9)
-    print(f"arithmetic lower bound, FLOPs / the best 1-thread GEMM rate ({peak[1]:.1f} GFLOP/s): {bound * 1e3:.1f} ms "
+    say(f"arithmetic lower bound, FLOPs / the best 1-thread GEMM rate ({peak[1]:.1f} GFLOP/s): {bound * 1e3:.1f} ms "
           f"per step; measured CPU time / bound = {cpu / bound:.1f}x")
-    print(f"with 2 threads the GEMM does {peak[2]:.1f} GFLOP per CPU second ({peak[2] / peak[1]:.2f}x the 1-thread "
+    say(f"with 2 threads the GEMM does {peak[2]:.1f} GFLOP per CPU second ({peak[2] / peak[1]:.2f}x the 1-thread "
           f"rate per core): at best a {2 * peak[2] / peak[1]:.2f}x wall-clock speed-up, on 2 otherwise idle cores")
 
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for b in raw[1:6]:
             step(b, False)
-    print("\ntop operators over 5 steps (self CPU time):")
-    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=14))
+    say("\ntop operators over 5 steps (self CPU time):")
+    say(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=14))
+    if args.out is not None:
+        figures = {"model": ROWS[args.model], "threads": args.threads, "steps": args.steps, "batch_size": bs,
+                   "max_frames": crop, "step_cpu_ms": cpu * 1e3, "step_wall_ms": wall * 1e3,
+                   "parts_cpu_ms": {k: v / args.steps * 1e3 for k, v in parts.items()},
+                   "ccrl_kernel_uncached_ms": None if kern is None else kern * 1e3, "gflop_per_step": flops / 1e9,
+                   "gemm_gflop_per_cpu_s": peak, "arithmetic_bound_ms": bound * 1e3}
+        page = ["# Where a training step's time goes", "", f"Command: `{stamp['command']}`; commit {stamp['commit']}; "
+                f"{stamp['created']}; {machine_line(stamp['machine'])}. CPU time is the process's own; a busy machine "
+                "still slows each core. `benchmarks/profile_step.py`'s docstring says what each part is.", "",
+                "```", *"\n".join(lines).splitlines(), "```", ""]
+        atomic_write_text(args.out, "\n".join(page))
+        atomic_write_text(args.out.with_suffix(".json"), json.dumps({**stamp, "git": stamp["commit"], **figures},
+                                                                    indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ import json
 import multiprocessing as mp
 import os
 import re
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -69,6 +70,8 @@ from dualtalker_lite.face import FaceRig, Speaker, clip_controls  # noqa: E402
 from dualtalker_lite.face.visemes import VISEMES, phoneme_to_viseme  # noqa: E402
 from dualtalker_lite.metrics import (BILABIALS, closure_rate, curve_correlation, lip_distance,  # noqa: E402
                                      lve_euclidean, segment_extrema, segment_frames)
+from dualtalker_lite.files import atomic_write_text  # noqa: E402
+from dualtalker_lite.provenance import machine_line, provenance  # noqa: E402
 from dualtalker_lite.recogniser import LAG_S, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track  # noqa: E402
 
 SOUNDS = Path("/usr/share/asterisk/sounds/en_US_f_Allison")
@@ -682,11 +685,12 @@ def _ms(values) -> str:
 def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
     results = ROOT / "results"
     table = {"meta": meta, "rig_rows": rows, "runs": runs}
-    (results / "real_voices.json").write_text(json.dumps(table, indent=1))
+    atomic_write_text(results / "real_voices.json", json.dumps(table, indent=1))
     keys = (("closure_2mm", "closure < 2 mm"), ("closure_1mm", "< 1 mm"), ("vowel_shut", "vowel frames shut"),
             ("r", "r with reference"))
     lines = ["# Lip sync on real voices (issue 19)", "",
-             f"Made by `{meta['command']}` ({meta['date']}, code of commit {meta['commit']}); "
+             f"Made by `{meta['command']}` ({meta['date']}, commit {meta['commit']}"
+             + (f"; {machine_line(meta['machine'])}" if meta.get("machine") else "") + "); "
              "`benchmarks/real_voices.py` says how. Real voices: "
              f"{meta['n_real_clips']} prompts of Debian's asterisk-core-sounds-en-wav (one professional voice, 8 kHz "
              f"telephone band, {meta['real_minutes']:.1f} min, {meta['n_real_bilabials']} /p b m/, "
@@ -766,7 +770,7 @@ def write_report(rows: dict, runs: list[dict], meta: dict) -> None:
                       + "; ".join(f"seed {r['seed']}: " + ", ".join(f"{k} {v}" for k, v in
                                                                    r["recognised_emotions_real"].items() if v)
                                   for r in heard) + ".", ""]
-    (results / "real_voices.md").write_text("\n".join(lines))
+    atomic_write_text(results / "real_voices.md", "\n".join(lines))
     print("\n".join(lines))
 
 
@@ -807,13 +811,10 @@ def main(argv=None) -> None:
         runs = [run_one(j) for j in jobs]
     runs += [r for r in (run_checkpoint((row, s)) for s in range(args.seeds) for row in CHECKPOINT_ROWS
                          if args.rows is None or row in args.rows) if r is not None]
-    import subprocess
-
-    commit = subprocess.run(["git", "log", "-1", "--format=%h", "--", "benchmarks/real_voices.py",  # the code's
-                             "dualtalker_lite/recogniser.py"], cwd=ROOT, capture_output=True, text=True).stdout
     cpu = {row: _ms([x["train_cpu_s"] for x in runs if x["row"] == row]) for row in MODELS}
-    meta = {"command": "benchmarks/real_voices.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-            "date": time.strftime("%Y-%m-%d"), "commit": commit.strip(), "seeds": args.seeds,
+    stamp = provenance("python benchmarks/real_voices.py " + shlex.join(argv if argv is not None else sys.argv[1:]))
+    meta = {"command": stamp["command"], "date": time.strftime("%Y-%m-%d"), "commit": stamp["commit"],
+            "machine": stamp["machine"], "seeds": args.seeds,
             "n_real_clips": len(DATA["real"]), "failed_alignments": DATA["failed"],
             "real_minutes": sum(x["wave_s"] for x in DATA["real"]) / 60,
             "n_real_bilabials": rows[BASELINE]["real"]["n_bilabials"],

@@ -37,8 +37,7 @@ import hashlib
 import json
 import multiprocessing as mp
 import os
-import platform
-import subprocess
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -56,6 +55,8 @@ import real_voices as rv  # noqa: E402
 from dualtalker_lite.data import sample_path  # noqa: E402
 from dualtalker_lite.data.corpus import Corpus  # noqa: E402
 from dualtalker_lite.data.dataset import SILENCE_PAD, TalkingFaceDataset, VisemeLabels, make_loader  # noqa: E402
+from dualtalker_lite.provenance import machine, machine_line, provenance  # noqa: E402
+from dualtalker_lite.files import atomic_write_text  # noqa: E402
 from dualtalker_lite.metrics import lip_distance  # noqa: E402
 from dualtalker_lite.train import RECIPE, TrainConfig, train  # noqa: E402
 
@@ -195,29 +196,18 @@ def run_job(job: tuple) -> dict:
 
 
 def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} logical CPUs"
+    return machine_line(machine())
 
 
 def _provenance(argv) -> dict:
-    def git(*a):
-        try:
-            return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-        except (OSError, subprocess.CalledProcessError):
-            return None
-    commit = git("rev-parse", "--short", "HEAD")
-    dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
-    if commit is None and os.environ.get("SOURCE_COMMIT"):  # a copy of the tree without .git (another machine)
+    """The shared stamp (command, commit with "+dirty", machine); a copy of the tree without .git (another machine)
+    takes its commit from $SOURCE_COMMIT, its cleanliness then unknown (``dirty`` None)."""
+    stamp = provenance("python benchmarks/recipe_curves.py " + shlex.join(argv[1:]))
+    commit, dirty = stamp["commit"].removesuffix("+dirty"), stamp["commit"].endswith("+dirty")
+    if commit == "unknown" and os.environ.get("SOURCE_COMMIT"):
         commit, dirty = os.environ["SOURCE_COMMIT"], None
-    return {"command": "python benchmarks/recipe_curves.py " + " ".join(argv[1:]), "commit": commit,
-            "dirty": dirty, "machine": _machine(), "date": time.strftime("%Y-%m-%d")}
+    return {"command": stamp["command"], "commit": commit, "dirty": dirty, "machine": _machine(),
+            "date": time.strftime("%Y-%m-%d")}
 
 
 # ----------------------------------------------------------------------------------------------- step 3: report
@@ -242,7 +232,10 @@ def report(runs: list[Path], out: Path) -> None:
     lines = ["# Time to quality: lip sync against training CPU seconds (issue 31)", "", "Made by:", ""]
     lines += [f"- `{m.get('command', '?')}` at commit `{m.get('commit', '?')}` on {m.get('machine', '?')} "
               f"({m.get('date', '?')})" for m in made]
-    lines += ["- then `python benchmarks/recipe_curves.py report " + " ".join(f"--runs {r}" for r in runs) + "`", "",
+    this = _provenance(sys.argv)
+    dirty = " (uncommitted changes)" if this["dirty"] else ""
+    lines += [f"- then `{this['command']}` at commit `{this['commit']}`{dirty} on {this['machine']} "
+              f"({this['date']})", "",
               "One torch thread per run; CPU seconds are the training process's own (evaluation excluded). "
               "Recipes, each as what it changes from the old recipe " + json.dumps(OLD_RECIPE) + ": " + "; ".join(f"`{name}` = {json.dumps(cfg)}" for name, cfg in sorted(
                   {j["recipe"]: {k: v for k, v in j["train_config"].items() if OLD_RECIPE.get(k, v) != v or
@@ -274,8 +267,8 @@ def report(runs: list[Path], out: Path) -> None:
     lines += ["", "Curves: `time_to_quality.png` (real-voice closure < 1 mm and test-A LVE against training CPU "
               "seconds, one line per seed); every point in `time_to_quality.json`."]
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    out.with_suffix(".json").write_text(json.dumps({"made_by": made, "runs": jobs}, indent=1))
+    atomic_write_text(out, "\n".join(lines) + "\n")
+    atomic_write_text(out.with_suffix(".json"), json.dumps({"made_by": made, "report": this, "runs": jobs}, indent=1))
     _plot(groups, out.with_suffix(".png"))
     print("\n".join(lines))
 

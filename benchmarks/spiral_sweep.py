@@ -1,6 +1,6 @@
 """EmoFace Table 4 at tiny scale: SpiralConv3D's dilation, kernel size (spiral length) and time duration (δ frames).
 
-    .venv/bin/python benchmarks/spiral_sweep.py --seeds 0 1 2 --epochs 5 --sentences s00 --out results/
+    .venv/bin/python benchmarks/spiral_sweep.py --seeds 0 1 2 --epochs 8 --sentences s00 --processes 2 --out results/
 
 The paper's seven rows (dilation, kernel size, duration), the adopted configuration being the fourth (2, 18, 3),
 each trained as a tiny EmoFace (``EmoFaceConfig.tiny`` with the row's spiral; the emotional tables' recipe
@@ -10,9 +10,12 @@ the same clips, epochs and seeds. The budget is far below the tables': the train
 speaker's readings of ``--sentences`` only (the neutral one from ``train``, the eight emotional ones from
 ``train_emo``: 72 clips for one sentence, each with its pseudo-pair partners), for ``--epochs`` epochs.
 
-``--render results/spiral.json`` rewrites the Markdown of a stored sweep without training.
+``--render results/spiral.json`` rewrites the Markdown of a stored sweep without training. ``--processes N`` trains N
+runs at once (one torch thread each); each run costs about 2 CPU minutes at 8 epochs (the 21 runs of the results
+file: about 40 CPU minutes).
 
-Written: ``<out>/spiral.json`` (every run, after each run, so an interrupted sweep keeps what finished) and
+Written: ``<out>/spiral.json`` (every run, after each run, so an interrupted sweep keeps what finished; each run
+with the commit it was computed at, and the file with its command, commit and machine) and
 ``<out>/spiral.md``: per row mean ± sample std over seeds of LVE and EVE (Euclidean, mm, the paper's two metrics),
 FDD, the emotion accuracy, parameters and training seconds; each row's LVE and EVE against the adopted row
 (2-standard-error rule); and the paper's three readings of its Table 4 (kernel, dilation, duration), each checked
@@ -21,19 +24,20 @@ on LVE and EVE with the same rule.
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
 import math
 import shlex
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
 from pathlib import Path
 
 import torch
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
-from dualtalker_lite.experiments.command import _git
+from dualtalker_lite.provenance import is_clean_commit, machine_line, provenance
 from dualtalker_lite.experiments.report import summarize
 from dualtalker_lite.experiments.runner import run_one
 from dualtalker_lite.experiments.specs import EMOTIONAL_TRAIN, RunSpec
@@ -96,6 +100,8 @@ def markdown(payload: dict) -> str:
              f"`EmoFaceConfig.tiny` with the row's spiral); evaluated on all {payload['n_test_clips']} test_emo_a "
              f"clips, autoregressive; mean ± sample std over seeds. Commit {payload['git']}; {payload['created']}."
              f" {payload['status']}", "",
+             *([f"Machine: {machine_line(payload['machine'])}; one torch thread per run.", ""]
+               if payload.get("machine") else []),
              "| row | dilation | kernel | duration | paper LVE | paper EVE | "
              + " | ".join(h for _, h, _ in METRICS) + " | seeds | params | train (s) | vs adopted row |",
              "|---" * (len(METRICS) + 10) + "|"]
@@ -139,6 +145,12 @@ def markdown(payload: dict) -> str:
     return "\n".join(lines)
 
 
+def _run(cfg: tuple, seed: int, epochs: int, clips: dict) -> tuple[dict, float]:
+    """One row and seed (in a worker process) -> (run_one's result, wall seconds)."""
+    t0 = time.perf_counter()
+    return run_one(spec(cfg), seed, epochs, test_split=SPLIT, clips=clips), time.perf_counter() - t0
+
+
 def main(argv=None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -146,6 +158,7 @@ def main(argv=None) -> None:
     p.add_argument("--epochs", type=int, default=5)
     p.add_argument("--sentences", nargs="+", default=["s00"], help="training sentences (all speakers' readings)")
     p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--processes", type=int, default=1, help="runs trained at once, one torch thread each")
     p.add_argument("--render", type=Path, default=None, metavar="SPIRAL_JSON",
                    help="train nothing: rewrite the Markdown of a stored sweep (next to its JSON)")
     args = p.parse_args(argv)
@@ -157,35 +170,47 @@ def main(argv=None) -> None:
     clips = training_clips(corpus, args.sentences)
     configs = list(PAPER)
     rows = [label(c) for c in configs]
-    payload = {"table": "spiral", "command": "python benchmarks/spiral_sweep.py " + shlex.join(argv),
+    stamp = provenance("python benchmarks/spiral_sweep.py " + shlex.join(argv))
+    payload = {"table": "spiral", "command": stamp["command"],
                "argv": argv, "seeds": args.seeds, "epochs": args.epochs, "sentences": args.sentences,
                "train_clips": clips, "n_train_clips": sum(map(len, clips.values())), "test_split": SPLIT,
-               "n_test_clips": len(corpus.metadata["splits"][SPLIT]), "git": _git(), "torch": torch.__version__,
-               "created": _dt.datetime.now().isoformat(timespec="seconds"), "adopted": list(ADOPTED),
+               "n_test_clips": len(corpus.metadata["splits"][SPLIT]), "git": stamp["commit"],
+               "torch": torch.__version__, "machine": stamp["machine"], "created": stamp["created"],
+               "adopted": list(ADOPTED),
                "configs": [list(c) for c in configs], "rows": rows,
                "paper_table4": [{"config": list(c), "lve": v[0], "eve": v[1]} for c, v in PAPER.items()], "runs": []}
     jobs = [(c, s) for s in args.seeds for c in configs]  # seed-major: an interrupted sweep has whole seeds
     stored = args.out / "spiral.json"
-    if stored.is_file():  # an interrupted sweep with the same arguments: keep its runs, compute the rest
+    if stored.is_file():  # an interrupted sweep with the same budget: keep its clean runs, compute the rest
         old = json.loads(stored.read_text())
-        if old.get("argv") == argv:
-            payload["runs"] = old["runs"]
-            payload["resumed_from"] = {"git": old.get("git"), "created": old.get("created"),
-                                       "n_runs": len(old["runs"])}
+        same = all(old.get(k) == payload[k] for k in ("epochs", "sentences"))
+        kept = [r for r in old["runs"] if r["seed"] in args.seeds and is_clean_commit(r.get("git"))] if same else []
+        if kept:
+            payload["runs"] = kept
+            payload["resumed_from"] = {"created": old.get("created"), "n_runs": len(kept),
+                                       "run_commits": sorted({r["git"] for r in kept})}
     done = {(r["row"], r["seed"]) for r in payload["runs"]}
-    for i, (cfg, seed) in enumerate(jobs):
-        if (label(cfg), seed) in done:
-            continue
-        t0 = time.perf_counter()
-        res = run_one(spec(cfg), seed, args.epochs, test_split=SPLIT, clips=clips)
-        payload["runs"].append({k: v for k, v in res.items() if k not in ("model_config", "train_config")})
-        payload["status"] = ("Complete." if i + 1 == len(jobs) else
-                             f"**Partial: {i + 1} of {len(jobs)} runs finished.**")
+    todo = [(cfg, seed) for cfg, seed in jobs if (label(cfg), seed) not in done]
+    payload["status"] = "Complete." if not todo else f"**Partial: {len(done)} of {len(jobs)} runs finished.**"
+    if not todo:  # every run kept: the files still take this invocation's stamp
         atomic_write_text(args.out / "spiral.json", json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
         atomic_write_text(args.out / "spiral.md", markdown(payload))
-        m = res["metrics"]
-        print(f"[{i + 1}/{len(jobs)}] {label(cfg)} seed {seed}: LVE {m['lve_euclidean']:.3f} mm, EVE "
-              f"{m['eve_euclidean']:.3f} mm, {time.perf_counter() - t0:.0f} s", flush=True)
+    pool = ProcessPoolExecutor(max_workers=max(1, args.processes), mp_context=get_context("spawn"),
+                               initializer=torch.set_num_threads, initargs=(1,))
+    with pool:
+        futures = {pool.submit(_run, cfg, seed, args.epochs, clips): (cfg, seed) for cfg, seed in todo}
+        for n, fut in enumerate(as_completed(futures), 1):
+            (cfg, seed), (res, seconds) = futures[fut], fut.result()
+            payload["runs"].append({**{k: v for k, v in res.items() if k not in ("model_config", "train_config")},
+                                    "git": stamp["commit"]})
+            payload["runs"].sort(key=lambda r: (r["seed"], rows.index(r["row"])))
+            payload["status"] = ("Complete." if n == len(todo) else
+                                 f"**Partial: {len(payload['runs'])} of {len(jobs)} runs finished.**")
+            atomic_write_text(args.out / "spiral.json", json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+            atomic_write_text(args.out / "spiral.md", markdown(payload))
+            m = res["metrics"]
+            print(f"[{n}/{len(todo)}] {label(cfg)} seed {seed}: LVE {m['lve_euclidean']:.3f} mm, EVE "
+                  f"{m['eve_euclidean']:.3f} mm, {seconds:.0f} s", flush=True)
     print(markdown(payload))
 
 

@@ -1,7 +1,10 @@
 """Time-to-quality of the training recipe (issue 8, section 2): test-A quality against training time, per seed.
 
     .venv/bin/python benchmarks/time_to_quality.py [--models dualtalker faceformer voca] [--seeds 0 1 2]
-        [--cpu-seconds 120] [--eval-every 20] [--out runs/time_to_quality] [--train '{"lr": 3e-3}']
+        [--cpu-seconds 120] [--eval-every 20] [--out runs/time_to_quality] [--train '{"lr": 3e-3}'] [--stem NAME]
+
+    .venv/bin/python benchmarks/time_to_quality.py --seeds 0 1 2 --out results --stem cpu_budget_120s
+        # -> results/cpu_budget_120s.md/.json/.png, the table of results/README.md (about 2.5 CPU minutes a seed)
 
 Budget: CPU seconds of this process (``time.process_time``) with ONE torch thread, not wall-clock seconds: the
 machine is shared, and wall-clock time there is inflated by other jobs, while the process CPU time of a
@@ -11,11 +14,13 @@ that ends past every ``--eval-every`` CPU seconds and at the end; evaluation tim
 
 Targets for the tiny DualTalker at 120 s: test-A LVE <= 0.35 x the static template's, bilabial closure rate
 (lip distance < 2 mm at /p b m/) >= 0.8, lip motion ratio in [0.8, 1.2]. Prints one line per evaluation and a
-summary per seed; writes ``time_to_quality.json`` and ``time_to_quality.png`` (LVE ratio and closure rate
-against training CPU seconds, one line per model and seed) into ``--out``.
+summary per seed; writes ``<stem>.json``, ``<stem>.md`` (the summary table, with the command, commit and machine)
+and ``<stem>.png`` (LVE ratio and closure rate against training CPU seconds, one line per model and seed) into
+``--out`` (``--stem`` defaults to ``time_to_quality``).
 """
 import argparse
 import json
+import shlex
 import sys
 import time
 from dataclasses import replace
@@ -25,6 +30,8 @@ import torch
 
 from dualtalker_lite.data.dataset import make_loader
 from dualtalker_lite.experiments import _features, build_model, load_data, predict_split, table_specs
+from dualtalker_lite.files import atomic_write_text
+from dualtalker_lite.provenance import machine_line, provenance
 from dualtalker_lite.losses import LossWeights
 from dualtalker_lite.metrics import lip_sync_metrics, lve_euclidean
 from dualtalker_lite.train import TrainConfig, train
@@ -113,7 +120,9 @@ def main() -> None:
     ap.add_argument("--model", type=json.loads, default={}, help="model config overrides (JSON)")
     ap.add_argument("--loss", type=json.loads, default={}, help="LossWeights overrides (JSON), e.g. '{\"lambda4\": 0}'")
     ap.add_argument("--out", type=Path, default=Path("runs/time_to_quality"))
+    ap.add_argument("--stem", default="time_to_quality", help="file names in --out: STEM.json, STEM.md, STEM.png")
     args = ap.parse_args()
+    stamp = provenance("python benchmarks/time_to_quality.py " + shlex.join(sys.argv[1:]))
     torch.set_num_threads(1)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -131,14 +140,26 @@ def main() -> None:
         print(f"  {ROWS[r['model']]:17s} seed {r['seed']}: LVE ratio {f['lve_ratio']:.3f}  closure "
               f"{f['closure_rate']:.2f}  lip motion {f['lip_motion_ratio']:.2f}  ({f['steps']} steps, {f['epochs']} "
               f"epochs, {f['cpu_s']:.0f} CPU s, {f['wall_s']:.0f} wall s)  {'meets' if ok else 'misses'} the targets")
-    payload = {"command": "python " + " ".join(sys.argv), "cpu_seconds": args.cpu_seconds, "threads": 1,
+    payload = {"command": stamp["command"], "git": stamp["commit"], "machine": stamp["machine"],
+               "created": stamp["created"], "cpu_seconds": args.cpu_seconds, "threads": 1,
                "template_lve_mm": base["lve_mm"], "train_overrides": args.train,
                "model_overrides": args.model, "loss_overrides": args.loss, "results": results,
                "total_wall_s": time.perf_counter() - t0}
-    (args.out / "time_to_quality.json").write_text(json.dumps(payload, indent=1) + "\n")
-    plot(results, args.out / "time_to_quality.png", args.cpu_seconds)
-    print(f"wrote {args.out / 'time_to_quality.json'} and {args.out / 'time_to_quality.png'} "
-          f"({time.perf_counter() - t0:.0f} s in all)")
+    page = [f"# Quality after {args.cpu_seconds:g} CPU seconds of training (one thread), test-A", "",
+            f"Command: `{stamp['command']}`; commit {stamp['commit']}; {stamp['created']}; "
+            f"{machine_line(stamp['machine'])}. Recipe `TrainConfig.tiny()` with {json.dumps(args.train)}, stopped "
+            f"after {args.cpu_seconds:g} s of process CPU time; static template LVE {base['lve_mm']:.3f} mm. "
+            "Targets for DualTalker: LVE ratio <= 0.35, closure < 2 mm >= 0.8, lip motion 0.8-1.2. Curves: "
+            f"`{args.stem}.png`.", "",
+            "| model | seed | LVE / static template | closed < 2 mm at /p b m/ | lip motion ratio | steps | epochs |",
+            "|---|---|---|---|---|---|---|"]
+    page += [f"| {ROWS[r['model']]} | {r['seed']} | {r['final']['lve_ratio']:.3f} | {r['final']['closure_rate']:.2f} "
+             f"| {r['final']['lip_motion_ratio']:.2f} | {r['final']['steps']} | {r['final']['epochs']} |"
+             for r in results]
+    atomic_write_text(args.out / f"{args.stem}.json", json.dumps(payload, indent=1) + "\n")
+    atomic_write_text(args.out / f"{args.stem}.md", "\n".join(page) + "\n")
+    plot(results, args.out / f"{args.stem}.png", args.cpu_seconds)
+    print(f"wrote {args.out / args.stem}.json, .md and .png ({time.perf_counter() - t0:.0f} s in all)")
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 Layers, lowest first (docs/architecture.md; ``tests/test_architecture.py`` keeps imports pointing down):
 
 - foundations: ``face`` (procedural face rig), ``audio`` (I/O, log-mel), ``recogniser`` (phoneme recogniser front-end),
-  ``export`` (glTF, HTML), ``seeding``, ``checks``, ``files``, ``processes``, ``console``
+  ``export`` (glTF, HTML), ``seeding``, ``checks``, ``files``, ``processes``, ``console``,
+  ``provenance`` (command, commit and machine of a results file)
 - data and blocks: ``data`` (speech, corpus, datasets); ``blocks`` (attention, positional biases, the shared
   FaceFormer-style ``decoder``, the audio front-end, each paper's building blocks)
 - models and losses: ``models`` (one module per paper, plus the baselines), ``losses`` (one module per paper)

@@ -78,8 +78,8 @@ class TrainConfig:
 
 # The recipe of the tiny models (module docstring: what changed and why, with the measurements). ``epochs`` is the
 # 120 s budget as a step count: 37 epochs x 22 steps (176 training clips, batches of 8) = 814 steps, what the tiny
-# DualTalker made in 120 s of one-thread CPU time in benchmarks/time_to_quality.py (795-820 steps; 104 s at the
-# quiet 128 ms per step of benchmarks/profile_step.py).
+# DualTalker made in 120 s of one-thread CPU time in benchmarks/time_to_quality.py when the recipe was set (795-820
+# steps; today's step is faster: 1206-1293 steps in results/cpu_budget_120s.md, 93 ms in results/profile_step.md).
 RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
               min_lr_ratio=0.0, threads=1, mean_init=True)
 

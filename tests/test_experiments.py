@@ -168,7 +168,33 @@ def test_reuse_takes_over_matching_runs_and_computes_none(quick_tables, tmp_path
     second = json.loads((tmp_path / "main.json").read_text())
     assert [r["metrics"] for r in second["runs"]] == [r["metrics"] for r in first["runs"]]
     assert second["n_runs_reused"] == n
-    assert second["reused_from"] == [{"table": "main.json", "git": first["git"], "n_runs": n}]
+    assert second["reused_from"] == [{"table": "main.json", "run_commits": [first["git"]], "n_runs": n,
+                                      "n_runs_not_clean": 0}]
+    assert {r["git"] for r in second["runs"]} == {first["git"]}  # each run keeps the commit it was computed at
+
+
+def test_reuse_recomputes_runs_of_a_dirty_tree(quick_tables, tmp_path):
+    """A stored run stamped with a dirty tree (or with no commit, in a table that itself reused runs) is not taken
+    over; a clean one is; a run of this invocation's own dirty tree is (the new table is dirty too)."""
+    payload = json.loads((quick_tables / "main.json").read_text())
+    a, b, c = payload["runs"][:3]
+    payload["runs"] = [{**a, "git": "abc1234"}, {**b, "git": "abc1234+dirty"}, {**c, "git": "fff0000+dirty"}]
+    path = tmp_path / "main.json"
+    path.write_text(json.dumps(payload))
+    found, sources = ex.reusable_runs([path], 1, payload["corpus"], quick=True, commit="fff0000+dirty")
+    assert sorted(found) == sorted([(a["key"], a["seed"]), (c["key"], c["seed"])])
+    assert sources == [{"table": "main.json", "run_commits": ["abc1234", "fff0000+dirty"], "n_runs": 2,
+                        "n_runs_not_clean": 1}]
+    found, _ = ex.reusable_runs([path], 1, payload["corpus"], quick=True)
+    assert sorted(found) == [(a["key"], a["seed"])]
+    payload["runs"] = [{k: v for k, v in r.items() if k != "git"} for r in payload["runs"]]
+    payload.update(git="abc1234", reused_from=[{"table": "other.json", "git": "abc1234", "n_runs": 3}])
+    path.write_text(json.dumps(payload))
+    found, sources = ex.reusable_runs([path], 1, payload["corpus"], quick=True)
+    assert found == {} and sources[0]["n_runs_not_clean"] == 3  # which table computed them is unknown
+    payload["reused_from"] = []
+    path.write_text(json.dumps(payload))
+    assert len(ex.reusable_runs([path], 1, payload["corpus"], quick=True)[0]) == 3  # its own runs: its commit
 
 
 def test_reuse_refuses_a_table_with_another_budget(quick_tables, tmp_path):

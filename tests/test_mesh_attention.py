@@ -216,10 +216,15 @@ def test_bad_inputs_are_refused_with_one_clear_line():
 
 
 def test_mlp_ablation_is_a_per_vertex_linear_map():
+    """Spirals of length 1 and delta = 1 ("MLP in place of SpiralConv3D"): the map is section 3.2's MLPs, + the
+    vertex embedding, then per-vertex linear layers, all written out here from the parameters (no module method)."""
     torch.manual_seed(4)
     att = MeshAttention(V, C, torch.arange(V)[:, None], delta=1, n_layers=2)  # "MLP in place of SpiralConv3D"
     fe, fc, _, _ = _inputs(B=1, T=4)
-    h = att.audio_feature(fe, fc)[:, :, None, :] + att.vertex_embedding  # (B, T, V, C/16)
+    f_e1 = F.relu(fe @ att.emotion_proj.weight.t() + att.emotion_proj.bias)  # (B, T, C/4)
+    f_c1 = F.relu(fc @ att.content_proj.weight.t() + att.content_proj.bias)
+    f_audio = torch.cat([f_e1, f_c1], -1) @ att.audio_fuse.weight.t() + att.audio_fuse.bias  # (B, T, C/16)
+    h = f_audio[:, :, None, :] + att.vertex_embedding  # (B, T, V, C/16)
     for i, conv in enumerate(att.convs):
         w = conv.weight[:, 0, 0, :]  # (C_out, C_in): kernel of one vertex and one frame
         h = h @ w.t() + conv.bias

@@ -43,15 +43,17 @@ Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact com
 
 The package: :mod:`.specs` (tables and their rows), :mod:`.evaluation` (features, metrics, collapse check),
 :mod:`.runner` (data, models, ``run_one``, ``run_specs``), :mod:`.report` (summaries, ``<table>.json`` / ``.md``),
-:mod:`.command` (the command line, ``main``); every name is re-exported here.
+:mod:`.command` (the command line, ``main``), :mod:`.provenance` (command, commit and machine of a results
+file); every name is re-exported here.
 """
 from __future__ import annotations
 
-from .command import _display_path, _git, main, parse_args, reusable_runs
+from .command import _display_path, main, parse_args, reusable_runs
 from .evaluation import (COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, AudioSwapped, PhonemeOneHot,
                          _unpad, audio_sensitivity, collapse_reasons, emotion_split_metrics, is_collapsed,
                          over_smoothing_ratio, phoneme_onehot, predict_split, split_metrics, swap_partners,
                          typical_bandwidth)
+from ..provenance import _git, is_clean_commit, machine, machine_line, provenance
 from .report import (DEFINITIONS, EMOTION_DEFINITIONS, _collapse_note, _compare, _fmt, load_table, summarize,
                      table_markdown, write_table)
 from .runner import (_DATA, _features, _job, _trimmed, _worker_init, build_model, data_split, load_data, run_one,
@@ -65,4 +67,4 @@ __all__ = ["TABLES", "METRICS", "FEATURES", "RunSpec", "table_specs", "test_feat
            "typical_bandwidth", "swap_partners", "AudioSwapped", "audio_sensitivity", "collapse_reasons",
            "is_collapsed",
            "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
-           "write_table", "load_table", "table_markdown", "main"]
+           "write_table", "load_table", "table_markdown", "main", "provenance", "machine"]

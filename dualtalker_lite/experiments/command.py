@@ -1,5 +1,6 @@
 """Command line of the experiment runner (``python -m dualtalker_lite.experiments``): arguments, reuse of runs of
-earlier tables, provenance (git commit, corpus as a repository-relative path) and :func:`main`.
+earlier tables (clean commits only), the corpus as a repository-relative path and :func:`main`; the command,
+commit and machine stamp comes from :mod:`.provenance`.
 """
 from __future__ import annotations
 
@@ -15,29 +16,17 @@ from typing import Sequence
 
 import torch
 
+from ..files import repo_root
 from .evaluation import typical_bandwidth
+from ..provenance import is_clean_commit, provenance
 from .report import refresh_table, write_table
 from .runner import data_split, load_data, run_specs
 from .specs import FEATURES, TABLES, RunSpec, table_specs, table_split
 
 # ------------------------------------------------------------------------------------------- command line
-def _git() -> str:
-    from ..files import repo_root
-
-    try:
-        run = lambda *a: subprocess.run(["git", "-C", str(repo_root()), *a], capture_output=True,  # noqa: E731
-                                        text=True, timeout=10).stdout.strip()
-        head = run("rev-parse", "--short", "HEAD")
-        return f"{head}{'+dirty' if run('status', '--porcelain', '--untracked-files=no') else ''}" or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def _display_path(path: str | Path) -> str:
     """The corpus folder as written into results: relative to the repository (or the working directory) when
     inside it, else its name only, so committed tables carry no machine-specific paths."""
-    from ..files import repo_root
-
     path = Path(path).resolve()
     for base in (repo_root(), Path.cwd()):
         try:
@@ -78,13 +67,20 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False
-                  ) -> tuple[dict, list[dict]]:
+def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False,
+                  commit: str | None = None) -> tuple[dict, list[dict]]:
     """Runs of earlier tables that a new invocation may take over: {(key, seed): run}, plus one provenance entry
-    per table (file name, git commit, runs taken). Only tables with the same epoch budget, the same corpus and
-    the same ``--quick`` setting qualify; a table that does not is refused with one line naming it and the mismatch."""
+    per table (file name, the commits of the runs taken, runs taken, runs left to recompute). Only tables with the
+    same epoch budget, the same corpus and the same ``--quick`` setting qualify; a table that does not is refused
+    with one line naming it and the mismatch.
+
+    Each run keeps the commit it was computed at (its ``git``; a run without one takes its table's, unless that
+    table itself reused runs: then its origin is unknown). A run from a dirty tree or of unknown origin is not
+    taken over: it is recomputed, so a table re-made from a clean commit holds no number of a dirty one. The one
+    exception: a run stamped with this invocation's own ``commit`` (the same dirty tree, e.g. while developing;
+    the new table is then stamped dirty as well)."""
     found: dict = {}
-    provenance = []
+    sources = []
     for path in paths:
         path = Path(path)
         try:
@@ -96,10 +92,14 @@ def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: 
             if payload.get(field_) != want:
                 raise ValueError(f"{path}: cannot reuse its runs: {field_} is {payload.get(field_)!r}, "
                                  f"this invocation has {want!r}")
-        for run in runs:
+        table_git = payload.get("git", "") if not payload.get("reused_from") else "unknown"
+        kept = [{**run, "git": run.get("git") or table_git} for run in runs]
+        kept = [run for run in kept if is_clean_commit(run["git"]) or run["git"] == commit]
+        for run in kept:
             found.setdefault((run["key"], run["seed"]), run)
-        provenance.append({"table": path.name, "git": payload.get("git", ""), "n_runs": len(runs)})
-    return found, provenance
+        sources.append({"table": path.name, "run_commits": sorted({run["git"] for run in kept}),
+                        "n_runs": len(kept), "n_runs_not_clean": len(runs) - len(kept)})
+    return found, sources
 
 
 def _slug(row: str) -> str:
@@ -128,11 +128,16 @@ def main(argv: Sequence[str] | None = None) -> dict:
         for s in specs[t]:
             for seed in seeds:
                 unique.setdefault((s.key(table_split(t)), seed), (s, seed, table_split(t)))
-    old, reused = reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick) if args.reuse else ({}, [])
+    stamp = provenance("python -m dualtalker_lite.experiments " + shlex.join(argv))
+    old, reused = (reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick, stamp["commit"])
+                   if args.reuse else ({}, []))
     taken = {k: old[k] for k in unique if k in old}
     cost = {"template": 0, "voca": 1, "corrtalk": 4, "emoface": 5}  # longest jobs first: the pool finishes together
     jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
-    print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused ({', '.join(tables)}; seeds {seeds}; "
+    not_clean = sum(r["n_runs_not_clean"] for r in reused)
+    print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused"
+          f"{f' ({not_clean} stored runs not from a clean commit are recomputed)' if not_clean else ''} "
+          f"({', '.join(tables)}; seeds {seeds}; "
           f"{epochs} epochs; {args.processes} process(es))", flush=True)
     checkpoints = None
     if args.save_models is not None:
@@ -140,12 +145,12 @@ def main(argv: Sequence[str] | None = None) -> dict:
         checkpoints = [args.save_models / f"{_slug(spec.row)}_seed{seed}.pt" for spec, seed, _ in jobs]
     results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, checkpoints=checkpoints,
                         progress=not args.no_progress)
-    by_key = {**taken, **{(r["key"], r["seed"]): r for r in results}}
-    meta = {"command": "python -m dualtalker_lite.experiments " + shlex.join(argv), "argv": argv,
+    by_key = {**taken, **{(r["key"], r["seed"]): {**r, "git": stamp["commit"]} for r in results}}
+    meta = {"command": stamp["command"], "argv": argv,
             "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
             "features": args.features,
-            "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": _git(),
-            "created": _dt.datetime.now().isoformat(timespec="seconds"), "torch": torch.__version__,
+            "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": stamp["commit"],
+            "created": stamp["created"], "torch": torch.__version__, "machine": stamp["machine"],
             "torch_threads_per_process": 1, "reused_from": reused, "n_runs_reused": len(taken)}
     written = {}
     for t in tables:

@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from .evaluation import COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, collapse_reasons, is_collapsed
+from ..provenance import machine_line
 from .specs import EMOTION_METRICS, FRONT_ENDS, METRICS, TABLE_SPLITS, TEST_SPLIT, TITLES, RunSpec, table_metrics
 
 # ------------------------------------------------------------------------------------------- tables
@@ -185,6 +186,8 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
              f"{split} clips: {meta['n_test_clips']}{quick}; "
              f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
              f"commit {meta['git']}; {meta['created']}.{shown}", "",
+             *([f"Machine: {machine_line(meta['machine'])}; one torch thread per process.", ""]
+               if meta.get("machine") else []),
              "| model | " + " | ".join(h for _, h, _ in columns) + " | collapsed | train (s) | params | note |",
              "|---" * (len(columns) + 5) + "|"]
     for s in specs:

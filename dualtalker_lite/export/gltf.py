@@ -34,7 +34,7 @@ for an hour. Neither is formed. The prediction is read from its memory map in bl
 4. selection of K (smallest K whose blocks all meet ``tol``), then 5. the exact check of the written arrays.
 
 Memory: Q and Y (3V x l), M and C (T x l, float32) and a few copies of one block of frames (at most 64 MB
-each): about 200 MB for an hour of the sample's face at l = 64 (``results/exports.md``: 497 MB peak for the
+each): about 200 MB for an hour of the sample's face at l = 64 (``results/exports.md``: 471 MB peak for the
 whole export, 230 MB of it the caller's speech). If K = l is not enough, l doubles (up to min(T, 3V), where
 the basis is exact). The approximation of the randomized sketch can only cost a larger K (a bigger file), never a
 wrong one: the reported error is measured on the written arrays against the raw frames.

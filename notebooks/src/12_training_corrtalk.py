@@ -430,10 +430,11 @@ fig_a
 # computes them and writes `results/corrtalk.json` (the ablations of CorrTalk's Table III: without the
 # hierarchical encoder, a single branch, the mask initialised at random, and an acoustic-feature swap) and
 # `results/main.json` (CorrTalk next to the static template, VOCA-style, FaceFormer-style and DualTalker), both with
-# 5 seeds. A CorrTalk run costs about 220 s of CPU, twice DualTalker's, so `--reuse` takes over every run that was
-# already computed: the Table III analogue's CorrTalk row from the main table, and seeds 0-2 of its other rows from an
-# earlier 3-seed version of the table. This section reads them; the cell below checks that the files are the ones
-# the commands quoted in it wrote.
+# 5 seeds. A CorrTalk run trains 2-4 times as long as DualTalker's (`results/main.md`'s train column: 526 against
+# 131 wall seconds on a shared 2-core machine; `results/time_to_quality.md`: 264 against 153 CPU seconds, old recipe),
+# so `--reuse` takes over every run that was already computed: the Table III analogue's CorrTalk row from the main
+# table, and seeds 0-2 of its other rows from an earlier 3-seed version of the table. This section reads them; the
+# cell below checks that the files are the ones the commands quoted in it wrote.
 
 # %%
 RESULTS = repo_root() / "results"
