@@ -27,7 +27,7 @@ from . import front_ends
 from .console import USER_ERRORS, HelpFormatter, ProgressLines, exit_status, progress_mode, run_main
 
 __all__ = ["USER_ERRORS", "run_main", "main", "animate_main", "train_parser", "evaluate_parser", "animate_parser",
-           "live_parser", "convert_templates_parser", "prepare_parser"]  # the first two re-exported from .console (their home)
+           "live_parser", "convert_templates_parser", "prepare_parser"]  # the first two: re-exported from .console
 
 
 # ------------------------------------------------------------------------------------- train / evaluate
@@ -243,7 +243,8 @@ def convert_templates_parser() -> argparse.ArgumentParser:
     ap = _new_parser("convert-templates", "Convert FaceFormer's templates.pkl to templates.npz with a restricted "
                                           "unpickler (numpy arrays, dicts, lists, strings and numbers only: a "
                                           "malicious pickle runs nothing).",
-                     "example:\n  dualtalker-lite convert-templates vocaset/templates.pkl    # -> vocaset/templates.npz")
+                     "example:\n  dualtalker-lite convert-templates vocaset/templates.pkl    "
+                     "# -> vocaset/templates.npz")
     ap.add_argument("pickle", help="templates.pkl")
     ap.add_argument("--out", default=None, help="output .npz (default: beside the pickle)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing output .npz")
@@ -258,7 +259,8 @@ def prepare_parser() -> argparse.ArgumentParser:
                                         "dualtalker-lite (metadata.json with FaceFormer's splits, templates.npz, "
                                         "regions.json, faces.npy).",
                      "example:\n  dualtalker-lite prepare-dataset ~/data/vocaset --preset vocaset\n"
-                     "  dualtalker-lite train --corpus ~/data/vocaset --model faceformer --device cuda --out vocaset.pt")
+                     "  dualtalker-lite train --corpus ~/data/vocaset --model faceformer --device cuda "
+                     "--out vocaset.pt")
     ap.add_argument("root", help="the dataset folder (wav/, vertices_npy/, templates.pkl)")
     ap.add_argument("--preset", choices=sorted(PRESETS), required=True,
                     help="the dataset's frame rates, mesh subsampling and splits")
@@ -438,9 +440,9 @@ def _evaluate(argv: list[str]) -> dict:
     from .data import sample_path
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset
-    from .experiments import METRICS, _features, predict_split, split_metrics
+    from .experiments import METRICS, feature_view, predict_split, split_metrics
     from .experiments.evaluation import emotion_split_metrics
-    from .inference import _check_corpus
+    from .inference import check_corpus
 
     args = evaluate_parser().parse_args(argv)
     if args.json and Path(args.json).is_dir():
@@ -463,14 +465,14 @@ def _evaluate(argv: list[str]) -> dict:
                                   f"replaces only that; remove it yourself or name another file")
     model, ckpt = load_checkpoint(args.checkpoint)
     corpus = Corpus(args.corpus or sample_path())
-    _check_corpus(corpus, ckpt)
+    check_corpus(corpus, ckpt)
     if ckpt.get("speakers") and list(ckpt["speakers"]) != list(corpus.train_speakers):
         raise ValueError(f"corpus {corpus.root} has training speakers {corpus.train_speakers}, the checkpoint "
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
     features = ckpt.get("features") or {"name": "logmel"}
     computed = front_ends.get(features["name"]).from_audio  # from the audio (visemes: the recogniser's tracks)
     front_end = front_ends.from_settings(features, args.checkpoint, cache=not args.no_cache) if computed else None
-    dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=front_end),
+    dataset, _ = feature_view(TalkingFaceDataset(corpus, args.split, extractor=front_end),
                            "logmel" if computed else features["name"],  # "logmel": the features as computed
                            len(corpus.phoneme_inventory))
     out = _predict_with_progress(predict_split, model, dataset, progress_mode(args.quiet))

@@ -57,7 +57,7 @@ from .console import ProgressLines, progress_mode
 from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
-           "resolve_emotion", "write_obj", "write_glb", "write_outputs", "run", "FORMAT_ALIASES"]
+           "resolve_emotion", "check_corpus", "write_obj", "write_glb", "write_outputs", "run", "FORMAT_ALIASES"]
 
 FPS = 30
 FORMATS = ("npy", "obj", "gltf", "html", "mp4", "visemes")
@@ -155,7 +155,9 @@ def resolve_emotion(value: str | None, corpus: Corpus | None) -> int | None:
     return corpus.emotions.index(value)
 
 
-def _check_corpus(corpus: Corpus, ckpt: dict) -> None:
+def check_corpus(corpus: Corpus, ckpt: dict) -> None:
+    """Refuse (one line) a corpus whose vertex count or mesh topology differs from the checkpoint's: ``animate``,
+    ``evaluate`` and ``live`` read the speakers' faces from it."""
     n = ckpt.get("n_vertices")
     if n is not None and corpus.metadata.get("n_vertices") not in (None, n):
         raise ValueError(f"corpus {corpus.root} has {corpus.metadata['n_vertices']} vertices per frame, the model "
@@ -297,7 +299,7 @@ def run(args: argparse.Namespace) -> list[Path]:
     corpus = None
     if args.corpus or not args.template or not ckpt.get("speakers"):
         corpus = Corpus(args.corpus or sample_path())
-        _check_corpus(corpus, ckpt)
+        check_corpus(corpus, ckpt)
     speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
     if args.template:
         template, faces = read_template(args.template, ckpt.get("n_vertices"), ckpt.get("topology"),

@@ -6,7 +6,7 @@ are assembled the same way, step by step:
 
 1. the front end (:mod:`dualtalker_lite.front_ends`): a phonetic row builds the phoneme recogniser now (what
    evaluate and animate will feed the model; a missing ``[phonetic]`` extra fails here, before any work);
-2. the training view of the clips (:func:`_features`): the corpus's viseme labels (silence-padded), one-hot
+2. the training view of the clips (:func:`feature_view`): the corpus's viseme labels (silence-padded), one-hot
    phonemes, or the log-mel as computed; its width is the model's ``audio_dim``;
 3. the model, seeded (``set_seed(seed)``: its initial weights depend on the seed only), from the model registry
    (:func:`build_model`); an emotion-aware model (a config with ``n_emotions``, EmoFace) gets as many
@@ -33,12 +33,12 @@ from ..seeding import set_seed
 from .evaluation import PhonemeOneHot
 from .specs import RunSpec
 
-__all__ = ["Assembly", "assemble_training", "build_model", "PHONETIC"]
+__all__ = ["Assembly", "assemble_training", "build_model", "feature_view", "PHONETIC"]
 # trained on the corpus's viseme labels, tested on the recogniser's tracks (front_ends.FRONT_ENDS)
 PHONETIC = tuple(n for n, f in front_ends.FRONT_ENDS.items() if f.labels and f.recogniser)
 
 
-def _features(dataset: Dataset, features: str, n_phonemes: int, training: bool = False) -> tuple[Dataset, int]:
+def feature_view(dataset: Dataset, features: str, n_phonemes: int, training: bool = False) -> tuple[Dataset, int]:
     """A log-mel dataset -> (the dataset a row sees, its audio_dim). "visemes": the corpus's own viseme labels,
     with silence padding when ``training`` (:class:`~dualtalker_lite.data.dataset.VisemeLabels`); at test time
     the phonetic route is fed the recogniser's tracks instead (:func:`test_features`)."""
@@ -103,7 +103,7 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
 
     front = front_ends.get(spec.features)
     front_end = record if record is not None else front_ends.build(spec.features, corpus.fps)
-    train_set, audio_dim = _features(clips, spec.features, len(corpus.phoneme_inventory), training=True)
+    train_set, audio_dim = feature_view(clips, spec.features, len(corpus.phoneme_inventory), training=True)
     config_cls = registry.get(spec.model).config_cls
     if config_cls is not None and "n_emotions" in {f.name for f in dataclasses.fields(config_cls)}:
         spec = dataclasses.replace(spec, model_overrides={**spec.model_overrides, "n_emotions": len(corpus.emotions)})

@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 from torch.utils.data import Dataset
 
-from .assembly import PHONETIC, _features, assemble_training, build_model  # noqa: F401 - re-exported
+from .assembly import PHONETIC, feature_view, assemble_training, build_model  # noqa: F401 - re-exported
 from .evaluation import (AudioSwapped, audio_sensitivity, collapse_reasons, emotion_split_metrics,
                          predict_split, split_metrics, swap_partners)
 from .. import front_ends
@@ -78,9 +78,9 @@ def data_split(data: dict, split: str) -> Dataset:
 def test_features(data: dict, split: str, features: str) -> Dataset:
     """What a row is evaluated on: for the phonetic features the recogniser's per-frame viseme classes of the
     split's audio (``RecogniserExtractor``, hama; computed once, cached under the user cache dir; "visemes+logmel"
-    appends the log-mel), never the corpus's labels; for the other features :func:`_features` of the log-mel split."""
+    appends the log-mel), never the corpus's labels; for the other features :func:`feature_view` of the log-mel split."""
     if features not in PHONETIC:
-        return _features(data_split(data, split), features, data["n_phonemes"])[0]
+        return feature_view(data_split(data, split), features, data["n_phonemes"])[0]
     from ..data.dataset import TalkingFaceDataset
 
     cache = data.setdefault("recognised", {})

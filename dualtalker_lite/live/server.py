@@ -327,7 +327,7 @@ def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = 
     from ..checkpoints import load_checkpoint
     from ..data import sample_path
     from ..data.corpus import Corpus
-    from ..inference import _check_corpus, read_template, resolve_speaker
+    from ..inference import check_corpus, read_template, resolve_speaker
     from .stream import IncrementalDecoder
 
     if not Path(checkpoint).is_file():
@@ -341,7 +341,7 @@ def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = 
     c = None
     if corpus or not template or not ckpt.get("speakers"):
         c = Corpus(corpus or sample_path())
-        _check_corpus(c, ckpt)
+        check_corpus(c, ckpt)
     index, _ = resolve_speaker(ckpt, speaker, c)
     if template:
         verts, faces = read_template(template, ckpt.get("n_vertices"), ckpt.get("topology"),
