@@ -134,7 +134,7 @@ def main(argv=None) -> None:
         print(f"\nwhole live path ({Path(args.checkpoint).name}) vs offline animate; encoder context in frames")
         print(f"{'clip':>22} {'past':>4} {'ahead':>5} {'frames':>6} {'lip corr':>8} {'live std mm':>11} "
               f"{'offline std mm':>14} {'cpu/s':>6}")
-        offline_verts = {name: animate_wave(model, wave, template, speaker, extractor=extractor)
+        offline_verts = {name: animate_wave(model, wave, template, speaker, front_end=extractor)
                          for name, wave in waves.items()}
         for past, ahead in [(60, 3), (60, 0), (30, 3), (120, 6)]:   # the first is LiveSettings' default
             for name, wave in waves.items():
@@ -284,7 +284,7 @@ def fig_quality(args) -> dict:
         rows["offline (animate)"].append(off[:n])
         for la in args.lookaheads:
             key = f"live, look-ahead {la} ms"
-            session = LiveSession(config.model, config.extractor, config.template, config.speaker,
+            session = LiveSession(config.model, config.front_end, config.template, config.speaker,
                                   LiveSettings(lookahead_s=la / 1000))
             out, c, _ = feed(session, it["wave"])
             cpu[key] += c
@@ -366,7 +366,7 @@ def fig_keepup(args) -> dict:
     wave, one = _speech(args.minutes)
     rss0 = _rss_mb()
     config = load_config(args.checkpoint, "SPK01")
-    session = LiveSession(config.model, config.extractor, config.template, config.speaker, LiveSettings())
+    session = LiveSession(config.model, config.front_end, config.template, config.speaker, LiveSettings())
     rss_loaded = _rss_mb()
     c0, w0 = time.process_time(), time.perf_counter()
     sim = simulate(session, wave, clock=args.clock,
@@ -405,9 +405,9 @@ def fig_latency(args) -> dict:
             clips.append(load_audio(p))
     for la in (0, 100, 200):
         s = LiveSettings(lookahead_s=la / 1000)
-        session = LiveSession(config.model, config.extractor, config.template, config.speaker, s)
+        session = LiveSession(config.model, config.front_end, config.template, config.speaker, s)
         sim = simulate(session, wave, clock=args.clock)
-        algo = s.latency_s(config.extractor.fps, config.extractor.lag_s, config.extractor.window_s)
+        algo = s.latency_s(config.front_end.fps, config.front_end.lag_s, config.front_end.window_s)
         lat = np.concatenate([asyncio_run_latency(args.checkpoint, "SPK01", w, la / 1000) for w in clips])
         out["lookaheads"][str(la)] = {"algorithmic_ms": algo * 1000, "hop_ms": s.hop_s * 1000,
                                       "session": _lat(sim["latency"]),
@@ -435,7 +435,7 @@ def fig_diagnose(args) -> dict:
     config = load_config(args.checkpoint, subject)
     _, ckpt = load_checkpoint(args.checkpoint)
     offline_ex = extractor_from_settings(ckpt.get("features"), args.checkpoint, cache=False)
-    eye = np.eye(config.extractor.dim, dtype=np.float32)
+    eye = np.eye(config.front_end.dim, dtype=np.float32)
     names = ["offline (animate)", "offline track -> incremental decoder (encoder 60 back / 3 ahead)",
              "live track (200 ms) -> offline decoder", "live, look-ahead 200 ms"]
     rows = {k: [] for k in names}
@@ -448,13 +448,13 @@ def fig_diagnose(args) -> dict:
         dec = IncrementalDecoder(config.model, config.template, config.speaker, 60, 3)
         v = np.concatenate([dec.push(eye[off_ids]), dec.flush()])
         rows[names[1]].append(lip_distance(v, *lip_mid)[:n])
-        track = StreamingVisemes(config.extractor, 0.2)
+        track = StreamingVisemes(config.front_end, 0.2)
         out, _, _ = feed(track, wave)
         live_ids = np.concatenate(out)[:n]
         rows[names[2]].append(lip_distance(animate_wave(config.model, wave, config.template, config.speaker,
                                                         extractor=lambda w, k: torch.from_numpy(eye[live_ids])),
                                            *lip_mid)[:n])
-        session = LiveSession(config.model, config.extractor, config.template, config.speaker,
+        session = LiveSession(config.model, config.front_end, config.template, config.speaker,
                               LiveSettings(lookahead_s=0.2))
         out, _, _ = feed(session, wave)
         rows[names[3]].append(lip_distance(np.concatenate([v for _, v in out]), *lip_mid)[:n])

@@ -119,7 +119,7 @@ def one(minutes: float, out_dir: Path, video_seconds: float, threads: int) -> di
     assert verts.shape == (n_frames, template.size) and np.isfinite(verts[-100:]).all()
 
     if video_seconds > 0:
-        from dualtalker_lite.viz.animate import render_video
+        from dualtalker_lite.export.video import render_video
 
         n = min(n_frames, int(video_seconds * 30))
         for renderer, frames in (("raster", n), ("matplotlib", min(n, 300))):

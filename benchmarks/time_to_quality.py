@@ -29,7 +29,7 @@ from pathlib import Path
 import torch
 
 from dualtalker_lite.data.dataset import make_loader
-from dualtalker_lite.experiments import _features, build_model, load_data, predict_split, table_specs
+from dualtalker_lite.experiments import feature_view, build_model, load_data, predict_split, table_specs
 from dualtalker_lite.files import atomic_write_text
 from dualtalker_lite.provenance import machine_line, provenance
 from dualtalker_lite.losses import LossWeights
@@ -55,7 +55,7 @@ def run(model_key: str, seed: int, args, data, base_lve: float) -> dict:
     spec = next(s for s in table_specs("main") if s.row == ROWS[model_key])
     spec = replace(spec, model_overrides={**spec.model_overrides, **args.model},
                    loss={**spec.loss, **args.loss})  # ablations / sweeps from the command line
-    train_set, audio_dim = _features(data["train"], spec.features, data["n_phonemes"])
+    train_set, audio_dim = feature_view(data["train"], spec.features, data["n_phonemes"])
     set_seed(seed, threads=1)
     model, _ = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
     cfg = TrainConfig.tiny(**{"epochs": 10_000, "cpu_budget_s": args.cpu_seconds, "seed": seed, "progress": False,

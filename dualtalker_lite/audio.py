@@ -60,13 +60,15 @@ def resample(wave: np.ndarray, orig_sr: int, target_sr: int) -> np.ndarray:
 
 def upsampled_warning(path, file_sr: int, sample_rate: int, front_end: str = "logmel") -> str:
     """The one ``warning:`` line for a recording sampled below ``sample_rate`` (upsampled: nothing above
-    ``file_sr / 2`` is there), worded for the model's audio ``front_end``: ``"logmel"`` (its upper mel bands are
-    empty, and log-mel models know only full-band speech), ``"hama"`` (the phoneme recogniser: it copes with
-    telephone-band speech, the real-voice benchmark's voice is 8 kHz, but has less to go on for the consonants whose
-    energy lies above 4 kHz) or ``"hama+logmel"`` (both: EmoFace's emotion branch reads log-mel)."""
+    ``file_sr / 2`` is there), worded for the model's audio ``front_end`` (a name of
+    :data:`dualtalker_lite.front_ends.FRONT_ENDS`): ``"logmel"`` (its upper mel bands are empty, and log-mel models
+    know only full-band speech), ``"visemes"`` (the phoneme recogniser: it copes with telephone-band speech, the
+    real-voice benchmark's voice is 8 kHz, but has less to go on for the consonants whose energy lies above 4 kHz) or
+    ``"visemes+logmel"`` (both: EmoFace's emotion branch reads log-mel); the recogniser's other outputs
+    (``"logprobs"``...) are worded as ``"visemes"``."""
     head = f"warning: {path}: sampled at {file_sr} Hz, below {sample_rate} Hz: upsampled"
     top = f"{file_sr / 2000:g} kHz"
-    if front_end.startswith("hama"):
+    if front_end != "logmel":  # a recogniser front end
         text = (f"{head}, so nothing above {top} is there; this model's phoneme recogniser copes with telephone-band "
                 f"speech (docs/front-ends.md) but has less to go on for s, f and th, whose energy lies above {top}")
         if front_end.endswith("+logmel"):
@@ -457,7 +459,10 @@ class LogMelExtractor:
 
     ``mean``/``std`` (per band, ``(n_mels,)``) optionally standardise each band with *fixed* statistics,
     e.g. from :meth:`band_statistics` over the training split. Default: raw log-mel (no normalisation).
+    ``front_end``: its name in :data:`dualtalker_lite.front_ends.FRONT_ENDS`.
     """
+
+    front_end = "logmel"
 
     def __init__(self, n_mels: int = N_MELS, frames_per_mesh_frame: int = 2, fps: int = 30,
                  sample_rate: int = SAMPLE_RATE, n_fft: int = N_FFT, win_length: int = WIN_LENGTH,

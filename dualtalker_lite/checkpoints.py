@@ -11,9 +11,11 @@ A checkpoint (format 2) is a plain dict, loadable with ``torch.load(weights_only
 ``speakers``          training speaker names in style-embedding order: ``speakers[i]`` is one-hot ``i``
 ``n_vertices``        vertices per frame V
 ``topology``          sha256 of the triangle list (int64, C order) the model was trained on, or None
-``features``          the audio front-end: ``{"name": "logmel", "settings": {...}}`` (LogMelExtractor's
-                      arguments), ``{"name": "hama", "settings": {...}}`` (the phoneme recogniser's tracks,
-                      ``recogniser.RecogniserExtractor.settings``) or ``{"name": "phonemes", ...}``
+``features``          the audio front end, a name of ``front_ends.FRONT_ENDS`` and its settings:
+                      ``{"name": "logmel", "settings": {...}}`` (LogMelExtractor's arguments),
+                      ``{"name": "visemes", "settings": {...}}`` (the phoneme recogniser's tracks,
+                      ``recogniser.RecogniserExtractor.settings``; ``"hama"`` before issue 30, read as
+                      ``front_ends.canonical`` maps it) or ``{"name": "phonemes", ...}``
 ``state_dict``        the weights
 ====================  ==========================================================================================
 
@@ -59,6 +61,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from . import front_ends
 from .models import registry as _registry
 from .models.contract import hook
 from .models.faceformer import FaceFormerConfig
@@ -81,7 +84,8 @@ _CROSS_NAMES = {"integration.proj_motion.": "cross_attn.q_proj.", "integration.p
 _FACEFORMER_SWITCHES = {"dual": False, "speaker_gate": False, "query_from": "decoder", "align_window": 1,
                         "add_style_to_motion": True, "share_enc_dec": False, "scheduled_sampling": 0.0}
 REQUIRED_KEYS = ("model_class", "model_config", "state_dict")
-FEATURE_NAMES = ("logmel", "hama", "phonemes")  # the audio front-ends a checkpoint may name (experiments.specs.RunSpec)
+# the audio front ends a checkpoint may name: the table's (front_ends.FRONT_ENDS), read in the old spellings too
+FEATURE_NAMES = (*front_ends.FRONT_ENDS, *front_ends.OLD_SPELLINGS)
 # LogMelExtractor's settings: name -> (accepted types, what a value must satisfy, in words)
 _LOGMEL_INTS = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length")
 _LOGMEL_KEYS = (*_LOGMEL_INTS, "f_min", "f_max", "mean", "std")
@@ -95,41 +99,13 @@ def topology_fingerprint(faces: np.ndarray | None) -> str | None:
 
 
 def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
-    """The audio front-end as plain values; ``None`` -> the default :class:`~dualtalker_lite.audio.LogMelExtractor`.
-    An extractor that describes itself (``settings()``, e.g. the phoneme recogniser) is recorded as it says."""
-    if extractor is not None and callable(getattr(extractor, "settings", None)):
-        return extractor.settings()
-    if name != "logmel":
-        return {"name": name, "settings": {}}
-    from .audio import LogMelExtractor
-
-    ex = extractor or LogMelExtractor()
-    keys = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length",
-            "f_min", "f_max")
-    settings = {k: getattr(ex, k) for k in keys}
-    for k in ("mean", "std"):
-        v = getattr(ex, k, None)
-        settings[k] = None if v is None else [float(x) for x in v]
-    return {"name": "logmel", "settings": settings}
+    """:func:`dualtalker_lite.front_ends.settings` (its home; this name is kept for notebooks and scripts)."""
+    return front_ends.settings(name, extractor)
 
 
 def extractor_from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True):
-    """Rebuild the feature extractor a checkpoint was trained with (``None`` -> default log-mel).
-
-    ``cache=False`` (``--no-cache``): the phoneme recogniser computes in memory and never touches its disk cache
-    (log-mel has no cache: the flag changes nothing there)."""
-    from .audio import LogMelExtractor
-
-    if not features:
-        return LogMelExtractor()
-    if features.get("name") == "hama":  # the phoneme recogniser: refuses another hama version or symbol table
-        from .recogniser import RecogniserExtractor
-
-        return RecogniserExtractor.from_settings(features, source, cache=cache)
-    if features.get("name") != "logmel":
-        raise ValueError(f"{source}: the model was trained on {features.get('name')!r} features, which cannot be "
-                         f"computed from a recording; only 'logmel' and 'hama' models animate audio")
-    return LogMelExtractor(**features.get("settings", {}))
+    """:func:`dualtalker_lite.front_ends.from_settings` (its home; this name is kept for notebooks and scripts)."""
+    return front_ends.from_settings(features, source, cache)
 
 
 def _plain(obj: Any) -> Any:
@@ -325,7 +301,8 @@ def _check_features(features: Any, source: str) -> None:
     settings = features.get("settings", {})
     if not isinstance(settings, dict):
         raise ValueError(f"{source}: features 'settings' must be a dict, found {_type_name(settings)}")
-    if name == "hama":  # the phoneme recogniser: types, ranges from the code that uses them, no unknown keys
+    if name in front_ends.OLD_SPELLINGS or front_ends.get(name).recogniser:  # the phoneme recogniser: types,
+        # ranges from the code that uses them, no unknown keys
         from .recogniser import check_settings
 
         check_settings(settings, source)
@@ -417,6 +394,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise ValueError(f"{path}: checkpoint is missing key(s) {missing} (has {sorted(map(str, ckpt))[:8]})")
     ckpt, note = upgrade_checkpoint(ckpt)
     validate_fields(ckpt, str(path))
+    if ckpt.get("features") is not None:  # an old spelling of the front end ("hama") -> today's ("visemes", ...)
+        ckpt["features"] = front_ends.canonical(ckpt["features"])
     registry = model_registry()
     name = ckpt["model_class"]
     if name not in registry:

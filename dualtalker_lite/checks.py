@@ -15,7 +15,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-__all__ = ["check_shape", "NonFiniteError", "check_finite", "load_npy", "load_npz", "check_name"]
+__all__ = ["check_shape", "NonFiniteError", "check_finite", "load_npy", "load_npz", "check_name", "resolve_device",
+           "check_frames", "check_heads"]
 
 
 def check_shape(x: torch.Tensor | np.ndarray, shape: Sequence[int | None], name: str = "tensor") -> None:
@@ -95,3 +96,31 @@ def check_name(name: object, what: str, source: str | os.PathLike) -> str:
         raise ValueError(f"{source}: {what} {name!r} is not a plain name (path separators, '..' and absolute "
                          f"paths are refused: it would reach files outside the folder)")
     return name
+
+
+def resolve_device(device: str | torch.device | None, option: str = "--device") -> torch.device:
+    """``"cpu"``, ``"cuda"``, ``"cuda:1"`` (or a torch.device) -> torch.device, refusing CUDA where there is none with
+    one line naming ``option`` (the commands' ``--device``; the Python API's ``device``). The one device check of the
+    package: the commands, ``streaming.predict_chunks`` and the notebooks' helpers all call it."""
+    dev = torch.device(device or "cpu")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        advice = f"; use {option} cpu" if option.startswith("--") else ""
+        raise ValueError(f"{option} {device}: CUDA is not available here (torch.cuda.is_available() is False)"
+                         f"{advice}")
+    return dev
+
+
+def check_frames(owner: object, names: Sequence[str], minimum: int = 1) -> None:
+    """Each attribute ``names`` of ``owner`` (a config dataclass) must be None or a number of frames >= ``minimum``
+    (an int, never a bool); one ValueError line naming the first that is not. The models' configs share it."""
+    for name in names:
+        value = getattr(owner, name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < minimum):
+            raise ValueError(f"{name} must be a positive number of frames or None, got {value!r}")
+
+
+def check_heads(owner: object, pairs: Sequence[tuple[str, int]]) -> None:
+    """Each width ``name`` of ``owner`` must divide into its ``heads`` attention heads; one ValueError line."""
+    for name, heads in pairs:
+        if getattr(owner, name) % heads:
+            raise ValueError(f"{name}={getattr(owner, name)} must be divisible by its number of heads ({heads})")

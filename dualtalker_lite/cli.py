@@ -23,9 +23,11 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from . import front_ends
 from .console import USER_ERRORS, HelpFormatter, ProgressLines, exit_status, progress_mode, run_main
 
-__all__ = ["USER_ERRORS", "run_main", "main"]  # the first two re-exported from .console (their home)
+__all__ = ["USER_ERRORS", "run_main", "main", "animate_main", "train_parser", "evaluate_parser", "animate_parser",
+           "live_parser", "convert_templates_parser", "prepare_parser"]  # the first two: re-exported from .console
 
 
 # ------------------------------------------------------------------------------------- train / evaluate
@@ -108,42 +110,40 @@ def _check_resume_args(path: Path, saved: dict, now: dict) -> None:
                          f"arguments and corpus, or start over with --overwrite")
 
 
-def _train(argv: list[str]) -> Path:
-    import dataclasses
-    import os
+# ------------------------------------------------------------------------------------------------ parsers
+def _new_parser(command: str, description: str, epilog: str) -> argparse.ArgumentParser:
+    """The parser of ``dualtalker-lite COMMAND``: its usage line, description, examples, and every default shown."""
+    return argparse.ArgumentParser(prog=f"dualtalker-lite {command}", description=description, epilog=epilog,
+                                   formatter_class=HelpFormatter)
 
-    import numpy as np
-    import torch
-    from torch.utils.data import Subset
 
-    import hashlib
+def _progress_option(ap: argparse.ArgumentParser, what: str) -> None:
+    """``--quiet`` (alias ``--no-progress``), worded for the command's progress (``what``)."""
+    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                    help=f"no progress on stderr (otherwise {what}")
 
-    from .checkpoints import extractor_settings, is_own_file, save_checkpoint
-    from .data import sample_path
-    from .files import NAME_MAX, atomic_torch_save, check_free_space, claim, sweep_stale
-    from .data.corpus import Corpus
-    from .data.dataset import TalkingFaceDataset, make_loader
-    from .data.pairs import make_pair_loader
-    from .experiments import _features, build_model
-    from .models import registry
-    from .train import TrainConfig, loss_weights, train
 
-    specs = _model_specs()
-    ap = argparse.ArgumentParser(prog="dualtalker-lite train", epilog=TRAIN_EXAMPLE,
-                                 description="Train one model of the experiment tables on a corpus (the recipe "
-                                             "of TrainConfig.tiny) and save a self-describing checkpoint. EmoFace "
-                                             "trains on train + train_emo with each clip's pseudo-pair partner, "
-                                             "the other models on train.",
-                                 formatter_class=HelpFormatter)
+def _cache_option(ap: argparse.ArgumentParser, tail: str = "") -> None:
+    """``--no-cache``: the phoneme recogniser computes in memory, never touching its disk cache."""
+    ap.add_argument("--no-cache", action="store_true",
+                    help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
+                         "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite)" + tail)
+
+
+def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
+    """``dualtalker-lite train``'s options; ``models``: the ``--model`` choices (the registry's trainable models)."""
+    ap = _new_parser("train", "Train one model of the experiment tables on a corpus (the recipe of TrainConfig.tiny) "
+                              "and save a self-describing checkpoint. EmoFace trains on train + train_emo with each "
+                              "clip's pseudo-pair partner, the other models on train.", TRAIN_EXAMPLE)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
-    ap.add_argument("--model", choices=sorted(specs), default="dualtalker",
+    ap.add_argument("--model", choices=sorted(models), default="dualtalker",
                     help="which registered model to train (dualtalker_lite.models.registry; $DUALTALKER_PLUGINS "
                          "names modules that register more: docs/architecture.md)")
     ap.add_argument("--epochs", type=int, default=45, help="passes over the training clips")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
                          "default: all)")
-    ap.add_argument("--features", choices=("logmel", "visemes"), default=None,
+    ap.add_argument("--features", choices=front_ends.CHOICES, default=None,
                     help="audio front-end: visemes (the default: the phonetic route, trained on the corpus's viseme "
                          "labels, fed the phoneme recogniser's viseme tracks by evaluate and animate; works on any "
                          "voice; emoface's emotion branch also reads the log-mel) or logmel (the papers' kind of "
@@ -155,16 +155,130 @@ def _train(argv: list[str]) -> Path:
                          "the corpus)")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
-                    help="no progress on stderr (otherwise a bar on a terminal, else a line per epoch at most "
-                         "every ~10 s with the loss, elapsed time and time left); the final line stays")
+    _progress_option(ap, "a bar on a terminal, else a line per epoch at most every ~10 s with the loss, elapsed "
+                         "time and time left); the final line stays")
     ap.add_argument("--checkpoint-every", type=int, default=5, metavar="N",
                     help="every N epochs save the whole training state to <out>.resume (atomically; removed when "
                          "training completes), so a killed run continues with --resume; 0: never "
                          "(default: %(default)s)")
     ap.add_argument("--resume", action="store_true",
                     help="continue the run saved in <out>.resume; the other arguments must be that run's")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def evaluate_parser() -> argparse.ArgumentParser:
+    """``dualtalker-lite evaluate``'s options."""
+    ap = _new_parser("evaluate", "Autoregressive predictions of a checkpoint on a corpus split, with the metrics of "
+                                 "the experiment tables (on a split with several emotions also the emotional tables' "
+                                 "brow, smile and, for EmoFace, emotion-recognition metrics).", EVAL_EXAMPLE)
+    ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
+    ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
+    ap.add_argument("--split", default="test_a", help="the corpus split to predict and score")
+    ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an existing --json file (only an earlier metrics file of evaluate)")
+    _progress_option(ap, "a bar on a terminal, else a line at most every ~10 s with the clips predicted, elapsed "
+                         "time and time left)")
+    _cache_option(ap)
+    return ap
+
+
+ANIMATE_EXAMPLE = """example:
+  dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav --speaker SPK01 \\
+      --out runs/my_animation --format npy,gltf,html,mp4
+  dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --list-speakers"""
+
+
+def animate_parser() -> argparse.ArgumentParser:
+    """``dualtalker-lite animate``'s options (the command itself: :func:`dualtalker_lite.inference.run`)."""
+    from .inference import FORMATS, __doc__ as inference_doc
+
+    ap = _new_parser("animate", inference_doc.split("\n\n")[0], ANIMATE_EXAMPLE)
+    ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
+    ap.add_argument("--wav", help="speech recording (WAV/FLAC, mono, any sample rate)")
+    ap.add_argument("--speaker", default="SPK01", help="training speaker whose style to use (see --list-speakers)")
+    ap.add_argument("--list-speakers", action="store_true", help="print the speakers the model knows and exit")
+    ap.add_argument("--emotion", help="emotion-aware models (EmoFace): emotion name (e.g. happy) or index; "
+                    "default: recognised from the speech")
+    ap.add_argument("--level", type=int, choices=(1, 2), help="emotion-aware models: intensity 1 (normal, default) "
+                    "or 2 (strong)")
+    ap.add_argument("--template", help="neutral mesh (OBJ/PLY) with the model's topology; default: the speaker's")
+    ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
+    ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing, non-empty --out")
+    ap.add_argument("--format", default="npy,mp4",
+                    help=f"comma-separated subset of {','.join(FORMATS)} (glb: same as gltf; visemes: the 15 "
+                         f"standard viseme curves viseme_sil..viseme_U as visemes.json and visemes.csv)")
+    ap.add_argument("--no-video", action="store_true", help="skip the mp4 (fast for long recordings)")
+    ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
+    ap.add_argument("--chunk", type=int, default=900,
+                    help="frames decoded and written per block (memory vs. overhead; the result is the same)")
+    _progress_option(ap, "bars while predicting and rendering the video on a terminal, else a line at most every "
+                         "~10 s while predicting); the final line stays")
+    _cache_option(ap, "; log-mel models have no cache")
+    ap.add_argument("--debug", action="store_true", help="show full tracebacks")
+    return ap
+
+
+def live_parser() -> argparse.ArgumentParser:
+    """``dualtalker-lite live``'s options (the command itself: :func:`dualtalker_lite.live.server.run`)."""
+    from .live.server import __doc__ as live_doc
+
+    ap = _new_parser("live", live_doc.splitlines()[0],
+                     "example:\n  dualtalker-lite live --checkpoint runs/m.pt --port 8765")
+    ap.add_argument("--checkpoint", required=True, help="a model trained on the viseme track (train's default)")
+    ap.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only)")
+    ap.add_argument("--port", type=int, default=8765, help="port to listen on")
+    ap.add_argument("--lookahead-ms", type=int, default=200,
+                    help="recogniser look-ahead: more agrees better with the offline animation, costs latency")
+    ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
+    ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
+    ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
+    return ap
+
+
+def convert_templates_parser() -> argparse.ArgumentParser:
+    """``dualtalker-lite convert-templates``'s options (:func:`dualtalker_lite.data.faceformer.convert_templates`)."""
+    ap = _new_parser("convert-templates", "Convert FaceFormer's templates.pkl to templates.npz with a restricted "
+                                          "unpickler (numpy arrays, dicts, lists, strings and numbers only: a "
+                                          "malicious pickle runs nothing).",
+                     "example:\n  dualtalker-lite convert-templates vocaset/templates.pkl    "
+                     "# -> vocaset/templates.npz")
+    ap.add_argument("pickle", help="templates.pkl")
+    ap.add_argument("--out", default=None, help="output .npz (default: beside the pickle)")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing output .npz")
+    return ap
+
+
+def prepare_parser() -> argparse.ArgumentParser:
+    """``dualtalker-lite prepare-dataset``'s options (:func:`dualtalker_lite.data.faceformer.prepare_dataset`)."""
+    from .data.faceformer import PRESETS
+
+    ap = _new_parser("prepare-dataset", "Make a VOCASET/BIWI folder in FaceFormer's layout readable by "
+                                        "dualtalker-lite (metadata.json with FaceFormer's splits, templates.npz, "
+                                        "regions.json, faces.npy).",
+                     "example:\n  dualtalker-lite prepare-dataset ~/data/vocaset --preset vocaset\n"
+                     "  dualtalker-lite train --corpus ~/data/vocaset --model faceformer --device cuda "
+                     "--out vocaset.pt")
+    ap.add_argument("root", help="the dataset folder (wav/, vertices_npy/, templates.pkl)")
+    ap.add_argument("--preset", choices=sorted(PRESETS), required=True,
+                    help="the dataset's frame rates, mesh subsampling and splits")
+    ap.add_argument("--overwrite", action="store_true", help="rebuild an existing metadata.json/templates.npz")
+    return ap
+
+
+# ------------------------------------------------------------------------------------------------ train
+def _check_train_args(args: argparse.Namespace) -> tuple[Path, Path, dict | None]:
+    """The edge of ``train``: every check of its arguments and outputs, before any work, each failing with one line
+    -> (checkpoint path, its ``<out>.resume`` path, the saved state to resume or None). Claims ``--out`` (a second
+    run into it fails now) and creates its folder."""
+    import os
+
+    from .checkpoints import is_own_file
+    from .data import sample_path
+    from .files import NAME_MAX, claim
+
     if args.epochs < 1:
         raise ValueError(f"--epochs {args.epochs}: must be at least 1")
     if args.checkpoint_every < 0:
@@ -205,54 +319,78 @@ def _train(argv: list[str]) -> Path:
     if resume is None and resume_path.exists() and not is_own_file(resume_path, RESUME_FORMAT.encode()):
         raise FileExistsError(f"{resume_path}: is not a training state of dualtalker-lite train; --overwrite replaces "
                               f"only that; remove it yourself or choose another --out")
-    from .inference import resolve_device
+    return out, resume_path, resume
 
-    device = resolve_device(args.device)
-    torch.set_num_threads(args.threads)
-    corpus = Corpus(args.corpus or sample_path())
-    spec = specs[args.model]
+
+def _training_clips(corpus, spec, args: argparse.Namespace) -> dict:
+    """The clips ``train`` trains on -> keyword arguments of :func:`~.experiments.assembly.assemble_training`
+    (``spec``, ``clips``, ``paired``, ``logmel``, ``record``). The phonetic route (``--features visemes``, the
+    default) trains on the corpus's viseme labels, EmoFace on ``visemes+logmel`` (its emotion branch reads the
+    sound); a corpus without viseme labels (e.g. VOCASET in FaceFormer's layout) trains on the recogniser's tracks
+    of its audio instead, with a note. ``--clips N``: N clips spread evenly over the training set."""
+    import dataclasses
+
+    import numpy as np
+    from torch.utils.data import Subset
+
+    from .data.dataset import TalkingFaceDataset
+
     paired = spec.data == "pairs"
-    if args.features is None:
-        args.features = "visemes"
+    record = None
     if args.features == "visemes":
-        from .experiments.runner import front_end as recogniser_front_end
-
-        # EmoFace: visemes for its content branch, log-mel for its emotion branch (emotion is in the sound)
-        phonetic = "visemes+logmel" if paired else "visemes"
-        front_end = recogniser_front_end(phonetic, corpus.fps)  # what evaluate/animate feed it (checks hama)
-        spec = dataclasses.replace(spec, features=phonetic)
+        spec = dataclasses.replace(spec, features=front_ends.paired("visemes") if paired else "visemes")
     if args.features == "visemes" and not paired and not any(corpus.meta(n).get("visemes")
                                                             for n in corpus.split("train")):
-        # no phoneme timing (e.g. VOCASET in FaceFormer's layout): train on the recogniser's tracks themselves
         print(f"note: {corpus.root}: no viseme labels in metadata.json; training on the recogniser's viseme tracks "
               f"of the training audio", file=sys.stderr)
-        dataset = TalkingFaceDataset(corpus, "train", extractor=front_end)
+        record = front_ends.build(spec.features, corpus.fps)  # what evaluate/animate feed it (checks hama)
+        dataset = TalkingFaceDataset(corpus, "train", extractor=record)
         spec = dataclasses.replace(spec, features="logmel")  # the dataset already holds the viseme tracks
     else:
         dataset = _pair_dataset(corpus, args.seed) if paired else TalkingFaceDataset(corpus, "train")
+    clips = dataset
     if args.clips is not None and args.clips < len(dataset):
-        dataset_used = Subset(dataset, np.linspace(0, len(dataset) - 1, args.clips).round().astype(int).tolist())
-    else:
-        dataset_used = dataset
-    train_set, audio_dim = _features(dataset_used, spec.features, len(corpus.phoneme_inventory), training=True)
-    config_cls = registry.get(spec.model).config_cls
-    if config_cls is not None and "n_emotions" in {f.name for f in dataclasses.fields(config_cls)}:
-        # emotion-aware models (EmoFace): as many emotion classes as the corpus has
-        spec = dataclasses.replace(spec, model_overrides={**spec.model_overrides, "n_emotions": len(corpus.emotions)})
-    torch.manual_seed(args.seed)
-    n_vertices = int(train_set[0]["template"].numel() // 3)
-    model, model_cfg = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers), faces=corpus.faces)
+        clips = Subset(dataset, np.linspace(0, len(dataset) - 1, args.clips).round().astype(int).tolist())
+    return dict(spec=spec, clips=clips, paired=paired, logmel=dataset.extractor if record is None else None,
+                record=record)
+
+
+def _train(argv: list[str]) -> Path:
+    """``dualtalker-lite train``: parse and check the arguments (:func:`_check_train_args`), assemble the training
+    as the experiment runner does (:func:`~dualtalker_lite.experiments.assembly.assemble_training` on
+    :func:`_training_clips`), train with progress and periodic resumable state, save a self-describing checkpoint
+    -> its path. The resumable state ``<out>.resume`` records the arguments and the corpus, and a ``--resume`` with
+    others is refused."""
+    import hashlib
+
+    import torch
+
+    from .checkpoints import save_checkpoint
+    from .data import sample_path
+    from .data.corpus import Corpus
+    from .experiments.assembly import assemble_training
+    from .files import atomic_torch_save, check_free_space, sweep_stale
+    from .checks import resolve_device
+    from .train import train
+
+    specs = _model_specs()
+    args = train_parser(specs).parse_args(argv)
+    out, resume_path, resume = _check_train_args(args)
+    device = resolve_device(args.device)
+    torch.set_num_threads(args.threads)
+    corpus = Corpus(args.corpus or sample_path())
+    if args.features is None:
+        args.features = front_ends.DEFAULT
     progress = progress_mode(args.quiet)  # a bar on a terminal (train's own), else lines (below), or none
-    cfg = TrainConfig.tiny(epochs=args.epochs, seed=args.seed, validate_every=0, device=str(device),
-                           weights=loss_weights(model, spec.loss), progress=progress == "bar")
-    loader = (make_pair_loader if paired else make_loader)(train_set, cfg.batch_size, shuffle=True, seed=args.seed)
-    weights = sum(p.numel() * p.element_size() for p in model.parameters())  # checkpoint ~1x, resume state ~3x
+    run = assemble_training(corpus=corpus, seed=args.seed, epochs=args.epochs, device=str(device),
+                            progress=progress == "bar", **_training_clips(corpus, specs[args.model], args))
+    weights = sum(p.numel() * p.element_size() for p in run.model.parameters())  # checkpoint ~1x, resume state ~3x
     check_free_space(out, weights * (4 if args.checkpoint_every else 1), "the checkpoint (and its resume state)")
     meta = Path(corpus.root) / "metadata.json"
     record = {"model": args.model, "corpus": str(Path(corpus.root).resolve()),
               "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
               "epochs": args.epochs, "clips": args.clips, "features": args.features, "seed": args.seed,
-              "training_clips": len(train_set)}
+              "training_clips": len(run.train_set)}
     done = 0 if resume is None else int(resume["train"]["epoch"])  # epochs completed before this run
     if resume is not None:
         _check_resume_args(resume_path, resume["args"], record)
@@ -266,23 +404,21 @@ def _train(argv: list[str]) -> Path:
 
     on_epoch = None
     if progress == "lines":  # stderr is a log file, CI or nohup: a line per epoch, at most every ~10 s
-        lines = ProgressLines("train: epoch", cfg.epochs, start=done)
+        lines = ProgressLines("train: epoch", run.train_config.epochs, start=done)
 
         def on_epoch(model, history) -> None:
             lines.update(len(history.terms), loss=f"{history.terms[-1].get('total', math.nan):.4g}")
 
-    history = train(model, loader, cfg, on_epoch=on_epoch, checkpoint_every=args.checkpoint_every,
-                    on_checkpoint=on_checkpoint, resume=None if resume is None else resume["train"])
-    model.cpu()
-    if args.features == "visemes":
-        features = front_end.settings()
-    else:
-        features = extractor_settings(dataset.extractor if spec.features == "logmel" else None, name=spec.features)
-    save_checkpoint(out, model, model_cfg, cfg, history, speakers=corpus.train_speakers, faces=corpus.faces,
-                    features=features, units=corpus.metadata.get("units", "m"), fallback=True)
+    history = train(run.model, run.loader, run.train_config, on_epoch=on_epoch,
+                    checkpoint_every=args.checkpoint_every, on_checkpoint=on_checkpoint,
+                    resume=None if resume is None else resume["train"])
+    run.model.cpu()
+    save_checkpoint(out, run.model, run.model_config, run.train_config, history, speakers=corpus.train_speakers,
+                    faces=corpus.faces, features=run.features, units=corpus.metadata.get("units", "m"),
+                    fallback=True)
     resume_path.unlink(missing_ok=True)  # the run is complete: its resumable state has served
     sweep_stale(resume_path)
-    print(f"trained {args.model} for {len(history.terms)} epochs on {len(train_set)} clips -> {out}")
+    print(f"trained {args.model} for {len(history.terms)} epochs on {len(run.train_set)} clips -> {out}")
     return out
 
 
@@ -298,33 +434,17 @@ def _finite_metrics(metrics: dict, timing: bool) -> tuple[dict, dict]:
 
 
 def _evaluate(argv: list[str]) -> dict:
-    from .checkpoints import describe, extractor_from_settings, load_checkpoint
+    """``dualtalker-lite evaluate``: a checkpoint's predictions on a corpus split, fed by its own front end, and the
+    metrics of the experiment tables (plus the emotional ones on a split with several emotions) -> the metrics."""
+    from .checkpoints import describe, load_checkpoint
     from .data import sample_path
     from .data.corpus import Corpus
     from .data.dataset import TalkingFaceDataset
-    from .experiments import METRICS, _features, predict_split, split_metrics
+    from .experiments import METRICS, feature_view, predict_split, split_metrics
     from .experiments.evaluation import emotion_split_metrics
-    from .inference import _check_corpus
+    from .inference import check_corpus
 
-    ap = argparse.ArgumentParser(prog="dualtalker-lite evaluate", epilog=EVAL_EXAMPLE,
-                                 description="Autoregressive predictions of a checkpoint on a corpus split, "
-                                             "with the metrics of the experiment tables (on a split with several "
-                                             "emotions also the emotional tables' brow, smile and, for EmoFace, "
-                                             "emotion-recognition metrics).",
-                                 formatter_class=HelpFormatter)
-    ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
-    ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
-    ap.add_argument("--split", default="test_a", help="the corpus split to predict and score")
-    ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
-    ap.add_argument("--overwrite", action="store_true",
-                    help="replace an existing --json file (only an earlier metrics file of evaluate)")
-    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
-                    help="no progress on stderr (otherwise a bar on a terminal, else a line at most every ~10 s "
-                         "with the clips predicted, elapsed time and time left)")
-    ap.add_argument("--no-cache", action="store_true",
-                    help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
-                         "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite)")
-    args = ap.parse_args(argv)
+    args = evaluate_parser().parse_args(argv)
     if args.json and Path(args.json).is_dir():
         raise IsADirectoryError(f"--json {args.json}: is a folder; name a file")
     if args.json:
@@ -345,15 +465,15 @@ def _evaluate(argv: list[str]) -> dict:
                                   f"replaces only that; remove it yourself or name another file")
     model, ckpt = load_checkpoint(args.checkpoint)
     corpus = Corpus(args.corpus or sample_path())
-    _check_corpus(corpus, ckpt)
+    check_corpus(corpus, ckpt)
     if ckpt.get("speakers") and list(ckpt["speakers"]) != list(corpus.train_speakers):
         raise ValueError(f"corpus {corpus.root} has training speakers {corpus.train_speakers}, the checkpoint "
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
     features = ckpt.get("features") or {"name": "logmel"}
-    computed = features.get("name") in ("logmel", "hama")  # from the audio (hama: the recogniser's viseme tracks)
-    extractor = extractor_from_settings(features, args.checkpoint, cache=not args.no_cache) if computed else None
-    dataset, _ = _features(TalkingFaceDataset(corpus, args.split, extractor=extractor),
-                           "logmel" if computed else features["name"],
+    computed = front_ends.get(features["name"]).from_audio  # from the audio (visemes: the recogniser's tracks)
+    front_end = front_ends.from_settings(features, args.checkpoint, cache=not args.no_cache) if computed else None
+    dataset, _ = feature_view(TalkingFaceDataset(corpus, args.split, extractor=front_end),
+                           "logmel" if computed else features["name"],  # "logmel": the features as computed
                            len(corpus.phoneme_inventory))
     out = _predict_with_progress(predict_split, model, dataset, progress_mode(args.quiet))
     from .checks import check_finite
@@ -408,28 +528,38 @@ def _generate(argv: list[str]):
     return generate_main(argv, prog="dualtalker-lite generate")
 
 
-def _animate(argv: list[str]):
-    from .inference import parser, run
+def _animate(argv: list[str]) -> list[Path]:
+    """``dualtalker-lite animate``: :func:`animate_parser`'s arguments to :func:`dualtalker_lite.inference.run`."""
+    from .inference import run
 
-    return run(parser().parse_args(argv))
+    return run(animate_parser().parse_args(argv))
+
+
+def animate_main(argv: Sequence[str] | None = None) -> list[Path]:
+    """``dualtalker-lite animate ARGS`` as a function (tests, scripts) -> the paths written; errors as the command's
+    (one line and ``SystemExit(2)``; ``--debug``: the traceback), Ctrl-C ``SystemExit(130)``."""
+    from .files import claims_released
+
+    with claims_released():
+        return run_main(_animate, argv)
 
 
 def _live(argv: list[str]):
-    from .live.server import main as live_main
+    from .live.server import run
 
-    return live_main(argv)
+    return run(live_parser().parse_args(argv))
 
 
 def _convert(argv: list[str]):
-    from .data.faceformer import convert_templates_main
+    from .data.faceformer import convert_templates_command
 
-    return convert_templates_main(argv)
+    return convert_templates_command(convert_templates_parser().parse_args(argv))
 
 
 def _prepare(argv: list[str]):
-    from .data.faceformer import prepare_main
+    from .data.faceformer import prepare_command
 
-    return prepare_main(argv)
+    return prepare_command(prepare_parser().parse_args(argv))
 
 
 COMMANDS = {"animate": (_animate, "animate a face from your own speech recording"),

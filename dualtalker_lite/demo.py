@@ -160,28 +160,9 @@ def metrics_markdown(results: dict, command: str, epochs: dict, n_test: int) -> 
     return "\n".join(lines + [""])
 
 
-def main(argv: Sequence[str] | None = None) -> dict:
-    """Run the demo; returns {"metrics": ..., "files": {name: path}}."""
-    from .metrics import lip_distance, mean_vertex_error
-    from .train import load_checkpoint
-    from .viz import animate_clip, plot_vertex_map
-
-    t_start = time.perf_counter()
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = parse_args(argv)
-    command = "python -m dualtalker_lite.demo " + shlex.join(argv)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    if args.epochs is None:
-        from .train import TrainConfig
-
-        args.epochs = TrainConfig.tiny().epochs
-    epochs = 1 if args.quick else args.epochs
-    processes = 1 if args.quick else args.processes
-    budget = args.time_budget if args.time_budget and not args.quick else None
-    torch.set_num_threads(1)
-
-    # 1-2. train (in parallel) and evaluate: the experiments runner does both and saves the checkpoints
+def _train_and_evaluate(args, out: Path, epochs: int, processes: int, budget: float | None) -> dict:
+    """Steps 1-2: train both models (in parallel) and evaluate them on test-A with the experiment runner, which also
+    saves the checkpoints -> {label: the runner's result}. The test set the figures need is loaded meanwhile."""
     rows = {s.row: s for s in table_specs("main", features=args.features)}
     jobs = [(rows[row], args.seed) for row, _ in MODELS.values()]
     checkpoints = [None if ckpt is None else str(out / ckpt) for _, ckpt in MODELS.values()]
@@ -193,22 +174,35 @@ def main(argv: Sequence[str] | None = None) -> dict:
     runs = run_specs([jobs[i] for i in order], epochs, processes, args.corpus, args.quick,
                      checkpoints=[checkpoints[i] for i in order], progress=not args.no_progress, time_budget_s=budget)
     results = dict(zip([list(MODELS)[i] for i in order], runs))
-    results = {label: results[label] for label in MODELS}
-
-    # 3. figures and video from the saved checkpoints (same weights, same deterministic generation)
     if loader.is_alive():
         loader.join()
-    data = load_data(args.corpus, args.quick)
-    corpus, test_set = data["corpus"], test_features(data, TEST_SPLIT, args.features)
+    return {label: results[label] for label in MODELS}
+
+
+def _reloaded_predictions(out: Path, results: dict, test_set, regions) -> dict:
+    """Step 3a: each saved checkpoint's predictions on test-A -> {label: predict_split output}; a warning line if the
+    reloaded weights do not reproduce the training process's LVE (same weights, deterministic generation)."""
+    from .train import load_checkpoint
+
     pred = {}
     for label, (_, ckpt) in MODELS.items():
         if ckpt is not None:
             model, _ = load_checkpoint(out / ckpt)
             pred[label] = predict_split(model, test_set)
-            again, saved = split_metrics(pred[label], corpus.regions), results[label]["metrics"]
+            again, saved = split_metrics(pred[label], regions), results[label]["metrics"]
             if not np.isclose(again["lve_published"], saved["lve_published"], rtol=1e-6):
                 print(f"warning: {label}: the reloaded checkpoint gives LVE_pub {again['lve_published']:.6g}, "
                       f"training process {saved['lve_published']:.6g}", file=sys.stderr)
+    return pred
+
+
+def _figures_and_video(out: Path, pred: dict, data: dict, quick: bool) -> tuple[dict, str]:
+    """Step 3b: on the longest test-A clip, the lip-distance figure, DualTalker's mean vertex error map and the
+    side-by-side video with the speech -> ({name: path}, the clip's name)."""
+    from .metrics import lip_distance, mean_vertex_error
+    from .viz import animate_clip, plot_vertex_map
+
+    corpus = data["corpus"]
     dt, ff = pred["DualTalker"], pred["FaceFormer-style"]
     names, V = dt["names"], data["n_vertices"]
     i = int(np.argmax([len(g) for g in dt["gts"]]))  # the longest test-A clip
@@ -231,14 +225,40 @@ def main(argv: Sequence[str] | None = None) -> dict:
     files["error_map"] = out / "error_map.png"
     fig.savefig(files["error_map"], dpi=120)
 
-    n_video = 12 if args.quick else len(clips["ground truth"])
+    n_video = 12 if quick else len(clips["ground truth"])
     anim = animate_clip({k: v[:n_video] for k, v in clips.items()}, corpus.faces, wave=corpus.wave(clip),
                         sample_rate=corpus.sample_rate, fps=corpus.fps, path=out / "side_by_side.mp4",
-                        size=128 if args.quick else 256)
+                        size=128 if quick else 256)
     files["side_by_side"] = Path(anim.path) if anim.path is not None else None
     for label, (_, ckpt) in MODELS.items():
         if ckpt is not None:
             files[f"checkpoint_{label}"] = out / ckpt
+    return files, clip
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Run the demo; returns {"metrics": ..., "files": {name: path}}."""
+    t_start = time.perf_counter()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parse_args(argv)
+    command = "python -m dualtalker_lite.demo " + shlex.join(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.epochs is None:
+        from .train import TrainConfig
+
+        args.epochs = TrainConfig.tiny().epochs
+    epochs = 1 if args.quick else args.epochs
+    processes = 1 if args.quick else args.processes
+    budget = args.time_budget if args.time_budget and not args.quick else None
+    torch.set_num_threads(1)
+
+    results = _train_and_evaluate(args, out, epochs, processes, budget)  # 1-2. train and evaluate
+    data = load_data(args.corpus, args.quick)  # 3. figures and video from the saved checkpoints
+    pred = _reloaded_predictions(out, results, test_features(data, TEST_SPLIT, args.features),
+                                 data["corpus"].regions)
+    files, clip = _figures_and_video(out, pred, data, args.quick)
+    names = pred["DualTalker"]["names"]
 
     epochs_done = {label: r["epochs"] for label, r in results.items()}
     truncated = budget_notes(results, epochs, budget)

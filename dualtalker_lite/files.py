@@ -39,7 +39,7 @@ from .console import MEMORY_ADVICE, RESOURCE_ADVICE
 __all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir",
            "temporary_prefix", "sweep_stale", "claim", "Claim", "claims_released",
            "check_free_space", "fallback_dir", "tensor_bytes", "MANIFEST", "output_path", "helper_stem",
-           "resource_error", "ResourceError", "refuse_inputs", "rescue_name"]
+           "resource_error", "ResourceError", "refuse_inputs", "rescue_name", "sigterm_as_exit"]
 
 MANIFEST = ".dualtalker-output.json"  # inside every output folder: which command wrote it, and which files
 
@@ -462,6 +462,25 @@ def _rescue(obj: Any, path: Path, cause: int, why: str, error: BaseException) ->
     raise ResourceError(cause or errno.ENOMEM, f"{path}: could not be written ({why}); it is unchanged, and the "
                                                f"result was saved to {rescue} instead; move it to {path} once "
                                                f"{WHEN.get(cause, 'it can be written')}") from error
+
+
+@contextlib.contextmanager
+def sigterm_as_exit():
+    """Inside the block, SIGTERM raises ``SystemExit(143)`` so ``finally``/``with`` clean-ups run (temporary files
+    and folders). Only in the main thread, and only when nobody else installed a SIGTERM handler."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def default_file_mode(executable: bool = False) -> int:

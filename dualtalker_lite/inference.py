@@ -1,7 +1,7 @@
 """Animate a face mesh from your own speech recording with a trained model.
 
     dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav \\
-        --speaker SPK01 --out runs/my_animation          # (or: python -m dualtalker_lite.inference ...)
+        --speaker SPK01 --out runs/my_animation          # its options: dualtalker_lite.cli.animate_parser
 
 writes into ``--out`` (formats chosen with ``--format``, default ``npy,mp4``):
 
@@ -35,7 +35,7 @@ Memory is bounded whatever the recording's length (issue 11): the prediction is 
 frames (:func:`~dualtalker_lite.streaming.predict_chunks`, bounded caches) and streamed to ``vertices.npy``,
 with progress in frames on stderr (a bar on a terminal, else a line at most every ~10 s; ``--quiet``: none);
 every other format is then written frame by frame from that memory-mapped file (the mp4 with
-:func:`~dualtalker_lite.viz.animate.render_video` and a progress bar). Short and long recordings take the same
+:func:`~dualtalker_lite.export.video.render_video` and a progress bar). Short and long recordings take the same
 path; ``animate_wave`` joins the same blocks in memory for notebooks and scripts.
 """
 from __future__ import annotations
@@ -48,45 +48,36 @@ import numpy as np
 import torch
 
 from .audio import AudioStream, load_audio
-from .checkpoints import describe, extractor_from_settings, load_checkpoint, topology_fingerprint
+from . import front_ends
+from .checkpoints import describe, load_checkpoint, topology_fingerprint
 from .data.corpus import Corpus, check_face_size
 from .streaming import predict_chunks, write_npy_stream
-from .checks import check_finite
-from .console import HelpFormatter, ProgressLines, progress_mode
+from .checks import check_finite, resolve_device
+from .console import ProgressLines, progress_mode
 from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
-           "resolve_emotion",
-           "write_obj", "write_glb", "write_outputs", "run", "main", "FORMAT_ALIASES"]
+           "resolve_emotion", "check_corpus", "write_obj", "write_glb", "write_outputs", "run", "FORMAT_ALIASES"]
 
 FPS = 30
 FORMATS = ("npy", "obj", "gltf", "html", "mp4", "visemes")
 FORMAT_ALIASES = {"glb": "gltf"}  # the .glb's old name: now the morph-target file (the flip-book is gone)
 
 
-def resolve_device(device: str | None) -> torch.device:
-    """``"cpu"``, ``"cuda"``, ``"cuda:1"`` -> torch.device, refusing CUDA where there is none."""
-    dev = torch.device(device or "cpu")
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"--device {device}: CUDA is not available here (torch.cuda.is_available() is False); "
-                         f"use --device cpu")
-    return dev
-
-
 def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
-                 sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
+                 sample_rate: int = 16000, front_end=None, device: str | torch.device | None = None,
                  amp: bool = False, chunk: int = 900, conditions: dict | None = None) -> np.ndarray:
     """16 kHz mono speech (N,) + template (V*3,) or (V, 3) -> predicted vertices float32 (T, V*3), 30 fps.
 
     The blocks of :func:`~dualtalker_lite.streaming.predict_chunks` joined in memory (fine for minutes of speech;
     for longer recordings stream them to disk with :func:`~dualtalker_lite.streaming.animate_wave_to_npy`, as the
     ``animate`` command does). ``device="cuda"`` runs on the GPU; ``amp=True`` adds mixed precision there
-    (float16 autocast). Raises :class:`~dualtalker_lite.checks.NonFiniteError` if the template or the model's
-    output is not finite.
+    (float16 autocast). ``front_end``: the audio front end the model was trained with
+    (``front_ends.from_settings(ckpt["features"])``; default log-mel). Raises
+    :class:`~dualtalker_lite.checks.NonFiniteError` if the template or the model's output is not finite; every input
+    is checked once, by :func:`~dualtalker_lite.streaming.predict_chunks`.
     """
-    if device is not None:
-        resolve_device(str(device))
-    _, blocks = predict_chunks(model, wave, template, speaker, sample_rate, extractor, device, amp, chunk, FPS,
+    _, blocks = predict_chunks(model, wave, template, speaker, sample_rate, front_end, device, amp, chunk, FPS,
                                conditions)
     return np.concatenate(list(blocks))  # (T, V*3)
 
@@ -164,7 +155,9 @@ def resolve_emotion(value: str | None, corpus: Corpus | None) -> int | None:
     return corpus.emotions.index(value)
 
 
-def _check_corpus(corpus: Corpus, ckpt: dict) -> None:
+def check_corpus(corpus: Corpus, ckpt: dict) -> None:
+    """Refuse (one line) a corpus whose vertex count or mesh topology differs from the checkpoint's: ``animate``,
+    ``evaluate`` and ``live`` read the speakers' faces from it."""
     n = ckpt.get("n_vertices")
     if n is not None and corpus.metadata.get("n_vertices") not in (None, n):
         raise ValueError(f"corpus {corpus.root} has {corpus.metadata['n_vertices']} vertices per frame, the model "
@@ -213,7 +206,7 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
 
     ``verts``: an array or the path of a ``.npy`` (memory-mapped: every format is written frame by frame, so
     an hour-long prediction is never loaded whole). A ``folder/vertices.npy`` given as ``verts`` is kept only
-    if ``"npy"`` is among the formats. The mp4 comes from :func:`~dualtalker_lite.viz.animate.render_video`
+    if ``"npy"`` is among the formats. The mp4 comes from :func:`~dualtalker_lite.export.video.render_video`
     (fast Pillow renderer, the speech muxed in, a progress bar with ``progress=True``). ``gltf`` and ``html``
     (:mod:`dualtalker_lite.export`) take ``template`` (V*3,) as the rest shape of the morph targets (default:
     the clip's mean frame) and print the morph targets' count and measured max/mean vertex error. ``visemes``
@@ -257,7 +250,7 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
         written += write_visemes(folder, curves)
         print(curves.line())
     if "mp4" in formats:
-        from .viz.animate import render_video
+        from .export.video import render_video
 
         anim = render_video(clip, faces, folder / "animation.mp4", wave=wave, sample_rate=sample_rate,
                             progress=progress)
@@ -268,49 +261,10 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
     return written
 
 
-# -------------------------------------------------------------------------------- CLI
-EXAMPLE = """example:
-  dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav --speaker SPK01 \\
-      --out runs/my_animation --format npy,gltf,html,mp4
-  dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --list-speakers"""
-
-
-def parser(prog: str = "dualtalker-lite animate") -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0], epilog=EXAMPLE,
-                                 formatter_class=HelpFormatter)
-    ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
-    ap.add_argument("--wav", help="speech recording (WAV/FLAC, mono, any sample rate)")
-    ap.add_argument("--speaker", default="SPK01", help="training speaker whose style to use (see --list-speakers)")
-    ap.add_argument("--list-speakers", action="store_true", help="print the speakers the model knows and exit")
-    ap.add_argument("--emotion", help="emotion-aware models (EmoFace): emotion name (e.g. happy) or index; "
-                    "default: recognised from the speech")
-    ap.add_argument("--level", type=int, choices=(1, 2), help="emotion-aware models: intensity 1 (normal, default) "
-                    "or 2 (strong)")
-    ap.add_argument("--template", help="neutral mesh (OBJ/PLY) with the model's topology; default: the speaker's")
-    ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
-    ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing, non-empty --out")
-    ap.add_argument("--format", default="npy,mp4",
-                    help=f"comma-separated subset of {','.join(FORMATS)} (glb: same as gltf; visemes: the 15 "
-                         f"standard viseme curves viseme_sil..viseme_U as visemes.json and visemes.csv)")
-    ap.add_argument("--no-video", action="store_true", help="skip the mp4 (fast for long recordings)")
-    ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
-    ap.add_argument("--amp", action="store_true", help="mixed precision (float16 autocast) on CUDA")
-    ap.add_argument("--chunk", type=int, default=900,
-                    help="frames decoded and written per block (memory vs. overhead; the result is the same)")
-    ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
-                    help="no progress on stderr (otherwise bars while predicting and rendering the video on a "
-                         "terminal, else a line at most every ~10 s while predicting); the final line stays")
-    ap.add_argument("--no-cache", action="store_true",
-                    help="phonetic models: compute the phoneme recogniser's output in memory, never reading or "
-                         "writing its disk cache ($DUALTALKER_CACHE, else ~/.cache/dualtalker-lite); log-mel models "
-                         "have no cache")
-    ap.add_argument("--debug", action="store_true", help="show full tracebacks")
-    return ap
-
-
+# -------------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> list[Path]:
-    """The ``animate`` command on parsed arguments; raises on any problem (see :func:`main`)."""
+    """The ``animate`` command on the arguments :func:`dualtalker_lite.cli.animate_parser` parsed -> the paths written;
+    raises one line on any problem (the command layer, :mod:`dualtalker_lite.cli`, turns it into exit status 2)."""
     from .data import sample_path
     from .streaming import fixed_mmap_threshold
 
@@ -345,7 +299,7 @@ def run(args: argparse.Namespace) -> list[Path]:
     corpus = None
     if args.corpus or not args.template or not ckpt.get("speakers"):
         corpus = Corpus(args.corpus or sample_path())
-        _check_corpus(corpus, ckpt)
+        check_corpus(corpus, ckpt)
     speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
     if args.template:
         template, faces = read_template(args.template, ckpt.get("n_vertices"), ckpt.get("topology"),
@@ -355,20 +309,20 @@ def run(args: argparse.Namespace) -> list[Path]:
             raise ValueError(f"corpus {corpus.root} has no face for speaker {args.speaker!r}; pass --template "
                              f"mesh.obj (the speaker's neutral face with the model's topology)")
         template, faces = corpus.template(args.speaker), corpus.faces
-    extractor = extractor_from_settings(ckpt.get("features"), str(args.checkpoint), cache=not args.no_cache)
-    wave = AudioStream(args.wav, sample_rate=extractor.sample_rate,  # checked now, read block by block later
-                       front_end=getattr(extractor, "front_end", "logmel"))
+    front_end = front_ends.from_settings(ckpt.get("features"), str(args.checkpoint), cache=not args.no_cache)
+    wave = AudioStream(args.wav, sample_rate=front_end.sample_rate,  # checked now, read block by block later
+                       front_end=front_end.front_end)
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
     conditions = {"emotion": resolve_emotion(args.emotion, corpus), "level": args.level}
-    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=extractor.sample_rate,
-                                      extractor=extractor, device=device, amp=args.amp, chunk=args.chunk, fps=FPS,
+    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=front_end.sample_rate,
+                                      front_end=front_end, device=device, amp=args.amp, chunk=args.chunk, fps=FPS,
                                       conditions=conditions)
     mode = progress_mode(args.quiet)
     with target as tmp:
         npy = write_npy_stream(tmp / "vertices.npy", _frame_progress(blocks, n_frames, args.chunk, mode), n_frames,
                                template.size)
-        written = write_outputs(tmp, npy, faces, wave, formats, extractor.sample_rate, template=template,
+        written = write_outputs(tmp, npy, faces, wave, formats, front_end.sample_rate, template=template,
                                 progress=mode == "bar")
     out = Path(args.out)
     names = [out / p.relative_to(tmp) for p in written]
@@ -423,17 +377,3 @@ def _conditions_used(model: torch.nn.Module, asked: str | None, conditions: dict
     else:
         what = asked
     return f", emotion {what}, level {level}"
-
-
-def main(argv: list[str] | None = None) -> list[Path]:
-    """Command line: one-line errors with exit status 2 (``--debug``: tracebacks), Ctrl-C exits 130."""
-    from .console import run_main
-
-    from .files import claims_released
-
-    with claims_released():
-        return run_main(lambda a: run(parser().parse_args(a)), argv)
-
-
-if __name__ == "__main__":
-    main()

@@ -36,7 +36,8 @@ Pieces, bottom up (each usable alone):
   moving every spike ``lag_s`` earlier: hama's spikes come late against the phone timing (measured on the
   shipped corpus: ``docs/front-ends.md``).
 * :class:`RecogniserExtractor` -- the :class:`~dualtalker_lite.audio.FeatureExtractor`: ``(wave, T) -> (T, dim)``
-  at the mesh rate, with ``output``:
+  at the mesh rate, with ``output`` (each output is also the front end's name in
+  :data:`dualtalker_lite.front_ends.FRONT_ENDS`, the one table of front ends):
 
   =====================  =====  ================================================================================
   ``output``             dim    features per mesh frame
@@ -51,8 +52,9 @@ Pieces, bottom up (each usable alone):
 
   :meth:`RecogniserExtractor.stream` gives the same features, exactly, from blocks (what ``animate`` uses: an
   hour of audio is never in memory whole; the ``"visemes"`` outputs keep only the spikes).
-  :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "hama", "settings": {...}}``)
-  and :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
+  :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "visemes", "settings": {...}}``:
+  the output is the name; checkpoints before issue 30 say ``"hama"`` and are read too) and
+  :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
 
 What it cannot do: it hears phones, not faces. Speaker style, emotion, loudness and everything above the mouth
 are gone from the viseme track; the recogniser misses some phones (more of espeak's than of real voices'), and
@@ -80,7 +82,7 @@ __all__ = ["NAME", "HAMA_VERSION", "RATE", "FRAME_SAMPLES", "MAX_FRAMES_PER_CALL
            "SETTING_KEYS", "RecogniserError", "check_settings", "default_cache_dir", "wave_hash", "n_recogniser_frames",
            "PhonemeRecogniser", "symbol_visemes", "spike_track", "RecogniserExtractor"]
 
-NAME = "hama"                   # the front-end's name in checkpoints
+NAME = "hama"                   # the recogniser's name (its cache folder; the front end's name before issue 30)
 HAMA_VERSION = "1.7.0"          # the version every table and default below was measured with
 RATE = 50                       # recogniser frames per second
 FRAME_SAMPLES = SAMPLE_RATE // RATE   # 320 samples = 20 ms per frame (STFT hop 160, subsampled by 2)
@@ -811,16 +813,17 @@ class RecogniserExtractor:
             raise ValueError(f"output must be one of {sorted(OUTPUTS)}, got {output!r}")
         self.output, self.lag_s, self.window_s, self.blank_bias, self.fps = output, lag_s, window_s, blank_bias, fps
         self.sample_rate = SAMPLE_RATE
-        self.front_end = "hama+logmel" if output.endswith("+logmel") else "hama"   # audio.upsampled_warning's wording
+        self.front_end = output  # its name in front_ends.FRONT_ENDS (audio.upsampled_warning words by it)
         self.dim = OUTPUTS[output]
         self.recogniser = recogniser or PhonemeRecogniser(cache=cache, cache_dir=cache_dir)
         self._logmel = LogMelExtractor(fps=fps) if output.endswith("+logmel") else None
 
     # ---- checkpoints
     def settings(self) -> dict:
-        """``{"name": "hama", "settings": {...}}`` with plain values, as a checkpoint's ``features`` entry."""
+        """``{"name": output, "settings": {...}}`` with plain values, as a checkpoint's ``features`` entry (the name:
+        the front end's in :data:`dualtalker_lite.front_ends.FRONT_ENDS`, ``"visemes"`` or ``"visemes+logmel"``...)."""
         table = hashlib.sha256(json.dumps(SYMBOL_TO_VISEME, sort_keys=True, ensure_ascii=True).encode()).hexdigest()
-        return {"name": NAME, "settings": {"version": self.recogniser.version, "output": self.output,
+        return {"name": self.output, "settings": {"version": self.recogniser.version, "output": self.output,
                                            "lag_s": self.lag_s, "window_s": self.window_s,
                                            "blank_bias": self.blank_bias, "fps": self.fps,
                                            "sample_rate": self.sample_rate, "dim": self.dim,
@@ -829,12 +832,17 @@ class RecogniserExtractor:
     @classmethod
     def from_settings(cls, features: dict, source: str = "checkpoint", **kw) -> "RecogniserExtractor":
         """Rebuild from :meth:`settings`; one-line ValueError for another front-end, version or table, or a
-        setting :func:`check_settings` refuses. ``kw``: ``cache``, ``cache_dir`` or ``recogniser``."""
-        if not features or features.get("name") != NAME:
-            raise ValueError(f"{source}: features {features and features.get('name')!r} are not the {NAME!r} "
-                             f"recogniser's")
+        setting :func:`check_settings` refuses. The old spelling (``"name": "hama"``, before issue 30) is read too.
+        ``kw``: ``cache``, ``cache_dir`` or ``recogniser``."""
+        name = features.get("name") if features else None
+        if name not in (*OUTPUTS, NAME):
+            raise ValueError(f"{source}: features {name!r} are not the {NAME!r} recogniser's")
         check_settings(features.get("settings", {}), source)
         s = dict(features.get("settings", {}))
+        if name != NAME and s.get("output", name) != name:
+            raise ValueError(f"{source}: features {name!r} record the recogniser output {s['output']!r}; they must "
+                             f"agree")
+        s.setdefault("output", name if name != NAME else "visemes")
         ex = cls(output=s.get("output", "visemes"), lag_s=s.get("lag_s", LAG_S), window_s=s.get("window_s", WINDOW_S),
                  blank_bias=s.get("blank_bias", BLANK_BIAS), fps=s.get("fps", 30), **kw)
         mine = ex.settings()["settings"]

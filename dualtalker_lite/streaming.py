@@ -3,7 +3,7 @@
 An hour at 30 fps is 108,000 frames. The models decode it with bounded caches (``generate_chunks``, see
 :mod:`dualtalker_lite.blocks.windowed`), but the *result* alone is T x V*3 float32: 2.0 GB for the sample's
 1,558-vertex face, the whole memory budget. So long clips are written block by block to a ``.npy`` file (a
-valid numpy file: ``np.load(path, mmap_mode="r")`` reads it back lazily, and ``viz.animate.render_video``
+valid numpy file: ``np.load(path, mmap_mode="r")`` reads it back lazily, and ``export.video.render_video``
 renders it frame by frame).
 
     from dualtalker_lite.streaming import animate_wave_to_npy
@@ -18,14 +18,13 @@ removed on failure, Ctrl-C and SIGTERM, and a non-finite frame stops the run wit
 """
 from __future__ import annotations
 
-import contextlib
 import os
-import signal
-import threading
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from .files import sigterm_as_exit  # noqa: F401 - its home is files (the mp4 writer in export/ uses it too)
 
 __all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "SpooledFeatures", "predict_chunks",
            "animate_wave_to_npy", "fixed_mmap_threshold"]
@@ -49,25 +48,6 @@ def fixed_mmap_threshold(nbytes: int = 4 << 20) -> bool:
         return bool(libc.mallopt(-3, int(nbytes)))  # M_MMAP_THRESHOLD
     except (OSError, AttributeError):
         return False
-
-
-@contextlib.contextmanager
-def sigterm_as_exit():
-    """Inside the block, SIGTERM raises ``SystemExit(143)`` so ``finally``/``with`` clean-ups run (temporary files
-    and folders). Only in the main thread, and only when nobody else installed a SIGTERM handler."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def handler(signum, frame):
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def write_npy_stream(path: str | os.PathLike, chunks, n_frames: int, n_values: int) -> Path:
@@ -182,7 +162,7 @@ class SpooledFeatures:
 
 
 def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
-                   sample_rate: int = 16000, extractor=None, device: str | torch.device | None = None,
+                   sample_rate: int = 16000, front_end=None, device: str | torch.device | None = None,
                    amp: bool = False, chunk: int = 900, fps: int = 30, conditions: dict | None = None):
     """Validate, extract features and return ``(T, blocks)``: ``blocks`` yields the predicted vertices as float32
     (n, V*3) numpy blocks of at most ``chunk`` frames, T = N fps / sample_rate frames in all.
@@ -195,7 +175,7 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     before the first block (bad wave, non-finite template, wrong vertex count, speaker outside the style
     table, missing CUDA); memory beyond the model is the wave, its features (T x D_a) and one block. ``wave``
     may be an :class:`~dualtalker_lite.audio.AudioStream` (what ``animate`` passes): features are then computed
-    block by block by the extractor's ``stream`` method (log-mel and the phoneme recogniser have one) and the
+    block by block by the front end's ``stream`` method (log-mel and the phoneme recogniser have one) and the
     wave is never in memory whole; on the CPU, log-mel features (``stream_rows``) go straight to a
     :class:`SpooledFeatures` file, so neither are they (the models read them window by window). With all three,
     memory no longer grows with the audio length beyond the recogniser's small (T, 15) viseme track.
@@ -205,7 +185,7 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     from contextlib import nullcontext
 
     from .audio import AudioStream, LogMelExtractor, validate_wave
-    from .checks import check_finite, NonFiniteError
+    from .checks import check_finite, NonFiniteError, resolve_device
 
     streamed = isinstance(wave, AudioStream)  # a file read block by block (checked when it was opened)
     if streamed and wave.sample_rate != sample_rate:
@@ -223,7 +203,7 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
                              f"(only emotion-aware models such as EmoFace do)")
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive number of frames, got {chunk!r}")
-    extractor = extractor or LogMelExtractor()
+    front_end = front_end or LogMelExtractor()  # a front end of front_ends.FRONT_ENDS (default: log-mel)
     template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
     check_finite(template, "template")
     from .models.contract import hook
@@ -236,21 +216,19 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     if n_speakers is not None and not 0 <= speaker < n_speakers:
         raise ValueError(f"speaker index {speaker} is outside the model's {n_speakers} style embeddings")
     if device is not None:
-        dev = torch.device(device)
-        if dev.type == "cuda" and not torch.cuda.is_available():
-            raise ValueError(f"device {device}: CUDA is not available here (torch.cuda.is_available() is False)")
+        dev = resolve_device(device, option="device")
     else:
         dev = next(model.parameters(), torch.empty(0)).device
     n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
     with torch.no_grad():
-        if streamed and hasattr(extractor, "stream_rows") and dev.type == "cpu":  # log-mel: not even A whole
-            audio = SpooledFeatures.write(extractor.stream_rows(wave.blocks, len(wave), n_frames), n_frames,
-                                          extractor.dim)  # (1, T, D_a) on disk, read window by window
-        elif streamed and hasattr(extractor, "stream"):  # the recogniser: never the whole wave in memory
+        if streamed and hasattr(front_end, "stream_rows") and dev.type == "cpu":  # log-mel: not even A whole
+            audio = SpooledFeatures.write(front_end.stream_rows(wave.blocks, len(wave), n_frames), n_frames,
+                                          front_end.dim)  # (1, T, D_a) on disk, read window by window
+        elif streamed and hasattr(front_end, "stream"):  # the recogniser: never the whole wave in memory
             # the callable, not an iterator: the recogniser reads the file more than once (cache key, then hama)
-            audio = extractor.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)
+            audio = front_end.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)
         else:  # front-ends without a stream method (wav2vec 2.0) take the whole wave
-            audio = extractor(wave.read() if streamed else wave, n_frames)[None]
+            audio = front_end(wave.read() if streamed else wave, n_frames)[None]
     model.eval().to(dev)
 
     def blocks():
@@ -277,7 +255,7 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
 
 
 def animate_wave_to_npy(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int,
-                        path: str | os.PathLike, sample_rate: int = 16000, extractor=None, fps: int = 30,
+                        path: str | os.PathLike, sample_rate: int = 16000, front_end=None, fps: int = 30,
                         chunk: int = 900, device: str | torch.device | None = None, amp: bool = False) -> Path:
     """16 kHz mono speech (N,) of any length -> predicted vertices (T, V*3) float32 in ``path``, T = N fps / sr.
 
@@ -285,6 +263,6 @@ def animate_wave_to_npy(model: torch.nn.Module, wave: np.ndarray, template: np.n
     block-wise STFT features, banded audio encoding and bounded-cache decoding keep the memory far below the
     size of the result. ``path`` appears only when complete.
     """
-    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate, extractor, device, amp,
+    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate, front_end, device, amp,
                                       chunk, fps)
     return write_npy_stream(path, blocks, n_frames, np.asarray(template).size)

@@ -17,11 +17,12 @@ PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
 
 LAYERS = [  # lowest first
     ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "recogniser",
-                     "export", "provenance")),
+                     "front_ends", "export", "provenance")),
     ("data and blocks", ("data", "blocks")),
     ("models and losses", ("models", "losses")),
     ("training and evaluation", ("train", "checkpoints", "metrics")),
-    ("applications", ("experiments", "inference", "streaming", "viz", "live")),
+    ("applications", ("experiments", "inference", "streaming", "live")),
+    ("visualisation", ("viz",)),
     ("front ends", ("cli", "demo", "viz.widgets", "experiments.__main__")),
 ]
 # the modules of the registered models (dualtalker_lite.models.registry): no one of them imports another
@@ -164,6 +165,23 @@ def test_a_module_outside_the_layers_is_named(tmp_path):
     root = _fake_package(tmp_path, {"misc.py": ""})
     with pytest.raises(KeyError, match="module 'misc' is in no layer"):
         [layer_of(m) for m in modules(root)]
+
+
+def test_the_mp4_writer_sits_below_the_commands_that_use_it():
+    """The mp4 writer and its mesh renderer are exports (``export.video``, ``export.render``: foundations), so
+    ``inference`` writes videos without importing the visualisation layer, which sits above the applications (its
+    notebook helpers import ``inference``): ``inference -> viz`` would be an upward import."""
+    edges = imports(PACKAGE)
+    assert "export.video" in edges["inference"]
+    assert not any(t == "viz" or t.startswith("viz.") for t in edges["inference"])
+    assert edges["export.video"] <= {"files", "export.render"} and edges["export.render"] == set()
+    assert layer_of("viz.animate") > layer_of("inference") > layer_of("export.video")
+
+
+def test_the_check_catches_inference_importing_the_visualisation(tmp_path):
+    root = _fake_package(tmp_path, {"inference.py": "from .viz.animate import render_video\n",
+                                    "viz/__init__.py": "", "viz/animate.py": ""})
+    assert violations(root) == ["upward import: inference (applications) imports viz.animate (visualisation)"]
 
 
 def test_papers_come_from_the_registry():

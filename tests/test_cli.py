@@ -37,7 +37,7 @@ def test_train_evaluate_animate(tmp_path, capsys):
     main(["animate", "--checkpoint", str(ckpt), "--wav", str(tmp_path / "me.wav"), "--speaker", "SPK02",
           "--out", str(tmp_path / "anim"), "--overwrite", "--chunk", "4", "--no-progress"])
     np.testing.assert_allclose(np.load(tmp_path / "anim" / "vertices.npy"), verts, atol=1e-6, rtol=0)
-    from dualtalker_lite.viz.animate import ffmpeg_exe, stream_info
+    from dualtalker_lite.export.video import ffmpeg_exe, stream_info
 
     if ffmpeg_exe() is not None:
         streams = stream_info(tmp_path / "anim" / "animation.mp4")

@@ -603,7 +603,7 @@ def _wav(tmp_path):
 def test_cli_emotion_and_level(emoface_ckpt, tmp_path):
     import numpy as np
 
-    from dualtalker_lite.inference import main
+    from dualtalker_lite.cli import animate_main as main
 
     wav, outs = _wav(tmp_path), {}
     for emotion in ("happy", "sad"):
@@ -617,7 +617,7 @@ def test_cli_emotion_and_level(emoface_ckpt, tmp_path):
 
 def test_cli_emotion_errors(emoface_ckpt, tmp_path, capsys):
     from dualtalker_lite.checkpoints import save_checkpoint
-    from dualtalker_lite.inference import main
+    from dualtalker_lite.cli import animate_main as main
     from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 
     wav = _wav(tmp_path)

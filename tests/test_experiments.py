@@ -227,7 +227,7 @@ def test_save_models_writes_one_loadable_checkpoint_per_trained_run(tmp_path):
 def test_demo_quick_writes_every_file(tmp_path):
     from dualtalker_lite import demo
     from dualtalker_lite.train import load_checkpoint
-    from dualtalker_lite.viz.animate import stream_info
+    from dualtalker_lite.export.video import stream_info
 
     res = demo.main(["--out", str(tmp_path), "--quick", "--no-progress"])
     for name in ("metrics.md", "metrics.json", "lip_distance.png", "error_map.png", "side_by_side.mp4",

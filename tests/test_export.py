@@ -283,7 +283,7 @@ def checkpoint(corpus, tmp_path_factory):
 
 
 def test_animate_writes_npy_gltf_and_html(checkpoint, corpus, tmp_path, capsys):
-    from dualtalker_lite.inference import main
+    from dualtalker_lite.cli import animate_main as main
 
     wav = sample_path() / "audio" / "SPK09_s02.flac"
     out = tmp_path / "me"

@@ -212,7 +212,7 @@ def test_console_commands(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("note: ") and "no viseme labels in metadata.json" in err and len(err.splitlines()) == 1
     features = torch.load(tmp_path / "b.pt", weights_only=True)["features"]
-    assert (features["name"], features["settings"]["fps"], features["settings"]["dim"]) == ("hama", 25, 15)
+    assert (features["name"], features["settings"]["fps"], features["settings"]["dim"]) == ("visemes", 25, 15)
     for cmd in ("animate", "train", "evaluate", "generate", "convert-templates", "prepare-dataset"):
         with pytest.raises(SystemExit) as e:
             cli_main([cmd, "--help"])

@@ -294,9 +294,9 @@ def test_animate_from_spooled_features_equals_in_memory(tmp_path, name, monkeypa
     spooled, write = [], SpooledFeatures.write.__func__
     monkeypatch.setattr(SpooledFeatures, "write", classmethod(lambda cls, *a, **k: spooled.append(1) or
                                                                 write(cls, *a, **k)))
-    n, blocks = predict_chunks(model, AudioStream(path), template, 1, extractor=ex, chunk=CHUNK)
+    n, blocks = predict_chunks(model, AudioStream(path), template, 1, front_end=ex, chunk=CHUNK)
     got = np.concatenate(list(blocks))
     assert spooled == [1]
-    n_mem, blocks = predict_chunks(model, load_audio(path), template, 1, extractor=ex, chunk=CHUNK)
+    n_mem, blocks = predict_chunks(model, load_audio(path), template, 1, front_end=ex, chunk=CHUNK)
     assert spooled == [1] and n == n_mem == 120 and got.shape == (120, V * 3)
     np.testing.assert_array_equal(got, np.concatenate(list(blocks)))

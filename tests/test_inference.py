@@ -17,7 +17,8 @@ from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint, topolo
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.export.gltf import read_gltf_animation
-from dualtalker_lite.inference import animate_wav, animate_wave, main, write_obj
+from dualtalker_lite.cli import animate_main as main
+from dualtalker_lite.inference import animate_wav, animate_wave, write_obj
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.checks import NonFiniteError
 
@@ -394,7 +395,7 @@ def test_killed_while_rendering_leaves_nothing_behind(ckpt, tmp_path, sig):
     tmpdir.mkdir()
     out = tmp_path / "o"
     env = {**os.environ, "PYTHONPATH": str(repo_root()), "TMPDIR": str(tmpdir)}
-    proc = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.inference", "--checkpoint", str(ckpt), "--wav",
+    proc = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.cli", "animate", "--checkpoint", str(ckpt), "--wav",
                              str(tmp_path / "long.wav"), "--out", str(out)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
@@ -429,7 +430,7 @@ def test_streamed_cli_output_equals_the_uncached_reference(setup, moving_ckpt, w
     import trimesh
 
     from dualtalker_lite.audio import load_audio
-    from dualtalker_lite.checkpoints import extractor_from_settings
+    from dualtalker_lite.front_ends import from_settings
 
     corpus, _, _ = setup
     out = tmp_path / "anim"
@@ -437,16 +438,16 @@ def test_streamed_cli_output_equals_the_uncached_reference(setup, moving_ckpt, w
           "--format", "npy,obj,glb"])
     got = np.load(out / "vertices.npy", allow_pickle=False)
     model, info = load_checkpoint(moving_ckpt)
-    extractor = extractor_from_settings(info["features"], str(moving_ckpt))
+    front_end = from_settings(info["features"], str(moving_ckpt))
     wave = load_audio(wav, sample_rate=16000)
-    audio = extractor(wave, 30)[None]  # (1, 30, 160)
+    audio = front_end(wave, 30)[None]  # (1, 30, 160)
     template = torch.from_numpy(corpus.template("SPK02"))[None]
     ref = model.generate(audio, template, torch.tensor([info["speakers"].index("SPK02")]), use_cache=False)[0]
     assert got.shape == (30, template.shape[1])
     motion = np.abs(ref.numpy() - corpus.template("SPK02")).max()
     assert motion > 1e-4  # the comparison is not between two copies of the template
     np.testing.assert_allclose(got, ref.numpy(), atol=1e-5, rtol=0)
-    np.testing.assert_allclose(animate_wave(model, wave, corpus.template("SPK02"), 1, extractor=extractor, chunk=4),
+    np.testing.assert_allclose(animate_wave(model, wave, corpus.template("SPK02"), 1, front_end=front_end, chunk=4),
                                got, atol=1e-6, rtol=0)  # the API joins the same blocks
     obj = trimesh.load(out / "obj" / "frame_00023.obj", process=False, force="mesh")
     np.testing.assert_allclose(obj.vertices.reshape(-1), got[23], atol=1e-6)

@@ -68,7 +68,7 @@ def offline(config):
     """The offline ``animate`` of the clip: vertices (T, V*3) and their lip distance (T,) in mm."""
     from dualtalker_lite.inference import animate_wave
 
-    verts = animate_wave(config.model, _wave(), config.template, config.speaker, extractor=config.extractor)
+    verts = animate_wave(config.model, _wave(), config.template, config.speaker, front_end=config.front_end)
     return verts, _lip(verts, config)
 
 

@@ -15,8 +15,9 @@ from matplotlib import colormaps
 from dualtalker_lite import audio as A
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.streaming import animate_wave_to_npy, generate_to_npy, predict_chunks, write_npy_stream
-from dualtalker_lite.viz.animate import animate_clip, ffmpeg_exe, render_video, stream_info
-from dualtalker_lite.viz.render import MeshRenderer, RasterRenderer
+from dualtalker_lite.export.video import ffmpeg_exe, render_video, stream_info
+from dualtalker_lite.viz.animate import animate_clip
+from dualtalker_lite.export.render import MeshRenderer, RasterRenderer
 
 WHITE = np.array([255, 255, 255])
 
@@ -133,7 +134,7 @@ def test_raster_renderer_looks_like_the_matplotlib_renderer(sphere):
 
 def test_raster_fast_path_draws_exactly_what_imagedraw_polygon_draws(sphere, monkeypatch):
     """Packed inks straight to Pillow's C filler vs the public ImageDraw.polygon: the same pixels."""
-    from dualtalker_lite.viz import render as R
+    from dualtalker_lite.export import render as R
 
     v, f = sphere
     monkeypatch.setattr(R, "_PILLOW_PACKING", None)
@@ -176,7 +177,7 @@ def test_video_audio_from_a_stream_equals_the_whole_wave(tmp_path, seconds):
     from the wave in memory, trimmed or zero-padded to the video's duration."""
     import soundfile as sf
 
-    from dualtalker_lite.viz.animate import _write_wav
+    from dualtalker_lite.export.video import _write_wav
 
     wave = (0.5 * np.sin(np.arange(int(seconds * 16000)) * 0.05)).astype(np.float32)
     sf.write(tmp_path / "in.wav", wave, 16000, subtype="PCM_16")
@@ -228,7 +229,7 @@ def test_sigterm_during_rendering_removes_the_temporary_folder(tmp_path, sphere)
     np.save(tmp_path / "v.npy", _clip(sphere, 20000))
     script = textwrap.dedent(f"""
         import numpy as np, trimesh
-        from dualtalker_lite.viz.animate import render_video
+        from dualtalker_lite.export.video import render_video
         faces = np.asarray(trimesh.creation.icosphere(subdivisions=3).faces)
         render_video({str(tmp_path / "v.npy")!r}, faces, {str(tmp_path / "out" / "a.mp4")!r}, size=32,
                      progress=False)

@@ -112,3 +112,24 @@ def test_readme_examples_write_distinct_folders():
     outs = re.findall(r"dualtalker-lite generate --out (\S+)", text)
     assert len(outs) >= 3 and len(set(outs)) == len(outs), outs
     assert not [o for o in outs if o.startswith("data_samples")]
+
+
+def test_readme_python_example_runs_as_written_on_the_phonetic_route():
+    """README's Python example (issue 30: the phonetic route, the default) runs as written, but for one epoch instead
+    of the recipe's 37: it trains on the corpus's viseme labels and animates a clip through the recogniser's track."""
+    import numpy as np
+    import pytest
+
+    pytest.importorskip("hama", reason="the [phonetic] extra (hama) is not installed")
+    text = (ROOT / "README.md").read_text().split("## Using the package", 1)[1]
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert "VisemeLabels" in code and "build(DEFAULT)" in code and "audio_dim=160" not in code
+    assert code.count("TrainConfig.tiny()") == 1
+    namespace: dict = {}
+    exec(compile(code.replace("TrainConfig.tiny()", "TrainConfig.tiny(epochs=1, progress=False)"), "README.md",
+                 "exec"), namespace)
+    model, corpus, verts = namespace["model"], namespace["corpus"], namespace["verts"]
+    assert model.cfg.audio_dim == 15  # one-hot over the 15 visemes of face/visemes.py
+    assert len(namespace["history"].terms) == 1
+    n_frames = int(round(len(corpus.wave("SPK01_s05")) * 30 / 16000))  # 30 fps from 16 kHz audio
+    assert verts.shape == (n_frames, 3 * corpus.metadata["n_vertices"]) and np.isfinite(verts).all()

@@ -205,7 +205,7 @@ def test_extractor_outputs_and_settings(recogniser, corpus):
             total = torch.logsumexp(feats[:, :191], dim=1)
             assert (total <= 0.02).all() and (total > -3).all()
         desc = ex.settings()
-        assert desc["name"] == "hama" and desc["settings"]["dim"] == dim
+        assert desc["name"] == output and desc["settings"]["dim"] == dim  # the front end's name: the output
         again = RecogniserExtractor.from_settings(desc, recogniser=recogniser)
         assert again.settings() == desc
         buffer = io.BytesIO()                                 # plain values: a checkpoint's weights_only load takes them
@@ -215,6 +215,10 @@ def test_extractor_outputs_and_settings(recogniser, corpus):
     with pytest.raises(ValueError, match="hama version '0.9'.*pip install hama==0.9"):
         RecogniserExtractor.from_settings({"name": "hama", "settings": {**desc["settings"], "version": "0.9"}},
                                           recogniser=recogniser)
+    assert desc["name"] == "visemes+logmel"  # the loop's last output
+    with pytest.raises(ValueError, match=r"features 'visemes' record the recogniser output 'visemes\+logmel'; they "
+                                         r"must agree"):
+        RecogniserExtractor.from_settings({**desc, "name": "visemes"}, recogniser=recogniser)
     with pytest.raises(ValueError, match="not the 'hama'"):
         RecogniserExtractor.from_settings({"name": "logmel", "settings": {}}, recogniser=recogniser)
     with pytest.raises(ValueError, match="output must be one of"):
@@ -277,13 +281,13 @@ def test_a_checkpoint_records_the_recogniser_and_refuses_another_version(tmp_pat
 
     front = RecogniserExtractor("visemes")
     features = extractor_settings(front)
-    assert features == front.settings() and features["name"] == "hama" and features["settings"]["dim"] == 15
+    assert features == front.settings() and features["name"] == "visemes" and features["settings"]["dim"] == 15
     cfg = FaceFormerConfig.tiny(n_vertices=4, audio_dim=15, n_speakers=2, d_model=8, d_ff=16, audio_hidden=8)
     save_checkpoint(tmp_path / "m.pt", FaceFormer(cfg), cfg, features=features)
     _, ckpt = load_checkpoint(tmp_path / "m.pt")
     again = extractor_from_settings(ckpt["features"], "m.pt")
     assert isinstance(again, RecogniserExtractor) and (again.output, again.dim) == ("visemes", 15)
-    old = {"name": "hama", "settings": {**features["settings"], "version": "0.9.0"}}
+    old = {"name": "visemes", "settings": {**features["settings"], "version": "0.9.0"}}
     with pytest.raises(ValueError, match=r"^m\.pt: trained with hama version '0\.9\.0', this installation has .*"
                                          r"\(pip install hama==0\.9\.0\)$"):
         extractor_from_settings(old, "m.pt")
@@ -303,7 +307,7 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
     # the default front-end; --quiet: no progress lines on stderr (it is a pipe here)
     proc = run("train", "--model", "faceformer", "--epochs", "1", "--clips", "8", "--out", ckpt, "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
-    assert torch.load(ckpt, weights_only=True)["features"]["name"] == "hama"
+    assert torch.load(ckpt, weights_only=True)["features"]["name"] == "visemes"
     proc = run("evaluate", "--checkpoint", ckpt, "--split", "test_b", "--json", tmp_path / "m.json", "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     wav = sample_path() / "audio" / "SPK01_s05.flac"
@@ -315,7 +319,7 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
     proc = run("train", "--model", "emoface", "--epochs", "1", "--clips", "8", "--out", tmp_path / "e.pt", "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     saved = torch.load(tmp_path / "e.pt", weights_only=True)
-    assert (saved["features"]["name"], saved["features"]["settings"]["output"]) == ("hama", "visemes+logmel")
+    assert (saved["features"]["name"], saved["features"]["settings"]["output"]) == ("visemes+logmel",) * 2
     assert (saved["model_config"]["audio_dim"], saved["model_config"]["content_dims"]) == (175, 15)
     proc = run("animate", "--checkpoint", tmp_path / "e.pt", "--wav", wav, "--speaker", "SPK01", "--emotion",
                "happy", "--level", "2", "--out", tmp_path / "e", "--format", "npy")

@@ -219,9 +219,10 @@ def test_animate_writes_viseme_curves_peaking_at_the_recordings_bilabials(tmp_pa
 
 
 def test_visemes_is_listed_in_help_and_unknown_formats_name_it(tmp_path):
-    from dualtalker_lite.inference import FORMATS, parser
+    from dualtalker_lite.cli import animate_parser
+    from dualtalker_lite.inference import FORMATS
 
-    assert "visemes" in FORMATS and "visemes" in parser().format_help()
+    assert "visemes" in FORMATS and "visemes" in animate_parser().format_help()
     proc = _run("animate", "--checkpoint", tmp_path / "none.pt", "--wav", CLIP.with_suffix(".flac"),
                 "--out", tmp_path / "o", "--format", "viseme")
     assert proc.returncode == 2 and "unknown format(s) ['viseme']" in proc.stderr and "visemes" in proc.stderr
@@ -229,7 +230,7 @@ def test_visemes_is_listed_in_help_and_unknown_formats_name_it(tmp_path):
 
 def test_without_the_recogniser_visemes_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
     import dualtalker_lite.recogniser as recogniser
-    from dualtalker_lite.inference import main
+    from dualtalker_lite.cli import animate_main as main
 
     def missing():
         raise ImportError("the phoneme recogniser front-end needs the optional package hama (pip install hama)")

@@ -14,8 +14,8 @@ from dualtalker_lite.viz import (
     plot_waveform_and_phonemes,
     render_frame_rgb,
 )
-from dualtalker_lite.viz.animate import ffmpeg_exe, stream_info
-from dualtalker_lite.viz.render import camera_rotation, visible_faces
+from dualtalker_lite.export.video import ffmpeg_exe, stream_info
+from dualtalker_lite.export.render import camera_rotation, visible_faces
 
 FPS, SR = 30, 16000
 WHITE = np.array([255, 255, 255])

@@ -35,7 +35,6 @@ region file names follow CodeTalker (BIWI) and the FLAME masks file (VOCASET).
 """
 from __future__ import annotations
 
-import argparse
 import importlib
 import io
 import json
@@ -50,11 +49,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..console import HelpFormatter
-
 __all__ = ["UnsafePickleError", "safe_load_pickle", "convert_templates", "DatasetPreset", "PRESETS",
-           "parse_clip_name", "faceformer_splits", "read_index_file", "prepare_dataset", "convert_templates_main",
-           "prepare_main"]
+           "parse_clip_name", "faceformer_splits", "read_index_file", "prepare_dataset", "convert_templates_command",
+           "prepare_command"]
 
 
 # ------------------------------------------------------------------------------- restricted unpickler
@@ -528,16 +525,9 @@ def _build_dataset(root: Path, preset: str, out: Path) -> dict:
 
 
 # -------------------------------------------------------------------------------------- commands
-def convert_templates_main(argv: list[str] | None = None) -> Path:
-    ap = argparse.ArgumentParser(
-        prog="dualtalker-lite convert-templates", formatter_class=HelpFormatter,
-        description="Convert FaceFormer's templates.pkl to templates.npz with a restricted unpickler "
-                    "(numpy arrays, dicts, lists, strings and numbers only: a malicious pickle runs nothing).",
-        epilog="example:\n  dualtalker-lite convert-templates vocaset/templates.pkl    # -> vocaset/templates.npz")
-    ap.add_argument("pickle", help="templates.pkl")
-    ap.add_argument("--out", default=None, help="output .npz (default: beside the pickle)")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing output .npz")
-    args = ap.parse_args(argv)
+def convert_templates_command(args) -> Path:
+    """``dualtalker-lite convert-templates`` on the arguments :func:`dualtalker_lite.cli.convert_templates_parser`
+    parsed -> the .npz written."""
     from ..files import claim
 
     with claim(args.out or Path(args.pickle).with_suffix(".npz")):
@@ -547,18 +537,9 @@ def convert_templates_main(argv: list[str] | None = None) -> Path:
     return out
 
 
-def prepare_main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(
-        prog="dualtalker-lite prepare-dataset", formatter_class=HelpFormatter,
-        description="Make a VOCASET/BIWI folder in FaceFormer's layout readable by dualtalker-lite "
-                    "(metadata.json with FaceFormer's splits, templates.npz, regions.json, faces.npy).",
-        epilog="example:\n  dualtalker-lite prepare-dataset ~/data/vocaset --preset vocaset\n"
-               "  dualtalker-lite train --corpus ~/data/vocaset --model faceformer --device cuda --out vocaset.pt")
-    ap.add_argument("root", help="the dataset folder (wav/, vertices_npy/, templates.pkl)")
-    ap.add_argument("--preset", choices=sorted(PRESETS), required=True,
-                    help="the dataset's frame rates, mesh subsampling and splits")
-    ap.add_argument("--overwrite", action="store_true", help="rebuild an existing metadata.json/templates.npz")
-    args = ap.parse_args(argv)
+def prepare_command(args) -> dict:
+    """``dualtalker-lite prepare-dataset`` on the arguments :func:`dualtalker_lite.cli.prepare_parser` parsed -> the
+    metadata written."""
     meta = prepare_dataset(args.root, args.preset, args.overwrite)
     sizes = {k: len(v) for k, v in meta["splits"].items()}
     print(f"{args.root}: {len(meta['clips'])} clips at {meta['fps']} fps, {meta['n_vertices']} vertices; "

@@ -42,13 +42,14 @@ Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact com
 (mean ± sample std over seeds, with a note column comparing each row with the table's reference row).
 
 The package: :mod:`.specs` (tables and their rows), :mod:`.evaluation` (features, metrics, collapse check),
-:mod:`.runner` (data, models, ``run_one``, ``run_specs``), :mod:`.report` (summaries, ``<table>.json`` / ``.md``),
-:mod:`.command` (the command line, ``main``), :mod:`.provenance` (command, commit and machine of a results
-file); every name is re-exported here.
+:mod:`.assembly` (a row's training set-up, shared with ``dualtalker-lite train``), :mod:`.runner` (data, ``run_one``,
+``run_specs``), :mod:`.report` (summaries, ``<table>.json`` / ``.md``), :mod:`.command` (the command line, ``main``),
+:mod:`.provenance` (command, commit and machine of a results file); every name is re-exported here.
 """
 from __future__ import annotations
 
 from .command import _display_path, main, parse_args, reusable_runs
+from .assembly import Assembly, assemble_training
 from .evaluation import (COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, AudioSwapped, PhonemeOneHot,
                          _unpad, audio_sensitivity, collapse_reasons, emotion_split_metrics, is_collapsed,
                          over_smoothing_ratio, phoneme_onehot, predict_split, split_metrics, swap_partners,
@@ -56,15 +57,16 @@ from .evaluation import (COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, Audi
 from ..provenance import _git, is_clean_commit, machine, machine_line, provenance
 from .report import (DEFINITIONS, EMOTION_DEFINITIONS, _collapse_note, _compare, _fmt, load_table, summarize,
                      table_markdown, write_table)
-from .runner import (_DATA, _features, _job, _trimmed, _worker_init, build_model, data_split, load_data, run_one,
+from .runner import (_DATA, feature_view, _job, _trimmed, _worker_init, build_model, data_split, load_data, run_one,
                      run_specs, test_features, training_set)
 from .specs import (CORRTALK_NOTE, DATA, EMOFACE_NOTE, EMOTION_METRICS, EMOTIONAL_TRAIN, FEATURES, FRONT_ENDS,
                     LIP_SYNC_KEYS, METRICS, PRIMAL_ONLY, QUICK_CLIPS, TABLE_SPLITS, TABLES, TEST_SPLIT, TITLES, RunSpec,
                     table_metrics, table_specs, table_split)
 
-__all__ = ["TABLES", "METRICS", "FEATURES", "RunSpec", "table_specs", "test_features", "phoneme_onehot",
+__all__ = ["TABLES", "METRICS", "FEATURES", "RunSpec", "table_specs", "test_features", "feature_view", "phoneme_onehot",
            "PhonemeOneHot", "over_smoothing_ratio",
            "typical_bandwidth", "swap_partners", "AudioSwapped", "audio_sensitivity", "collapse_reasons",
            "is_collapsed",
            "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
-           "write_table", "load_table", "table_markdown", "main", "provenance", "machine"]
+           "write_table", "load_table", "table_markdown", "main", "provenance", "machine", "Assembly",
+           "assemble_training"]

@@ -16,12 +16,13 @@ from pathlib import Path
 import torch
 from torch.utils.data import Dataset
 
-from .evaluation import (AudioSwapped, PhonemeOneHot, audio_sensitivity, collapse_reasons, emotion_split_metrics,
+from .assembly import PHONETIC, feature_view, assemble_training, build_model  # noqa: F401 - re-exported
+from .evaluation import (AudioSwapped, audio_sensitivity, collapse_reasons, emotion_split_metrics,
                          predict_split, split_metrics, swap_partners)
+from .. import front_ends
 from .specs import EMOTIONAL_TRAIN, QUICK_CLIPS, TEST_SPLIT, RunSpec
 
 # ------------------------------------------------------------------------------------------- data and models
-PHONETIC = ("visemes", "visemes+logmel")  # trained on the corpus's viseme labels, tested on the recogniser's
 _DATA: dict = {}  # per process: (corpus path, quick) -> data dict (features are computed once per process)
 
 
@@ -77,14 +78,15 @@ def data_split(data: dict, split: str) -> Dataset:
 def test_features(data: dict, split: str, features: str) -> Dataset:
     """What a row is evaluated on: for the phonetic features the recogniser's per-frame viseme classes of the
     split's audio (``RecogniserExtractor``, hama; computed once, cached under the user cache dir; "visemes+logmel"
-    appends the log-mel), never the corpus's labels; for the other features :func:`_features` of the log-mel split."""
+    appends the log-mel), never the corpus's labels; for the other features :func:`feature_view` of the log-mel split."""
     if features not in PHONETIC:
-        return _features(data_split(data, split), features, data["n_phonemes"])[0]
+        return feature_view(data_split(data, split), features, data["n_phonemes"])[0]
     from ..data.dataset import TalkingFaceDataset
 
     cache = data.setdefault("recognised", {})
     if (split, features) not in cache:
-        cache[split, features] = TalkingFaceDataset(data["view"], split, front_end(features, data["corpus"].fps))
+        cache[split, features] = TalkingFaceDataset(data["view"], split, front_ends.build(features,
+                                                                                          data["corpus"].fps))
     return cache[split, features]
 
 
@@ -101,44 +103,6 @@ def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
     return PairDataset(data["view"], EMOTIONAL_TRAIN, extractor=data["train"].extractor, seed=seed), True
 
 
-def _features(dataset: Dataset, features: str, n_phonemes: int, training: bool = False) -> tuple[Dataset, int]:
-    """A log-mel dataset -> (the dataset a row sees, its audio_dim). "visemes": the corpus's own viseme labels,
-    with silence padding when ``training`` (:class:`~dualtalker_lite.data.dataset.VisemeLabels`); at test time
-    the phonetic route is fed the recogniser's tracks instead (:func:`test_features`)."""
-    if features == "logmel":
-        return dataset, int(dataset[0]["audio"].shape[-1])
-    if features == "phonemes":
-        return PhonemeOneHot(dataset, n_phonemes), n_phonemes
-    if features in PHONETIC:
-        from ..data.dataset import SILENCE_PAD, VisemeLabels
-
-        labels = VisemeLabels(dataset, pad_silence=SILENCE_PAD if training else 0,
-                              keep_audio=features == "visemes+logmel")
-        return labels, labels.dim
-    raise ValueError(f"unknown features {features!r}; expected 'logmel', 'phonemes', 'visemes' or 'visemes+logmel'")
-
-
-def front_end(features: str, fps: int = 30):
-    """The recogniser extractor that feeds a phonetic row at test time and in its checkpoint (None otherwise)."""
-    if features not in PHONETIC:
-        return None
-    from ..recogniser import RecogniserExtractor
-
-    return RecogniserExtractor(features, fps=fps)
-
-
-def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,
-                vertices=None) -> tuple[torch.nn.Module, object]:
-    """The model of a row at the tiny sizes; returns (model, config) where config is None for the template.
-    ``faces`` (and a template's ``vertices``): the mesh, for models that convolve over it (EmoFace's Mesh Attention).
-    The builder is the registry's (:mod:`dualtalker_lite.models.registry`): ``spec.model`` names a registered model."""
-    from ..models import registry
-
-    entry = registry.get(spec.model)
-    return entry.build(n_vertices, audio_dim, n_speakers, dict(spec.model_overrides), features=spec.features,
-                       faces=faces, vertices=vertices)
-
-
 def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,
             checkpoint: str | Path | None = None, time_budget_s: float | None = None,
             test_split: str = TEST_SPLIT, clips: dict | None = None) -> dict:
@@ -153,38 +117,23 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
     stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
     ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
     """
-    from ..data.dataset import make_loader
-    from ..data.pairs import make_pair_loader
-    from ..train import TrainConfig, loss_weights, save_checkpoint, train
-    from ..seeding import set_seed
+    from ..train import save_checkpoint, train
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
     threads = torch.get_num_threads()
     try:
         data = load_data(corpus_path, quick, clips)
         base_train, paired = training_set(data, spec, seed)
-        train_set, audio_dim = _features(base_train, spec.features, data["n_phonemes"], training=True)
         test_set = test_features(data, test_split, spec.features)
-        set_seed(seed, threads=1)  # the model's initial weights depend on the seed only
-        model, model_cfg = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"],
-                                       faces=data["corpus"].faces)
-        train_cfg = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, progress=False,
-                                     weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
+        run = assemble_training(spec, base_train, data["view"], paired=paired, seed=seed, epochs=epochs, threads=1,
+                                time_budget_s=time_budget_s, logmel=data["train"].extractor)
+        model, model_cfg, train_cfg, train_set = run.model, run.model_config, run.train_config, run.train_set
         t0 = time.perf_counter()
-        history = None
-        if any(p.requires_grad for p in model.parameters()):
-            loader = (make_pair_loader if paired else make_loader)(train_set, train_cfg.batch_size, shuffle=True,
-                                                                   seed=seed)
-            history = train(model, loader, train_cfg)
+        history = None if run.loader is None else train(model, run.loader, train_cfg)
         train_seconds = time.perf_counter() - t0
-        if checkpoint is not None and model_cfg is not None:
-            from ..checkpoints import extractor_settings
-
-            fe = front_end(spec.features, data["corpus"].fps)  # phonetic rows: the recogniser (animate: any voice)
+        if checkpoint is not None and model_cfg is not None:  # phonetic rows record the recogniser: any voice
             save_checkpoint(checkpoint, model, model_cfg, train_cfg, history, speakers=data["corpus"].train_speakers,
-                            faces=data["corpus"].faces, features=extractor_settings(
-                                fe or (data["train"].extractor if spec.features == "logmel" else None),
-                                name=spec.features))
+                            faces=data["corpus"].faces, features=run.features)
         t1 = time.perf_counter()
         out = predict_split(model, test_set)
         corpus = data["corpus"]

@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field, replace
 
+from .. import front_ends
+
 TABLES = ("main", "ablation", "sweep", "corrtalk", "emotion", "emoface")
 TEST_SPLIT = "test_a"  # the default test split (neutral speech, seen speakers)
 TABLE_SPLITS = {"emotion": "test_emo_a", "emoface": "test_emo_a"}  # tables evaluated on another split
@@ -105,12 +107,8 @@ EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9
                 "the type is also an input of the emotion branch (the true label in training): a project addition")
 
 
-FEATURES = ("visemes", "logmel")  # the tables' front ends; the first is the default
-FRONT_ENDS = {"visemes": "phonetic route: trained on the corpus's viseme labels, tested on the hama recogniser's "
-                         "viseme tracks of the audio",
-              "logmel": "log-mel (the papers' kind of acoustic input)",
-              "visemes+logmel": "phonetic route for the content branch, log-mel for the emotion branch",
-              "phonemes": "one-hot phoneme labels"}
+FEATURES = front_ends.CHOICES  # the tables' front ends (--features); the first, the phonetic route, is the default
+FRONT_ENDS = {name: f.description for name, f in front_ends.FRONT_ENDS.items()}  # name -> what the notes say
 
 
 def table_specs(table: str, bandwidth: float | None = None, features: str = "logmel") -> list[RunSpec]:
@@ -126,7 +124,8 @@ def table_specs(table: str, bandwidth: float | None = None, features: str = "log
     if features == "logmel":
         return rows
     # the swapped-in rows' notes name the front end they replace
-    return [replace(s, features="visemes+logmel" if s.data == "pairs" else features) if s.features == "logmel"
+    return [replace(s, features=front_ends.paired(features) if s.data == "pairs" else features)
+            if s.features == "logmel"
             else replace(s, note=s.note.replace("log-mel", "the recogniser's viseme classes")) for s in rows]
 
 

@@ -7,10 +7,16 @@
 - :mod:`~dualtalker_lite.export.visemes` (issue 33): ``viseme_curves`` -> the 15 standard viseme weights per frame
   (``viseme_sil`` .. ``viseme_U``), coarticulated as the rig does; ``write_visemes`` -> ``visemes.json`` and
   ``visemes.csv``; ``apply_viseme_weights`` poses any mesh from them.
+- :mod:`~dualtalker_lite.export.video`: the mp4 writer (issue 30 moved it here from ``viz``): ``render_video`` ->
+  an H.264 mp4 of a clip of any length with the speech muxed in (AAC), written atomically; ``clip_panels`` and
+  ``write_mp4``, its two steps, also serve the notebooks' ``viz.animate_clip``.
+- :mod:`~dualtalker_lite.export.render`: the mesh renderer the videos and the notebooks' figures draw with
+  (matplotlib ``MeshRenderer``, Pillow ``RasterRenderer``); ``viz.render`` re-exports it for notebook 01.
 
 Layering: ``gltf`` and ``html`` import only numpy, pygltflib, soundfile and the standard library; ``visemes`` also
-imports ``face`` (the rig's coarticulation), ``files`` and, lazily, ``audio`` and ``recogniser``. ``inference`` uses
-them; this package's ``__init__`` imports ``gltf`` only.
+imports ``face`` (the rig's coarticulation), ``files`` and, lazily, ``audio`` and ``recogniser``; ``render`` imports
+numpy, matplotlib and Pillow; ``video`` imports ``render`` and ``files``. ``inference`` uses them; this package's
+``__init__`` imports ``gltf`` only.
 """
 from .gltf import GltfReport, morph_basis, read_gltf_animation, write_gltf
 

@@ -318,17 +318,7 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
     base = np.asarray(template, np.float32).reshape(-1)
     if not np.isfinite(base).all():
         raise ValueError("template has non-finite vertices")
-    for search_tol in (tol, tol / 2, tol / 4):  # a tighter search only in the rare non-monotone case
-        basis = morph_basis(clip, base, tol=search_tol, block=block)
-        C = basis.coeffs  # (T, K) float32: what stays of length T (K floats per frame)
-        targets, kept, names = signed_targets(basis.components, C.max(0), C.min(0))
-        weights = lambda s, n, C=C, kept=kept: signed_weights(C[s:s + n], kept)  # noqa: E731 (n, J) on demand
-        max_err, mean_err = _check_written(clip, base, targets, weights, block)
-        if max_err < tol:
-            break
-    else:
-        raise ValueError(f"the morph targets miss the tolerance: max vertex error {max_err * 1e3:.3f} mm >= "
-                         f"{tol * 1e3:.3g} mm")
+    basis, targets, names, weights, max_err, mean_err = _fit_morph_targets(clip, base, tol, block)
     K = basis.components.shape[0]
     V, J = N // 3, len(targets)
 
@@ -372,7 +362,35 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
         extras["audio"] = {"uri": audio.name, "mimeType": "audio/wav", "sampleRate": int(sample_rate),
                            "startTime": 0.0, "duration": (len(wave) if hasattr(wave, "blocks") else
                                                          np.asarray(wave).size) / sample_rate}
-    gltf = g.GLTF2(
+    gltf = _document(name, extras, names, a_pos, a_idx, a_time, a_w, accessors, views, n_bin)
+    _write_files(path, gltf, pieces, n_bin, audio, wave, sample_rate)
+    return GltfReport(path, audio, T, K, J, max_err, mean_err, path.stat().st_size, extras)
+
+
+def _fit_morph_targets(clip: np.ndarray, base: np.ndarray, tol: float, block: int):
+    """The morph targets of ``clip`` (T, N) around ``base`` (N,) within ``tol`` metres, checked on what the file will
+    hold -> (basis, targets (J, N), target names, weights(start, n) -> (n, J), max error, mean error). The PCA basis
+    is searched at ``tol`` and, in the rare non-monotone case, at ``tol / 2`` and ``tol / 4``; one line otherwise."""
+    for search_tol in (tol, tol / 2, tol / 4):  # a tighter search only in the rare non-monotone case
+        basis = morph_basis(clip, base, tol=search_tol, block=block)
+        C = basis.coeffs  # (T, K) float32: what stays of length T (K floats per frame)
+        targets, kept, names = signed_targets(basis.components, C.max(0), C.min(0))
+        weights = lambda s, n, C=C, kept=kept: signed_weights(C[s:s + n], kept)  # noqa: E731 (n, J) on demand
+        max_err, mean_err = _check_written(clip, base, targets, weights, block)
+        if max_err < tol:
+            return basis, targets, names, weights, max_err, mean_err
+    raise ValueError(f"the morph targets miss the tolerance: max vertex error {max_err * 1e3:.3f} mm >= "
+                     f"{tol * 1e3:.3g} mm")
+
+
+def _document(name: str, extras: dict, names: list, a_pos: list, a_idx: int, a_time: int, a_w: int, accessors: list,
+              views: list, n_bin: int):
+    """The glTF JSON part: one node with one mesh (the template, ``J`` morph targets named ``names``, a skin
+    material) and one ``speech`` animation of its weights over the times accessor, sampled linearly."""
+    import pygltflib as g
+
+    J = len(a_pos) - 1
+    return g.GLTF2(
         asset=g.Asset(version="2.0", generator="dualtalker-lite (pygltflib)"),
         scene=0, scenes=[g.Scene(name="speech", nodes=[0], extras=extras)],
         nodes=[g.Node(name=name, mesh=0)],
@@ -386,6 +404,11 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
                                 channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(
                                     node=0, path="weights"))])],
         accessors=accessors, bufferViews=views, buffers=[g.Buffer(byteLength=n_bin)])
+
+
+def _write_files(path: Path, gltf, pieces: list, n_bin: int, audio: Path | None, wave, sample_rate: int) -> None:
+    """The .glb (and the speech beside it as ``audio``), each written to a temporary name and renamed into place only
+    when complete; the temporary files are removed however this ends."""
     partial = path.with_name(path.name + ".partial")
     try:
         if audio is not None:
@@ -398,7 +421,6 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
         for p in (partial, audio.with_name(audio.name + ".partial.wav") if audio is not None else None):
             if p is not None and p.exists():
                 p.unlink()
-    return GltfReport(path, audio, T, K, J, max_err, mean_err, path.stat().st_size, extras)
 
 
 @dataclass

@@ -163,7 +163,7 @@ def recognised_segments(wave, n_frames: int, fps: float = 30.0, extractor=None) 
     (default: a new one, sharing the on-disk cache). The track is the extractor's own ``viseme_ids`` (the nearest
     lag-corrected phone within ``window_s``, else sil), with /n l/ phones as class ``nn``."""
     from ..audio import SAMPLE_RATE
-    from ..recogniser import RATE, RecogniserExtractor, spike_track
+    from ..recogniser import NAME, RATE, RecogniserExtractor, spike_track
 
     ex = extractor or RecogniserExtractor(output="visemes", fps=int(round(fps)))
     rec = ex.recogniser
@@ -184,7 +184,7 @@ def recognised_segments(wave, n_frames: int, fps: float = 30.0, extractor=None) 
         frames.append(first + f)
         classes.append(v)
     ids = spike_track(np.concatenate(frames) / RATE - ex.lag_s, np.concatenate(classes), n_frames, fps, ex.window_s)
-    source = {"route": "recogniser", **ex.settings()}
+    source = {"route": "recogniser", **ex.settings(), "name": NAME}  # the recogniser's name, not the front end's
     source["settings"] = {k: source["settings"][k] for k in ("version", "lag_s", "window_s", "blank_bias")}
     return track_segments(ids, fps), source
 

@@ -100,7 +100,7 @@ class Limits:
 class LiveConfig:
     """Everything a live server needs: the model and how to feed it, the face to draw, the limits."""
     model: object
-    extractor: object                                 # the checkpoint's RecogniserExtractor ("visemes" output)
+    front_end: object                                 # the checkpoint's front end: a RecogniserExtractor ("visemes")
     template: np.ndarray                              # (V*3,) the speaker's neutral face, metres
     faces: np.ndarray                                 # (F, 3) triangles
     speaker: int = 0
@@ -181,18 +181,18 @@ def make_app(config: LiveConfig):
     mesh_doc = json.dumps({
         "template": np.round(np.asarray(config.template, np.float64).reshape(-1), 7).tolist(),
         "faces": np.asarray(config.faces, np.int64).reshape(-1).tolist(),
-        "fps": config.extractor.fps, "sample_rate": SAMPLE_RATE,
+        "fps": config.front_end.fps, "sample_rate": SAMPLE_RATE,
         "lip_midpoints": list(map(int, config.lip_midpoints)) if config.lip_midpoints else None,
         "speaker": config.speaker_name, "checkpoint": Path(config.checkpoint).name,
-        "latency_s": config.settings.latency_s(config.extractor.fps, config.extractor.lag_s,
-                                               config.extractor.window_s),
+        "latency_s": config.settings.latency_s(config.front_end.fps, config.front_end.lag_s,
+                                               config.front_end.window_s),
         "lookahead_ms": round(config.settings.lookahead_s * 1000), "avatar": avatar_controls()})
 
     async def mesh(request):
         return web.Response(text=mesh_doc, content_type="application/json")
 
     def new_session(visemes: bool = False) -> LiveSession:
-        return LiveSession(config.model, config.extractor, config.template, config.speaker, config.settings,
+        return LiveSession(config.model, config.front_end, config.template, config.speaker, config.settings,
                            visemes=visemes)
 
     async def websocket(request):
@@ -258,7 +258,7 @@ def make_app(config: LiveConfig):
                 backlog.clear()
                 await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
 
-        await ws.send_str(json.dumps({"type": "hello", "fps": config.extractor.fps, "sample_rate": SAMPLE_RATE,
+        await ws.send_str(json.dumps({"type": "hello", "fps": config.front_end.fps, "sample_rate": SAMPLE_RATE,
                                       "max_message_bytes": limits.max_message_bytes, "viseme_names": list(NAMES)}))
         try:
             while not ws.closed:
@@ -357,26 +357,25 @@ def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = 
                 settings: LiveSettings | None = None) -> LiveConfig:
     """A :class:`LiveConfig` from a checkpoint, as ``animate`` reads one (speaker, template, corpus); refuses a model
     the live path cannot run (not the viseme track, or not a one-decoder model) before anything is served."""
-    from ..checkpoints import extractor_from_settings, load_checkpoint
+    from .. import front_ends
+    from ..checkpoints import load_checkpoint
     from ..data import sample_path
     from ..data.corpus import Corpus
-    from ..inference import _check_corpus, read_template, resolve_speaker
+    from ..inference import check_corpus, read_template, resolve_speaker
     from .stream import IncrementalDecoder
 
     if not Path(checkpoint).is_file():
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
     model, ckpt = load_checkpoint(checkpoint)
     features = ckpt.get("features") or {"name": "logmel"}
-    if features.get("name") != "hama" or features.get("settings", {}).get("output") != "visemes":
+    if features.get("name") != "visemes":
         raise ValueError(f"{checkpoint}: live needs a model trained on the recogniser's viseme track "
-                         f"(train --features visemes, the default); this one reads {features.get('name')!r} "
-                         f"{features.get('settings', {}).get('output', '')}".rstrip())
-    extractor = extractor_from_settings(features, checkpoint)
-    extractor.recogniser.cache = False                    # live windows are never seen twice: no disk cache
+                         f"(train --features visemes, the default); this one reads {features.get('name')!r}")
+    front_end = front_ends.from_settings(features, checkpoint, cache=False)  # live windows are never seen twice
     c = None
     if corpus or not template or not ckpt.get("speakers"):
         c = Corpus(corpus or sample_path())
-        _check_corpus(c, ckpt)
+        check_corpus(c, ckpt)
     index, _ = resolve_speaker(ckpt, speaker, c)
     if template:
         verts, faces = read_template(template, ckpt.get("n_vertices"), ckpt.get("topology"),
@@ -391,7 +390,7 @@ def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = 
         IncrementalDecoder(model, verts, index)           # refuses other model families with one line
     except ValueError as e:
         raise ValueError(f"{checkpoint}: {e}") from None
-    return LiveConfig(model=model, extractor=extractor, template=np.asarray(verts, np.float32).reshape(-1),
+    return LiveConfig(model=model, front_end=front_end, template=np.asarray(verts, np.float32).reshape(-1),
                       faces=np.asarray(faces), speaker=index, speaker_name=speaker, lip_midpoints=lips,
                       settings=settings or LiveSettings(), checkpoint=str(checkpoint))
 
@@ -425,28 +424,9 @@ def serve(config: LiveConfig, host: str = "127.0.0.1", port: int = 8765) -> None
     asyncio.run(main())
 
 
-def add_arguments(ap) -> None:
-    ap.add_argument("--checkpoint", required=True, help="a model trained on the viseme track (train's default)")
-    ap.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only)")
-    ap.add_argument("--port", type=int, default=8765, help="port to listen on")
-    ap.add_argument("--lookahead-ms", type=int, default=200,
-                    help="recogniser look-ahead: more agrees better with the offline animation, costs latency")
-    ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
-    ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
-    ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
-
-
-def main(argv: list[str]) -> None:
-    """The ``dualtalker-lite live`` command (see the module doc)."""
-    import argparse
-
-    from ..console import HelpFormatter
-
-    ap = argparse.ArgumentParser(prog="dualtalker-lite live", description=__doc__.splitlines()[0],
-                                 epilog="example:\n  dualtalker-lite live --checkpoint runs/m.pt --port 8765",
-                                 formatter_class=HelpFormatter)
-    add_arguments(ap)
-    args = ap.parse_args(argv)
+def run(args) -> None:
+    """The ``dualtalker-lite live`` command on the arguments :func:`dualtalker_lite.cli.live_parser` parsed (see the
+    module doc): checks them, loads the model and serves until stopped."""
     if not 0 <= args.lookahead_ms <= 2000:
         raise ValueError(f"--lookahead-ms {args.lookahead_ms:g}: must be between 0 and 2000")
     if not 0 <= args.port <= 65535:

@@ -52,24 +52,24 @@ SAMPLE_RATE = 16000
 class StreamingVisemes:
     """Viseme class per mesh frame from 16 kHz audio given in pieces, with ``lookahead_s`` of look-ahead.
 
-        track = StreamingVisemes(extractor, lookahead_s=0.2)
+        track = StreamingVisemes(front_end, lookahead_s=0.2)
         for piece in pieces:                  # float32 samples in [-1, 1], any length
             ids = track.push(piece)           # (n,) int64, the mesh frames that became final (maybe none)
         rest = track.flush()                  # the end of the stream: the frames still waiting
 
-    ``extractor``: the checkpoint's :class:`~dualtalker_lite.recogniser.RecogniserExtractor` (its ``lag_s``,
+    ``front_end``: the checkpoint's :class:`~dualtalker_lite.recogniser.RecogniserExtractor` (its ``lag_s``,
     ``window_s``, ``blank_bias``, ``fps`` and recogniser are used, so the track means what the model was trained
     on). hama runs only when at least ``hop_s`` of new audio has arrived. ``frames_done`` mesh frames have been
     returned so far; ``recogniser_seconds`` is the time spent in hama (the cost).
     """
 
-    def __init__(self, extractor: RecogniserExtractor, lookahead_s: float = 0.2, past_s: float = 0.6,
+    def __init__(self, front_end: RecogniserExtractor, lookahead_s: float = 0.2, past_s: float = 0.6,
                  hop_s: float = 0.2):
         if not 0 <= lookahead_s <= 2.0:
             raise ValueError(f"lookahead must be between 0 and 2000 ms, got {lookahead_s * 1000:g} ms")
         if not 0 <= past_s <= 10.0 or not 0.02 <= hop_s <= 2.0:
             raise ValueError(f"need 0 <= past_s <= 10 and 0.02 <= hop_s <= 2, got {past_s}, {hop_s}")
-        self.ex, self.rec = extractor, extractor.recogniser
+        self.ex, self.rec = front_end, front_end.recogniser
         self.lookahead = int(round(lookahead_s * SAMPLE_RATE))
         self.past = int(round(past_s * RATE)) * FRAME_SAMPLES         # a multiple of 320: frames line up
         self.hop = int(round(hop_s * SAMPLE_RATE))
@@ -294,22 +294,22 @@ class LiveSettings:
 class LiveSession:
     """Samples in, vertices out: :class:`StreamingVisemes` -> one-hot -> :class:`IncrementalDecoder`.
 
-        session = LiveSession(model, extractor, template, speaker=0, settings=LiveSettings())
+        session = LiveSession(model, front_end, template, speaker=0, settings=LiveSettings())
         first, verts = session.push(samples)    # first: the index of verts[0]; verts (k, V*3) float32
         first, verts = session.flush()
     """
 
-    def __init__(self, model, extractor: RecogniserExtractor, template: np.ndarray, speaker: int = 0,
+    def __init__(self, model, front_end: RecogniserExtractor, template: np.ndarray, speaker: int = 0,
                  settings: LiveSettings | None = None, visemes: bool = False):
-        if getattr(extractor, "output", None) != "visemes":
-            raise ValueError(f"live decoding needs a model trained on the recogniser's viseme track (features "
-                             f"'hama', output 'visemes'), this one reads {extractor!r}")
+        if getattr(front_end, "front_end", None) != "visemes":
+            raise ValueError(f"live decoding needs a model trained on the recogniser's viseme track (front end "
+                             f"'visemes'), this one reads {front_end!r}")
         self.settings = s = settings or LiveSettings()
-        self.visemes = StreamingVisemes(extractor, s.lookahead_s, s.past_s, s.hop_s)
+        self.visemes = StreamingVisemes(front_end, s.lookahead_s, s.past_s, s.hop_s)
         self.decoder = IncrementalDecoder(model, template, speaker, s.past_frames, s.ahead_frames)
         # visemes=True: also the standard viseme curves of the same frames (pop_weights)
-        self.curves = StreamingVisemeWeights(extractor.fps, s.past_frames) if visemes else None
-        self.n_classes = extractor.dim
+        self.curves = StreamingVisemeWeights(front_end.fps, s.past_frames) if visemes else None
+        self.n_classes = front_end.dim
         self._weights: list[np.ndarray] = []
 
     def _one_hot(self, ids: np.ndarray) -> np.ndarray:

@@ -65,6 +65,7 @@ import torch.nn as nn
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
+from ..checks import check_frames, check_heads
 from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
                               check_window, lookup_style, training_inputs,
                               zero_padding)
@@ -118,14 +119,9 @@ class CorrTalkConfig:
             raise ValueError(f"mask_init must be one of {MASK_INITS}, got {self.mask_init!r}")
         if not 0.0 <= self.motion_dropout <= 1.0:
             raise ValueError(f"motion_dropout is a probability, got {self.motion_dropout}")
-        for name, heads in (("d_model", self.n_heads), ("d_model", self.encoder_heads),
-                            ("audio_hidden", self.audio_heads)):
-            if getattr(self, name) % heads:
-                raise ValueError(f"{name}={getattr(self, name)} must be divisible by its number of heads ({heads})")
-        for name in ("utterance_radius", "audio_radius", "decoder_window"):
-            value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-                raise ValueError(f"{name} must be a positive number of frames or None, got {value!r}")
+        check_heads(self, (("d_model", self.n_heads), ("d_model", self.encoder_heads),
+                           ("audio_hidden", self.audio_heads)))
+        check_frames(self, ("utterance_radius", "audio_radius", "decoder_window"))
 
     @classmethod
     def tiny(cls, **overrides) -> "CorrTalkConfig":

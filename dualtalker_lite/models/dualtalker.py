@@ -45,6 +45,7 @@ import torch.nn as nn
 from torch import Tensor
 
 from ..blocks.audio_encoder import AudioFeatureExtractor
+from ..checks import check_frames, check_heads
 from ..blocks.feature_windows import FeatureWindows
 from ..blocks.fusion import DualFusionLayer
 from ..blocks.decoder import (MotionDecoder, TransposedLinear, autoregressive_chunks, autoregressive_reference,
@@ -93,13 +94,9 @@ class DualTalkerConfig:
         for name in ("scheduled_sampling", "motion_dropout"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} is a probability, got {getattr(self, name)}")
-        for name in ("audio_radius", "decoder_window"):
-            value = getattr(self, name)
-            if value is not None and (not isinstance(value, int) or value < (0 if name == "audio_radius" else 1)):
-                raise ValueError(f"{name} must be a positive number of frames or None, got {value!r}")
-        for name in ("d_model", "audio_hidden"):
-            if getattr(self, name) % (self.n_heads if name == "d_model" else self.audio_heads):
-                raise ValueError(f"{name}={getattr(self, name)} must be divisible by its number of heads")
+        check_frames(self, ("audio_radius",), minimum=0)  # 0: each frame attends to itself only
+        check_frames(self, ("decoder_window",))
+        check_heads(self, (("d_model", self.n_heads), ("audio_hidden", self.audio_heads)))
 
     @classmethod
     def tiny(cls, **overrides) -> "DualTalkerConfig":

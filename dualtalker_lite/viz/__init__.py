@@ -5,17 +5,17 @@
 - ``plots``    figures: mesh frame grids, per-vertex (error) maps, lip distance and waveform with phonemes
 - ``heatmap``  several per-vertex maps side by side (shared colour scale option), vertex spectrograms (CorrTalk
                Figs. 1 and 9)
-- ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback;
-               ``render_video``: long clips (memory-mapped .npy, fast renderer, progress bar, clean-up)
+- ``animate``  ``animate_clip``: mp4 (H.264 + AAC speech) embedded in the notebook, JavaScript fallback (the mp4
+               writer itself, and ``render_video`` for long clips, live in :mod:`dualtalker_lite.export.video`)
 - ``viewer``   ``MeshViewer`` (live pythreejs widget) and ``static_html`` (self-contained three.js page)
 - ``spirals``  ``plot_spirals``: EmoFace's spiral sequences on the face, coloured by ring, with a numbered close-up
 - ``microphone`` ``MicrophonePanel``: record from the browser's microphone in a notebook (an anywidget) and animate
                the recording in the kernel (import it from the module: it needs the notebooks extra)
 """
-from .animate import ClipAnimation, animate_clip, render_video
+from .animate import ClipAnimation, animate_clip
 from .heatmap import branch_mean_errors, plot_branch_error_maps, plot_vertex_maps, plot_vertex_spectrograms
 from .plots import plot_frames, plot_lip_distance, plot_vertex_map, plot_waveform_and_phonemes
-from .render import VIEWS, MeshRenderer, RasterRenderer, draw_mesh, render_frame_rgb
+from ..export.render import VIEWS, MeshRenderer, RasterRenderer, draw_mesh, render_frame_rgb
 from .spirals import plot_spirals
 from .viewer import MeshViewer, static_html
 
@@ -36,7 +36,6 @@ __all__ = [
     "plot_spirals",
     "ClipAnimation",
     "animate_clip",
-    "render_video",
     "MeshViewer",
     "static_html",
 ]

@@ -29,7 +29,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
 from .plots import _SCALE, _axis_labels, _detach, add_colorbar
-from .render import draw_mesh, mesh_extent
+from ..export.render import draw_mesh, mesh_extent
 
 __all__ = ["plot_vertex_maps", "plot_vertex_spectrograms", "plot_branch_error_maps", "branch_mean_errors"]
 

@@ -15,7 +15,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.transforms import blended_transform_factory
 
-from .render import draw_mesh, mesh_extent
+from ..export.render import draw_mesh, mesh_extent
 
 __all__ = [
     "SILENCE",

@@ -15,7 +15,7 @@ from matplotlib.figure import Figure
 
 from ..blocks.spiral import spiral_ring_index
 from .plots import _axis_labels, _detach
-from .render import camera_rotation, draw_mesh, mesh_extent, project
+from ..export.render import camera_rotation, draw_mesh, mesh_extent, project
 
 __all__ = ["plot_spirals"]
 

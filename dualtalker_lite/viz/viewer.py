@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.colors import Normalize, to_rgb
 
-from .render import CLAY, mesh_extent
+from ..export.render import CLAY, mesh_extent
 
 __all__ = ["MeshViewer", "static_html", "vertex_normals", "vertex_colors"]
 

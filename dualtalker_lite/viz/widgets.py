@@ -207,7 +207,8 @@ def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, co
     The speaker names come from the checkpoint (old checkpoints without names: from ``corpus``); the neutral
     face is the corpus template of that speaker. Returns ``(animation, vertices (T, V*3))``.
     """
-    from ..checkpoints import extractor_from_settings, load_checkpoint
+    from .. import front_ends
+    from ..checkpoints import load_checkpoint
     from ..inference import animate_wave, resolve_speaker
     from .animate import animate_clip
 
@@ -215,10 +216,10 @@ def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, co
     index, _ = resolve_speaker(info, speaker, corpus)
     if speaker not in corpus.speakers:
         raise ValueError(f"the corpus has no face for speaker {speaker!r}")
-    extractor = extractor_from_settings(info.get("features"), str(checkpoint))
-    verts = animate_wave(model, wave, corpus.template(speaker), index, extractor=extractor)  # (T, V*3)
+    front_end = front_ends.from_settings(info.get("features"), str(checkpoint))
+    verts = animate_wave(model, wave, corpus.template(speaker), index, front_end=front_end)  # (T, V*3)
     anim = animate_clip(verts.reshape(len(verts), -1, 3), corpus.faces, wave=wave,
-                        sample_rate=extractor.sample_rate, size=size)
+                        sample_rate=front_end.sample_rate, size=size)
     return anim, verts
 
 

@@ -269,13 +269,14 @@ print(panel.status.value)
 
 # %%
 # The default path without widgets, checked: a shipped clip's speech through the chosen checkpoint.
-from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+from dualtalker_lite.checkpoints import load_checkpoint
+from dualtalker_lite.front_ends import from_settings
 from dualtalker_lite.inference import animate_wave, resolve_speaker
 
 model_own, info_own = load_checkpoint(panel.checkpoint.value)
 index_own, _ = resolve_speaker(info_own, panel.speaker.value, corpus)
 verts_own = animate_wave(model_own, corpus.wave(name), corpus.template(panel.speaker.value), index_own,
-                         extractor=extractor_from_settings(info_own.get("features")))  # (T, V*3)
+                         front_end=from_settings(info_own.get("features")))  # (T, V*3)
 assert verts_own.shape == (T, 3 * V) and np.isfinite(verts_own).all()
 print(f"{panel.speaker.value}: {len(verts_own)} frames, mouth moves up to "
       f"{1000 * np.abs(verts_own - corpus.template(panel.speaker.value)).max():.1f} mm from the template")

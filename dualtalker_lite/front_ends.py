@@ -1,0 +1,155 @@
+"""Audio front ends, one table: name -> how to build it, how a checkpoint records it, how to rebuild it from that.
+
+A *front end* turns a recording into per-mesh-frame features ``A_{1:T}`` (T, D_a) **outside** the model, with no
+trained weights; the model's own *audio encoder* (``model.extractor``, :class:`~dualtalker_lite.blocks.audio_encoder.
+AudioFeatureExtractor`, the papers' wav2vec 2.0 stand-in) is trained and reads these features. Every part of the
+package that names a front end reads :data:`FRONT_ENDS` and spells it the same way: ``train --features``, the
+experiment runner's ``--features`` and its rows (``RunSpec.features``), the checkpoint's ``features["name"]``,
+``animate``/``evaluate`` and the live server.
+
+=====================  =====  ===================================================  ================================
+name                   D_a    trained on                                           fed at test time (evaluate,
+                                                                                   animate, live)
+=====================  =====  ===================================================  ================================
+``visemes``            15     the corpus's viseme labels, one-hot, silence-padded  the phoneme recogniser's viseme
+                              (:class:`~dualtalker_lite.data.dataset.VisemeLabels`)  track of the audio
+``visemes+logmel``     175    the same, then the log-mel (EmoFace: its emotion     the recogniser's track, then the
+                              branch reads the sound)                              log-mel
+``logmel``             160    the log-mel of the corpus audio (the papers' kind    the same, computed from the audio
+                              of input, :mod:`dualtalker_lite.audio`)
+``phonemes``           P      one-hot phoneme labels (an ablation row)             none: it animates nothing
+``logprobs``           191    the recogniser's log-probabilities (experiments      the same
+                              only: ``benchmarks/real_voices.py``)
+``logprobs+logmel``    351    the same, then the log-mel                           the same
+=====================  =====  ===================================================  ================================
+
+The **default is** :data:`DEFAULT` = ``"visemes"``, *the phonetic route*: the recogniser was trained on many real
+voices, so a model trained on viseme labels animates anyone's speech, where a log-mel model learns only the corpus's
+synthetic voices (``docs/front-ends.md``). :data:`CHOICES` are the names the commands offer (``--features``), the
+default first; a row that trains on emotional pseudo-pairs reads :func:`paired` of its front end (``visemes`` ->
+``visemes+logmel``).
+
+Checkpoints record ``{"name": <a name above>, "settings": {...}}`` (:func:`settings`) and :func:`from_settings`
+rebuilds the front end from that. Old spellings still load: before issue 30 a recogniser front end was recorded as
+``{"name": "hama", "settings": {"output": "visemes", ...}}``; :func:`canonical` maps it to ``"visemes"`` (the
+recogniser's ``output`` is the name) when a checkpoint is read (:func:`dualtalker_lite.checkpoints.load_checkpoint`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from .audio import LogMelExtractor
+from .recogniser import NAME as RECOGNISER, OUTPUTS, RecogniserExtractor
+
+__all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "get", "build", "settings",
+           "from_settings", "canonical", "paired"]
+
+
+@dataclass(frozen=True)
+class FrontEnd:
+    """One row of :data:`FRONT_ENDS`. ``labels``: trained on the corpus's labels (viseme or phoneme), not on the
+    features of its audio; ``from_audio``: computable from a recording (so ``evaluate`` and ``animate`` can feed it);
+    ``recogniser``: computed by the phoneme recogniser (the ``[phonetic]`` extra, ``hama``); ``offered``: a choice of
+    the commands' ``--features``."""
+
+    name: str
+    description: str
+    labels: bool = False
+    from_audio: bool = True
+    recogniser: bool = False
+    offered: bool = False
+
+
+FRONT_ENDS: dict[str, FrontEnd] = {f.name: f for f in (
+    FrontEnd("visemes", "phonetic route: trained on the corpus's viseme labels, tested on the hama recogniser's "
+                        "viseme tracks of the audio", labels=True, recogniser=True, offered=True),
+    FrontEnd("logmel", "log-mel (the papers' kind of acoustic input)", offered=True),
+    FrontEnd("visemes+logmel", "phonetic route for the content branch, log-mel for the emotion branch", labels=True,
+             recogniser=True),
+    FrontEnd("phonemes", "one-hot phoneme labels", labels=True, from_audio=False),
+    FrontEnd("logprobs", "the recogniser's log-probabilities (end to end)", recogniser=True),
+    FrontEnd("logprobs+logmel", "the recogniser's log-probabilities and the log-mel", recogniser=True),
+)}
+DEFAULT = "visemes"  # the phonetic route: the only front end that animates real voices (docs/front-ends.md)
+CHOICES = tuple(sorted((n for n, f in FRONT_ENDS.items() if f.offered), key=lambda n: n != DEFAULT))
+OLD_SPELLINGS = {RECOGNISER: "the recogniser's 'output' setting"}  # name before issue 30 -> what it maps to
+
+
+def get(name: str) -> FrontEnd:
+    """The row of ``name``; one ValueError line naming the known front ends otherwise."""
+    if name not in FRONT_ENDS:
+        raise ValueError(f"unknown front end {name!r}; known: {', '.join(FRONT_ENDS)}")
+    return FRONT_ENDS[name]
+
+
+def paired(name: str) -> str:
+    """The front end of a row that trains on emotional pseudo-pairs (EmoFace's emotion branch reads the partner's
+    log-mel): ``visemes`` -> ``visemes+logmel``; ``logmel`` and the ``+logmel`` ones unchanged."""
+    return f"{name}+logmel" if name in ("visemes", "logprobs") else name
+
+
+def build(name: str, fps: int = 30, cache: bool = True) -> Any:
+    """A fresh front end ``name`` at ``fps`` mesh frames per second: a
+    :class:`~dualtalker_lite.audio.LogMelExtractor` (unnormalised), a
+    :class:`~dualtalker_lite.recogniser.RecogniserExtractor` (``cache=False``: never touches its disk cache), or
+    None for a front end that cannot be computed from audio (``phonemes``)."""
+    front = get(name)
+    if front.recogniser:
+        return RecogniserExtractor(name, fps=fps, cache=cache)
+    if name == "logmel":
+        return LogMelExtractor(fps=fps)
+    return None
+
+
+_LOGMEL_KEYS = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length",
+                "f_min", "f_max")
+
+
+def settings(name: str = "logmel", extractor: Any = None) -> dict:
+    """Front end ``name`` as a checkpoint's ``features`` entry, ``{"name": name, "settings": {...}}`` of plain values.
+
+    ``extractor``: the one the model was trained with (a log-mel one with the corpus's band statistics); None: what
+    :func:`build` gives. An extractor that describes itself (``settings()``: the recogniser) is recorded as it says.
+    A front end that cannot be computed from audio records no settings."""
+    get(name)
+    extractor = extractor if extractor is not None else build(name)
+    if extractor is not None and callable(getattr(extractor, "settings", None)):
+        return extractor.settings()
+    if extractor is None:
+        return {"name": name, "settings": {}}
+    out = {k: getattr(extractor, k) for k in _LOGMEL_KEYS}
+    for k in ("mean", "std"):
+        v = getattr(extractor, k, None)
+        out[k] = None if v is None else [float(x) for x in v]
+    return {"name": "logmel", "settings": out}
+
+
+def canonical(features: Any) -> Any:
+    """A checkpoint's ``features`` entry in today's spelling: ``{"name": "hama", "settings": {"output": X}}`` (before
+    issue 30) -> ``{"name": X, ...}`` (X defaults to ``"visemes"``, as the recogniser did). Anything else, including a
+    malformed entry (left for :func:`dualtalker_lite.checkpoints.validate_fields` to name), comes back unchanged."""
+    if not (isinstance(features, dict) and features.get("name") == RECOGNISER):
+        return features
+    s = features.get("settings")
+    output = s.get("output", "visemes") if isinstance(s, dict) else "visemes"
+    return {**features, "name": output} if output in OUTPUTS else features
+
+
+def from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True) -> Any:
+    """Rebuild the front end a checkpoint was trained with (``None`` -> the default log-mel, as format-1 checkpoints
+    had). One ValueError line naming ``source`` for one that cannot be computed from a recording (``phonemes``).
+    ``cache=False`` (``--no-cache``): the recogniser computes in memory, never touching its disk cache (log-mel has
+    no cache)."""
+    if not features:
+        return LogMelExtractor()
+    features = canonical(features)
+    name = features.get("name")
+    front = FRONT_ENDS.get(name)
+    if front is None or not front.from_audio:
+        raise ValueError(f"{source}: the model was trained on {name!r} features, which cannot be computed from a "
+                         f"recording; only {', '.join(n for n, f in FRONT_ENDS.items() if f.from_audio)} models "
+                         f"animate audio")
+    if front.recogniser:  # refuses another hama version or symbol table
+        return RecogniserExtractor.from_settings(features, source, cache=cache)
+    return LogMelExtractor(**features.get("settings", {}))
