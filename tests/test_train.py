@@ -370,3 +370,42 @@ def test_motion_basis_subsamples_a_large_set_evenly_in_bounded_memory():
     assert np.abs(residual).max() < 1e-6
     stds = np.linalg.norm(basis, axis=1)
     assert np.allclose(stds, [4e-3, 2e-3, 1e-3], rtol=0.25)          # 64 frames estimate each std to ~10-20%
+
+
+def test_twenty_steps_match_a_reference_loss_written_out_bit_for_bit(data):
+    """The step's cheaper loss (losses.common.masked_mse for the primal term, no unused motion tensor for CCRL) trains
+    exactly as the joint loss written out with plain autograd operations: the same loss at each of 20 steps and the
+    same weights at the end (issue 31: the step's cost went down, not what it computes)."""
+    from dualtalker_lite.losses import ccrl_loss, dual_loss, duality_loss
+
+    corpus, train_set, _ = data
+
+    def reference(model, out, batch, w):  # joint_loss as it was written before issue 31
+        mask, s = batch["mask"], w.vertex_scale
+        d = (out["vertices"] * s - batch["vertices"] * s).masked_fill(~mask[..., None], 0.0).square()
+        primal = torch.where(mask[..., None], d, d.new_zeros(())).sum() / (mask.sum() * d.shape[-1]).clamp(min=1)
+        dual = dual_loss(out["audio"], batch["audio"], mask)
+        dr = duality_loss(out["x"], out["x_fused"], out["y"], out["y_fused"], mask)
+        motion = batch["vertices"] - batch["template"][:, None, :]
+        ccrl = ccrl_loss(out["x"], out["y"], motion, mask, w.bandwidth, kernel_weights=model.kernel_weights(batch, w))
+        total = batch["vertices"].new_zeros(()) + w.lambda1 * primal + w.lambda2 * dual + w.lambda3 * dr \
+            + w.lambda4 * ccrl
+        return total, {"total": total.detach()}
+
+    runs = []
+    for loss in ("model", "reference"):
+        model, seen = _model(corpus), []
+        own = model.loss
+
+        def logged(out, batch, w=None, model=model, own=own, loss=loss):
+            total, terms = own(out, batch, w) if loss == "model" else reference(model, out, batch, w)
+            seen.append(float(total.detach()))
+            return total, terms
+
+        model.loss = logged
+        train(model, make_loader(train_set, 8, shuffle=True, seed=0),
+              TrainConfig.tiny(epochs=10, lr=6e-3, pca_init=16, progress=False, weights=LossWeights()))
+        runs.append((seen, model.state_dict()))
+    (new, w_new), (ref, w_ref) = runs
+    assert len(new) == 20 and new == ref
+    assert all(torch.equal(w_new[k], w_ref[k]) for k in w_ref)
