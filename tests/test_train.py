@@ -1,4 +1,7 @@
 """The training loop: it learns, it is reproducible, checkpoints round-trip with weights_only=True."""
+import resource
+import sys
+
 import pytest
 import torch
 from torch.utils.data import Subset
@@ -9,7 +12,8 @@ from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
 from dualtalker_lite.losses import LossWeights
 from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.train import TrainConfig, load_checkpoint, predict, save_checkpoint, train, validation_lve
+from dualtalker_lite.train import (TrainConfig, load_checkpoint, predict, reuse_freed_memory, save_checkpoint, train,
+                                   validation_lve)
 
 
 @pytest.fixture(scope="module")
@@ -409,3 +413,21 @@ def test_twenty_steps_match_a_reference_loss_written_out_bit_for_bit(data):
     (new, w_new), (ref, w_ref) = runs
     assert len(new) == 20 and new == ref
     assert all(torch.equal(w_new[k], w_ref[k]) for k in w_ref)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_reuse_freed_memory_stops_the_page_faults_of_large_tensors():
+    """A (8, 90, 4674) float32 tensor is 13.5 MB = 3290 pages of 4 kB. Two live at once, allocated, filled and freed
+    10 times: glibc's defaults fault ~60,000 pages in (measured: 62,212); after reuse_freed_memory() the freed
+    blocks are reused from the second round on (measured: 0; the bound leaves room for one round's pages)."""
+    def rounds():
+        for _ in range(10):
+            x = torch.empty(8, 90, 4674).fill_(1.0)
+            y = x * 2.0  # a second live block, as in a step
+            del x, y
+
+    assert reuse_freed_memory() is True
+    rounds()  # the first round may fault the blocks' pages in once
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    rounds()
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before < 2 * 3290  # 10% of the 10 x 2 x 3290
