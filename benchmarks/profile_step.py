@@ -1,7 +1,13 @@
 """Where the time of one training step goes, and how far it is from the arithmetic lower bound.
 
     .venv/bin/python benchmarks/profile_step.py [--model dualtalker|faceformer|voca|corrtalk] [--steps 12]
-        [--batch-size 8] [--max-frames 90] [--threads 1] [--out results/profile_step.md]
+        [--batch-size 8] [--max-frames 90] [--threads 1] [--features visemes|logmel]
+        [--out results/profile_step.md]
+
+``--features visemes`` (the default) is the phonetic route as ``dualtalker-lite train`` and
+``benchmarks/recipe_curves.py`` train it: the corpus's own viseme labels as a (T, 15) one-hot with up to
+``SILENCE_PAD`` frames of silence on each side (``VisemeLabels``), so clips of 32-117 frames, cropped to 90 and
+padded; ``logmel`` is the (T, 160) log-mel route of the tables before issue 19 (clips of 32-77 frames, never cropped).
 
 1. Throughput of this machine's matrix multiply (float32 GEMM, torch.mm) at 1 and 2 threads, on the shape of the
    biggest product of a step (B*T frames x V*3 coordinates x d features) and on a square 1024 product.
@@ -9,6 +15,8 @@
 3. Step time (process CPU time and wall time, one thread, the recipe's batch), split into data (collate + crop),
    forward, loss, backward, optimiser (clip + Adam), and the profiler's top operators.
 4. The ratio measured step time / (FLOPs / GEMM throughput): how many times slower than pure matmul arithmetic.
+5. ``train()`` itself for ``--train-steps`` steps with the recipe (PCA-initialised head, lr 6e-3; a fresh model):
+   process CPU time per step with everything the loop does (collating, the CCRL kernel cache filling up, logging).
 
 Measure on a quiet machine if you can; CPU time (``time.process_time``) is less affected by other jobs than wall
 time, but a busy machine still slows each core (shared caches, memory bandwidth).
@@ -31,12 +39,12 @@ import torch  # noqa: E402
 from torch.profiler import ProfilerActivity, profile, record_function  # noqa: E402
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
-from dualtalker_lite.data.dataset import make_loader  # noqa: E402
+from dualtalker_lite.data.dataset import SILENCE_PAD, VisemeLabels, make_loader  # noqa: E402
 from dualtalker_lite.experiments import build_model, load_data, table_specs  # noqa: E402
 from dualtalker_lite.files import atomic_write_text  # noqa: E402
 from dualtalker_lite.provenance import machine_line, provenance  # noqa: E402
 from dualtalker_lite.losses import rbf_kernel_weights  # noqa: E402
-from dualtalker_lite.train import TrainConfig, _crop, loss_weights, model_loss  # noqa: E402
+from dualtalker_lite.train import TrainConfig, _crop, loss_weights, model_loss, reuse_freed_memory, train  # noqa: E402
 
 ROWS = {"dualtalker": "DualTalker", "faceformer": "FaceFormer-style", "voca": "VOCA-style", "corrtalk": "CorrTalk"}
 
@@ -67,6 +75,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, metavar="MD",
                     help="also write the printout to MD (e.g. results/profile_step.md) and its figures to MD's .json, "
                          "with the command, commit and machine")
+    ap.add_argument("--train-steps", type=int, default=44,
+                    help="5. steps of train() itself, as the recipe runs it (0: skip)")
+    ap.add_argument("--features", default="visemes", choices=("visemes", "logmel"),
+                    help="the training input: the phonetic route (viseme labels with pauses) or log-mel")
     args = ap.parse_args()
     stamp = provenance("python benchmarks/profile_step.py " + shlex.join(sys.argv[1:]))
     lines: list[str] = []
@@ -79,9 +91,13 @@ def main() -> None:
     crop = args.max_frames or recipe.max_frames
 
     data = load_data()
-    spec = next(s for s in table_specs("main") if s.row == ROWS[args.model])
+    spec = next(s for s in table_specs("main", features=args.features) if s.row == ROWS[args.model])
+    train_set = data["train"]
+    if args.features == "visemes":  # the phonetic route's training clips, as runner._features(training=True) makes
+        train_set = VisemeLabels(train_set, pad_silence=SILENCE_PAD)
+    audio_dim = int(train_set[0]["audio"].shape[-1])
     torch.manual_seed(0)
-    model, _ = build_model(spec, data["n_vertices"], 160, data["n_speakers"])
+    model, _ = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
     weights = loss_weights(model, spec.loss)  # the model's own loss-weight class
     v3 = 3 * data["n_vertices"]
 
@@ -99,7 +115,7 @@ def main() -> None:
 
     # 2. FLOPs of one step
     gen = torch.Generator().manual_seed(0)
-    loader = make_loader(data["train"], bs, shuffle=True, seed=0)
+    loader = make_loader(train_set, bs, shuffle=True, seed=0)
     batches = [_crop(b, crop, gen) for _, b in zip(range(args.steps + 1), loader)]
     frames = sum(int(b["mask"].sum()) for b in batches[1:]) / args.steps
     model.train()
@@ -107,12 +123,14 @@ def main() -> None:
         total, _ = model_loss(model, model(batches[0]), batches[0], weights)
         total.backward()
     flops = fc.get_total_flops() * batches[1]["mask"].numel() / batches[0]["mask"].numel()  # ~ per average batch
-    say(f"\n{ROWS[args.model]}: {sum(p.numel() for p in model.parameters()):,} parameters; batch {bs} x up to {crop} "
-          f"frames ({frames:.0f} valid frames per step on average), V*3 = {v3}")
+    n_params = sum(p.numel() for p in model.parameters())
+    say(f"\n{ROWS[args.model]} ({args.features}, audio_dim {audio_dim}): {n_params:,} parameters; batch {bs} x up "
+          f"to {crop} frames ({frames:.0f} valid frames per step on average), V*3 = {v3}")
     say(f"FLOPs per step (forward + backward, matmul/conv): {flops / 1e9:.2f} GFLOP")
 
     # 3. step time, split by phase
-    opt = torch.optim.Adam(model.parameters(), 1e-3)
+    reuse_freed_memory()  # as train() does: no page faults on the large per-step tensors
+    opt = torch.optim.Adam(model.parameters(), 1e-3, foreach=True)  # as train() steps
     parts = collections.Counter()
 
     def step(b, timed: bool):
@@ -131,7 +149,7 @@ def main() -> None:
             total.backward()
         c4 = time.process_time()
         with record_function("optimiser (clip + Adam)"):
-            torch.nn.utils.clip_grad_norm_(model.parameters(), recipe.grad_clip or 1e9)
+            torch.nn.utils.clip_grad_norm_(model.parameters(), recipe.grad_clip or 1e9, foreach=True)
             opt.step()
         c5 = time.process_time()
         if timed:
@@ -140,7 +158,7 @@ def main() -> None:
                 parts[k] += z - a
 
     c0 = time.process_time()
-    raw = [b for _, b in zip(range(len(loader)), make_loader(data["train"], bs, shuffle=True, seed=1))]
+    raw = [b for _, b in zip(range(len(loader)), make_loader(train_set, bs, shuffle=True, seed=1))]
     collate_s = (time.process_time() - c0) / len(raw)
     step(raw[0], False)
     if hasattr(model, "kernel_weights") and weights.lambda4:  # per-clip CCRL kernels, as after the first epoch
@@ -177,9 +195,26 @@ def main() -> None:
             step(b, False)
     say("\ntop operators over 5 steps (self CPU time):")
     say(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=14))
+
+    # 5. train() itself, as the recipe runs it
+    if args.train_steps:
+        torch.manual_seed(0)
+        fresh, _ = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
+        cfg = TrainConfig.tiny(pca_init=64, lr=6e-3, epochs=1000, max_steps=args.train_steps, threads=args.threads,
+                               batch_size=bs, max_frames=crop, progress=False, weights=weights)
+        c0 = time.process_time()
+        hist = train(fresh, make_loader(train_set, bs, shuffle=True, seed=0), cfg)
+        setup = time.process_time() - c0 - hist.cpu_seconds[-1]
+        say(f"\ntrain() for {hist.steps[-1]} steps ({len(hist.steps)} epochs of {len(loader)}): "
+            f"{hist.cpu_seconds[-1] / hist.steps[-1] * 1e3:.1f} ms CPU per step, collating and the filling of the "
+            f"CCRL kernel cache included (+ {setup:.2f} s CPU before the first step: mean and PCA init)")
+        if len(hist.steps) > 1:
+            later = (hist.cpu_seconds[-1] - hist.cpu_seconds[0]) / (hist.steps[-1] - hist.steps[0])
+            say(f"  first epoch {hist.cpu_seconds[0] / hist.steps[0] * 1e3:.1f} ms per step, later epochs "
+                f"{later * 1e3:.1f} ms per step")
     if args.out is not None:
-        figures = {"model": ROWS[args.model], "threads": args.threads, "steps": args.steps, "batch_size": bs,
-                   "max_frames": crop, "step_cpu_ms": cpu * 1e3, "step_wall_ms": wall * 1e3,
+        figures = {"model": ROWS[args.model], "features": args.features, "threads": args.threads,
+                   "steps": args.steps, "batch_size": bs, "max_frames": crop, "step_cpu_ms": cpu * 1e3, "step_wall_ms": wall * 1e3,
                    "parts_cpu_ms": {k: v / args.steps * 1e3 for k, v in parts.items()},
                    "ccrl_kernel_uncached_ms": None if kern is None else kern * 1e3, "gflop_per_step": flops / 1e9,
                    "gemm_gflop_per_cpu_s": peak, "arithmetic_bound_ms": bound * 1e3}

@@ -19,8 +19,10 @@ chosen, with the measurements, is in docs/design-notes.md ("The CPU training rec
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import random
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -32,8 +34,9 @@ from tqdm.auto import tqdm
 from .models.contract import hook
 from .seeding import set_seed
 
-__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights",
-           "model_loss", "motion_basis", "train", "training_state", "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
+__all__ = ["TrainConfig", "RECIPE", "History", "lr_factor", "mean_motion", "loss_weights", "model_loss", "motion_basis",
+           "reuse_freed_memory", "train", "training_state", "predict", "validation_lve", "save_checkpoint",
+           "load_checkpoint"]
 
 
 @dataclass
@@ -224,7 +227,10 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
     weights, Adam's moments, step counter and budget used, epoch, history, every RNG state including the loader's
     generator), tensors and plain values only. ``train(..., resume=state)`` continues from such a state and ends
     with the same weights as an uninterrupted run (same machine, same threads; tested bit for bit).
+
+    The process keeps the memory a step frees for the next step (:func:`reuse_freed_memory`; on Linux).
     """
+    reuse_freed_memory()  # no page faults on the large per-step tensors (nothing computed changes)
     threads_before = torch.get_num_threads()
     if cfg.threads is not None:
         torch.set_num_threads(cfg.threads)
@@ -233,6 +239,31 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
                       resume)
     finally:
         torch.set_num_threads(threads_before)
+
+
+_MALLOPT = {"M_TRIM_THRESHOLD": -1, "M_MMAP_THRESHOLD": -3}  # glibc's <malloc.h>
+
+
+def reuse_freed_memory(mmap_threshold: int = 64 << 20, trim_threshold: int = 256 << 20) -> bool:
+    """Let this process keep the memory it frees and reuse it (glibc's ``mallopt``); True where it took effect.
+
+    Why: a training step allocates and frees a few dozen (B, T, V*3) tensors of ~13 MB. By default glibc serves
+    blocks that large with fresh ``mmap`` pages or gives the top of its heap back to the system when it is freed,
+    so every step touches ~20-100 MB of new pages, and the kernel zeroes each 4 kB page on first touch: 8-28 ms of
+    system time per ~100 ms step of the tiny DualTalker (``benchmarks/profile_step.py``, docs/design-notes.md),
+    more on a loaded machine. Blocks up to ``mmap_threshold`` bytes now come from the heap, and up to
+    ``trim_threshold`` bytes of freed heap stay with the process, so from the second step on nothing is faulted in
+    (what PyTorch's caching allocator does for GPU memory). Nothing computed changes. The setting stays for the
+    rest of the process (glibc has no per-call form); elsewhere (macOS, Windows, musl) it does nothing."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_MALLOPT["M_MMAP_THRESHOLD"], int(mmap_threshold))) and \
+        bool(mallopt(_MALLOPT["M_TRIM_THRESHOLD"], int(trim_threshold)))
 
 
 def _budget_used(cfg: TrainConfig, step: int, total_steps: int, wall: float, cpu: float) -> float:

@@ -52,6 +52,47 @@ def test_mse_padding_does_not_change_loss(fn):
     assert torch.isfinite(pa.grad).all() and (pa.grad[~mask] == 0).all()
 
 
+def _reference_scaled_mse(pred, target, mask, s):
+    """The primal term as autograd computes it from the textbook expression: mean over valid elements of
+    (s p - s g)^2, padding replaced by 0 before the square and left out of the sum by a where."""
+    d = (pred * s - target * s).masked_fill(~mask[..., None], 0.0).square()
+    total = torch.where(mask[..., None], d, d.new_zeros(())).sum()
+    return total / (mask.sum() * pred.shape[-1]).clamp(min=1)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, DT])
+def test_masked_mse_equals_the_autograd_expression_bit_for_bit(dtype):
+    g = torch.Generator().manual_seed(1)
+    pred = (torch.randn(3, 7, 30, generator=g, dtype=dtype) * 1e-3)
+    target = (torch.randn(3, 7, 30, generator=g, dtype=dtype) * 1e-3)
+    mask = torch.tensor([[1] * 7, [1] * 4 + [0] * 3, [1] * 2 + [0] * 5], dtype=torch.bool)
+    pred[~mask], target[~mask] = float("nan"), float("inf")  # garbage in the padding
+    grads = []
+    for fn in (lambda p, t: primal_loss(p, t, mask, 1000.0), lambda p, t: _reference_scaled_mse(p, t, mask, 1000.0)):
+        p, t = pred.clone().requires_grad_(True), target.clone().requires_grad_(True)
+        loss = fn(p, t)
+        (loss * 0.37).backward()  # an upstream gradient other than 1, as a weighted loss term gets
+        grads.append((loss.detach(), p.grad, t.grad))
+    (new, gp, gt), (ref, rp, rt) = grads
+    assert torch.equal(new, ref) and torch.equal(gp, rp) and torch.equal(gt, rt)
+    assert (gp[~mask] == 0).all() and torch.isfinite(gp).all()
+
+
+def test_masked_mse_hand_computed_with_a_scale_and_nothing_valid():
+    pred = torch.tensor([[[1.0, 2.0], [3.0, 4.0]]], requires_grad=True)
+    target = torch.tensor([[[0.0, 0.0], [1.0, 1.0]]])
+    mask = torch.tensor([[True, False]])
+    loss = primal_loss(pred, target, mask, scale=10.0)  # (10^2 + 20^2) / 2
+    assert loss.item() == pytest.approx(250.0)
+    loss.backward()  # dL/dp = 2 s^2 (p - g) / N on the valid frame: 100, 200; 0 on the padded one
+    assert pred.grad.tolist() == [[[100.0, 200.0], [0.0, 0.0]]]
+    empty = primal_loss(pred, target, torch.zeros_like(mask), scale=10.0)
+    assert empty.item() == 0.0
+    with pytest.raises(RuntimeError):  # once differentiable: no silent wrong second derivative
+        (g,) = torch.autograd.grad(primal_loss(pred, target, mask, 10.0), pred, create_graph=True)
+        g.sum().backward()
+
+
 # ---------------------------------------------------------------- duality regularisation (eq. 8)
 def test_duality_smooth_l1_hand_computed():
     x = torch.tensor([[[0.5, 3.0]]])

@@ -14,18 +14,20 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .common import _masked, masked_mean
+from .common import _masked, masked_mean, masked_mse
 
 __all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights", "READINGS",
            "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss"]
 
 
-def primal_loss(pred_vertices: Tensor, vertices: Tensor, mask: Tensor) -> Tensor:
-    r"""L_primal = \frac{1}{|T|\,3V} \sum_{t \in T} \| \tilde M_t - M_t \|^2  (MSE, section III-F).
+def primal_loss(pred_vertices: Tensor, vertices: Tensor, mask: Tensor, scale: float = 1.0) -> Tensor:
+    r"""L_primal = \frac{1}{|T|\,3V} \sum_{t \in T} \| s \tilde M_t - s M_t \|^2  (MSE, section III-F).
 
-    On absolute vertices (B, T, V*3); the template cancels, so this is the MSE of the motion too.
+    On absolute vertices (B, T, V*3); the template cancels, so this is the MSE of the motion too. ``scale`` s: the
+    unit of the loss (``LossWeights.vertex_scale`` = 1000 gives mm^2 from metres), applied to the sum
+    (:func:`~.common.masked_mse`: the passes over the large vertex tensors are the step's main cost besides matmuls).
     """
-    return masked_mean(_masked(pred_vertices - vertices, mask).square(), mask)
+    return masked_mse(pred_vertices, vertices, mask, scale)
 
 
 def dual_loss(pred_audio: Tensor, audio: Tensor, mask: Tensor) -> Tensor:
@@ -261,17 +263,17 @@ def joint_loss(out: dict, batch: dict, weights: LossWeights | None = None) -> tu
     terms = {k: zero for k in ("primal", "dual", "dr", "ccrl")}
     have = lambda *keys: all(out.get(k) is not None for k in keys)  # noqa: E731
     if w.lambda1 and have("vertices"):
-        s = w.vertex_scale
-        terms["primal"] = primal_loss(out["vertices"] * s, batch["vertices"] * s, mask)
+        terms["primal"] = primal_loss(out["vertices"], batch["vertices"], mask, w.vertex_scale)
     if w.lambda2 and have("audio"):
         terms["dual"] = dual_loss(out["audio"], batch["audio"], mask)
     if w.lambda3 and have("x", "x_fused", "y", "y_fused"):
         terms["dr"] = duality_loss(out["x"], out["x_fused"], out["y"], out["y_fused"], mask,
                                    beta=w.dr_beta, detach_targets=w.dr_detach_targets)
     if w.lambda4 and have("x", "y") and (w.second_term != "fused" or have("x_fused", "y_fused")):
-        motion = batch["vertices"] - batch["template"][:, None, :]  # (B, T, V*3) M_{1:T}
+        kernel = batch.get("kernel_weights")  # given (DualTalker's per-clip cache): the motion is not needed
+        motion = None if kernel is not None else batch["vertices"] - batch["template"][:, None, :]  # (B, T, V*3)
         terms["ccrl"] = ccrl_loss(out["x"], out["y"], motion, mask, w.bandwidth,
-                                  kernel_weights=batch.get("kernel_weights"), x_fused=out.get("x_fused"),
+                                  kernel_weights=kernel, x_fused=out.get("x_fused"),
                                   y_fused=out.get("y_fused"), second_term=w.second_term,
                                   anchor_weighting=w.anchor_weighting, reading=w.ccrl_reading,
                                   temperature=w.temperature, distance=w.kernel_distance)
