@@ -422,7 +422,7 @@ def test_streamed_viseme_curves_come_with_their_frames_and_follow_the_offline_cu
     live = np.array([weights[i] for i in range(n)])                                    # (T, 15)
     assert np.allclose(live.sum(1), 1, atol=2e-3) and live.min() >= 0
     assert live[:, NAMES.index("viseme_nn")].max() == 0                                 # no /n l/ class live
-    offline = viseme_curves(wave, n, extractor=config.extractor).weights
+    offline = viseme_curves(wave, n, front_end=config.front_end).weights
     offline[:, NAMES.index("viseme_DD")] += offline[:, NAMES.index("viseme_nn")]        # live: /n l/ is DD
     offline[:, NAMES.index("viseme_nn")] = 0
     assert np.abs(live - offline).mean() < 0.01                                         # measured: 0.0007
@@ -541,7 +541,7 @@ def _rig_lip_from_viseme_curves(config):
     from dualtalker_lite.face import FaceRig
 
     rig = FaceRig()
-    curves = viseme_curves(_wave(), extractor=config.extractor)
+    curves = viseme_curves(_wave(), front_end=config.front_end)
     verts = apply_viseme_weights(curves.weights, rig.template, rig_viseme_offsets(rig))            # (T, V, 3)
     return _lip(verts.reshape(len(verts), -1), config)
 

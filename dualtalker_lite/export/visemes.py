@@ -154,18 +154,18 @@ def check_available() -> None:
         raise ImportError(f"--format visemes: the viseme timing comes from the phoneme recogniser; {e}") from e
 
 
-def recognised_segments(wave, n_frames: int, fps: float = 30.0, extractor=None) -> tuple[list, dict]:
+def recognised_segments(wave, n_frames: int, fps: float = 30.0, front_end=None) -> tuple[list, dict]:
     """The recogniser's viseme timing of a recording -> (segments of :data:`CLASSES`, source description).
 
     ``wave``: 16 kHz mono (N,) array, or an :class:`~dualtalker_lite.audio.AudioStream` (read block by block,
-    never whole: an hour holds only the recogniser's spikes). ``extractor``: a
+    never whole: an hour holds only the recogniser's spikes). ``front_end``: a
     :class:`~dualtalker_lite.recogniser.RecogniserExtractor` whose recogniser, lag, window and blank bias to use
-    (default: a new one, sharing the on-disk cache). The track is the extractor's own ``viseme_ids`` (the nearest
+    (default: a new one, sharing the on-disk cache). The track is the front end's own ``viseme_ids`` (the nearest
     lag-corrected phone within ``window_s``, else sil), with /n l/ phones as class ``nn``."""
     from ..audio import SAMPLE_RATE
     from ..recogniser import NAME, RATE, RecogniserExtractor, spike_track
 
-    ex = extractor or RecogniserExtractor(output="visemes", fps=int(round(fps)))
+    ex = front_end or RecogniserExtractor(output="visemes", fps=int(round(fps)))
     rec = ex.recogniser
     nn = np.array([s in HAMA_NN for s in rec.symbols])
     if hasattr(wave, "blocks"):
@@ -228,7 +228,7 @@ def _class_shares(segments, n_frames: int, fps: float, channel: str) -> np.ndarr
 
 
 def viseme_curves(wave, n_frames: int | None = None, fps: float = 30.0, channel: str = "lips",
-                  sample_rate: int = 16000, extractor=None) -> VisemeCurves:
+                  sample_rate: int = 16000, front_end=None) -> VisemeCurves:
     """Viseme curves of a recording, no model needed: :func:`recognised_segments` then :func:`viseme_weights`.
 
     ``wave``: a 16 kHz (N,) array, an :class:`~dualtalker_lite.audio.AudioStream` (one at another rate is reopened
@@ -245,7 +245,7 @@ def viseme_curves(wave, n_frames: int | None = None, fps: float = 30.0, channel:
                          f"(resample, or pass the file's path)")
     if n_frames is None:
         n_frames = max(1, int(round(len(wave) * fps / SAMPLE_RATE)))
-    segments, source = recognised_segments(wave, n_frames, fps, extractor)
+    segments, source = recognised_segments(wave, n_frames, fps, front_end)
     return VisemeCurves(viseme_weights(segments, n_frames, fps, channel), float(fps), segments, source, channel)
 
 
