@@ -40,14 +40,7 @@ PENDING = {
     "emoface.json": "every run came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
     "emoface.md": "every run came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
     "emotion_control.json": "reads the EmoFace checkpoints of the dirty emotional tables",
-    "spiral.json": "13 of 21 runs computed at c67c33a+dirty",
-    "spiral.md": "13 of 21 runs computed at c67c33a+dirty",
-    "phonetic/main.json": "seeds 0-2 of every row computed at 8088455+dirty",
-    "phonetic/ablation.json": "DualTalker (full) seeds 0-2 computed at 8088455+dirty",
-    "phonetic/corrtalk.json": "CorrTalk seeds 0-2 computed at 8088455+dirty",
-    "phonetic/sweep.json": "λ4=0.01 (DualTalker) seeds 0-2 computed at 8088455+dirty",
 }
-PENDING.update({f"phonetic/{t}.md": PENDING[f"phonetic/{t}.json"] for t in ("main", "ablation", "corrtalk", "sweep")})
 COMMAND = re.compile(r"^(?:[A-Z_]+=\S+ )*(?:nice -n \d+ )?(?:\.venv/bin/)?"
                      r"(?:python3?|dualtalker-lite|make|benchmarks/)\b")
 DIRTY = re.compile(r"[+-]dirty\b|\"dirty\": true|\"dirty\": null")

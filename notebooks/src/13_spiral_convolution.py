@@ -412,7 +412,8 @@ import json
 
 from dualtalker_lite.files import repo_root
 
-SWEEP_COMMAND = "python benchmarks/spiral_sweep.py --seeds 0 1 2 --epochs 8 --sentences s00 --out results/"
+SWEEP_COMMAND = ("python benchmarks/spiral_sweep.py --seeds 0 1 2 --epochs 8 --sentences s00 --processes 1 "
+                 "--out results/")
 sweep = json.loads((repo_root() / "results" / "spiral.json").read_text())
 assert sweep["command"] == SWEEP_COMMAND, "results/spiral.json was regenerated: update this cell"
 paper = {tuple(r["config"]): (r["lve"], r["eve"]) for r in sweep["paper_table4"]}  # as printed in the paper
@@ -436,7 +437,6 @@ seed0 = {cfg: (float(v["lve_euclidean"][0]), float(v["eve_euclidean"][0])) for c
 assert abs(seed0[adopted][0] - 5.452) < 5e-4  # the stored seed-0 LVE of the adopted row (results/spiral.md)
 assert max(e for _, e in seed0.values()) - min(e for _, e in seed0.values()) < 0.05  # EVE barely differs
 lve = {cfg: v["lve_euclidean"] for cfg, v in ours.items()}
-assert lve[(1, 9, 3)].mean() < lve[(1, 5, 3)].mean()  # the one reading reproduced on LVE (results/spiral.md)
 assert min(lve, key=lambda c: lve[c].mean()) != adopted  # the adopted row is not the lowest LVE here
 
 # %%
@@ -460,10 +460,11 @@ plt.show()
 
 # %% [markdown]
 # **What the stored sweep says.** Three seeds per row (`results/spiral.md` has the error bars and checks the
-# paper's three readings with a 2-standard-error rule). Only one reading reproduces on LVE: a kernel of 9 beats 5
-# (rows 1-2, -0.15 mm). Every other difference, dilation 2 against 1 or 4 and three frames against one or two, is
-# within seed noise, and the adopted row 4 does not have the lowest LVE (dilation 1 with $L = 18$ does, as in the
-# paper's own Table 4, whose LVE is lowest in row 3 while row 4 has the lowest EVE). EVE hardly differs between the
+# paper's three readings with a 2-standard-error rule). None of them reproduces on LVE: every difference between
+# the rows, kernel 9 against 5 or 18, dilation 2 against 1 or 4, three frames against one or two, is within seed
+# noise (an earlier run from an uncommitted tree had kernel 9 beating 5; the clean re-run does not), and the adopted
+# row 4 does not have the lowest LVE (row 7 does here; the paper's own LVE is lowest in row 3 while row 4 has the
+# lowest EVE). EVE hardly differs between the
 # rows (asserted above): at this budget (8 epochs on 56 clips) the upper face stays near the mean-motion start, so
 # the sweep can only speak about LVE. A tiny model trained for a minute is far from the paper's setting; read this
 # as the recipe to rerun at a larger budget, not as a verdict on the paper.
@@ -483,7 +484,7 @@ plt.show()
 # - Mesh Attention turns the two branches' features into a per-vertex, per-frame weight $A \in [0,1]$ and fuses
 #   the offsets as $A\,\Delta M^e + (1-A)\,\Delta M^c$.
 # - EmoFace's Table 4 (kernel size, dilation, duration) has a tiny-scale benchmark, `benchmarks/spiral_sweep.py`;
-#   at this scale (3 seeds) only "a kernel of 9 beats 5" reproduces on LVE; the rest is within seed noise.
+#   at this scale (3 seeds) none of its readings reproduces on LVE: every difference is within seed noise.
 #
 # ## Exercises
 #
