@@ -33,8 +33,6 @@ FILES = sorted(p for p in [*RESULTS.glob("*"), *(RESULTS / "phonetic").glob("*")
 PENDING = {
     "corrtalk.json": "4 ablation rows x 5 seeds computed at 1c4142d+dirty",
     "corrtalk.md": "4 ablation rows x 5 seeds computed at 1c4142d+dirty",
-    "sweep.json": "4 CCRL rows x 5 seeds computed at 1c4142d+dirty",
-    "sweep.md": "4 CCRL rows x 5 seeds computed at 1c4142d+dirty",
     "emotion.json": "EmoFace's runs came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
     "emotion.md": "EmoFace's runs came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
     "emoface.json": "every run came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
