@@ -272,6 +272,7 @@ def fig_quality(args) -> dict:
     cpu = {k: 0.0 for k in rows}
     corr = {f"live, look-ahead {la} ms": [] for la in args.lookaheads}
     mismatched = 0
+    hop = {"hop_s": args.hop} if args.hop else {}       # else LiveSettings' default
     t_start = time.time()
     for i, it in enumerate(items):
         n = len(it["ref_curve"])
@@ -285,7 +286,7 @@ def fig_quality(args) -> dict:
         for la in args.lookaheads:
             key = f"live, look-ahead {la} ms"
             session = LiveSession(config.model, config.front_end, config.template, config.speaker,
-                                  LiveSettings(lookahead_s=la / 1000))
+                                  LiveSettings(lookahead_s=la / 1000, **hop))
             out, c, _ = feed(session, it["wave"])
             cpu[key] += c
             live = lip_distance(np.concatenate([v for _, v in out]), *lip_mid)
@@ -305,7 +306,8 @@ def fig_quality(args) -> dict:
         if k in corr:
             metrics[k]["lip_corr_with_offline_mean"] = float(np.mean(corr[k]))
     return {"prompts_used": len(items), "prompts_total": n_all, "every": args.every, "failed_alignments": failed,
-            "audio_s": audio_s, "frame_count_mismatches": mismatched, "speaker": subject, "rows": metrics}
+            "hop_s": hop.get("hop_s", LiveSettings.hop_s), "audio_s": audio_s, "frame_count_mismatches": mismatched,
+            "speaker": subject, "rows": metrics}
 
 
 def simulate(session, wave: np.ndarray, piece: int = 1600, clock: str = "wall", marks_s=(60, 300, 600)) -> dict:
@@ -318,7 +320,7 @@ def simulate(session, wave: np.ndarray, piece: int = 1600, clock: str = "wall", 
     N, rate = len(wave), 16000
     K = -(-N // piece)
     arrive = np.minimum((np.arange(K) + 1) * piece, N) / rate      # arrival of message k
-    now, k, pushes, out_t, rss = 0.0, 0, [], [], {}
+    now, k, pushes, out_t, out_end, rss = 0.0, 0, [], [], [], {}
     marks = list(marks_s)
     while k < K:
         now = max(now, arrive[k])
@@ -335,6 +337,7 @@ def simulate(session, wave: np.ndarray, piece: int = 1600, clock: str = "wall", 
         now += dw if clock == "wall" else dc
         out_t += [now] * len(verts)
         end_s = min(j * piece, N) / rate
+        out_end += [end_s] * len(verts)
         pushes.append((end_s, now, dw, dc, backlog, len(verts)))
         while marks and end_s >= marks[0]:
             rss[marks.pop(0)] = _rss_mb()
@@ -342,7 +345,8 @@ def simulate(session, wave: np.ndarray, piece: int = 1600, clock: str = "wall", 
     out_t = np.asarray(out_t)
     need = np.ceil((np.arange(len(out_t)) + 1) * rate / 30).astype(np.int64)     # samples frame f needs
     done_at = np.minimum(np.ceil(need / piece) * piece, N) / rate                # message completing them arrives
-    return {"pushes": np.asarray(pushes), "latency": out_t - done_at, "rss": rss}
+    return {"pushes": np.asarray(pushes), "latency": out_t - done_at, "rss": rss, "out_t": out_t,
+            "sample_s": need / rate, "message_s": done_at, "push_audio_end_s": np.asarray(out_end)}
 
 
 def _speech(minutes: float) -> tuple[np.ndarray, int]:
@@ -417,6 +421,77 @@ def fig_latency(args) -> dict:
     return out
 
 
+def fig_breakdown(args) -> dict:
+    """Where a frame's latency goes, server side, sample captured -> vertices out (issue 33 item 4), paired: every
+    configuration (message size ``piece``, recogniser hop) runs on the same speech, interleaved, ``--reps`` times, so
+    the load is shared. Per frame f (newest sample at t = ceil((f + 1) 16000 / 30) / 16000 s):
+
+        message  = arrival of the message holding t  - t        (the page's chunking: up to piece / 16000)
+        budget   = look-ahead + lag + spike window + encoder look-ahead frames / fps   (fixed, LiveSettings.latency_s)
+        hop      = end of the audio of the push that emitted f - (t + message + budget)   (waiting for a hop, and
+                   rounding to whole messages and recogniser frames)
+        compute  = vertices out - end of that push's audio     (hama + the decoder step, and any queue behind them)
+
+    The parts sum to the total. The page's own share (playout buffer, one screen refresh) is outside this process."""
+    import os
+
+    from dualtalker_lite.live.server import load_config
+    from dualtalker_lite.live.stream import LiveSession, LiveSettings
+
+    wave, _ = _speech(args.latency_minutes)
+    config = load_config(args.checkpoint, "SPK01")
+    fe = config.front_end
+    configs = [(la, piece, hop) for la in args.lookaheads for piece, hop in ((1600, 0.2), (640, 0.2), (1600, 0.1),
+                                                                            (640, 0.1))]
+    runs = {c: [] for c in configs}
+    for rep in range(args.reps):
+        for la, piece, hop in configs:
+            s = LiveSettings(lookahead_s=la / 1000, hop_s=hop)
+            session = LiveSession(config.model, fe, config.template, config.speaker, s)
+            c0 = time.process_time()
+            sim = simulate(session, wave, piece=piece, clock=args.clock)
+            cpu = time.process_time() - c0
+            budget = s.latency_s(fe.fps, fe.lag_s, fe.window_s)
+            t, msg, end, out = sim["sample_s"], sim["message_s"], sim["push_audio_end_s"], sim["out_t"]
+            n = min(len(out), len(t))
+            t, msg, end, out = t[:n], msg[:n], end[:n], out[:n]
+            parts = {"message": msg - t, "budget": np.full(n, budget), "hop": end - msg - budget,
+                     "compute": out - end, "total": out - t}
+            runs[(la, piece, hop)].append({
+                "load_avg_1min": os.getloadavg()[0], "cpu_s_per_audio_s": cpu / (len(wave) / 16000),
+                "mean_ms": {k: float(v.mean() * 1000) for k, v in parts.items()},
+                "total": _lat(parts["total"])})
+            r = runs[(la, piece, hop)][-1]
+            print(f"  rep {rep + 1} look-ahead {la} piece {piece} hop {hop}: total median/p95 "
+                  f"{r['total']['median_ms']:.0f}/{r['total']['p95_ms']:.0f} ms, cpu {r['cpu_s_per_audio_s']:.2f} "
+                  f"s/s, load {r['load_avg_1min']:.2f}", flush=True)
+    res = {"audio_s": len(wave) / 16000, "clock": args.clock, "reps": args.reps,
+           "runs": [{"lookahead_ms": la, "piece": piece, "hop_s": hop, "reps": runs[(la, piece, hop)]}
+                    for la, piece, hop in configs]}
+    res["table_md"] = breakdown_table(res)
+    print(res["table_md"])
+    return res
+
+
+def breakdown_table(res: dict) -> str:
+    """The breakdown as a markdown table: each part's mean and the total's median / p95, as the median over the
+    repetitions (one row per configuration), with the 1-minute load average of each repetition."""
+    head = ("| look-ahead ms | message (samples) | hop s | message wait | fixed budget | hop wait | compute "
+            "| total mean | total median / p95 | CPU s per s | load avg per rep |\n|" + "---:|" * 11)
+    rows = [head]
+    for r in res["runs"]:
+        reps = r["reps"]
+        m = {k: np.median([x["mean_ms"][k] for x in reps]) for k in reps[0]["mean_ms"]}
+        med = np.median([x["total"]["median_ms"] for x in reps])
+        p95 = np.median([x["total"]["p95_ms"] for x in reps])
+        cpu = np.median([x["cpu_s_per_audio_s"] for x in reps])
+        load = " / ".join(f"{x['load_avg_1min']:.1f}" for x in reps)
+        rows.append(f"| {r['lookahead_ms']} | {r['piece']} | {r['hop_s']} | {m['message']:.0f} | {m['budget']:.0f} | "
+                    f"{m['hop']:.0f} | {m['compute']:.0f} | {m['total']:.0f} | {med:.0f} / {p95:.0f} | {cpu:.2f} | "
+                    f"{load} |")
+    return "\n".join(rows)
+
+
 def fig_diagnose(args) -> dict:
     """Which approximation costs the live path its closures: the causal viseme track or the encoder's bounded
     context? On every ``--every``-th prompt: offline; the offline track through the incremental decoder; the live
@@ -469,13 +544,15 @@ def figures(argv) -> None:
     import torch
 
     ap = argparse.ArgumentParser(prog="benchmarks/live.py figures")
-    ap.add_argument("step", choices=["quality", "keepup", "latency", "diagnose", "report"])
+    ap.add_argument("step", choices=["quality", "keepup", "latency", "breakdown", "diagnose", "report"])
     ap.add_argument("--checkpoint", default="runs/live_dt.pt")
     ap.add_argument("--every", type=int, default=3, help="quality: every n-th real prompt")
     ap.add_argument("--lookaheads", type=int, nargs="+", default=[100, 200])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--latency-minutes", type=float, default=2.0)
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall")
+    ap.add_argument("--hop", type=float, default=None, help="quality: the recogniser hop (LiveSettings' default)")
+    ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
@@ -485,7 +562,7 @@ def figures(argv) -> None:
     t0, c0 = time.time(), time.process_time()
     stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))  # the code measured
     res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
-           "diagnose": fig_diagnose}[args.step](args)
+           "breakdown": fig_breakdown, "diagnose": fig_diagnose}[args.step](args)
     res["meta"] = {"command": stamp["command"], "commit": stamp["commit"], "machine": stamp["machine"],
                    "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
                    "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
@@ -496,9 +573,11 @@ def figures(argv) -> None:
     print(f"-> {path}")
 
 
+FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose")
+
+
 def report(out: Path) -> None:
-    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in ("quality", "keepup", "latency", "diagnose")
-             if (FIG_DIR / f"{k}.json").is_file()}
+    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in FIG_STEPS if (FIG_DIR / f"{k}.json").is_file()}
     out.parent.mkdir(parents=True, exist_ok=True)
     parts["report"] = provenance("python benchmarks/live.py figures report")  # each step's stamp is in its meta
     atomic_write_text(out.with_suffix(".json"), json.dumps(parts, indent=1))
