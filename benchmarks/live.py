@@ -279,7 +279,7 @@ def fig_quality(args) -> dict:
         rows["reference rig (aligned phones)"].append(it["ref_curve"])
         c0 = time.process_time()
         off = lip_distance(animate_wave(config.model, it["wave"], config.template, config.speaker,
-                                        extractor=offline_ex), *lip_mid)
+                                        front_end=offline_ex), *lip_mid)
         cpu["offline (animate)"] += time.process_time() - c0
         mismatched += len(off) != n
         rows["offline (animate)"].append(off[:n])
@@ -518,7 +518,7 @@ def fig_diagnose(args) -> dict:
         wave, n = it["wave"], len(it["ref_curve"])
         off_ids = offline_ex.viseme_ids(wave, n)
         rows[names[0]].append(lip_distance(animate_wave(config.model, wave, config.template, config.speaker,
-                                                        extractor=lambda w, k: torch.from_numpy(eye[off_ids])),
+                                                        front_end=lambda w, k: torch.from_numpy(eye[off_ids])),
                                            *lip_mid)[:n])
         dec = IncrementalDecoder(config.model, config.template, config.speaker, 60, 3)
         v = np.concatenate([dec.push(eye[off_ids]), dec.flush()])
@@ -527,7 +527,7 @@ def fig_diagnose(args) -> dict:
         out, _, _ = feed(track, wave)
         live_ids = np.concatenate(out)[:n]
         rows[names[2]].append(lip_distance(animate_wave(config.model, wave, config.template, config.speaker,
-                                                        extractor=lambda w, k: torch.from_numpy(eye[live_ids])),
+                                                        front_end=lambda w, k: torch.from_numpy(eye[live_ids])),
                                            *lip_mid)[:n])
         session = LiveSession(config.model, config.front_end, config.template, config.speaker,
                               LiveSettings(lookahead_s=0.2))
