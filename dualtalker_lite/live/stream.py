@@ -12,7 +12,7 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   recogniser frames up to ``f / fps + lag_s + window_s`` are. Latency of the track: ``lookahead_s + lag_s +
   window_s`` (0.2 + 0.02 + 0.1 s by default) plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
   audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (0.6 s past, 0.2 s
-  ahead, hops of 0.1 s) keep that well below real time on one core (0.4-0.5 CPU s per s; ``results/live.md``).
+  ahead, hops of 0.2 s) keep that well below real time on one core (measured: ``docs/live.md``).
 * :class:`IncrementalDecoder` -- the model's autoregressive step (its KV cache,
   :meth:`~dualtalker_lite.blocks.decoder.MotionDecoder.cached_step`) for each new frame. The audio encoder of the
   models is non-causal (its receptive field is hundreds of frames: 454 for the tiny DualTalker), so offline
@@ -64,7 +64,7 @@ class StreamingVisemes:
     """
 
     def __init__(self, front_end: RecogniserExtractor, lookahead_s: float = 0.2, past_s: float = 0.6,
-                 hop_s: float = 0.1):
+                 hop_s: float = 0.2):
         if not 0 <= lookahead_s <= 2.0:
             raise ValueError(f"lookahead must be between 0 and 2000 ms, got {lookahead_s * 1000:g} ms")
         if not 0 <= past_s <= 10.0 or not 0.02 <= hop_s <= 2.0:
@@ -282,7 +282,7 @@ class LiveSettings:
     context and hop against cost. Defaults measured in ``docs/live.md``."""
     lookahead_s: float = 0.2      # recogniser look-ahead
     past_s: float = 0.6           # recogniser context before the first frame not yet final
-    hop_s: float = 0.1            # hama runs once per hop of new audio (0.2 s: ~60 ms more latency, ~40 % less CPU)
+    hop_s: float = 0.2            # hama runs once per hop of new audio
     past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
     ahead_frames: int = 3         # audio-encoder look-ahead (mesh frames) after it
 
