@@ -107,7 +107,7 @@ plot_frames(np.stack([template0] * 3), corpus.faces, colors=member, cmap="Blues"
             suptitle="The vertex sets of the three metrics (template of SPK03)")
 
 # %% [markdown]
-# The live part of this notebook trains two small models the way notebook 08 did (`TrainConfig.tiny` with learning
+# The live part of this notebook trains two small models on a short form of the recipe (`TrainConfig.tiny` with learning
 # rate 6e-3 and 40-frame crops; the recipe's warm-up, cosine decay and mean-motion output initialisation), both
 # with the same features, data and number of epochs and no model selection: the tiny **DualTalker**
 # (joint loss, default $\lambda$'s) and the **FaceFormer-style** baseline (`models.faceformer.FaceFormer`: primal task only,
@@ -770,7 +770,7 @@ plot_lip_distance(times, curves, phonemes=corpus.meta(CLIP)["phonemes"],
 # there is several mm, against a fraction of a mm in the truth) and both open a little less than the truth on
 # vowels. That is mumbling, and it is what an MSE regressor does early in training, when its output is still
 # squashed towards the mean mouth: these are early-training models (72 steps on two speakers). The recipe's full
-# budget (37 epochs on all eight speakers, section 6) and notebook 08 train longer.
+# budget (37 epochs on all eight speakers, section 6) and notebook 08 (`TrainConfig.fast`) train longer.
 #
 # ## 8. Where the errors are: per-vertex error maps
 #

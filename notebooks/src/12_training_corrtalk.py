@@ -74,7 +74,7 @@ FPS, V, regions = corpus.fps, corpus.metadata["n_vertices"], corpus.regions
 # | $L_{rec}$, $L_{vel}$ (eqs. 10, 11; mm) | `terms["reconstruction"]`, `terms["velocity"]` | scalar |
 # | $\lambda_{rec}$, $\lambda_{vel}$ | `CorrTalkWeights(reconstruction=..., velocity=...)` | scalars |
 #
-# The data, as in notebook 08: the 44 training clips of speakers SPK03 and SPK04, their 4 validation clips and
+# The data: 44 training clips of SPK03 and SPK04 (notebook 08 now trains on all 176), their 4 validation clips and
 # their 12 test-A clips (seen speakers, unseen sentences).
 
 # %%
@@ -196,7 +196,7 @@ print({k: f"{float(v):.4f} mm" for k, v in terms.items()})
 #
 # `train` with the package's recipe (`TrainConfig.tiny`: Adam, warm-up and cosine decay, gradient clipping, the
 # mean-motion and FAI initialisation), shortened so that it runs in seconds: 8 epochs of 6 batches of 8 clips
-# (48 steps) on random 40-frame crops at lr 6e-3, as in notebook 08. DualTalker gets exactly the same budget and
+# (48 steps) on random 40-frame crops at lr 6e-3. DualTalker gets exactly the same budget and
 # data. After every epoch `train` measures the validation lip vertex error of *generated* motion (LVE: per frame
 # the largest lip-vertex error, mm, averaged over frames).
 
