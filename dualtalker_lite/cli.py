@@ -34,6 +34,7 @@ __all__ = ["USER_ERRORS", "run_main", "main", "animate_main", "train_parser", "e
 TRAIN_EXAMPLE = """examples:
   dualtalker-lite train --model dualtalker --epochs 100 --out runs/my_model.pt   # phonetic route: any voice
   dualtalker-lite train --model dualtalker --features logmel --out runs/logmel.pt # the papers' acoustic input
+  dualtalker-lite train --model dualtalker --recipe fast --out runs/fast.pt      # the short recipe (12 epochs)
   dualtalker-lite train --model emoface --epochs 12 --out runs/my_emoface.pt     # on the emotional pseudo-pairs
   dualtalker-lite train --model voca --epochs 1 --clips 16 --out runs/check.pt   # a quick check of the whole path
   dualtalker-lite train --model dualtalker --epochs 100 --out runs/my_model.pt --resume  # continue a killed run
@@ -73,6 +74,7 @@ def _pair_dataset(corpus, seed: int):
 
 
 RESUME_FORMAT = "dualtalker-lite train state 1"
+TINY_TRAIN_EPOCHS = 45  # train's default budget with the tiny recipe
 
 
 def _load_resume_state(path: Path) -> dict:
@@ -139,7 +141,14 @@ def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
     ap.add_argument("--model", choices=sorted(models), default="dualtalker",
                     help="which registered model to train (dualtalker_lite.models.registry; $DUALTALKER_PLUGINS "
                          "names modules that register more: docs/architecture.md)")
-    ap.add_argument("--epochs", type=int, default=45, help="passes over the training clips")
+    ap.add_argument("--recipe", choices=("tiny", "fast"), default="tiny",
+                    help="tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default); fast: the short recipe "
+                         "(TrainConfig.fast: the motion head started at the training motion's principal components, "
+                         "lr 6e-3; dualtalker 12 epochs by default, faceformer 20; about the tiny recipe's quality on "
+                         "real voices at a third of the CPU time for dualtalker: results/time_to_quality.md; default: %(default)s)")
+    ap.add_argument("--epochs", type=int, default=None,
+                    help="passes over the training clips (default: 45; with --recipe fast 12 for dualtalker, 20 for "
+                         "faceformer)")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
                          "default: all)")
@@ -279,6 +288,13 @@ def _check_train_args(args: argparse.Namespace) -> tuple[Path, Path, dict | None
     from .data import sample_path
     from .files import NAME_MAX, claim
 
+    from .train import FAST_EPOCHS
+
+    if args.recipe == "fast" and args.model not in FAST_EPOCHS:
+        raise ValueError(f"--recipe fast: no short recipe was measured for --model {args.model} (only for "
+                         f"{', '.join(sorted(FAST_EPOCHS))}); use --recipe tiny")
+    if args.epochs is None:
+        args.epochs = FAST_EPOCHS[args.model] if args.recipe == "fast" else TINY_TRAIN_EPOCHS
     if args.epochs < 1:
         raise ValueError(f"--epochs {args.epochs}: must be at least 1")
     if args.checkpoint_every < 0:
@@ -383,14 +399,15 @@ def _train(argv: list[str]) -> Path:
         args.features = front_ends.DEFAULT
     progress = progress_mode(args.quiet)  # a bar on a terminal (train's own), else lines (below), or none
     run = assemble_training(corpus=corpus, seed=args.seed, epochs=args.epochs, device=str(device),
-                            progress=progress == "bar", **_training_clips(corpus, specs[args.model], args))
+                            progress=progress == "bar", recipe=args.recipe,
+                            **_training_clips(corpus, specs[args.model], args))
     weights = sum(p.numel() * p.element_size() for p in run.model.parameters())  # checkpoint ~1x, resume state ~3x
     check_free_space(out, weights * (4 if args.checkpoint_every else 1), "the checkpoint (and its resume state)")
     meta = Path(corpus.root) / "metadata.json"
     record = {"model": args.model, "corpus": str(Path(corpus.root).resolve()),
               "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
               "epochs": args.epochs, "clips": args.clips, "features": args.features, "seed": args.seed,
-              "training_clips": len(run.train_set)}
+              "training_clips": len(run.train_set), **({"recipe": args.recipe} if args.recipe != "tiny" else {})}
     done = 0 if resume is None else int(resume["train"]["epoch"])  # epochs completed before this run
     if resume is not None:
         _check_resume_args(resume_path, resume["args"], record)

@@ -54,3 +54,19 @@ def test_console_script_is_declared():
     scripts = tomllib.loads((repo_root() / "pyproject.toml").read_text())["project"]["scripts"]
     module, func = scripts["dualtalker-lite"].split(":")
     assert getattr(importlib.import_module(module), func) is main
+
+
+def test_train_fast_recipe_starts_the_head_at_the_principal_components_at_twice_the_rate(tmp_path):
+    """`train --recipe fast` (issue 31), as a real process: the checkpoint records TrainConfig.fast's settings
+    (written out here: lr 6e-3, 64 PCA components, 12 epochs unless --epochs), the tiny recipe's otherwise."""
+    import subprocess
+    import sys
+
+    ckpt = tmp_path / "fast.pt"
+    proc = subprocess.run([sys.executable, "-m", "dualtalker_lite.cli", "train", "--model", "dualtalker", "--recipe",
+                           "fast", "--epochs", "1", "--clips", "8", "--quiet", "--out", str(ckpt)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    cfg = load_checkpoint(ckpt)[1]["train_config"]
+    assert (cfg["lr"], cfg["pca_init"], cfg["epochs"], cfg["mean_init"]) == (6e-3, 64, 1, True)
+    assert (cfg["batch_size"], cfg["warmup_steps"], cfg["decay"]) == (8, 30, "cosine")

@@ -523,6 +523,13 @@ def test_train_zero_epochs_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_train_fast_recipe_for_a_model_without_one_is_refused(tmp_path):
+    """--recipe fast exists for the models it was measured on (results/time_to_quality.md) only."""
+    refused(cli("train", "--model", "corrtalk", "--recipe", "fast", "--out", tmp_path / "m.pt"),
+            "--recipe fast: no short recipe was measured for --model corrtalk (only for dualtalker, faceformer)")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_folder_as_wav_says_it_is_a_folder(ckpt, tmp_path, capsys):
     """Was: 'audio file not found' for a folder that exists."""
     (tmp_path / "clips").mkdir()

@@ -22,6 +22,7 @@ hooks), saving, and the runner's evaluation.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -85,7 +86,8 @@ class Assembly:
 
 def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = False, seed: int = 0,
                       epochs: int = 1, device: str = "cpu", progress: bool = False, threads: int | None = None,
-                      time_budget_s: float | None = None, logmel: Any = None, record: Any = None) -> Assembly:
+                      time_budget_s: float | None = None, logmel: Any = None, record: Any = None,
+                      recipe: str = "tiny") -> Assembly:
     """Assemble the training of row ``spec`` on ``clips`` (log-mel clips of ``corpus``, or pairs of them when
     ``paired``) -> :class:`Assembly` (the steps are in the module docstring).
 
@@ -95,7 +97,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     ``record``: the front end to record in the checkpoint instead of the row's own (the command trains a phonetic
     model on the recogniser's tracks of a corpus without viseme labels: its clips hold those tracks, its row reads
     them as they are, and the checkpoint names the recogniser). ``device``, ``progress`` and ``time_budget_s`` go to
-    ``TrainConfig.tiny``."""
+    the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
+    PCA-initialised head at lr 6e-3, for the models it was measured on; ``epochs`` still sets the budget)."""
     from ..data.dataset import make_loader
     from ..data.pairs import make_pair_loader
     from ..models import registry
@@ -110,8 +113,11 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     set_seed(seed, threads=threads)  # the model's initial weights depend on the seed only
     n_vertices = int(train_set[0]["template"].numel() // 3)
     model, model_config = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers), faces=corpus.faces)
-    train_config = TrainConfig.tiny(epochs=epochs, seed=seed, validate_every=0, device=str(device), progress=progress,
-                                    weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
+    if recipe not in ("tiny", "fast"):
+        raise ValueError(f"recipe must be 'tiny' or 'fast', got {recipe!r}")
+    preset = TrainConfig.tiny if recipe == "tiny" else functools.partial(TrainConfig.fast, spec.model)
+    train_config = preset(epochs=epochs, seed=seed, validate_every=0, device=str(device), progress=progress,
+                          weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
     loader = None
     if any(p.requires_grad for p in model.parameters()):
         loader = (make_pair_loader if paired else make_loader)(train_set, train_config.batch_size, shuffle=True,
