@@ -234,7 +234,7 @@ def stand_in_checkpoint():
     from torch.utils.data import Subset
 
     from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
-    from dualtalker_lite.losses import LossWeights
+    from dualtalker_lite.losses import ReconstructionWeights
     from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
     from dualtalker_lite.train import TrainConfig, train
 
@@ -245,7 +245,7 @@ def stand_in_checkpoint():
         set_seed(0)
         cfg = VocaConfig.tiny(n_vertices=V, audio_dim=160, n_speakers=len(corpus.train_speakers))
         model, tc = VocaStyle(cfg), TrainConfig.tiny(epochs=3, progress=False, validate_every=0,
-                                                     weights=LossWeights(lambda2=0.0, lambda3=0.0, lambda4=0.0))
+                                                     weights=ReconstructionWeights())
         history = train(model, make_loader(data, tc.batch_size, seed=0), tc)
         save_checkpoint(path, model, cfg, tc, history, speakers=corpus.train_speakers, faces=corpus.faces)
     return path
