@@ -213,7 +213,7 @@ def cli_case(minutes: float, video: bool, tmp: Path, env: dict, fmt: str = "npy"
     out.rmdir()
     return {"minutes": minutes, "video": video, "format": "npy,mp4" if video else fmt, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
             "peak_rss_mb": usage.ru_maxrss / 1024, "files_mb": {k: v / 1e6 for k, v in files.items()},
-            "stdout": stdout.decode().strip()}
+            "stdout": stdout.decode().strip().replace(str(tmp), "<tmp>")}  # no machine-specific path in results/
 
 
 def cli_report(rows: list[dict]) -> list[str]:
