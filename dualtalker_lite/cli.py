@@ -145,7 +145,8 @@ def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
                     help="tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default); fast: the short recipe "
                          "(TrainConfig.fast: the motion head started at the training motion's principal components, "
                          "lr 6e-3; dualtalker 12 epochs by default, faceformer 20; about the tiny recipe's quality on "
-                         "real voices at a third of the CPU time for dualtalker: results/time_to_quality.md; default: %(default)s)")
+                         "real voices at a third of the CPU time for dualtalker: results/time_to_quality.md; "
+                         "default: %(default)s)")
     ap.add_argument("--epochs", type=int, default=None,
                     help="passes over the training clips (default: 45; with --recipe fast 12 for dualtalker, 20 for "
                          "faceformer)")

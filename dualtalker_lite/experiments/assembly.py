@@ -11,8 +11,8 @@ are assembled the same way, step by step:
 3. the model, seeded (``set_seed(seed)``: its initial weights depend on the seed only), from the model registry
    (:func:`build_model`); an emotion-aware model (a config with ``n_emotions``, EmoFace) gets as many
    emotion classes as the corpus has;
-4. the recipe ``TrainConfig.tiny`` with the row's loss weights, and the loader (the pair loader for
-   cross-reconstruction rows; none for a model with nothing to train, the static template);
+4. the recipe (``TrainConfig.tiny``, or ``TrainConfig.fast`` when asked) with the row's loss weights, and the
+   loader (the pair loader for cross-reconstruction rows; none for a model with nothing to train, the template);
 5. the checkpoint's ``features`` entry (:func:`dualtalker_lite.front_ends.settings`).
 
 What stays with each caller: where the clips come from (the command: a corpus folder, ``--clips``; the runner: the
