@@ -1117,7 +1117,9 @@ def test_animate_memory_is_flat_in_the_audio_length_on_the_phonetic_route(tmp_pa
         assert len(list((tmp_path / "cache").rglob("*.npy"))) == 1 + (minutes == 10)   # hit: nothing new
         peaks[minutes] = peak
     print(f"peak RSS, MB: {peaks}")
-    assert peaks[10] - peaks[1] < 15, peaks  # MB
+    # The old code grew 31 MB from 1 to 10 minutes (above). Flat measures -5..+3 MB here; CI's machine measured
+    # 406 -> 423 MB (+17, another allocator's fragmentation): the bar sits between that and the old growth.
+    assert peaks[10] - peaks[1] < 25, peaks  # MB
 
 
 @pytest.mark.parametrize("rate", [16000, 8000, 22050, 44100, 48000])

@@ -534,16 +534,22 @@ def _best_lag_corr(live: np.ndarray, ref: np.ndarray, max_lag: int = 30) -> tupl
     return best
 
 
-def _rig_lip_from_viseme_curves(config):
-    """The clip's lip distance (mm) on the project's rig posed by its offline viseme curves (``animate --format
-    visemes`` + the rig's 15 blendshapes): what the second head's lip gap should follow, made without the page."""
-    from dualtalker_lite.export.visemes import apply_viseme_weights, rig_viseme_offsets, viseme_curves
+def _rig_lip_from_weights(weights, config):
+    """Lip distance (mm) of the project's rig posed by (T, 15) viseme weights (its 15 blendshapes), made without
+    the page: what a second head driven by those weights should follow."""
+    from dualtalker_lite.export.visemes import apply_viseme_weights, rig_viseme_offsets
     from dualtalker_lite.face import FaceRig
 
     rig = FaceRig()
-    curves = viseme_curves(_wave(), front_end=config.front_end)
-    verts = apply_viseme_weights(curves.weights, rig.template, rig_viseme_offsets(rig))            # (T, V, 3)
+    verts = apply_viseme_weights(np.asarray(weights, np.float32), rig.template, rig_viseme_offsets(rig))  # (T, V, 3)
     return _lip(verts.reshape(len(verts), -1), config)
+
+
+def _rig_lip_from_viseme_curves(config):
+    """The clip's lip distance (mm) on the rig posed by its offline viseme curves (``animate --format visemes``)."""
+    from dualtalker_lite.export.visemes import viseme_curves
+
+    return _rig_lip_from_weights(viseme_curves(_wave(), front_end=config.front_end).weights, config)
 
 
 def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, tmp_path):
@@ -578,7 +584,8 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 page.screenshot(path=str(shots / "live_page.png"))
                 state = page.evaluate("() => [dtlLive.lip, dtlLive.latencyMs, dtlLive.shown, "
                                       "document.querySelector('.latency').textContent]")
-                second = page.evaluate("() => [dtlLive.avatarGap, dtlLive.avatarShown, dtlLive.avatar.rest.gap]")
+                second = page.evaluate("() => [dtlLive.avatarGap, dtlLive.avatarShown, dtlLive.avatar.rest.gap, "
+                                       "dtlLive.visemes]")
                 page.click("button.start")                          # stop
                 page.wait_for_function("() => dtlLive.status.startsWith('stopped')", timeout=60000)
                 # no microphone permission: one line says so; a file still plays through the live path
@@ -606,13 +613,22 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     assert corr > 0.5, (corr, lag)
     assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
     # the second head: driven by the viseme curves alone, its lips part and close with the mesh's
-    gap, drawn, rest_gap = second
+    gap, drawn, rest_gap, received = second
     gap = np.array([np.nan if v is None else v for v in gap], float)
     assert len(gap) >= n and np.isfinite(gap).all()                                   # every frame has its pose
     assert gap.max() > rest_gap + 0.1 and gap.min() < rest_gap + 0.02                   # opens, and closes
     assert len(set(np.round(drawn, 4))) >= 3                                          # and was drawn so
-    corr2, lag2 = _best_lag_corr(gap, _rig_lip_from_viseme_curves(config))
-    assert corr2 > 0.7, ("second head", corr2, lag2)                                   # measured: 0.85
+    # (a) the head follows the curves the page received: the rig posed by those same curves, frame for frame.
+    # Against the offline curves instead this was 0.85 on a quiet machine and 0.65 on a loaded CI one: the fake
+    # microphone's capture differs there, so the streamed track does, not the head.
+    received = np.array(received, float)
+    assert received.shape == (len(gap), 15) and np.isfinite(received).all()
+    corr2 = float(np.corrcoef(gap, _rig_lip_from_weights(received, config))[0, 1])
+    assert corr2 > 0.7, ("second head against its own curves", corr2)
+    # (b) those curves follow the offline ones, at the mesh's bar above
+    corr3, lag3 = _best_lag_corr(_rig_lip_from_weights(received, config), _rig_lip_from_viseme_curves(config))
+    print(f"second head against its curves r {corr2:.3f}; streamed curves against offline r {corr3:.3f}")
+    assert corr3 > 0.5, ("streamed curves against offline", corr3, lag3)
     assert no_mic == "No microphone permission: allow the microphone for this page (or play a file)."
     file_lip = np.array([np.nan if v is None else v for v in file_lip], float)
     assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std() and file_rate != 16000
