@@ -315,6 +315,8 @@ def main() -> None:
                    help="an extra recipe: TrainConfig.tiny() overrides as JSON")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--processes", type=int, default=2)
+    p.add_argument("--points", type=int, nargs="+", default=None,
+                   help="epochs after which to evaluate (the last epoch always is; default: POINTS per recipe)")
     p.add_argument("--out", type=Path, default=OUT)
     p = sub.add_parser("report", help="results/time_to_quality.md, .json, .png from the runs")
     p.add_argument("--runs", type=Path, action="append", default=None, help="run folder(s) (default: runs/recipe_curves)")
@@ -330,7 +332,7 @@ def main() -> None:
         jobs = []
         for name in args.recipes:
             cfg = recipe(name, extra)
-            points = tuple(p for p in POINTS.get(name, POINTS["new"]) if p <= cfg["epochs"])
+            points = tuple(p for p in (args.points or POINTS.get(name, POINTS["new"])) if p <= cfg["epochs"])
             jobs += [(m, name, s, cfg, points, str(args.out), str(args.inputs)) for m in args.models
                      for s in args.seeds]
         args.out.mkdir(parents=True, exist_ok=True)

@@ -1,15 +1,14 @@
 """Headless end-to-end demo (``make demo``): train, evaluate, plot and animate DualTalker against FaceFormer.
 
-    python -m dualtalker_lite.demo --out runs/demo                 # the recipe's budget per model, < 4 minutes on 2 cores
+    python -m dualtalker_lite.demo --out runs/demo                 # the short recipe, < 4 minutes on 2 cores
     python -m dualtalker_lite.demo --out /tmp/demo --quick         # 1 epoch on a few clips (tests)
 
 1. trains the tiny DualTalker and the FaceFormer-style baseline on ``data_samples/`` (the same protocol as the
-   ``main`` table of :mod:`dualtalker_lite.experiments`: same features, data and epoch budget), in two worker
-   processes with one torch thread each, and saves their checkpoints. The front end is the phonetic route
+   ``main`` table of :mod:`dualtalker_lite.experiments`: same features and data; the short recipe, below), in two
+   worker processes with one torch thread each, and saves their checkpoints. The front end is the phonetic route
    (``--features visemes``, issue 19): trained on the corpus's viseme labels, fed the hama phoneme recogniser's
-   viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``; at this
-   budget they close the lips on most but not all of a real voice's /p b m/: ``dualtalker-lite train --epochs 100``
-   is the checkpoint for your own recordings, ``docs/front-ends.md``);
+   viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``; they close
+   the lips on most but not all of a real voice's /p b m/, ``results/time_to_quality.md``, ``docs/front-ends.md``);
    ``--features logmel`` gives the papers' kind of input, which learns the corpus's synthetic voices only;
 2. evaluates both, plus the static template, on test-A with autoregressive generation;
 3. writes into ``--out``:
@@ -24,12 +23,15 @@
    ``dualtalker.pt``, ``faceformer.pt``  checkpoints (``train.load_checkpoint``)
    ==================  ================================================================================
 
-Both models train with the recipe (``train.TrainConfig.tiny()``: its epoch budget is about 120 s of one-thread
-CPU time per model on a quiet machine). To stay under four minutes on a busy machine, each model also stops once
-``--time-budget`` wall seconds of training have passed (default 150 s; the learning-rate schedule then ends early
-with it); ``metrics.json`` records the epochs actually trained and each model's training CPU seconds, and a model
-that the budget stopped before the recipe's last epoch is named in one ``warning:`` line on stderr and in
-``metrics.json``'s ``truncated`` (:func:`budget_notes`): its lips may not close yet.
+Both models train with the short recipe (``--recipe fast``, ``train.TrainConfig.fast``: the PCA-initialised motion
+head at twice the learning rate, 12 epochs for DualTalker and 20 for FaceFormer-style, about 50 and 75 s of
+one-thread CPU time on a quiet machine; as good on real voices as the tables' 37-epoch ``--recipe tiny`` at a third
+(DualTalker) to three fifths of its cost, ``results/time_to_quality.md``). To stay under four minutes on a busy machine, each model also stops
+once ``--time-budget`` wall seconds of training have passed (default 150 s; the learning-rate schedule then ends
+early with it); ``metrics.json`` records the recipe, the epochs asked for and actually trained and each model's
+training CPU seconds, and a model that the budget stopped before its recipe's last epoch is named in one
+``warning:`` line on stderr and in ``metrics.json``'s ``truncated`` (:func:`budget_notes`): its lips may not close
+yet.
 """
 from __future__ import annotations
 
@@ -57,13 +59,15 @@ MODELS = {"Static template": ("Static template", None),
           "DualTalker": ("DualTalker", "dualtalker.pt")}
 
 
-def budget_notes(results: dict, epochs: int, budget: float | None) -> dict[str, str]:
-    """One line per trained model that the wall-clock budget stopped before the recipe's last epoch ({} if none):
-    such a model is half-trained (its lips may not close), and the demo says so instead of shipping it silently."""
+def budget_notes(results: dict, budget: float | None) -> dict[str, str]:
+    """One line per trained model that the wall-clock budget stopped before its recipe's last epoch (the runner's
+    ``train_config["epochs"]``; {} if none): such a model is half-trained (its lips may not close), and the demo
+    says so instead of shipping it silently."""
     notes = {}
     for label, r in results.items():
-        if r.get("model_config") is not None and r["epochs"] < epochs:
-            notes[label] = (f"{label} stopped after {r['epochs']} of {epochs} epochs: the --time-budget of "
+        asked = (r.get("train_config") or {}).get("epochs", 0)
+        if r.get("model_config") is not None and r["epochs"] < asked:
+            notes[label] = (f"{label} stopped after {r['epochs']} of {asked} epochs: the --time-budget of "
                             f"{budget or 0:.0f} wall seconds ran out (a busy machine); its checkpoint is under-trained. "
                             f"Re-run with "
                             f"--time-budget 0, or train it with dualtalker-lite train")
@@ -97,7 +101,7 @@ COLUMN_LEGEND = {
                          "mm; closer to the ground truth's (about 13.6 on the sample's test-A) is better.",
     "lip_distance_corr": "Pearson correlation of the predicted and true lip-distance curves, mean over clips; -1 "
                          "to 1; higher is better.",
-    "epochs": "epochs trained: the recipe's budget, fewer where --time-budget stopped the model early.",
+    "epochs": "epochs trained: the recipe's budget for the model, fewer where --time-budget stopped it early.",
     "train (s)": "wall-clock seconds of training, one torch thread (a busy machine makes it longer); lower is "
                  "cheaper, not better.",
     "params": "trainable parameters (tied weights counted once); fewer is cheaper, not better.",
@@ -107,8 +111,11 @@ COLUMN_LEGEND = {
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m dualtalker_lite.demo", description=__doc__.split("\n")[0])
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    p.add_argument("--recipe", choices=("fast", "tiny"), default="fast",
+                   help="training recipe: fast (default, TrainConfig.fast: 12 epochs DualTalker, 20 FaceFormer-style) "
+                        "or tiny (the tables' TrainConfig.tiny, 37 epochs, about 3x the CPU time)")
     p.add_argument("--epochs", type=int, default=None,
-                   help="epochs per model, the same for both (default: the recipe's, TrainConfig.tiny())")
+                   help="epochs per model, the same for both (default: the recipe's for each model)")
     p.add_argument("--time-budget", type=float, default=150.0,
                    help="seconds of training per model after which it stops at the end of the epoch (0 = none)")
     p.add_argument("--features", choices=FEATURES, default=FEATURES[0],
@@ -160,7 +167,7 @@ def metrics_markdown(results: dict, command: str, epochs: dict, n_test: int) -> 
     return "\n".join(lines + [""])
 
 
-def _train_and_evaluate(args, out: Path, epochs: int, processes: int, budget: float | None) -> dict:
+def _train_and_evaluate(args, out: Path, epochs: int | None, processes: int, budget: float | None) -> dict:
     """Steps 1-2: train both models (in parallel) and evaluate them on test-A with the experiment runner, which also
     saves the checkpoints -> {label: the runner's result}. The test set the figures need is loaded meanwhile."""
     rows = {s.row: s for s in table_specs("main", features=args.features)}
@@ -172,7 +179,8 @@ def _train_and_evaluate(args, out: Path, epochs: int, processes: int, budget: fl
     if processes > 1:  # in-process runs load it themselves
         loader.start()
     runs = run_specs([jobs[i] for i in order], epochs, processes, args.corpus, args.quick,
-                     checkpoints=[checkpoints[i] for i in order], progress=not args.no_progress, time_budget_s=budget)
+                     checkpoints=[checkpoints[i] for i in order], progress=not args.no_progress, time_budget_s=budget,
+                     recipe=args.recipe)
     results = dict(zip([list(MODELS)[i] for i in order], runs))
     if loader.is_alive():
         loader.join()
@@ -244,11 +252,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     command = "python -m dualtalker_lite.demo " + shlex.join(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.epochs is None:
-        from .train import TrainConfig
-
-        args.epochs = TrainConfig.tiny().epochs
-    epochs = 1 if args.quick else args.epochs
+    epochs = 1 if args.quick else args.epochs  # None: each model's recipe budget
     processes = 1 if args.quick else args.processes
     budget = args.time_budget if args.time_budget and not args.quick else None
     torch.set_num_threads(1)
@@ -261,13 +265,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
     names = pred["DualTalker"]["names"]
 
     epochs_done = {label: r["epochs"] for label, r in results.items()}
-    truncated = budget_notes(results, epochs, budget)
+    truncated = budget_notes(results, budget)
     for line in truncated.values():
         print(f"warning: {line}", file=sys.stderr)
     table = metrics_markdown(results, command, epochs_done, len(names))
     files["metrics_md"] = out / "metrics.md"
     files["metrics_md"].write_text(table)
-    payload = {"command": command, "features": args.features, "epochs_requested": epochs, "epochs_trained": epochs_done,
+    asked = {label: r["train_config"]["epochs"] for label, r in results.items() if r.get("model_config") is not None}
+    payload = {"command": command, "features": args.features, "recipe": args.recipe, "epochs_requested": asked,
+               "epochs_trained": epochs_done,
                "time_budget_s": budget, "truncated": truncated,
                "train_cpu_seconds": {label: r.get("train_cpu_seconds", 0.0) for label, r in results.items()},
                "seed": args.seed, "quick": args.quick, "corpus": data["path"],

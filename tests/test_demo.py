@@ -60,11 +60,35 @@ def test_budget_notes_name_every_model_the_time_budget_cut_short():
     metrics.json's "truncated"); a model trained to the end, and the static template (no training), are not."""
     from dualtalker_lite.demo import budget_notes
 
-    results = {"Static template": {"epochs": 0, "model_config": None},
-               "FaceFormer-style": {"epochs": 12, "model_config": {}},
-               "DualTalker": {"epochs": 7, "model_config": {}}}
-    notes = budget_notes(results, epochs=12, budget=150.0)
+    results = {"Static template": {"epochs": 0, "model_config": None, "train_config": {"epochs": 12}},
+               "FaceFormer-style": {"epochs": 20, "model_config": {}, "train_config": {"epochs": 20}},
+               "DualTalker": {"epochs": 7, "model_config": {}, "train_config": {"epochs": 12}}}
+    notes = budget_notes(results, budget=150.0)   # each model against its own recipe's epochs (fast: 20 and 12)
     assert list(notes) == ["DualTalker"]
     assert notes["DualTalker"].startswith("DualTalker stopped after 7 of 12 epochs: the --time-budget of 150 wall "
                                           "seconds ran out")
-    assert budget_notes({"DualTalker": {"epochs": 12, "model_config": {}}}, epochs=12, budget=150.0) == {}
+    assert budget_notes({"DualTalker": {"epochs": 12, "model_config": {}, "train_config": {"epochs": 12}}},
+                        budget=150.0) == {}
+    results["FaceFormer-style"]["epochs"] = 12   # 12 epochs is DualTalker's whole recipe, not FaceFormer-style's
+    assert list(budget_notes(results, budget=150.0)) == ["FaceFormer-style", "DualTalker"]
+
+
+def test_demo_trains_each_model_with_the_short_recipe_by_default():
+    """The demo's default recipe is TrainConfig.fast (issue 31): the runner assembles DualTalker with 12 epochs and
+    FaceFormer-style with 20 (FAST_EPOCHS, written out here), both at lr 6e-3 with 64 PCA components; the static
+    template trains nothing and takes the tiny recipe's settings; --recipe tiny gives 37 (TrainConfig.tiny) for both."""
+    from dualtalker_lite import demo
+    from dualtalker_lite.experiments import load_data, table_specs
+    from dualtalker_lite.experiments.assembly import assemble_training
+
+    assert demo.parse_args([]).recipe == "fast" and demo.parse_args([]).epochs is None
+    data = load_data(None, quick=True)
+    rows = {s.row: s for s in table_specs("main", features="visemes")}
+    got = {}
+    for label, (row, _) in demo.MODELS.items():
+        for recipe in ("fast", "tiny"):
+            run = assemble_training(rows[row], data["train"], data["view"], epochs=None, recipe=recipe)
+            got[label, recipe] = (run.train_config.epochs, run.train_config.lr, run.train_config.pca_init)
+    assert got["DualTalker", "fast"] == (12, 6e-3, 64) and got["FaceFormer-style", "fast"] == (20, 6e-3, 64)
+    assert got["DualTalker", "tiny"] == got["FaceFormer-style", "tiny"] == (37, 3e-3, 0)
+    assert got["Static template", "fast"] == got["Static template", "tiny"]

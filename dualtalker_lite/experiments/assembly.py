@@ -85,7 +85,7 @@ class Assembly:
 
 
 def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = False, seed: int = 0,
-                      epochs: int = 1, device: str = "cpu", progress: bool = False, threads: int | None = None,
+                      epochs: int | None = 1, device: str = "cpu", progress: bool = False, threads: int | None = None,
                       time_budget_s: float | None = None, logmel: Any = None, record: Any = None,
                       recipe: str = "tiny") -> Assembly:
     """Assemble the training of row ``spec`` on ``clips`` (log-mel clips of ``corpus``, or pairs of them when
@@ -98,7 +98,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     model on the recogniser's tracks of a corpus without viseme labels: its clips hold those tracks, its row reads
     them as they are, and the checkpoint names the recogniser). ``device``, ``progress`` and ``time_budget_s`` go to
     the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
-    PCA-initialised head at lr 6e-3, for the models it was measured on; ``epochs`` still sets the budget)."""
+    PCA-initialised head at lr 6e-3, for the models it was measured on); ``epochs`` sets the budget, None: the
+    recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``)."""
     from ..data.dataset import make_loader
     from ..data.pairs import make_pair_loader
     from ..models import registry
@@ -115,11 +116,14 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     model, model_config = build_model(spec, n_vertices, audio_dim, len(corpus.train_speakers), faces=corpus.faces)
     if recipe not in ("tiny", "fast"):
         raise ValueError(f"recipe must be 'tiny' or 'fast', got {recipe!r}")
-    preset = TrainConfig.tiny if recipe == "tiny" else functools.partial(TrainConfig.fast, spec.model)
-    train_config = preset(epochs=epochs, seed=seed, validate_every=0, device=str(device), progress=progress,
+    trains = any(p.requires_grad for p in model.parameters())
+    fast = recipe == "fast" and trains  # the static template trains nothing: its recipe is moot
+    preset = functools.partial(TrainConfig.fast, spec.model) if fast else TrainConfig.tiny
+    budget = {} if epochs is None else {"epochs": epochs}
+    train_config = preset(**budget, seed=seed, validate_every=0, device=str(device), progress=progress,
                           weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
     loader = None
-    if any(p.requires_grad for p in model.parameters()):
+    if trains:
         loader = (make_pair_loader if paired else make_loader)(train_set, train_config.batch_size, shuffle=True,
                                                                seed=seed)
     if record is not None:

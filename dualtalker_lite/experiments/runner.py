@@ -103,10 +103,13 @@ def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
     return PairDataset(data["view"], EMOTIONAL_TRAIN, extractor=data["train"].extractor, seed=seed), True
 
 
-def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | None = None, quick: bool = False,
+def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: str | None = None, quick: bool = False,
             checkpoint: str | Path | None = None, time_budget_s: float | None = None,
-            test_split: str = TEST_SPLIT, clips: dict | None = None) -> dict:
+            test_split: str = TEST_SPLIT, clips: dict | None = None, recipe: str = "tiny") -> dict:
     """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on ``test_split`` -> a result.
+
+    ``recipe``: "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``, the demo's); ``epochs``
+    None: the recipe's own budget for the row's model.
 
     The training clips come from ``spec.data`` (:func:`training_set`; "pairs" uses ``data.pairs.make_pair_loader``,
     so EmoFace's cross-reconstruction happens). On a split with more than one emotion the emotional metrics are
@@ -126,7 +129,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int, corpus_path: str | Non
         base_train, paired = training_set(data, spec, seed)
         test_set = test_features(data, test_split, spec.features)
         run = assemble_training(spec, base_train, data["view"], paired=paired, seed=seed, epochs=epochs, threads=1,
-                                time_budget_s=time_budget_s, logmel=data["train"].extractor)
+                                time_budget_s=time_budget_s, logmel=data["train"].extractor, recipe=recipe)
         model, model_cfg, train_cfg, train_set = run.model, run.model_config, run.train_config, run.train_set
         t0 = time.perf_counter()
         history = None if run.loader is None else train(model, run.loader, train_cfg)
@@ -186,22 +189,23 @@ def _worker_init(parent_pid: int | None = None) -> None:
 
 
 def _job(args: tuple) -> tuple[int, dict]:
-    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split = args
-    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split)
+    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe = args
+    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe=recipe)
 
 
-def run_specs(jobs: list[tuple], epochs: int, processes: int = 1, corpus_path: str | None = None,
+def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_path: str | None = None,
               quick: bool = False, checkpoints: list | None = None, progress: bool = True,
-              time_budget_s: float | None = None) -> list[dict]:
+              time_budget_s: float | None = None, recipe: str = "tiny") -> list[dict]:
     """Run (spec, seed) or (spec, seed, test split) jobs, in this process (``processes=1``) or in a spawn pool;
     results in job order.
 
-    ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``."""
+    ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``, ``recipe`` and
+    ``epochs`` None."""
     from tqdm.auto import tqdm
 
     checkpoints = checkpoints or [None] * len(jobs)
     args = [(i, asdict(job[0]), job[1], epochs, corpus_path, quick, ckpt, time_budget_s,
-             job[2] if len(job) > 2 else TEST_SPLIT) for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
+             job[2] if len(job) > 2 else TEST_SPLIT, recipe) for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
     results: list = [None] * len(jobs)
     bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)
     if processes <= 1:
