@@ -273,6 +273,8 @@ def fig_quality(args) -> dict:
     corr = {f"live, look-ahead {la} ms": [] for la in args.lookaheads}
     mismatched = 0
     hop = {"hop_s": args.hop} if args.hop else {}       # else LiveSettings' default
+    if args.past:
+        hop["past_s"] = args.past
     t_start = time.time()
     for i, it in enumerate(items):
         n = len(it["ref_curve"])
@@ -306,7 +308,8 @@ def fig_quality(args) -> dict:
         if k in corr:
             metrics[k]["lip_corr_with_offline_mean"] = float(np.mean(corr[k]))
     return {"prompts_used": len(items), "prompts_total": n_all, "every": args.every, "failed_alignments": failed,
-            "hop_s": hop.get("hop_s", LiveSettings.hop_s), "audio_s": audio_s, "frame_count_mismatches": mismatched,
+            "hop_s": hop.get("hop_s", LiveSettings.hop_s), "past_s": hop.get("past_s", LiveSettings.past_s),
+            "audio_s": audio_s, "frame_count_mismatches": mismatched,
             "speaker": subject, "rows": metrics}
 
 
@@ -552,6 +555,8 @@ def figures(argv) -> None:
     ap.add_argument("--latency-minutes", type=float, default=2.0)
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall")
     ap.add_argument("--hop", type=float, default=None, help="quality: the recogniser hop (LiveSettings' default)")
+    ap.add_argument("--past", type=float, default=None,
+                    help="quality: the recogniser's past context in s (LiveSettings' default)")
     ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
     args = ap.parse_args(argv)
