@@ -47,6 +47,15 @@ Issue 33 item 4, the live path against its targets (``figures``; each step write
   :func:`simulate` on ``--latency-minutes`` of the same speech; plus through the real server (aiohttp test server,
   in real time) on the shipped clips. Neither includes the network, the browser's 100 ms worklet messages or
   its rendering.
+* ``page``: the whole page, end to end: the live server (``dualtalker-lite live``, its own process) and the page
+  in headless Chromium, whose fake microphone plays ``--page-seconds`` of the same real speech
+  (``--use-fake-device-for-media-stream --use-file-for-fake-audio-capture``), at each ``--lookaheads``. Per frame
+  drawn: from its newest sample entering the page (the worklet's message time, less the samples after it) to the
+  animation callback that draws it (``dtlLive.shownLatencyMs``; the screen's next refresh, up to 17 ms, is not in
+  it); frames of the first 3 s (the page's playout delay adapting) are left out. Software WebGL draws only a few
+  frames a second on a busy 2-core machine (``draws_per_s``): each drawn frame is timed, the others are skipped
+  by the page as they would be on a slow screen. Needs chromium and playwright, as the
+  page's test does.
 * ``diagnose``: where the live path loses closures (:func:`fig_diagnose`): the offline track through the
   incremental decoder, and the live track through the offline decoder, on every ``--every``-th prompt.
 """
@@ -396,6 +405,75 @@ def fig_keepup(args) -> dict:
             "decoder_window": getattr(config.model.cfg, "decoder_window", None)}
 
 
+def fig_page(args) -> dict:
+    """The page's own latency in headless Chromium with a fake microphone (module docstring, ``page``)."""
+    import os
+    import shutil
+    import socket
+    import subprocess
+    import tempfile
+
+    import soundfile as sf
+    from playwright.sync_api import sync_playwright
+
+    exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        raise SystemExit("figures page: no chromium (apt-get install chromium, or set DTL_CHROMIUM)")
+    wave, _ = _speech(args.page_seconds / 60)
+    warm = 3 * 30                                          # frames: the playout delay adapts over the first 3 s
+    out = {"audio_s": len(wave) / 16000, "warm_up_frames_left_out": warm, "lookaheads": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        wav = Path(tmp) / "speech.wav"
+        sf.write(wav, wave, 16000, subtype="PCM_16")
+        for la in args.lookaheads:
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                port = s.getsockname()[1]
+            server = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.cli", "live", "--checkpoint",
+                                       str(args.checkpoint), "--port", str(port), "--lookahead-ms", str(la)],
+                                      cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                      env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"})
+            try:
+                for _ in range(600):                       # up to 60 s for the model to load
+                    try:
+                        socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
+                        break
+                    except OSError:
+                        if server.poll() is not None:
+                            raise SystemExit(f"figures page: the live server exited: {server.stderr.read()[-500:]}")
+                        time.sleep(0.1)
+                with sync_playwright() as p:
+                    browser = p.chromium.launch(executable_path=exe, args=[
+                        "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                        "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+                        f"--use-file-for-fake-audio-capture={wav}%noloop",
+                        "--autoplay-policy=no-user-gesture-required"])
+                    try:
+                        page = browser.new_page(viewport={"width": 800, "height": 600})
+                        page.goto(f"http://127.0.0.1:{port}/")
+                        page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)",
+                                               timeout=60000)
+                        page.click("button.start")
+                        page.wait_for_function("() => dtlLive.running", timeout=60000)
+                        n = int(len(wave) / 16000 * 30) - 30       # all but the last second's frames
+                        page.wait_for_function(f"() => dtlLive.shown >= {n}",
+                                               timeout=int(1000 * (2 * len(wave) / 16000 + 60)))
+                        lat = page.evaluate("() => dtlLive.shownLatencyMs")
+                    finally:
+                        browser.close()
+            finally:
+                server.terminate()
+                server.wait(timeout=30)
+            drawn = np.asarray(lat, float).reshape(-1, 2)                 # (frame, ms) per frame drawn
+            kept = drawn[drawn[:, 0] >= warm]
+            if len(kept) < 10:
+                raise SystemExit(f"figures page: only {len(kept)} frames drawn after the warm-up at look-ahead {la} ms")
+            out["lookaheads"][str(la)] = {"page": _lat(kept[:, 1] / 1000), "frames_drawn": len(drawn),
+                                          "draws_per_s": len(drawn) / (len(wave) / 16000)}
+            print(f"  look-ahead {la} ms: {out['lookaheads'][str(la)]}", flush=True)
+    return out
+
+
 def fig_latency(args) -> dict:
     from dualtalker_lite.audio import load_audio
     from dualtalker_lite.live.server import load_config
@@ -547,12 +625,13 @@ def figures(argv) -> None:
     import torch
 
     ap = argparse.ArgumentParser(prog="benchmarks/live.py figures")
-    ap.add_argument("step", choices=["quality", "keepup", "latency", "breakdown", "diagnose", "report"])
+    ap.add_argument("step", choices=["quality", "keepup", "latency", "breakdown", "diagnose", "page", "report"])
     ap.add_argument("--checkpoint", default="runs/live_dt.pt")
     ap.add_argument("--every", type=int, default=3, help="quality: every n-th real prompt")
     ap.add_argument("--lookaheads", type=int, nargs="+", default=[100, 200])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--latency-minutes", type=float, default=2.0)
+    ap.add_argument("--page-seconds", type=float, default=60.0, help="page: seconds of speech the fake microphone plays")
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall")
     ap.add_argument("--hop", type=float, default=None, help="quality: the recogniser hop (LiveSettings' default)")
     ap.add_argument("--past", type=float, default=None,
@@ -567,7 +646,7 @@ def figures(argv) -> None:
     t0, c0 = time.time(), time.process_time()
     stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))  # the code measured
     res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
-           "breakdown": fig_breakdown, "diagnose": fig_diagnose}[args.step](args)
+           "breakdown": fig_breakdown, "diagnose": fig_diagnose, "page": fig_page}[args.step](args)
     res["meta"] = {"command": stamp["command"], "commit": stamp["commit"], "machine": stamp["machine"],
                    "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
                    "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
@@ -578,7 +657,7 @@ def figures(argv) -> None:
     print(f"-> {path}")
 
 
-FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose")
+FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose", "page")
 
 
 def report(out: Path) -> None:

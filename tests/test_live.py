@@ -583,7 +583,7 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 page.wait_for_function(f"() => dtlLive.frames >= {n + 15}", timeout=60000)
                 page.screenshot(path=str(shots / "live_page.png"))
                 state = page.evaluate("() => [dtlLive.lip, dtlLive.latencyMs, dtlLive.shown, "
-                                      "document.querySelector('.latency').textContent]")
+                                      "document.querySelector('.latency').textContent, dtlLive.shownLatencyMs]")
                 second = page.evaluate("() => [dtlLive.avatarGap, dtlLive.avatarShown, dtlLive.avatar.rest.gap, "
                                        "dtlLive.visemes]")
                 page.click("button.start")                          # stop
@@ -606,12 +606,17 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 browser.close()
     finally:
         server.close()
-    lip, latency, shown, latency_text = state
+    lip, latency, shown, latency_text, drawn = state
     lip = np.array([np.nan if v is None else v for v in lip], float)
     assert np.isfinite(lip).all() and lip.std() > 0.2 * lip_off.std()   # the face moves
     corr, lag = _best_lag_corr(lip, lip_off)
     assert corr > 0.5, (corr, lag)
     assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
+    # the page times every frame it draws, from its newest sample's capture: never before the audio the frame needs
+    # has arrived (its look-ahead 200 ms + 20 ms spike lag + 100 ms spike window, less a frame's rounding)
+    drawn = np.array(drawn, float).reshape(-1, 2)                      # (frame, ms)
+    assert len(drawn) >= 3 and (np.diff(drawn[:, 0]) > 0).all() and drawn[-1, 0] <= shown
+    assert drawn[:, 1].min() > 320 - 34 and drawn[:, 1].max() < 60000, drawn[:, 1]
     # the second head: driven by the viseme curves alone, its lips part and close with the mesh's
     gap, drawn, rest_gap, received = second
     gap = np.array([np.nan if v is None else v for v in gap], float)

@@ -2,7 +2,9 @@
 // Everything is served by the dualtalker-lite live server (no other request is made). For tests and curious
 // users, window.dtlLive exposes the state: {ready, error, running, frames, lip, latencyMs, shown, samplesSent,
 // visemes (per frame: the 15 standard viseme weights), avatarGap (per frame: the second head's lip gap, as the
-// lip distance is per frame received), avatarShown (the gaps the second head was drawn with, in order)}.
+// lip distance is per frame received), avatarShown (the gaps the second head was drawn with, in order),
+// shownLatencyMs ([frame, ms] per frame drawn while running: from its newest sample's capture to its draw, the
+// page's whole latency but the screen's last refresh; benchmarks/live.py figures page reads it)}.
 // Left: the project's mesh (the model's vertices); right: a stylised head driven by the viseme curves (avatar.js).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
@@ -15,7 +17,7 @@ const latencyEl = root.querySelector('.latency'), statusEl = root.querySelector(
 const fileInput = root.querySelector('.file');
 const state = window.dtlLive = { ready: false, error: null, running: false, frames: 0, lip: [], latencyMs: null,
                                  shown: -1, samplesSent: 0, status: '', visemes: [], avatarGap: [],
-                                 avatarShown: [] };
+                                 avatarShown: [], shownLatencyMs: [] };
 const say = (text) => { statusEl.textContent = text; state.status = text; };
 
 try {
@@ -75,11 +77,18 @@ try {
     const a = 3 * lips[0], b = 3 * lips[1];
     return 1000 * Math.hypot(v[a] - v[b], v[a + 1] - v[b + 1], v[a + 2] - v[b + 2]);   // mm
   };
-  const sentTime = (sample) => {          // when the message holding this sample was sent (binary search)
+  const sentIndex = (sample) => {         // the message holding this sample (binary search), -1 if not sent yet
     let lo = 0, hi = sent.length - 1;
-    if (hi < 0 || sent[hi][0] < sample) return null;
+    if (hi < 0 || sent[hi][0] < sample) return -1;
     while (lo < hi) { const mid = (lo + hi) >> 1; if (sent[mid][0] >= sample) hi = mid; else lo = mid + 1; }
-    return sent[lo][1];
+    return lo;
+  };
+  const sentTime = (sample) => { const i = sentIndex(sample); return i < 0 ? null : sent[i][1]; };
+  // when a sample entered the page: its message left at sent[i][1], once the worklet had the message's last sample;
+  // the samples after it in that message came in at the context's rate since (the 16 kHz count of the stream)
+  const capturedAt = (sample) => {
+    const i = sentIndex(sample);
+    return i < 0 ? null : sent[i][1] - 1000 * (sent[i][0] - sample) / rate;
   };
   const onFrames = (buf) => {
     const head = new DataView(buf, 0, 12);
@@ -112,6 +121,8 @@ try {
     position.array.set(v); position.needsUpdate = true; geometry.computeVertexNormals();
     const w = pendingW.get(f);
     if (avatar && w) state.avatarShown.push(avatar.update(w).gap);
+    const captured = state.running ? capturedAt(Math.ceil((f + 1) / fps * rate)) : null;
+    if (captured !== null) state.shownLatencyMs.push([f, performance.now() - captured]);
     state.shown = f;
     for (const k of pending.keys()) if (k < f) pending.delete(k);
     for (const k of pendingW.keys()) if (k < f) pendingW.delete(k);
@@ -161,7 +172,7 @@ try {
   };
   const begin = async (makeSource, native = false) => {
     pending.clear(); pendingW.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = [];
-    state.frames = 0; state.visemes = []; state.avatarGap = []; state.avatarShown = [];
+    state.frames = 0; state.visemes = []; state.avatarGap = []; state.avatarShown = []; state.shownLatencyMs = [];
     state.samplesSent = 0; delay = info.latency_s;
     ctx = audioContext(native);
     state.contextRate = ctx.sampleRate;
