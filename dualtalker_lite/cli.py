@@ -242,6 +242,9 @@ def live_parser() -> argparse.ArgumentParser:
     ap.add_argument("--port", type=int, default=8765, help="port to listen on")
     ap.add_argument("--lookahead-ms", type=int, default=200,
                     help="recogniser look-ahead: more agrees better with the offline animation, costs latency")
+    ap.add_argument("--context-ms", type=int, default=2000,
+                    help="recogniser past context: more closes the lips more often (results/live.md), costs CPU and "
+                         "some latency (600: the cheaper setting before)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
     ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")

@@ -318,7 +318,8 @@ HELP_DEFAULTS = {"train": {"--model": "dualtalker", "--epochs": "45", "--seed": 
                  "generate": {"--speakers": "10", "--processes": "2", "--format": "faceformer"},
                  "convert-templates": {"--out": "beside the pickle"},
                  "prepare-dataset": {},
-                 "live": {"--port": "8765", "--host": "127.0.0.1", "--lookahead-ms": "200", "--speaker": "SPK01"}}
+                 "live": {"--port": "8765", "--host": "127.0.0.1", "--lookahead-ms": "200",
+                          "--context-ms": "2000", "--speaker": "SPK01"}}
 
 
 def option_help(text: str) -> dict[str, str]:
