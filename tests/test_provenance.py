@@ -31,8 +31,6 @@ FILES = sorted(p for p in [*RESULTS.glob("*"), *(RESULTS / "phonetic").glob("*")
                if p.suffix in (".md", ".json") and p.name != "README.md")
 # made from a dirty tree (or reusing runs of one) before issue 30; tools/rerun_results.sh re-makes each
 PENDING = {
-    "corrtalk.json": "4 ablation rows x 5 seeds computed at 1c4142d+dirty",
-    "corrtalk.md": "4 ablation rows x 5 seeds computed at 1c4142d+dirty",
     "emotion.json": "EmoFace's runs came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
     "emotion.md": "EmoFace's runs came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
     "emoface.json": "every run came from runs/emo_rerun/ (not committed) at b80cf16+dirty",

@@ -432,14 +432,16 @@ fig_a
 # `results/main.json` (CorrTalk next to the static template, VOCA-style, FaceFormer-style and DualTalker), both with
 # 5 seeds. A CorrTalk run trains 2-4 times as long as DualTalker's (`results/main.md`'s train column: 526 against
 # 131 wall seconds on a shared 2-core machine; `results/time_to_quality.md`: 264 against 153 CPU seconds, old recipe),
-# so `--reuse` takes over every run that was already computed: the Table III analogue's CorrTalk row from the main
-# table, and seeds 0-2 of its other rows from an earlier 3-seed version of the table. This section reads them; the
-# cell below checks that the files are the ones the commands quoted in it wrote.
+# so `--reuse` takes over every run that was already computed from a clean commit: the Table III analogue's
+# CorrTalk row comes from the main table, its other rows were computed by the command quoted below
+# (`tools/rerun_results.sh logmel-corrtalk`). This section reads them; the cell below checks that the files are the
+# ones the commands quoted in it wrote.
 
 # %%
 RESULTS = repo_root() / "results"
 RUN = "python -m dualtalker_lite.experiments --table {} --seeds {} --processes 2 --out results/ --reuse results/main.json"
-CT_COMMAND = RUN.format("corrtalk", "0 1 2 3 4") + " results/corrtalk.json --no-progress"  # + earlier seeds 0-2
+CT_COMMAND = (RUN.format("corrtalk", "0 1 2 3 4").replace(" --out", " --features logmel --out")
+              + " results/corrtalk.json --no-progress")
 MAIN_COMMAND = RUN.format("main", "0 1 2 3 4") + " --no-progress"              # 5 seeds
 ct_specs, ct_runs, ct_meta = experiments.load_table(RESULTS / "corrtalk.json")
 main_specs, main_runs, main_meta = experiments.load_table(RESULTS / "main.json")
