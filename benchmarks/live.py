@@ -638,11 +638,13 @@ def figures(argv) -> None:
                     help="quality: the recogniser's past context in s (LiveSettings' default)")
     ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
+    ap.add_argument("--keep-earlier", type=Path, default=None, help="report: keep this earlier report whole")
+    ap.add_argument("--earlier-key", default=None, help="report: the key it is kept under")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     FIG_DIR.mkdir(parents=True, exist_ok=True)
     if args.step == "report":
-        return report(args.out)
+        return report(args.out, args.keep_earlier, args.earlier_key)
     t0, c0 = time.time(), time.process_time()
     stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))  # the code measured
     res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
@@ -660,10 +662,16 @@ def figures(argv) -> None:
 FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose", "page")
 
 
-def report(out: Path) -> None:
+def report(out: Path, earlier: Path | None = None, key: str | None = None) -> None:
+    """Join the steps' files into ``out``.json; ``earlier``: a previous report kept whole under ``key`` (figures of
+    an older default that the page still quotes)."""
     parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in FIG_STEPS if (FIG_DIR / f"{k}.json").is_file()}
     out.parent.mkdir(parents=True, exist_ok=True)
-    parts["report"] = provenance("python benchmarks/live.py figures report")  # each step's stamp is in its meta
+    command = "python benchmarks/live.py figures report"
+    if earlier is not None:
+        parts[key or "earlier"] = json.loads(Path(earlier).read_text())
+        command += f" --keep-earlier {earlier} --earlier-key {key or 'earlier'}"
+    parts["report"] = provenance(command)  # each step's stamp is in its meta
     atomic_write_text(out.with_suffix(".json"), json.dumps(parts, indent=1))
     print(f"-> {out.with_suffix('.json')} ({', '.join(parts)})")
 
