@@ -34,7 +34,7 @@ __all__ = ["USER_ERRORS", "run_main", "main", "animate_main", "train_parser", "e
 TRAIN_EXAMPLE = """examples:
   dualtalker-lite train --model dualtalker --epochs 100 --out runs/my_model.pt   # phonetic route: any voice
   dualtalker-lite train --model dualtalker --features logmel --out runs/logmel.pt # the papers' acoustic input
-  dualtalker-lite train --model dualtalker --recipe fast --out runs/fast.pt      # the short recipe (12 epochs)
+  dualtalker-lite train --model dualtalker --recipe fast --out runs/fast.pt      # the short recipe (30 epochs)
   dualtalker-lite train --model emoface --epochs 12 --out runs/my_emoface.pt     # on the emotional pseudo-pairs
   dualtalker-lite train --model voca --epochs 1 --clips 16 --out runs/check.pt   # a quick check of the whole path
   dualtalker-lite train --model dualtalker --epochs 100 --out runs/my_model.pt --resume  # continue a killed run
@@ -144,11 +144,11 @@ def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
     ap.add_argument("--recipe", choices=("tiny", "fast"), default="tiny",
                     help="tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default); fast: the short recipe "
                          "(TrainConfig.fast: the motion head started at the training motion's principal components, "
-                         "lr 6e-3; dualtalker 12 epochs by default, faceformer 20; about the tiny recipe's quality on "
-                         "real voices at a third of the CPU time for dualtalker: results/time_to_quality.md; "
+                         "lr 6e-3; dualtalker 30 epochs by default, faceformer 40; closes more lips on real voices "
+                         "than the tiny recipe at less CPU time: results/time_to_quality_2core.md; "
                          "default: %(default)s)")
     ap.add_argument("--epochs", type=int, default=None,
-                    help="passes over the training clips (default: 45; with --recipe fast 12 for dualtalker, 20 for "
+                    help="passes over the training clips (default: 45; with --recipe fast 30 for dualtalker, 40 for "
                          "faceformer)")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "

@@ -58,7 +58,7 @@ def test_console_script_is_declared():
 
 def test_train_fast_recipe_starts_the_head_at_the_principal_components_at_twice_the_rate(tmp_path):
     """`train --recipe fast` (issue 31), as a real process: the checkpoint records TrainConfig.fast's settings
-    (written out here: lr 6e-3, 64 PCA components, 12 epochs unless --epochs), the tiny recipe's otherwise."""
+    (written out here: lr 6e-3, 64 PCA components, 30 epochs unless --epochs), the tiny recipe's otherwise."""
     import subprocess
     import sys
 

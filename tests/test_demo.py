@@ -63,7 +63,7 @@ def test_budget_notes_name_every_model_the_time_budget_cut_short():
     results = {"Static template": {"epochs": 0, "model_config": None, "train_config": {"epochs": 12}},
                "FaceFormer-style": {"epochs": 20, "model_config": {}, "train_config": {"epochs": 20}},
                "DualTalker": {"epochs": 7, "model_config": {}, "train_config": {"epochs": 12}}}
-    notes = budget_notes(results, budget=150.0)   # each model against its own recipe's epochs (fast: 20 and 12)
+    notes = budget_notes(results, budget=150.0)   # each model against its own recipe's epochs (here 20 and 12)
     assert list(notes) == ["DualTalker"]
     assert notes["DualTalker"].startswith("DualTalker stopped after 7 of 12 epochs: the --time-budget of 150 wall "
                                           "seconds ran out")
@@ -74,8 +74,8 @@ def test_budget_notes_name_every_model_the_time_budget_cut_short():
 
 
 def test_demo_trains_each_model_with_the_short_recipe_by_default():
-    """The demo's default recipe is TrainConfig.fast (issue 31): the runner assembles DualTalker with 12 epochs and
-    FaceFormer-style with 20 (FAST_EPOCHS, written out here), both at lr 6e-3 with 64 PCA components; the static
+    """The demo's default recipe is TrainConfig.fast (issue 31): the runner assembles DualTalker with 30 epochs and
+    FaceFormer-style with 40 (FAST_EPOCHS, written out here), both at lr 6e-3 with 64 PCA components; the static
     template trains nothing and takes the tiny recipe's settings; --recipe tiny gives 37 (TrainConfig.tiny) for both."""
     from dualtalker_lite import demo
     from dualtalker_lite.experiments import load_data, table_specs
@@ -89,6 +89,6 @@ def test_demo_trains_each_model_with_the_short_recipe_by_default():
         for recipe in ("fast", "tiny"):
             run = assemble_training(rows[row], data["train"], data["view"], epochs=None, recipe=recipe)
             got[label, recipe] = (run.train_config.epochs, run.train_config.lr, run.train_config.pca_init)
-    assert got["DualTalker", "fast"] == (12, 6e-3, 64) and got["FaceFormer-style", "fast"] == (20, 6e-3, 64)
+    assert got["DualTalker", "fast"] == (30, 6e-3, 64) and got["FaceFormer-style", "fast"] == (40, 6e-3, 64)
     assert got["DualTalker", "tiny"] == got["FaceFormer-style", "tiny"] == (37, 3e-3, 0)
     assert got["Static template", "fast"] == got["Static template", "tiny"]

@@ -435,13 +435,13 @@ def test_reuse_freed_memory_stops_the_page_faults_of_large_tensors():
 
 
 def test_fast_recipe_is_the_tiny_recipe_with_the_pca_head_at_twice_the_rate():
-    """TrainConfig.fast (issue 31): what results/time_to_quality.md measured (recipes D and F4), written out here."""
+    """TrainConfig.fast (issue 31): what results/time_to_quality_2core.md measured (recipes P30b, F40), written out."""
     from dataclasses import asdict
 
     tiny, fast, ff = asdict(TrainConfig.tiny()), asdict(TrainConfig.fast()), asdict(TrainConfig.fast("faceformer"))
     assert {k for k in tiny if tiny[k] != fast[k]} == {"epochs", "lr", "pca_init"}
-    assert (fast["epochs"], fast["lr"], fast["pca_init"]) == (12, 6e-3, 64)
-    assert (ff["epochs"], ff["lr"], ff["pca_init"]) == (20, 6e-3, 64)
+    assert (fast["epochs"], fast["lr"], fast["pca_init"]) == (30, 6e-3, 64)
+    assert (ff["epochs"], ff["lr"], ff["pca_init"]) == (40, 6e-3, 64)
     assert TrainConfig.fast(seed=3).seed == 3
     with pytest.raises(ValueError, match="no short recipe measured for model 'corrtalk'"):
         TrainConfig.fast("corrtalk")
