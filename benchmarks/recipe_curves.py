@@ -264,8 +264,8 @@ def report(runs: list[Path], out: Path) -> None:
                " / ".join(f"{p['real']['closure_1mm']:.2f}" for p in last)]
         lines.append("| " + " | ".join(row) + " |")
         summary[f"{model}/{name}"] = {"seeds": [j["seed"] for j in js], "last": last}
-    lines += ["", "Curves: `time_to_quality.png` (real-voice closure < 1 mm and test-A LVE against training CPU "
-              "seconds, one line per seed); every point in `time_to_quality.json`."]
+    lines += ["", f"Curves: `{out.stem}.png` (real-voice closure < 1 mm and test-A LVE against training CPU "
+              f"seconds, one line per seed); every point in `{out.stem}.json`."]
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, "\n".join(lines) + "\n")
     atomic_write_text(out.with_suffix(".json"), json.dumps({"made_by": made, "report": this, "runs": jobs}, indent=1))
