@@ -631,7 +631,8 @@ def figures(argv) -> None:
     ap.add_argument("--lookaheads", type=int, nargs="+", default=[100, 200])
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--latency-minutes", type=float, default=2.0)
-    ap.add_argument("--page-seconds", type=float, default=60.0, help="page: seconds of speech the fake microphone plays")
+    ap.add_argument("--page-seconds", type=float, default=60.0,
+                    help="page: seconds of speech the fake microphone plays")
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall")
     ap.add_argument("--hop", type=float, default=None, help="quality: the recogniser hop (LiveSettings' default)")
     ap.add_argument("--past", type=float, default=None,

@@ -28,8 +28,8 @@ head at twice the learning rate, 30 epochs for DualTalker and 40 for FaceFormer-
 one-thread CPU time on this project's 2-core machine; they close more real /p b m/ than the tables' 37-epoch
 ``--recipe tiny``, ``results/time_to_quality_2core.md``). To stay under four minutes on a busy machine, each model
 also stops once ``--time-budget`` wall seconds of training have passed (default 180 s; the learning-rate schedule
-then ends early with it); ``metrics.json`` records the recipe, the epochs asked for and actually trained and each model's
-training CPU seconds, and a model that the budget stopped before its recipe's last epoch is named in one
+then ends early with it); ``metrics.json`` records the recipe, the epochs asked for and actually trained and each
+model's training CPU seconds, and a model that the budget stopped before its recipe's last epoch is named in one
 ``warning:`` line on stderr and in ``metrics.json``'s ``truncated`` (:func:`budget_notes`): its lips may not close
 yet.
 """
