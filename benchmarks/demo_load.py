@@ -36,6 +36,13 @@ CHECKPOINTS = {"DualTalker": "dualtalker.pt", "FaceFormer-style": "faceformer.pt
 BUSY = "while True: pass"
 
 
+def demo_defaults():
+    """The demo's own option defaults (its --time-budget among them), as ``make demo`` runs it."""
+    from dualtalker_lite.demo import parse_args
+
+    return parse_args([])
+
+
 def run_demo(seed: int, out: Path, busy: int) -> dict:
     """One loaded demo run as a process -> its wall time, exit status, stderr warnings and the load it ran under."""
     hogs = [subprocess.Popen([sys.executable, "-c", BUSY]) for _ in range(busy)]
@@ -86,7 +93,7 @@ def report(rows: list[dict], stamp: dict, busy: int, path: Path) -> None:
              f"Made by `{stamp['command']}` at commit `{stamp['commit']}` on {machine_line(stamp['machine'])} "
              f"({stamp['created'][:10]}). Each seed: {busy} CPU-bound busy loop(s) at normal priority while the demo "
              f"(`python -m dualtalker_lite.demo`, its defaults: the short recipe `TrainConfig.fast`, "
-             f"`--time-budget 150`) runs as its own process; then both checkpoints on the 255 real prompts of "
+             f"`--time-budget {stamp['time_budget_s']:g}`) runs as its own process; then both checkpoints on the 255 real prompts of "
              f"`benchmarks/real_voices.py` (`recipe_curves.real_metrics`: the recogniser's frozen viseme tracks, "
              f"the rig driven by aligned phones as reference). Targets: demo <= {TARGETS['wall_s']:.0f} s wall, "
              f"no model stopped early, real closure < 2 / < 1 mm >= {TARGETS['closure_2mm']} / "
@@ -118,8 +125,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "demo_load")
     ap.add_argument("--report", type=Path, default=ROOT / "results" / "demo_load.md")
+    ap.add_argument("--render-only", action="store_true",
+                    help="write the page again from the report's JSON (its rows and stamp), running nothing")
     args = ap.parse_args(argv)
-    stamp = provenance("python benchmarks/demo_load.py " + shlex.join(argv))
+    if args.render_only:
+        saved = json.loads(args.report.with_suffix(".json").read_text())
+        rows, busy = saved.pop("rows"), saved.pop("busy")
+        saved.pop("targets")
+        saved.setdefault("time_budget_s", demo_defaults().time_budget)
+        return report(rows, saved, busy, args.report)
+    stamp = {**provenance("python benchmarks/demo_load.py " + shlex.join(argv)),
+             "time_budget_s": demo_defaults().time_budget}
     rows = []
     for seed in args.seeds:
         out = args.out / f"s{seed}"

@@ -144,7 +144,7 @@ def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
     ap.add_argument("--recipe", choices=("tiny", "fast"), default=None,
                     help="fast: the short recipe (TrainConfig.fast: the motion head started at the training motion's "
                          "principal components, lr 6e-3; dualtalker 30 epochs by default, faceformer 40; closes more "
-                         "lips on real voices than the tiny recipe at less CPU time: results/time_to_quality_2core.md); "
+                         "lips on real voices than the tiny recipe for less CPU: results/time_to_quality_2core.md); "
                          "tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default) (default: fast for the "
                          "models it was measured on, dualtalker and faceformer; tiny for the others)")
     ap.add_argument("--epochs", type=int, default=None,
@@ -234,15 +234,16 @@ def animate_parser() -> argparse.ArgumentParser:
 def live_parser() -> argparse.ArgumentParser:
     """``dualtalker-lite live``'s options (the command itself: :func:`dualtalker_lite.live.server.run`)."""
     from .live.server import __doc__ as live_doc
+    from .live.stream import LiveSettings
 
     ap = _new_parser("live", live_doc.splitlines()[0],
                      "example:\n  dualtalker-lite live --checkpoint runs/m.pt --port 8765")
     ap.add_argument("--checkpoint", required=True, help="a model trained on the viseme track (train's default)")
     ap.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1: this machine only)")
     ap.add_argument("--port", type=int, default=8765, help="port to listen on")
-    ap.add_argument("--lookahead-ms", type=int, default=200,
+    ap.add_argument("--lookahead-ms", type=int, default=round(LiveSettings.lookahead_s * 1000),
                     help="recogniser look-ahead: more agrees better with the offline animation, costs latency")
-    ap.add_argument("--context-ms", type=int, default=2000,
+    ap.add_argument("--context-ms", type=int, default=round(LiveSettings.past_s * 1000),
                     help="recogniser past context: more closes the lips more often (results/live.md), costs CPU and "
                          "some latency (600: the cheaper setting before)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")

@@ -113,7 +113,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
     p.add_argument("--recipe", choices=("fast", "tiny"), default="fast",
                    help="training recipe: fast (default, TrainConfig.fast: 30 epochs DualTalker, 40 FaceFormer-style) "
-                        "or tiny (the tables' TrainConfig.tiny, 37 epochs, about 3x the CPU time)")
+                        "or tiny (the tables' TrainConfig.tiny, 37 epochs: more CPU time, fewer closures on real voices)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per model, the same for both (default: the recipe's for each model)")
     p.add_argument("--time-budget", type=float, default=180.0,

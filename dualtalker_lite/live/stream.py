@@ -11,8 +11,9 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   ``lag_s`` earlier, as offline: :func:`~dualtalker_lite.recogniser.spike_track`), so it is final once the
   recogniser frames up to ``f / fps + lag_s + window_s`` are. Latency of the track: ``lookahead_s + lag_s +
   window_s`` (0.2 + 0.02 + 0.1 s by default) plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
-  audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (2 s past, 0.2 s
-  ahead, hops of 0.2 s) keep that below half a core (0.42 CPU s per s of audio). The past context is what the
+  audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (:class:`LiveSettings`:
+  2 s past, 0.2 s ahead, hops of 0.2 s) cost 0.42 CPU s per s of audio for the track and decoder, 0.69 with the
+  server's scheduling over 10 minutes (``results/live.md``): below real time on one core. The past context is what the
   streamed track gains most from: on the real-voice benchmark 0.6 s of it closed the lips (< 1 mm) at 0.78 of /p b m/,
   2 s at 0.82, 3 and 4 s no more, against the offline track's 0.87 (``results/live.md``, "More recogniser context").
 * :class:`IncrementalDecoder` -- the model's autoregressive step (its KV cache,
@@ -51,6 +52,21 @@ __all__ = ["StreamingVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "
 SAMPLE_RATE = 16000
 
 
+@dataclass
+class LiveSettings:
+    """What a live session trades: look-ahead (latency) against agreement with the offline animation, and past
+    context and hop against cost. Defaults measured in ``docs/live.md``."""
+    lookahead_s: float = 0.2      # recogniser look-ahead
+    past_s: float = 2.0           # recogniser context before the first frame not yet final (was 0.6, results/live.md)
+    hop_s: float = 0.2            # hama runs once per hop of new audio
+    past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
+    ahead_frames: int = 3         # audio-encoder look-ahead (mesh frames) after it
+
+    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
+        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
+        return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
+
+
 class StreamingVisemes:
     """Viseme class per mesh frame from 16 kHz audio given in pieces, with ``lookahead_s`` of look-ahead.
 
@@ -65,8 +81,8 @@ class StreamingVisemes:
     returned so far; ``recogniser_seconds`` is the time spent in hama (the cost).
     """
 
-    def __init__(self, front_end: RecogniserExtractor, lookahead_s: float = 0.2, past_s: float = 2.0,
-                 hop_s: float = 0.2):
+    def __init__(self, front_end: RecogniserExtractor, lookahead_s: float = LiveSettings.lookahead_s,
+                 past_s: float = LiveSettings.past_s, hop_s: float = LiveSettings.hop_s):
         if not 0 <= lookahead_s <= 2.0:
             raise ValueError(f"lookahead must be between 0 and 2000 ms, got {lookahead_s * 1000:g} ms")
         if not 0 <= past_s <= 10.0 or not 0.02 <= hop_s <= 2.0:
@@ -276,21 +292,6 @@ class IncrementalDecoder:
             self.feats, self.f0 = self.feats[drop:], self.f0 + drop
         self.model_seconds += time.perf_counter() - start_time
         return out
-
-
-@dataclass
-class LiveSettings:
-    """What a live session trades: look-ahead (latency) against agreement with the offline animation, and past
-    context and hop against cost. Defaults measured in ``docs/live.md``."""
-    lookahead_s: float = 0.2      # recogniser look-ahead
-    past_s: float = 2.0           # recogniser context before the first frame not yet final (was 0.6, results/live.md)
-    hop_s: float = 0.2            # hama runs once per hop of new audio
-    past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
-    ahead_frames: int = 3         # audio-encoder look-ahead (mesh frames) after it
-
-    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
-        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
-        return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
 
 
 class LiveSession:
