@@ -16,7 +16,8 @@ padded; ``logmel`` is the (T, 160) log-mel route of the tables before issue 19 (
    forward, loss, backward, optimiser (clip + Adam), and the profiler's top operators.
 4. The ratio measured step time / (FLOPs / GEMM throughput): how many times slower than pure matmul arithmetic.
 5. ``train()`` itself for ``--train-steps`` steps with the recipe (PCA-initialised head, lr 6e-3; a fresh model):
-   process CPU time per step with everything the loop does (collating, the CCRL kernel cache filling up, logging).
+   process CPU time per step with everything the loop does (collating, the CCRL kernel cache filling up, logging);
+   for DualTalker and FaceFormer-style again with ``basis_space=True`` (the step in the basis's k coordinates).
 
 Measure on a quiet machine if you can; CPU time (``time.process_time``) is less affected by other jobs than wall
 time, but a busy machine still slows each core (shared caches, memory bandwidth).
@@ -196,22 +197,25 @@ def main() -> None:
     say("\ntop operators over 5 steps (self CPU time):")
     say(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=14))
 
-    # 5. train() itself, as the recipe runs it
+    # 5. train() itself, as the recipe runs it: in vertex coordinates, then in the basis's (basis_space)
     if args.train_steps:
-        torch.manual_seed(0)
-        fresh, _ = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
-        cfg = TrainConfig.tiny(pca_init=64, lr=6e-3, epochs=1000, max_steps=args.train_steps, threads=args.threads,
-                               batch_size=bs, max_frames=crop, progress=False, weights=weights)
-        c0 = time.process_time()
-        hist = train(fresh, make_loader(train_set, bs, shuffle=True, seed=0), cfg)
-        setup = time.process_time() - c0 - hist.cpu_seconds[-1]
-        say(f"\ntrain() for {hist.steps[-1]} steps ({len(hist.steps)} epochs of {len(loader)}): "
-            f"{hist.cpu_seconds[-1] / hist.steps[-1] * 1e3:.1f} ms CPU per step, collating and the filling of the "
-            f"CCRL kernel cache included (+ {setup:.2f} s CPU before the first step: mean and PCA init)")
-        if len(hist.steps) > 1:
-            later = (hist.cpu_seconds[-1] - hist.cpu_seconds[0]) / (hist.steps[-1] - hist.steps[0])
-            say(f"  first epoch {hist.cpu_seconds[0] / hist.steps[0] * 1e3:.1f} ms per step, later epochs "
-                f"{later * 1e3:.1f} ms per step")
+        for basis_space in (False, True) if args.model in ("dualtalker", "faceformer") else (False,):
+            torch.manual_seed(0)
+            fresh, _ = build_model(spec, data["n_vertices"], audio_dim, data["n_speakers"])
+            cfg = TrainConfig.tiny(pca_init=64, lr=6e-3, epochs=1000, max_steps=args.train_steps,
+                                   threads=args.threads, batch_size=bs, max_frames=crop, progress=False,
+                                   weights=weights, basis_space=basis_space)
+            c0 = time.process_time()
+            hist = train(fresh, make_loader(train_set, bs, shuffle=True, seed=0), cfg)
+            setup = time.process_time() - c0 - hist.cpu_seconds[-1]
+            say(f"\ntrain(){' with basis_space=True' if basis_space else ''} for {hist.steps[-1]} steps "
+                f"({len(hist.steps)} epochs of {len(loader)}): {hist.cpu_seconds[-1] / hist.steps[-1] * 1e3:.1f} ms "
+                f"CPU per step, collating and the filling of the CCRL kernel cache included (+ {setup:.2f} s CPU "
+                "before the first step: mean and PCA init)")
+            if len(hist.steps) > 1:
+                later = (hist.cpu_seconds[-1] - hist.cpu_seconds[0]) / (hist.steps[-1] - hist.steps[0])
+                say(f"  first epoch {hist.cpu_seconds[0] / hist.steps[0] * 1e3:.1f} ms per step, later epochs "
+                    f"{later * 1e3:.1f} ms per step")
     if args.out is not None:
         figures = {"model": ROWS[args.model], "features": args.features, "threads": args.threads,
                    "steps": args.steps, "batch_size": bs, "max_frames": crop, "step_cpu_ms": cpu * 1e3, "step_wall_ms": wall * 1e3,

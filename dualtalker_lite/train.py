@@ -35,7 +35,7 @@ from .models.contract import hook
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "History", "lr_factor", "mean_motion", "loss_weights",
-           "model_loss", "motion_basis", "reuse_freed_memory", "train", "training_state", "predict", "validation_lve",
+           "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state", "predict", "validation_lve",
            "save_checkpoint", "load_checkpoint"]
 
 
@@ -58,6 +58,9 @@ class TrainConfig:
     mean_init: bool = False            # model.init_output_bias(mean training motion) (and init_from_data(data)) first
     pca_init: int = 0                  # k > 0: model.init_output_basis(top-k principal directions of the training
                                        # motion, scaled by their std; VOCA's output-layer init) first; 0: off
+    basis_space: bool = False          # with pca_init: train the motion head and encoder in the span of those k
+                                       # directions, the batch in k coordinates (basis_batch): the same loss up to a
+                                       # constant, about half the step's CPU time (MotionDecoder.set_motion_basis)
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
@@ -72,6 +75,8 @@ class TrainConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
         if not self.lr > 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
+        if self.basis_space and not self.pca_init:
+            raise ValueError("basis_space trains in the span of the pca_init basis: set pca_init (e.g. 64) too")
 
     @classmethod
     def tiny(cls, **kw) -> "TrainConfig":
@@ -254,6 +259,8 @@ def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=Non
         return _train(model, train_loader, cfg, val_loader, lip_idx, on_epoch, checkpoint_every, on_checkpoint,
                       resume)
     finally:
+        if cfg.basis_space and callable(clear := hook(model, "set_motion_basis")):
+            clear(None)  # the model leaves train() a plain one (its weights projected into the basis's span)
         torch.set_num_threads(threads_before)
 
 
@@ -373,6 +380,18 @@ def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.T
     return (v[:, :k].T * std[:, None]).float()  # (k, V*3)
 
 
+def basis_batch(batch: dict, basis: torch.Tensor) -> dict:
+    r"""A batch in basis coordinates for a model training in the span of ``basis`` (k, V*3), rows orthonormal
+    (``TrainConfig.basis_space``): "vertices" (B, T, V*3) -> z = a P (vertices - template) (B, T, k) with
+    a = \sqrt{k / 3V}, "template" -> zeros (B, k), and "basis_k" = k (so ``blocks.decoder.training_inputs`` checks
+    k coordinates per frame). A mean over the k coordinates then equals a mean over the 3V coordinates of the
+    motion's projection (:meth:`MotionDecoder.set_motion_basis`). Padded frames may hold anything, as before."""
+    k, v3 = basis.shape
+    motion = batch["vertices"] - batch["template"][:, None, :]  # (B, T, V*3)
+    z = (motion @ basis.T.to(motion)) * (k / v3) ** 0.5  # (B, T, k)
+    return {**batch, "vertices": z, "template": z.new_zeros(z.shape[0], k), "basis_k": k}
+
+
 def _generators(train_loader) -> dict[str, torch.Generator]:
     """The loader's and its dataset's own torch generators (shuffle order; crops, pseudo-pair partners)."""
     gens = {}
@@ -432,11 +451,16 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     init = hook(model, "init_output_bias")
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
-    init_basis = hook(model, "init_output_basis")
+    init_basis, basis = hook(model, "init_output_basis"), None
+    set_basis, project = hook(model, "set_motion_basis"), hook(model, "project_motion_basis")
     if cfg.pca_init:
         if not callable(init_basis):
             raise TypeError(f"TrainConfig.pca_init: {type(model).__name__} has no init_output_basis(basis)")
-        init_basis(motion_basis(getattr(train_loader, "dataset", train_loader), cfg.pca_init, seed=cfg.seed))
+        if cfg.basis_space and not (callable(set_basis) and callable(project)):
+            raise TypeError(f"TrainConfig.basis_space: {type(model).__name__} has no set_motion_basis(basis) and "
+                            "project_motion_basis() (models with one MotionDecoder: dualtalker, faceformer)")
+        basis = motion_basis(getattr(train_loader, "dataset", train_loader), cfg.pca_init, seed=cfg.seed)
+        init_basis(basis)
     init_data = hook(model, "init_from_data")  # e.g. CorrTalk's FAI-initialised mask
     if cfg.mean_init and callable(init_data):
         init_data(getattr(train_loader, "dataset", train_loader))
@@ -455,6 +479,11 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
         hist = History(**{k: list(v) for k, v in resume["history"].items()})
         first, step, used = int(resume["epoch"]), int(resume["step"]), float(resume["used"])
         t0, c0 = t0 - float(resume["wall"]), c0 - float(resume["cpu"])
+    if cfg.basis_space:  # after any resumed weights: they are projected (a no-op for weights saved this way)
+        set_basis(basis.to(cfg.device))  # train() clears it when training ends, however it ends
+        basis = (basis / basis.norm(dim=1, keepdim=True)).to(cfg.device)  # (k, V*3) orthonormal, for basis_batch
+    else:
+        basis = None
     validate = val_loader is not None and lip_idx is not None and cfg.validate_every != 0
     bar = tqdm(range(first, cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
     set_epoch = hook(model, "set_epoch")  # epoch-dependent models (EmoFace's self-growing schedule)
@@ -468,6 +497,8 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
             for group in opt.param_groups:
                 group["lr"] = cfg.lr * lr_factor(step, cfg.warmup_steps, cfg.decay, used, cfg.min_lr_ratio)
             batch = _to_device(_crop(batch, cfg.max_frames, gen), torch.device(cfg.device))
+            if basis is not None:
+                batch = basis_batch(batch, basis)  # (B, T, k) coordinates
             out = model(batch)
             total, terms = model_loss(model, out, batch, weights)
             _guard_finite(total, "loss", epoch, n_steps, batch)
@@ -476,6 +507,8 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
             grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip or math.inf, foreach=True)
             _guard_finite(grad_norm, "gradient norm", epoch, n_steps, batch)
             opt.step()
+            if basis is not None:
+                project()
             for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + float(v)
             n_steps += 1

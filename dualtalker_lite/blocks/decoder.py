@@ -69,10 +69,11 @@ class TransposedLinear(nn.Module):
 
 
 def check_inputs(n_vertices: int, audio_dim: int, audio: Tensor, template: Tensor, speaker: Tensor,
-                 vertices: Tensor | None = None) -> None:
+                 vertices: Tensor | None = None, width: int | None = None) -> None:
     """Raise one ValueError line naming expected vs got for inputs of the wrong shape: A (B, T, D_a), template
-    h (B, V*3), speaker (B,), ground-truth vertices (B, T, V*3)."""
-    v3 = 3 * n_vertices
+    h (B, V*3), speaker (B,), ground-truth vertices (B, T, V*3). ``width``: the coordinates per frame when not V*3
+    (a batch in basis coordinates, ``train.basis_batch``)."""
+    v3 = width or 3 * n_vertices
     if audio.dim() != 3 or audio.shape[-1] != audio_dim:
         raise ValueError(f"audio: expected (B, T, {audio_dim}) features, got {tuple(audio.shape)}")
     b, t = audio.shape[:2]
@@ -90,7 +91,7 @@ def training_inputs(batch: dict, n_vertices: int, audio_dim: int) -> tuple[Tenso
     """A training batch checked (:func:`check_inputs`) -> (A (B, T, D_a), M = vertices - template (B, T, V*3), mask)
     with padded frames zeroed: padding may hold anything (even NaN), and must stay out of every product."""
     audio, vertices, template = batch["audio"], batch["vertices"], batch["template"]
-    check_inputs(n_vertices, audio_dim, audio, template, batch["speaker"], vertices)
+    check_inputs(n_vertices, audio_dim, audio, template, batch["speaker"], vertices, width=batch.get("basis_k"))
     mask = batch.get("mask")
     motion = vertices - template[:, None, :]  # (B, T, V*3) M_{1:T}
     return zero_padding(audio, mask), zero_padding(motion, mask), mask
@@ -154,6 +155,8 @@ class MotionDecoder(nn.Module):
             self.motion_decoder = nn.Linear(d, v3)  # d -> V*3, zero: first prediction = template
             nn.init.zeros_(self.motion_decoder.weight)
             nn.init.zeros_(self.motion_decoder.bias)
+        self._basis: Tensor | None = None  # (k, V*3) orthonormal rows while training in a basis (set_motion_basis)
+        self._bias_rest: Tensor | None = None  # (V*3,) the head bias outside the basis, kept as it was
 
     # ---- pieces ---------------------------------------------------------------------------------------------
     def speaker_style(self, speaker: Tensor) -> Tensor:
@@ -164,16 +167,85 @@ class MotionDecoder(nn.Module):
 
     def encode_motion(self, motion: Tensor) -> Tensor:
         """Me on displacements in metres, scaled to mm: (..., V*3) -> (..., d). Me(s m) = (s W) m + b: the scale
-        goes on the (d, V*3) weight instead of the larger motion tensor (same values and gradients)."""
+        goes on the (d, V*3) weight instead of the larger motion tensor (same values and gradients).
+
+        While training in a basis (:meth:`set_motion_basis`, train mode): (..., k) basis coordinates z = a P m in,
+        Me(m) = (s W P^T / a) z + b, which is Me of the motion's projection P^T P m (see :meth:`set_motion_basis`)."""
         enc = self.motion_encoder
+        if self._in_basis():
+            return F.linear(motion, (enc.weight @ self._basis.T) * (self.motion_scale / self._basis_scale()),
+                            enc.bias)  # (..., d) from (..., k)
         return F.linear(motion, enc.weight * self.motion_scale, enc.bias)
 
     def decode_motion(self, h: Tensor) -> Tensor:
-        """Motion head back to displacements in metres: (..., d) -> (..., V*3) (scale folded into the weights)."""
+        """Motion head back to displacements in metres: (..., d) -> (..., V*3) (scale folded into the weights).
+
+        While training in a basis (train mode): -> (..., k) basis coordinates a P (W h + b) / s of the head's
+        output (:meth:`set_motion_basis`)."""
         dec, s = self.motion_decoder, self.motion_scale
+        if self._in_basis():
+            c = self._basis_scale() / s
+            return F.linear(h, (self._basis @ dec.weight) * c, (self._basis @ dec.bias) * c)  # (..., k)
         if isinstance(dec, nn.Linear):
             return F.linear(h, dec.weight / s, dec.bias / s)
         return dec(h) / s
+
+    # ---- training in the span of a motion basis (TrainConfig.basis_space) ---------------------------------------
+    @torch.no_grad()
+    def set_motion_basis(self, basis: Tensor | None) -> None:
+        r"""Train in the span of ``basis`` (k, V*3), rows orthogonal (``train.motion_basis``; each row is normalised
+        here), or stop (None). A speed-up of the training step, not a change of the objective:
+
+            the motion head and the motion encoder are kept in the span:  W <- Π W,  b <- Π b + b_rest,
+            Me's W_e <- W_e Π, with Π = P^T P the projector on the k directions (now and after every optimiser
+            step, :meth:`project_motion_basis`) and b_rest the head bias outside the span when the basis was set
+            (the training set's mean motion's rest, after ``init_output_bias``);
+            in train mode the decoder then reads and writes k basis coordinates z = a P m, a = \sqrt{k / 3V},
+            instead of V*3 coordinates (``train.basis_batch`` makes the batch's): for a head in the span,
+            rac{1}{3V} \|\hat m - m\|^2 = rac{1}{k} \|\hat z - z\|^2 + rac{1}{3V} \|(I - Π)(b_rest - m)\|^2,
+            so a model's MSE on the k coordinates differs from its vertex MSE by a constant (the ground truth's
+            motion outside the basis: below 0.1 mm for 17 of 64 directions on the sample corpus), the gradients are
+            the vertex loss's, and a frame-distance kernel with the mean distance (CCRL's) is unchanged up to that
+            rest. The four (B, T, V*3)-sized matrix products of a step (encoder forward and weight gradient, head
+            forward and both gradients) and the loss's passes over V*3 coordinates become k-sized.
+
+        What it restricts: the head's output and what the encoder reads stay in the basis's span (k <= d already
+        bounds the head's rank); eval mode (generation, validation) uses the plain, projected weights, so a model
+        trained this way saves, loads and generates as any other. The tied head (``tie_output``) cannot."""
+        if basis is None:
+            self._basis = self._bias_rest = None
+            return
+        head = self.motion_decoder
+        if not isinstance(head, nn.Linear):
+            raise ValueError("set_motion_basis: the motion head is tied to the motion encoder (tie_output)")
+        if basis.dim() != 2 or basis.shape[1] != 3 * self.n_vertices or not 1 <= basis.shape[0] <= basis.shape[1]:
+            raise ValueError(f"basis: expected shape (k, {3 * self.n_vertices}) with 1 <= k, got {tuple(basis.shape)}")
+        p = basis.to(head.weight) / basis.norm(dim=1, keepdim=True).clamp(min=1e-12).to(head.weight)  # (k, V*3)
+        gram = p @ p.T
+        if not torch.allclose(gram, torch.eye(len(p), dtype=p.dtype, device=p.device), atol=1e-4):
+            raise ValueError("basis: its rows must be orthogonal (principal directions, train.motion_basis)")
+        self._basis = p
+        self._bias_rest = head.bias - p.T @ (p @ head.bias)  # (V*3,) mm
+        self.project_motion_basis()
+
+    @torch.no_grad()
+    def project_motion_basis(self) -> None:
+        """Put the head and the encoder back into the basis's span (after each optimiser step: Adam's per-element
+        steps leave it): W <- P^T P W, b <- P^T P b + b_rest, W_e <- W_e P^T P. No-op without a basis."""
+        p = self._basis
+        if p is None:
+            return
+        head, enc = self.motion_decoder, self.motion_encoder.weight
+        head.weight.copy_(p.T @ (p @ head.weight))  # (V*3, d)
+        head.bias.copy_(p.T @ (p @ head.bias) + self._bias_rest)  # (V*3,)
+        enc.copy_((enc @ p.T) @ p)  # (d, V*3)
+
+    def _in_basis(self) -> bool:
+        return self._basis is not None and self.training
+
+    def _basis_scale(self) -> float:
+        """a = sqrt(k / 3V): a mean over k basis coordinates then equals a mean over the 3V vertex coordinates."""
+        return (self._basis.shape[0] / self._basis.shape[1]) ** 0.5
 
     def stream(self, features: Tensor, style: Tensor) -> Tensor:
         """The past of eq. 1, shifted right: [S_n, f_1, ..., f_{T-1}] (+ S_n on every f_t, FaceFormer) -> (B, T, d)."""

@@ -56,6 +56,10 @@ HOOKS: dict[str, tuple[Any, str]] = {
                                "mean motion (TrainConfig.mean_init)"),
     "init_output_basis": (None, "init_output_basis(basis (k, V*3)): PCA-initialised output head "
                                 "(TrainConfig.pca_init; a model without it refuses pca_init)"),
+    "set_motion_basis": (None, "set_motion_basis(basis (k, V*3) | None): train the motion head and encoder in the "
+                               "span of the basis, the batch in k coordinates (TrainConfig.basis_space; a model "
+                               "without it refuses basis_space)"),
+    "project_motion_basis": (None, "project_motion_basis(): back into that span after each optimiser step"),
     "init_from_data": (None, "init_from_data(dataset): any other data-dependent initialisation before the first "
                              "step (CorrTalk's FAI mask, EmoFace's emotion statistics); runs with mean_init"),
     "set_epoch": (None, "set_epoch(epoch, n_epochs): called at the start of every epoch (EmoFace's self-growing "

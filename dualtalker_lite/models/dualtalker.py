@@ -196,6 +196,15 @@ class DualTalker(nn.Module):
         training motion's principal directions (k, V*3) (:meth:`MotionDecoder.init_output_basis`)."""
         self.decoder.init_output_basis(basis)
 
+    def set_motion_basis(self, basis: Tensor | None) -> None:
+        """Train the motion head and encoder in the span of ``basis`` (k, V*3), or stop (None): a cheaper step, the
+        same loss up to a constant (``TrainConfig.basis_space``, :meth:`MotionDecoder.set_motion_basis`)."""
+        self.decoder.set_motion_basis(basis)
+
+    def project_motion_basis(self) -> None:
+        """Back into the basis's span after an optimiser step (:meth:`MotionDecoder.project_motion_basis`)."""
+        self.decoder.project_motion_basis()
+
     def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
         """The joint loss of section III-F, λ1 L_primal + λ2 L_dual + λ3 L_DR + λ4 L_CCRL (``losses.joint_loss``)
         on :meth:`forward`'s output -> (total, detached terms). The training loop calls this, not the loss module.
@@ -214,7 +223,7 @@ class DualTalker(nn.Module):
     @torch.no_grad()
     def kernel_weights(self, batch: dict, weights: LossWeights) -> Tensor | None:
         """CCRL's w_{k,t} (``losses.rbf_kernel_weights``) for a batch, assembled from per-clip matrices computed
-        once per (clip, crop offset, valid length, bandwidth, distance) -> (B, T, T), or None when the batch has
+        once per (clip, crop offset, valid length, bandwidth, distance, coordinates) -> (B, T, T), or None when the batch has
         no clip names or a mask that is not a valid prefix (then the loss computes it). Each clip's matrix is what
         the batched function gives for that clip (the median heuristic is per sequence), so the loss is unchanged."""
         mask, names = batch.get("mask"), batch.get("name")
@@ -231,7 +240,7 @@ class DualTalker(nn.Module):
         start = int(batch.get("crop_start", 0))
         for i, name in enumerate(names):
             n = int(lengths[i])
-            key = (name, start, n, weights.bandwidth, weights.kernel_distance)
+            key = (name, start, n, weights.bandwidth, weights.kernel_distance, batch["vertices"].shape[-1])
             k = cache.get(key)
             if k is None:
                 motion = (batch["vertices"][i, :n] - batch["template"][i])[None]  # (1, n, V*3)

@@ -129,6 +129,15 @@ class FaceFormer(nn.Module):
         """Motion head weights = the training motion's principal directions (k, V*3), metres (VOCA's init)."""
         self.decoder.init_output_basis(basis)
 
+    def set_motion_basis(self, basis: Tensor | None) -> None:
+        """Train the motion head and encoder in the span of ``basis`` (k, V*3), or stop (None): a cheaper step, the
+        same loss up to a constant (``TrainConfig.basis_space``, :meth:`MotionDecoder.set_motion_basis`)."""
+        self.decoder.set_motion_basis(basis)
+
+    def project_motion_basis(self) -> None:
+        """Back into the basis's span after an optimiser step (:meth:`MotionDecoder.project_motion_basis`)."""
+        self.decoder.project_motion_basis()
+
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
                  mask: Tensor | None = None, window: int | None | str = "config") -> Tensor:
