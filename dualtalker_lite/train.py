@@ -445,6 +445,10 @@ def _restore(state: dict, model, opt, crop_gen: torch.Generator, train_loader) -
 
 def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx, on_epoch,
            checkpoint_every: int = 0, on_checkpoint=None, resume: dict | None = None) -> History:
+    set_basis, project = hook(model, "set_motion_basis"), hook(model, "project_motion_basis")
+    if cfg.basis_space and not (callable(set_basis) and callable(project)):  # before anything changes the model
+        raise TypeError(f"TrainConfig.basis_space: {type(model).__name__} has no set_motion_basis(basis) and "
+                        "project_motion_basis() (models with one MotionDecoder: dualtalker, faceformer)")
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
@@ -452,13 +456,9 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
         init(mean_motion(getattr(train_loader, "dataset", train_loader)))
     init_basis, basis = hook(model, "init_output_basis"), None
-    set_basis, project = hook(model, "set_motion_basis"), hook(model, "project_motion_basis")
     if cfg.pca_init:
         if not callable(init_basis):
             raise TypeError(f"TrainConfig.pca_init: {type(model).__name__} has no init_output_basis(basis)")
-        if cfg.basis_space and not (callable(set_basis) and callable(project)):
-            raise TypeError(f"TrainConfig.basis_space: {type(model).__name__} has no set_motion_basis(basis) and "
-                            "project_motion_basis() (models with one MotionDecoder: dualtalker, faceformer)")
         basis = motion_basis(getattr(train_loader, "dataset", train_loader), cfg.pca_init, seed=cfg.seed)
         init_basis(basis)
     init_data = hook(model, "init_from_data")  # e.g. CorrTalk's FAI-initialised mask

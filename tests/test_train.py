@@ -12,8 +12,8 @@ from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
 from dualtalker_lite.losses import LossWeights
 from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.train import (TrainConfig, load_checkpoint, predict, reuse_freed_memory, save_checkpoint, train,
-                                   validation_lve)
+from dualtalker_lite.train import (TrainConfig, load_checkpoint, motion_basis, predict, reuse_freed_memory,
+                                   save_checkpoint, train, validation_lve)
 
 
 @pytest.fixture(scope="module")
@@ -445,3 +445,140 @@ def test_fast_recipe_is_the_tiny_recipe_with_the_pca_head_at_twice_the_rate():
     assert TrainConfig.fast(seed=3).seed == 3
     with pytest.raises(ValueError, match="no short recipe measured for model 'corrtalk'"):
         TrainConfig.fast("corrtalk")
+
+
+# ---- basis_space: the step in k basis coordinates (issue 31) ------------------------------------------------------
+def test_set_motion_basis_projects_the_head_and_the_encoder_by_hand():
+    """V = 2 (6 coordinates), basis rows e_0 and (e_1 + e_2)/sqrt(2) (given unnormalised: x3): the projector keeps
+    coordinate 0 and the mean of coordinates 1 and 2, drops 3-5. Head weight/bias and encoder weight by hand."""
+    from dualtalker_lite.blocks.decoder import MotionDecoder
+
+    dec = MotionDecoder(2, 4, 2, 8, motion_scale=1.0)
+    with torch.no_grad():
+        dec.motion_decoder.weight.copy_(torch.arange(24.0).reshape(6, 4))  # row i = coordinate i
+        dec.motion_decoder.bias.copy_(torch.tensor([1.0, 2.0, 4.0, 5.0, 6.0, 7.0]))
+        dec.motion_encoder.weight.copy_(torch.arange(24.0).reshape(4, 6))  # column j = coordinate j
+    basis = torch.tensor([[3.0, 0, 0, 0, 0, 0], [0, 3.0, 3.0, 0, 0, 0]])
+    dec.set_motion_basis(basis)
+    w = torch.arange(24.0).reshape(6, 4)
+    want_w = torch.stack([w[0], (w[1] + w[2]) / 2, (w[1] + w[2]) / 2, 0 * w[0], 0 * w[0], 0 * w[0]])
+    torch.testing.assert_close(dec.motion_decoder.weight, want_w)
+    # the bias: its part in the span (1; 3, 3) plus its rest when the basis was set (0; -1, 1; 5, 6, 7) = itself
+    torch.testing.assert_close(dec.motion_decoder.bias, torch.tensor([1.0, 2.0, 4.0, 5.0, 6.0, 7.0]))
+    e = torch.arange(24.0).reshape(4, 6)
+    want_e = torch.stack([e[:, 0], (e[:, 1] + e[:, 2]) / 2, (e[:, 1] + e[:, 2]) / 2] + [0 * e[:, 0]] * 3, dim=1)
+    torch.testing.assert_close(dec.motion_encoder.weight, want_e)
+    # after a step moves the bias everywhere, projecting keeps its rest as it was set: (1+9; 3+9, 3+9) + rest
+    with torch.no_grad():
+        dec.motion_decoder.bias.add_(9.0)
+    dec.project_motion_basis()
+    torch.testing.assert_close(dec.motion_decoder.bias, torch.tensor([10.0, 11.0, 13.0, 5.0, 6.0, 7.0]))
+    # train mode speaks k coordinates, a = sqrt(2 / 6): z = a P (W h + b) / s, with P's rows normalised
+    dec.train()
+    h = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
+    out = dec.decode_motion(h)  # W h = column 0 of W: (0, 6, 6, 0, 0, 0) after projection (rows 1, 2: (4+8)/2)
+    a = (2 / 6) ** 0.5
+    torch.testing.assert_close(out, a * torch.tensor([[0.0 + 10.0, (6 + 6 + 11 + 13) / 2 ** 0.5]]))
+    z = torch.tensor([[2.0, 1.0]])  # motion a^-1 (2 e_0 + (e_1 + e_2)/sqrt 2)
+    m = (2 * torch.eye(6)[0] + (torch.eye(6)[1] + torch.eye(6)[2]) / 2 ** 0.5) / a
+    torch.testing.assert_close(dec.encode_motion(z), (dec.motion_encoder.weight @ m + dec.motion_encoder.bias)[None])
+    dec.eval()  # eval mode: vertex coordinates, the plain (projected) weights
+    torch.testing.assert_close(dec.decode_motion(h), (dec.motion_decoder.weight @ h[0] + dec.motion_decoder.bias)[None])
+    with pytest.raises(ValueError, match="rows must be orthogonal"):
+        dec.set_motion_basis(torch.tensor([[1.0, 0, 0, 0, 0, 0], [1.0, 1.0, 0, 0, 0, 0]]))
+    with pytest.raises(ValueError, match=r"expected shape \(k, 6\)"):
+        dec.set_motion_basis(torch.ones(2, 5))
+    dec.set_motion_basis(None)
+    dec.train()
+    assert dec.decode_motion(h).shape == (1, 6)  # no basis: vertex coordinates in train mode too
+
+
+@pytest.mark.parametrize("kind", ["dualtalker", "faceformer"])
+def test_the_basis_step_is_the_vertex_loss_less_a_constant_with_the_same_gradients(kind):
+    """For a model whose head and encoder lie in the span (set_motion_basis projects them): the loss on basis_batch's
+    k coordinates = the vertex loss - (s^2 / (N 3V)) sum ||(I - P^T P)(b_rest - m)||^2 over valid frames (written
+    here from the printed identity), and every gradient = the vertex loss's gradient of the projected model
+    (head and encoder gradients projected; the others equal)."""
+    from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
+    from dualtalker_lite.train import basis_batch
+
+    nv, b, t, k = 40, 3, 16, 6
+    g = torch.Generator().manual_seed(0)
+    p = torch.linalg.qr(torch.randn(3 * nv, k, generator=g, dtype=torch.float64))[0].T.float()  # (k, 3V)
+    template = torch.randn(b, 3 * nv, generator=g) * 0.01
+    verts = template[:, None] + (torch.randn(b, t, k, generator=g) * 1e-3) @ p \
+        + torch.randn(b, t, 3 * nv, generator=g) * 2e-5  # motion mostly in the span, some rest
+    mask = torch.ones(b, t, dtype=torch.bool)
+    mask[1, 11:] = False
+    verts[1, 11:] = float("nan")  # padding may hold anything
+    batch = {"audio": torch.randn(b, t, 15, generator=g), "vertices": verts, "template": template,
+             "speaker": torch.tensor([0, 1, 2]), "mask": mask, "name": ["a", "b", "c"]}
+    torch.manual_seed(1)
+    if kind == "dualtalker":
+        model = DualTalker(DualTalkerConfig.tiny(n_vertices=nv, audio_dim=15, n_speakers=4, motion_dropout=0.0))
+        weights = LossWeights()
+    else:
+        model = FaceFormer(FaceFormerConfig.tiny(n_vertices=nv, audio_dim=15, n_speakers=4, motion_dropout=0.0))
+        weights = None
+    model.init_output_bias(torch.randn(3 * nv, generator=g) * 1e-3)
+    model.init_output_basis(p * 1e-3)
+    model.set_motion_basis(p)  # projects the encoder (the head and the bias's span part are already in it)
+    model.set_motion_basis(None)
+    model.train()
+
+    def loss_and_grads(bt):
+        torch.manual_seed(5)  # the same dropout draws
+        total, terms = model.loss(model(bt), bt, weights)
+        model.zero_grad()
+        total.backward()
+        return terms, {n: q.grad.clone() for n, q in model.named_parameters() if q.grad is not None}
+
+    terms_v, grads_v = loss_and_grads(batch)
+    rest = model.decoder.motion_decoder.bias.detach() / 1000.0  # metres: the bias is (its span part + its rest)
+    model.set_motion_basis(p)
+    terms_k, grads_k = loss_and_grads(basis_batch(batch, p))
+    proj = torch.eye(3 * nv) - p.T @ p
+    m = (verts - template[:, None])[mask]  # (N, 3V) valid frames
+    constant = ((m - rest) @ proj).square().sum() * 1000.0 ** 2 / (m.shape[0] * 3 * nv)
+    torch.testing.assert_close(terms_v["primal"] - terms_k["primal"], constant, rtol=2e-4, atol=1e-6)
+    for name in set(terms_v) - {"primal", "total"}:
+        torch.testing.assert_close(terms_v[name], terms_k[name], rtol=1e-4, atol=1e-6)
+    for name, gv in grads_v.items():
+        if name.endswith("motion_decoder.weight") or name.endswith("motion_decoder.bias"):
+            gv = p.T @ (p @ gv)
+        elif name.endswith("motion_encoder.weight"):
+            gv = (gv @ p.T) @ p
+        elif name.endswith("k_proj.bias"):  # softmax ignores a key bias: both ~0, rounding only
+            continue
+        err = float((grads_k[name] - gv).norm() / gv.norm().clamp(min=1e-12))  # float32 rounding: ~1e-5 here
+        assert err < 1e-3, (name, err)
+
+
+def test_train_in_the_basis_learns_leaves_a_plain_projected_model_and_is_reproducible(data):
+    corpus, train_set, val_set = data
+    before = _primal_on(_model(corpus), train_set)
+    model, hist = _run(corpus, train_set, val_set, epochs=10, pca_init=16, lr=6e-3, basis_space=True,
+                       validate_every=5)
+    assert model.decoder._basis is None and not model.training  # a plain model again, in eval mode
+    assert _primal_on(model, train_set) < 0.5 * before  # in vertex coordinates, on the clips it trained on
+    p = motion_basis(train_set, 16, seed=0)
+    p = p / p.norm(dim=1, keepdim=True)
+    w = model.decoder.motion_decoder.weight.detach()
+    torch.testing.assert_close(p.T @ (p @ w), w, atol=1e-5, rtol=1e-4)  # the head stays in the span
+    again, hist2 = _run(corpus, train_set, val_set, epochs=10, pca_init=16, lr=6e-3, basis_space=True,
+                        validate_every=5)
+    assert hist.terms == hist2.terms and hist.val_lve == hist2.val_lve
+
+
+def test_basis_space_needs_pca_init_and_a_model_with_one_motion_decoder(data):
+    corpus, train_set, _ = data
+    with pytest.raises(ValueError, match="basis_space trains in the span of the pca_init basis: set pca_init"):
+        TrainConfig.tiny(basis_space=True)
+    from dualtalker_lite.models.corrtalk import CorrTalk, CorrTalkConfig
+
+    model = CorrTalk(CorrTalkConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160, n_speakers=8))
+    before = {n: q.clone() for n, q in model.state_dict().items()}
+    with pytest.raises(TypeError, match="TrainConfig.basis_space: CorrTalk has no set_motion_basis"):
+        train(model, make_loader(train_set, 8, shuffle=True, seed=0),
+              TrainConfig.tiny(epochs=1, pca_init=8, basis_space=True, progress=False))
+    assert all(torch.equal(before[n], q) for n, q in model.state_dict().items())  # nothing was trained
