@@ -16,6 +16,13 @@ The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``): Adam, warm-up and cosine de
 clipping at 1, batch 8 of whole clips, one torch thread, output-bias initialisation at the training set's mean
 motion (``mean_init``), 37 epochs = 814 steps on the sample (about 120 CPU s for DualTalker). How each of these was
 chosen, with the measurements, is in docs/design-notes.md ("The CPU training recipe").
+
+The short recipe (``TrainConfig.fast()``, ``FAST``; ``dualtalker-lite train``'s default for DualTalker and the
+FaceFormer-style baseline) starts the motion head at the training motion's top 64 principal directions
+(``pca_init``, VOCA's initialisation), doubles the learning rate, and trains in those directions' coordinates
+(``basis_space``: each batch goes to 64 numbers per frame, :func:`basis_batch`, and the model's head and motion
+encoder stay in the span, ``MotionDecoder.set_motion_basis``): the vertex loss up to a constant at about two
+thirds of the step's CPU time (docs/design-notes.md, "The step in the basis's coordinates").
 """
 from __future__ import annotations
 
@@ -86,7 +93,8 @@ class TrainConfig:
     @classmethod
     def fast(cls, model: str = "dualtalker", **kw) -> "TrainConfig":
         """The short recipe (issue 31, ``FAST``): the tiny recipe with the PCA-initialised motion head at twice the
-        learning rate, for the epochs :data:`FAST_EPOCHS` gives ``model`` (measured in results/time_to_quality.md)."""
+        learning rate, trained in the basis's coordinates (``basis_space``), for the epochs :data:`FAST_EPOCHS`
+        gives ``model`` (measured in results/time_to_quality_2core.md)."""
         if model not in FAST_EPOCHS:
             raise ValueError(f"no short recipe measured for model {model!r} (measured: {sorted(FAST_EPOCHS)})")
         return cls(**{**RECIPE, **FAST, "epochs": FAST_EPOCHS[model], **kw})
@@ -98,13 +106,15 @@ class TrainConfig:
 # steps; today's step is faster: 1206-1293 steps in results/cpu_budget_120s.md, 93 ms in results/profile_step.md).
 RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
               min_lr_ratio=0.0, threads=1, mean_init=True)
-# The short recipe (``TrainConfig.fast``): VOCA's PCA-initialised output layer (64 components) at lr 6e-3. Its epochs
-# are where each model met issue 31's real-voice closure targets (< 2 / < 1 mm >= 0.9 / 0.8) in every one of 3
-# seeds, results/time_to_quality_2core.md: DualTalker 30 epochs (58-61 CPU s on the 2-core machine; 12 epochs, the
-# first choice, matched the 37-epoch recipe at a third of its cost but closed < 1 mm at 0.73-0.80 only),
-# FaceFormer-style 40 (71-74 CPU s; one seed 0.79). CorrTalk and EmoFace have none: no lever closed CorrTalk's lips
-# within 10 epochs (docs/design-notes.md).
-FAST = dict(pca_init=64, lr=6e-3)
+# The short recipe (``TrainConfig.fast``): VOCA's PCA-initialised output layer (64 components) at lr 6e-3, the step in
+# those 64 basis coordinates (``basis_space``: the same loss up to a constant; 41 against 61 CPU s for DualTalker's
+# 30 epochs, 39 against 72 for FaceFormer-style's 40, at the same closures within seed noise: 5 / 3 seeds in
+# results/time_to_quality_2core.md). Its epochs are where each model met issue 31's real-voice closure targets
+# (< 2 / < 1 mm >= 0.9 / 0.8) in every one of 3 seeds before basis_space: DualTalker 30 epochs (12, the first choice,
+# matched the 37-epoch recipe at a third of its cost but closed < 1 mm at 0.73-0.80 only), FaceFormer-style 40; at
+# 5 seeds one seed of DualTalker's 30 falls below 0.8 < 1 mm with or without basis_space (0.79 / 0.75).
+# CorrTalk and EmoFace have none: no lever closed CorrTalk's lips within 10 epochs (docs/design-notes.md).
+FAST = dict(pca_init=64, lr=6e-3, basis_space=True)
 FAST_EPOCHS = {"dualtalker": 30, "faceformer": 40}
 
 
@@ -474,16 +484,16 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
         total_steps = min(total_steps, cfg.max_steps)
     hist, t0, c0, step, used, done = History(), time.perf_counter(), time.process_time(), 0, 0.0, False
     first = 0
+    if cfg.basis_space:  # before a resumed state, whose weights and basis buffers then replace these exactly
+        set_basis(basis.to(cfg.device))  # train() clears it when training ends, however it ends
+        basis = (basis / basis.norm(dim=1, keepdim=True)).to(cfg.device)  # (k, V*3) orthonormal, for basis_batch
+    else:
+        basis = None
     if resume is not None:  # after the initialisation above, which the saved weights then replace
         _restore(resume, model, opt, gen, train_loader)
         hist = History(**{k: list(v) for k, v in resume["history"].items()})
         first, step, used = int(resume["epoch"]), int(resume["step"]), float(resume["used"])
         t0, c0 = t0 - float(resume["wall"]), c0 - float(resume["cpu"])
-    if cfg.basis_space:  # after any resumed weights: they are projected (a no-op for weights saved this way)
-        set_basis(basis.to(cfg.device))  # train() clears it when training ends, however it ends
-        basis = (basis / basis.norm(dim=1, keepdim=True)).to(cfg.device)  # (k, V*3) orthonormal, for basis_batch
-    else:
-        basis = None
     validate = val_loader is not None and lip_idx is not None and cfg.validate_every != 0
     bar = tqdm(range(first, cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
     set_epoch = hook(model, "set_epoch")  # epoch-dependent models (EmoFace's self-growing schedule)

@@ -223,11 +223,13 @@ def test_weights_of_another_model_kind_are_refused_with_one_line():
         loss_weights(_Line(), {"alpha": 2.0})
 
 
-def test_resumed_training_ends_with_the_same_weights_bit_for_bit(data, tmp_path):
+@pytest.mark.parametrize("extra", [{}, {"pca_init": 8, "lr": 6e-3, "basis_space": True}], ids=["tiny", "basis"])
+def test_resumed_training_ends_with_the_same_weights_bit_for_bit(data, tmp_path, extra):
     """4 epochs straight == 2 epochs, the state saved (weights_only round trip), a fresh model resumed to 4:
-    crops (max_frames 20, so the crop generator matters), dropout, shuffle order, Adam and the schedule."""
+    crops (max_frames 20, so the crop generator matters), dropout, shuffle order, Adam and the schedule; with
+    basis_space also the basis and the head bias's rest (buffers of the state, not recomputed)."""
     corpus, train_set, val_set = data
-    kw = dict(epochs=4, seed=5, progress=False, weights=LossWeights(), max_frames=20)
+    kw = dict(epochs=4, seed=5, progress=False, weights=LossWeights(), max_frames=20, **extra)
     straight = _model(corpus, 5)
     h1 = train(straight, make_loader(train_set, 8, shuffle=True, seed=5), TrainConfig.tiny(**kw))
     saved = []
@@ -439,9 +441,9 @@ def test_fast_recipe_is_the_tiny_recipe_with_the_pca_head_at_twice_the_rate():
     from dataclasses import asdict
 
     tiny, fast, ff = asdict(TrainConfig.tiny()), asdict(TrainConfig.fast()), asdict(TrainConfig.fast("faceformer"))
-    assert {k for k in tiny if tiny[k] != fast[k]} == {"epochs", "lr", "pca_init"}
-    assert (fast["epochs"], fast["lr"], fast["pca_init"]) == (30, 6e-3, 64)
-    assert (ff["epochs"], ff["lr"], ff["pca_init"]) == (40, 6e-3, 64)
+    assert {k for k in tiny if tiny[k] != fast[k]} == {"epochs", "lr", "pca_init", "basis_space"}
+    assert (fast["epochs"], fast["lr"], fast["pca_init"], fast["basis_space"]) == (30, 6e-3, 64, True)
+    assert (ff["epochs"], ff["lr"], ff["pca_init"], ff["basis_space"]) == (40, 6e-3, 64, True)
     assert TrainConfig.fast(seed=3).seed == 3
     with pytest.raises(ValueError, match="no short recipe measured for model 'corrtalk'"):
         TrainConfig.fast("corrtalk")

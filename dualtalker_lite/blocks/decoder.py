@@ -155,8 +155,10 @@ class MotionDecoder(nn.Module):
             self.motion_decoder = nn.Linear(d, v3)  # d -> V*3, zero: first prediction = template
             nn.init.zeros_(self.motion_decoder.weight)
             nn.init.zeros_(self.motion_decoder.bias)
-        self._basis: Tensor | None = None  # (k, V*3) orthonormal rows while training in a basis (set_motion_basis)
-        self._bias_rest: Tensor | None = None  # (V*3,) the head bias outside the basis, kept as it was
+        # while training in a basis (set_motion_basis): (k, V*3) orthonormal rows and the head bias outside the
+        # span, kept as it was; buffers, so that a resumable training state holds them (None otherwise: not saved)
+        self.register_buffer("_basis", None)
+        self.register_buffer("_bias_rest", None)
 
     # ---- pieces ---------------------------------------------------------------------------------------------
     def speaker_style(self, speaker: Tensor) -> Tensor:
