@@ -14,8 +14,8 @@
 # **We will cover**
 #
 # 1. the joint loss and its four weights $\lambda_1 \dots \lambda_4$, checked on one batch;
-# 2. a training run with the short recipe `TrainConfig.fast()` (VOCA's PCA-initialised output layer, about 30 CPU
-#    seconds): the four loss terms, step by step;
+# 2. a training run with the short recipe `TrainConfig.fast()` (VOCA's PCA-initialised output layer, trained in its
+#    basis; about 25 CPU seconds): the four loss terms, step by step;
 # 3. saving a checkpoint under `runs/` and reloading it (identical predictions);
 # 4. the generated lips against the ground truth (the lip-distance plot of the paper's Fig. 5), the closures at
 #    /p b m/, and two real recordings animated with the speech;
@@ -150,14 +150,17 @@ print("weighted terms:  ", {k: f"{lam[k] * terms[k].item():.3g}" for k in lam})
 # `results/time_to_quality.md`: the tiny recipe (batches of 8, crops of 90 frames, 30 warm-up steps, cosine decay)
 # with two changes. The motion head starts as the top 64 **principal components** of the training motion, each
 # scaled by its standard deviation (VOCA initialises its output layer so), so the first step already moves the
-# face along directions it really moves in; and the learning rate is doubled to $6 \cdot 10^{-3}$. This cell gives
-# DualTalker 12 epochs of 22 steps (264 steps, about 30 CPU seconds: a notebook's budget), where it matches the
-# 37-epoch default recipe at a third of its cost (`docs/design-notes.md`, "The PCA-initialised motion head"); the
-# recipe's own 30 epochs (`dualtalker-lite train --recipe fast`, about 60 CPU seconds) close more real /p b m/.
+# face along directions it really moves in; the learning rate is doubled to $6 \cdot 10^{-3}$; and the step works
+# in that basis (`basis_space`): each frame's 4674 vertex coordinates become its 64 coordinates along those
+# directions, and the head and the motion encoder stay within them, which gives the same loss up to a constant at
+# about two thirds of the CPU time (`docs/design-notes.md`, "The step in the basis's coordinates"). This cell gives
+# DualTalker 18 epochs of 22 steps (396 steps, about 25 CPU seconds: a notebook's budget); the recipe's own 30
+# epochs (`dualtalker-lite train`, about 40 CPU seconds) close more real /p b m/.
 
 # %%
-tc = TrainConfig.fast("dualtalker", epochs=12, validate_every=0, progress=False)   # the recipe's default: 30
-print(f"{tc.epochs} epochs, lr {tc.lr:g}, PCA head {tc.pca_init} components, crops of {tc.max_frames} frames")
+tc = TrainConfig.fast("dualtalker", epochs=18, validate_every=0, progress=False)   # the recipe's default: 30
+print(f"{tc.epochs} epochs, lr {tc.lr:g}, PCA head {tc.pca_init} components (basis_space {tc.basis_space}), "
+      f"crops of {tc.max_frames} frames")
 set_seed(0)
 model = DualTalker(cfg)
 t0, c0 = time.perf_counter(), time.process_time()
@@ -190,7 +193,7 @@ plt.show()
 # %% [markdown]
 # $L_{\rm Primal}$ is already about 1 mm² in the first epoch's mean (5.4 mm² for the untrained model above): the
 # PCA-initialised head starts in the space the face moves in. It falls by more than an order of magnitude over the
-# 12 epochs. $L_{\rm DR}$ first rises, while the two tasks' features move apart, then falls with the primal loss;
+# 18 epochs. $L_{\rm DR}$ first rises, while the two tasks' features move apart, then falls with the primal loss;
 # $L_{\rm Dual}$ (reading 15 visemes back) falls by half. $L_{\rm CCRL}$ hardly moves at $\lambda_4 = 0.01$
 # (notebook 07 looks at it in detail). Weighted, the primal term dominates the gradient throughout, as the default
 # weights intend.
@@ -264,9 +267,9 @@ plot_lip_distance(times, {"ground truth": gt_lips, "DualTalker (tiny)": pred_lip
 
 # %% [markdown]
 # The generated curve follows the true one: the openings at the vowels reach the ground truth's height (mean largest
-# opening 14.4 mm against 13.6 mm), and the lips close at the shaded /p/ /b/ /m/, on 0.88 of test-A's 152
-# bilabials within 2 mm. What 30 CPU seconds do not yet give is the depth: the ground truth closes within 1 mm at
-# 0.89 of the bilabials, the model at 0.48 (a mean smallest distance of 1.2 mm against 0.3 mm). Longer training
+# opening 14.6 mm against 13.6 mm), and the lips close at the shaded /p/ /b/ /m/, on 0.81 of test-A's 152
+# bilabials within 2 mm. What 25 CPU seconds do not yet give is the depth: the ground truth closes within 1 mm at
+# 0.89 of the bilabials, the model at 0.49 (a mean smallest distance of 1.3 mm against 0.3 mm). Longer training
 # narrows that gap (exercise 2).
 #
 # ### Real voices
@@ -411,9 +414,9 @@ print({k: f"smallest lip distance at /p b m/ {np.min(v):.1f} mm" for k, v in clo
 assert np.min(closure["no primal"]) > np.min(closure["default"]) + 1.0
 
 # %% [markdown]
-# With the defaults, 30 more steps leave the lips closing at the clip's /p b m/ (smallest distance about 1 mm).
+# With the defaults, 30 more steps leave the lips closing at the clip's /p b m/ (smallest distance below 1 mm).
 # With $\lambda_1 = 0$ the same 30 steps lose the closures: the smallest lip distance at the bilabials grows to
-# about 6 mm, because nothing in the
+# about 5 mm, because nothing in the
 # remaining terms pulls the vertices towards the captured motion (the dual task only needs the motion to be
 # *readable*, not right). The loss weights are not cosmetic: which terms the gradient sees decides what the lips do
 # within seconds.
@@ -424,7 +427,7 @@ assert np.min(closure["no primal"]) > np.min(closure["default"]) + 1.0
 #   + \lambda_4 L_{\rm CCRL}$; `joint_loss` returns the weighted total and the unweighted terms, all means over valid
 #   frames, with $L_{\rm Primal}$ in mm².
 # - On the phonetic route, with the short recipe `TrainConfig.fast()` (PCA-initialised motion head, lr
-#   $6 \cdot 10^{-3}$, 12 epochs, about 30 CPU seconds), the tiny model closes the lips at most /p b m/ of unseen
+#   $6 \cdot 10^{-3}$, the step in the head's 64 coordinates, 18 epochs, about 25 CPU seconds), the tiny model closes the lips at most /p b m/ of unseen
 #   test-A sentences and of two real recordings it never saw, and opens them about as wide as the ground truth at
 #   vowels.
 # - `save_checkpoint` / `load_checkpoint` round-trip the model exactly (bit-identical predictions); the checkpoint
@@ -438,8 +441,9 @@ assert np.min(closure["no primal"]) > np.min(closure["default"]) + 1.0
 # 1. With the sliders, fine-tune with $\lambda_4$ (CCRL) at 1 instead of 0.01, and with $\lambda_2, \lambda_3,
 #    \lambda_4$ all off (primal task only). Which closes the lips of the test clip more deeply after 30 steps?
 #    Relate it to the gradient norms of notebook 07, section 5.3.
-# 2. Train the model of section 2 with `TrainConfig.fast(pca_init=0)` (the head starts at zero, as in the default
-#    recipe) and compare the closure rates. How many epochs does it need to catch up (`results/time_to_quality.md`)?
+# 2. Train the model of section 2 with `TrainConfig.fast(pca_init=0, basis_space=False)` (the head starts at zero,
+#    as in the tiny recipe) and compare the closure rates. How many epochs does it need to catch up
+#    (`results/time_to_quality.md`)?
 # 3. Load the checkpoint of section 3 and evaluate it on test-B (unseen speakers, `TalkingFaceDataset(corpus,
 #    "test_b")`). `predict` conditions unseen speakers on the style of training speaker 0: how much worse is the
 #    LVE than on test-A?
