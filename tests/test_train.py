@@ -443,7 +443,7 @@ def test_fast_recipe_is_the_tiny_recipe_with_the_pca_head_at_twice_the_rate():
     tiny, fast, ff = asdict(TrainConfig.tiny()), asdict(TrainConfig.fast()), asdict(TrainConfig.fast("faceformer"))
     assert {k for k in tiny if tiny[k] != fast[k]} == {"epochs", "lr", "pca_init", "basis_space"}
     assert (fast["epochs"], fast["lr"], fast["pca_init"], fast["basis_space"]) == (30, 6e-3, 64, True)
-    assert (ff["epochs"], ff["lr"], ff["pca_init"], ff["basis_space"]) == (40, 6e-3, 64, True)
+    assert (ff["epochs"], ff["lr"], ff["pca_init"], ff["basis_space"]) == (60, 6e-3, 64, True)
     assert TrainConfig.fast(seed=3).seed == 3
     with pytest.raises(ValueError, match="no short recipe measured for model 'corrtalk'"):
         TrainConfig.fast("corrtalk")
