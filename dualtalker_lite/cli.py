@@ -143,9 +143,9 @@ def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
                          "names modules that register more: docs/architecture.md)")
     ap.add_argument("--recipe", choices=("tiny", "fast"), default=None,
                     help="fast: the short recipe (TrainConfig.fast: the motion head started at the training motion's "
-                         "principal components, lr 6e-3, the step in their coordinates; dualtalker 30 epochs by default, "
-                         "faceformer 60; closes more "
-                         "lips on real voices than the tiny recipe for less CPU: results/time_to_quality_2core.md); "
+                         "principal components, lr 6e-3, the step in their coordinates; dualtalker 30 epochs by "
+                         "default, faceformer 60; closes more lips on real voices than the tiny recipe for less CPU: "
+                         "results/time_to_quality_2core.md); "
                          "tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default) (default: fast for the "
                          "models it was measured on, dualtalker and faceformer; tiny for the others)")
     ap.add_argument("--epochs", type=int, default=None,

@@ -42,8 +42,8 @@ from .models.contract import hook
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "History", "lr_factor", "mean_motion", "loss_weights",
-           "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state", "predict", "validation_lve",
-           "save_checkpoint", "load_checkpoint"]
+           "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state", "predict",
+           "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -67,7 +67,7 @@ class TrainConfig:
                                        # motion, scaled by their std; VOCA's output-layer init) first; 0: off
     basis_space: bool = False          # with pca_init: train the motion head and encoder in the span of those k
                                        # directions, the batch in k coordinates (basis_batch): the same loss up to a
-                                       # constant, about half the step's CPU time (MotionDecoder.set_motion_basis)
+                                       # constant, a third less CPU a step (MotionDecoder.set_motion_basis)
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
