@@ -51,7 +51,7 @@ from .faceformer_layer import FaceFormerLayer
 from .feature_windows import FeatureWindows
 from .positional import PeriodicPositionalEncoding
 
-__all__ = ["TransposedLinear", "MotionDecoder", "check_inputs", "training_inputs", "check_window", "zero_padding",
+__all__ = ["TransposedLinear", "MotionDecoder", "OneDecoderHooks", "check_inputs", "training_inputs", "check_window", "zero_padding",
            "lookup_style", "autoregressive_chunks", "autoregressive_reference"]
 
 
@@ -352,6 +352,30 @@ class MotionDecoder(nn.Module):
         for layer, state in zip(self.layers, states):
             h = layer.step(state, h, features, style, t, mask, offset)  # (B, 1, d)
         return self.decode_motion(h)  # (B, 1, V*3)
+
+
+class OneDecoderHooks:
+    """The training hooks of a model whose motion comes from one :class:`MotionDecoder`, ``self.decoder``
+    (DualTalker, FaceFormer-style): each delegates to the decoder's method of the same name. ``train`` calls them
+    (``models.contract.HOOKS``): the data-dependent initialisations and training in a motion basis."""
+
+    def init_output_bias(self, mean_motion: Tensor) -> None:
+        """Motion head bias = the training set's mean motion (V*3,), metres (``TrainConfig.mean_init``)."""
+        self.decoder.init_output_bias(mean_motion)
+
+    def init_output_basis(self, basis: Tensor) -> None:
+        """Motion head weights = the training motion's principal directions (k, V*3), metres (VOCA's init;
+        ``TrainConfig.pca_init``)."""
+        self.decoder.init_output_basis(basis)
+
+    def set_motion_basis(self, basis: Tensor | None) -> None:
+        """Train the motion head and encoder in the span of ``basis`` (k, V*3), or stop (None): a cheaper step, the
+        same loss up to a constant (``TrainConfig.basis_space``)."""
+        self.decoder.set_motion_basis(basis)
+
+    def project_motion_basis(self) -> None:
+        """Back into the basis's span after an optimiser step."""
+        self.decoder.project_motion_basis()
 
 
 Combine = Callable[[int, list[Tensor]], Tensor]  # (t, raw outputs (B, 1, V*3) per decoder) -> m̂_t (B, 1, V*3)

@@ -48,8 +48,8 @@ from ..blocks.audio_encoder import AudioFeatureExtractor
 from ..checks import check_frames, check_heads
 from ..blocks.feature_windows import FeatureWindows
 from ..blocks.fusion import DualFusionLayer
-from ..blocks.decoder import (MotionDecoder, TransposedLinear, autoregressive_chunks, autoregressive_reference,
-                              check_inputs, check_window, training_inputs, zero_padding)
+from ..blocks.decoder import (MotionDecoder, OneDecoderHooks, TransposedLinear, autoregressive_chunks,
+                              autoregressive_reference, check_inputs, check_window, training_inputs, zero_padding)
 from ..losses.dualtalker import LossWeights, joint_loss, rbf_kernel_weights
 
 __all__ = ["DualTalkerConfig", "DualTalker"]
@@ -111,7 +111,7 @@ class DualTalkerConfig:
         return cls(**overrides)
 
 
-class DualTalker(nn.Module):
+class DualTalker(OneDecoderHooks, nn.Module):
     """Primal (eq. 1) and dual (eq. 2) tasks with shared encoders and a shared dual integration (Fig. 1)."""
 
     loss_weights_cls = LossWeights  # the dataclass of this model's loss weights (train.loss_weights)
@@ -186,24 +186,6 @@ class DualTalker(nn.Module):
         if need_weights:
             out["attention"] = {"primal": w_primal, "dual": w_dual}
         return out
-
-    def init_output_bias(self, mean_motion: Tensor) -> None:
-        """Data-dependent init (``train`` calls it): motion head bias = the training set's mean motion (V*3,)."""
-        self.decoder.init_output_bias(mean_motion)
-
-    def init_output_basis(self, basis: Tensor) -> None:
-        """Data-dependent init (``train`` calls it when ``TrainConfig.pca_init``): motion head weights = the
-        training motion's principal directions (k, V*3) (:meth:`MotionDecoder.init_output_basis`)."""
-        self.decoder.init_output_basis(basis)
-
-    def set_motion_basis(self, basis: Tensor | None) -> None:
-        """Train the motion head and encoder in the span of ``basis`` (k, V*3), or stop (None): a cheaper step, the
-        same loss up to a constant (``TrainConfig.basis_space``, :meth:`MotionDecoder.set_motion_basis`)."""
-        self.decoder.set_motion_basis(basis)
-
-    def project_motion_basis(self) -> None:
-        """Back into the basis's span after an optimiser step (:meth:`MotionDecoder.project_motion_basis`)."""
-        self.decoder.project_motion_basis()
 
     def loss(self, out: dict, batch: dict, weights: LossWeights | None = None) -> tuple[Tensor, dict[str, Tensor]]:
         """The joint loss of section III-F, λ1 L_primal + λ2 L_dual + λ3 L_DR + λ4 L_CCRL (``losses.joint_loss``)

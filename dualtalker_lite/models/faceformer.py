@@ -30,8 +30,8 @@ from torch import Tensor
 from ..blocks.audio_encoder import AudioFeatureExtractor
 from ..checks import check_frames, check_heads
 from ..blocks.feature_windows import FeatureWindows
-from ..blocks.decoder import (MotionDecoder, autoregressive_chunks, autoregressive_reference, check_inputs,
-                              check_window, training_inputs, zero_padding)
+from ..blocks.decoder import (MotionDecoder, OneDecoderHooks, autoregressive_chunks, autoregressive_reference,
+                              check_inputs, check_window, training_inputs, zero_padding)
 from ..losses.reconstruction import ReconstructionWeights, reconstruction_loss
 
 __all__ = ["FaceFormerConfig", "FaceFormer"]
@@ -79,7 +79,7 @@ class FaceFormerConfig:
         return cls(**overrides)
 
 
-class FaceFormer(nn.Module):
+class FaceFormer(OneDecoderHooks, nn.Module):
     """Audio front-end + one FaceFormer-style :class:`~dualtalker_lite.blocks.decoder.MotionDecoder`."""
 
     loss_weights_cls = ReconstructionWeights  # trained with the vertex MSE λ1 L_rec
@@ -120,23 +120,6 @@ class FaceFormer(nn.Module):
              ) -> tuple[Tensor, dict[str, Tensor]]:
         """λ1 L_rec, the vertex MSE in mm² (``losses.reconstruction``)."""
         return reconstruction_loss(out, batch, weights)
-
-    def init_output_bias(self, mean_motion: Tensor) -> None:
-        """Motion head bias = the training set's mean motion (V*3,), metres."""
-        self.decoder.init_output_bias(mean_motion)
-
-    def init_output_basis(self, basis: Tensor) -> None:
-        """Motion head weights = the training motion's principal directions (k, V*3), metres (VOCA's init)."""
-        self.decoder.init_output_basis(basis)
-
-    def set_motion_basis(self, basis: Tensor | None) -> None:
-        """Train the motion head and encoder in the span of ``basis`` (k, V*3), or stop (None): a cheaper step, the
-        same loss up to a constant (``TrainConfig.basis_space``, :meth:`MotionDecoder.set_motion_basis`)."""
-        self.decoder.set_motion_basis(basis)
-
-    def project_motion_basis(self) -> None:
-        """Back into the basis's span after an optimiser step (:meth:`MotionDecoder.project_motion_basis`)."""
-        self.decoder.project_motion_basis()
 
     @torch.no_grad()
     def generate(self, audio: Tensor, template: Tensor, speaker: Tensor, use_cache: bool = True,
