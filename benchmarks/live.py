@@ -277,9 +277,15 @@ def fig_quality(args) -> dict:
     _, ckpt = load_checkpoint(args.checkpoint)
     offline_ex = extractor_from_settings(ckpt.get("features"), args.checkpoint, cache=False)
     rows = {"reference rig (aligned phones)": [], "offline (animate)": []}
-    rows.update({f"live, look-ahead {la} ms": [] for la in args.lookaheads})
+    aheads = args.ahead_frames or [LiveSettings.ahead_frames]
+
+    def live_key(la: int, ahead: int) -> str:  # the default encoder look-ahead keeps the rows' old names
+        extra = "" if aheads == [LiveSettings.ahead_frames] else f", encoder look-ahead {ahead} frames"
+        return f"live, look-ahead {la} ms{extra}"
+    configs = [(la, a, live_key(la, a)) for la in args.lookaheads for a in aheads]
+    rows.update({key: [] for _, _, key in configs})
     cpu = {k: 0.0 for k in rows}
-    corr = {f"live, look-ahead {la} ms": [] for la in args.lookaheads}
+    corr = {key: [] for _, _, key in configs}
     mismatched = 0
     hop = {"hop_s": args.hop} if args.hop else {}       # else LiveSettings' default
     if args.past:
@@ -294,10 +300,9 @@ def fig_quality(args) -> dict:
         cpu["offline (animate)"] += time.process_time() - c0
         mismatched += len(off) != n
         rows["offline (animate)"].append(off[:n])
-        for la in args.lookaheads:
-            key = f"live, look-ahead {la} ms"
+        for la, ahead, key in configs:
             session = LiveSession(config.model, config.front_end, config.template, config.speaker,
-                                  LiveSettings(lookahead_s=la / 1000, **hop))
+                                  LiveSettings(lookahead_s=la / 1000, ahead_frames=ahead, **hop))
             out, c, _ = feed(session, it["wave"])
             cpu[key] += c
             live = lip_distance(np.concatenate([v for _, v in out]), *lip_mid)
@@ -318,6 +323,7 @@ def fig_quality(args) -> dict:
             metrics[k]["lip_corr_with_offline_mean"] = float(np.mean(corr[k]))
     return {"prompts_used": len(items), "prompts_total": n_all, "every": args.every, "failed_alignments": failed,
             "hop_s": hop.get("hop_s", LiveSettings.hop_s), "past_s": hop.get("past_s", LiveSettings.past_s),
+            "ahead_frames": aheads,
             "audio_s": audio_s, "frame_count_mismatches": mismatched,
             "speaker": subject, "rows": metrics}
 
@@ -637,6 +643,8 @@ def figures(argv) -> None:
     ap.add_argument("--hop", type=float, default=None, help="quality: the recogniser hop (LiveSettings' default)")
     ap.add_argument("--past", type=float, default=None,
                     help="quality: the recogniser's past context in s (LiveSettings' default)")
+    ap.add_argument("--ahead-frames", type=int, nargs="+", default=None,
+                    help="quality: the audio encoder's look-ahead(s) in mesh frames (LiveSettings' default, 3)")
     ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
     ap.add_argument("--keep-earlier", type=Path, default=None, help="report: keep this earlier report whole")
