@@ -474,6 +474,9 @@ def test_live_command_refuses_bad_options_and_a_busy_port(checkpoint, config, ca
     with pytest.raises(SystemExit) as e:
         main(["live", "--checkpoint", str(checkpoint), "--context-ms", "-1"])
     assert e.value.code == 2 and "error: --context-ms -1: must be between 0 and 10000" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main(["live", "--checkpoint", str(checkpoint), "--encoder-ahead-frames", "31"])
+    assert e.value.code == 2 and "error: --encoder-ahead-frames 31: must be between 0 and 30" in capsys.readouterr().err
     server = _Server(config)                                  # holds a port
     try:
         with pytest.raises(SystemExit) as e:

@@ -431,6 +431,8 @@ def run(args) -> None:
         raise ValueError(f"--lookahead-ms {args.lookahead_ms:g}: must be between 0 and 2000")
     if not 0 <= args.context_ms <= 10000:
         raise ValueError(f"--context-ms {args.context_ms:g}: must be between 0 and 10000")
+    if not 0 <= args.encoder_ahead_frames <= 30:
+        raise ValueError(f"--encoder-ahead-frames {args.encoder_ahead_frames}: must be between 0 and 30")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port {args.port}: must be between 0 and 65535")
     try:
@@ -442,5 +444,6 @@ def run(args) -> None:
     torch.set_num_threads(1)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     config = load_config(args.checkpoint, args.speaker, args.template, args.corpus,
-                         LiveSettings(lookahead_s=args.lookahead_ms / 1000, past_s=args.context_ms / 1000))
+                         LiveSettings(lookahead_s=args.lookahead_ms / 1000, past_s=args.context_ms / 1000,
+                                      ahead_frames=args.encoder_ahead_frames))
     serve(config, args.host, args.port)
