@@ -29,14 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 FILES = sorted(p for p in [*RESULTS.glob("*"), *(RESULTS / "phonetic").glob("*")]
                if p.suffix in (".md", ".json") and p.name != "README.md")
-# made from a dirty tree (or reusing runs of one) before issue 30; tools/rerun_results.sh re-makes each
-PENDING = {
-    "emotion.json": "EmoFace's runs came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
-    "emotion.md": "EmoFace's runs came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
-    "emoface.json": "every run came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
-    "emoface.md": "every run came from runs/emo_rerun/ (not committed) at b80cf16+dirty",
-    "emotion_control.json": "reads the EmoFace checkpoints of the dirty emotional tables",
-}
+# made from a dirty tree (or reusing runs of one) before issue 30; tools/rerun_results.sh re-makes each (empty since
+# the emotional tables were re-made at 49c71c6: every file in results/ is traceable)
+PENDING: dict[str, str] = {}
 COMMAND = re.compile(r"^(?:[A-Z_]+=\S+ )*(?:nice -n \d+ )?(?:\.venv/bin/)?"
                      r"(?:python3?|dualtalker-lite|make|benchmarks/)\b")
 DIRTY = re.compile(r"[+-]dirty\b|\"dirty\": true|\"dirty\": null")

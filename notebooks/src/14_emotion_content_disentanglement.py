@@ -299,7 +299,7 @@ plt.show()
 # and sentence still explains more of either space than emotion does: the separation eqs. 7-10 aim for has started,
 # not finished; this notebook shows the machinery. With the
 # tables' budget (840 steps, notebook 15 section 7) the same classifier names the emotion of fewer than half the
-# test-emo-A clips (0.45 ± 0.06 over 5 seeds, the "emotion acc." column of `results/emotion.md`).
+# test-emo-A clips (0.47 ± 0.07 over 5 seeds, the "emotion acc." column of `results/emotion.md`).
 
 # %% [markdown]
 # ## 6. A pseudo-pair in 3D

@@ -382,8 +382,9 @@ animate_clip(rendered, corpus.faces, wave=wave, sample_rate=corpus.sample_rate, 
 # about 15 CPU minutes. The command below wrote `results/emotion.json` (the Table 2/3 analogue, 5 seeds) and
 # `results/emoface.json` (the ablations; their "EmoFace (full)" runs are the emotion table's), and kept every trained
 # model (`--save-models`, not shipped: 6 MB each). Every EmoFace run was recomputed after the correction of eq. 15
-# (the content branch's cross-reconstruction output is its self output); the other models' runs were taken over
-# from the previous tables (`--reuse`). The cell checks that the files are the ones this command wrote.
+# (the content branch's cross-reconstruction output is its self output), from a clean checkout
+# (`tools/rerun_results.sh`); the other models' runs were taken over from the previous tables (`--reuse`). The cell
+# checks that the files are the ones this command wrote.
 
 # %%
 import json
@@ -398,8 +399,8 @@ RESULTS = repo_root() / "results"
 # Both tables in one invocation (EmoFace's full runs are shared); the other models' runs were taken over from the
 # previous tables (`--reuse`; without it the command computes every run), EmoFace's recomputed with eq. 15 as printed
 RUN = ("python -m dualtalker_lite.experiments --table emotion emoface --seeds 0 1 2 3 4 --epochs 12 --processes 2 "
-       "--features logmel --out results/ --reuse runs/emo_rerun/keep.json runs/emo_rerun/emotion_s012.json "
-       "runs/emo_rerun/emoface_s012.json --no-progress --save-models runs/emotional_tables")
+       "--features logmel --out results/ --reuse results/emotion.json results/emoface.json --no-progress "
+       "--save-models runs/emotional_tables")
 COMMANDS = {"emotion": RUN, "emoface": RUN}
 tables = {t: experiments.load_table(RESULTS / f"{t}.json") for t in COMMANDS}
 
@@ -489,12 +490,12 @@ assert ab_lve["w/o self-growing"] == max(ab_lve.values())  # the largest differe
 # cross-reconstruction, LVE stays within seed noise, and so do the brow and smile errors. EmoFace's Table 3 has two
 # of these rows, w/o self-growing and w/o Mesh Attention (where the paper *adds* the two branches' offsets; this
 # project takes their mean); neither claim is reproduced here, and the other two rows are the project's additions,
-# without a paper claim. The largest difference is self-growing's (LVE +0.21 mm without it, within the noise).
-# Mesh Attention costs two to three times the plain mean's training time (the `train (s)` column, wall-clock on a
+# without a paper claim. The largest difference is self-growing's (LVE +0.20 mm without it, within the noise).
+# Mesh Attention costs about twice the plain mean's training time (the `train (s)` column, wall-clock on a
 # shared machine). Before eq. 15 was implemented as printed (the content branch re-ran on the partner's past in the
 # cross pass) the full model had 3.41 ± 0.16 mm (`results/emoface.json` at commit 8aea329); with the correction it
-# has 3.62 ± 0.32 mm, and the row without
-# cross-reconstruction is now 0.24 mm *lower* than the full model (within the noise): at this scale the cross term,
+# has 3.54 ± 0.24 mm, and the row without
+# cross-reconstruction is now 0.15 mm *lower* than the full model (within the noise): at this scale the cross term,
 # as printed, does not help LVE.
 
 # %% [markdown]
@@ -507,7 +508,7 @@ assert ab_lve["w/o self-growing"] == max(ab_lve.values())  # the largest differe
 
 # %%
 CONTROL_COMMAND = "python benchmarks/emotion_control.py " + " ".join(
-    f"runs/emotional_tables/EmoFace_seed{k}.pt" for k in range(5))
+    f"runs/emotional_tables/EmoFace_seed{k}.pt" for k in range(5)) + " --out results/emotion_control.json"
 control = json.loads((RESULTS / "emotion_control.json").read_text())
 assert control["command"] == CONTROL_COMMAND and len(control["models"]) == 5
 conditions = control["models"][0]["conditions"]  # one colour per condition (no labels on top of each other)
@@ -533,14 +534,14 @@ alpha = {r: np.mean([m["attention_by_region"][r] for m in control["models"]])
          for r in control["models"][0]["attention_by_region"]}
 print("mean A (emotion-branch share) by region:", {r: round(float(v), 2) for r, v in alpha.items()})
 assert all(x["r"] > 0.95 for a in agree.values() for x in a)  # every model, both measures
-assert min(alpha.values()) > 0.9  # the emotion branch takes nearly every vertex
+assert min(alpha.values()) > 0.85  # the emotion branch takes nearly every vertex
 
 # %% [markdown]
 # The type condition (the project's addition, section 6) steers these five models: with neutral speech,
 # "surprised 2" raises the brows by about 4 mm, "angry 2" lowers them, "happy 2" widens the mouth by about 5 mm (the
 # figure's dots), each within a few tenths of a millimetre of what the same speakers do when they really speak that
 # way. Mesh Attention, however, does not split the face into an emotion part and a content part: after training,
-# the emotion branch takes nearly all of every region (the printed means, all above 0.9), so the fused motion is
+# the emotion branch takes nearly all of every region (the printed means, 0.89 and above), so the fused motion is
 # essentially the emotion branch's, and the content branch's offsets barely reach the face. The paper's Fig. 4
 # names "the eyes, mouth and jaw" as where the map puts emotion; here it puts emotion everywhere. (Before the eq. 15
 # correction the same measurement gave 0.76 on the lips to 0.84 on the brows, `results/emotion_control.json` at
@@ -567,7 +568,7 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 # - The emotion condition steers the emotion branch: one audio, five faces. Trained for the tables' budget, it
 #   reproduces each emotion's brow raise and smile from neutral speech within a few tenths of a millimetre.
 # - On the emotional test split EmoFace has the lowest LVE of the four models; recognising the emotion from the
-#   speech (0.45 of the clips right) is what holds its "right emotion" errors back.
+#   speech (0.47 of the clips right) is what holds its "right emotion" errors back.
 #
 # ## Exercises
 #
