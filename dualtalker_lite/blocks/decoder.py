@@ -51,8 +51,8 @@ from .faceformer_layer import FaceFormerLayer
 from .feature_windows import FeatureWindows
 from .positional import PeriodicPositionalEncoding
 
-__all__ = ["TransposedLinear", "MotionDecoder", "OneDecoderHooks", "check_inputs", "training_inputs", "check_window", "zero_padding",
-           "lookup_style", "autoregressive_chunks", "autoregressive_reference"]
+__all__ = ["TransposedLinear", "MotionDecoder", "OneDecoderHooks", "check_inputs", "training_inputs", "check_window",
+           "zero_padding", "lookup_style", "autoregressive_chunks", "autoregressive_reference"]
 
 
 class TransposedLinear(nn.Module):
@@ -204,7 +204,7 @@ class MotionDecoder(nn.Module):
             (the training set's mean motion's rest, after ``init_output_bias``);
             in train mode the decoder then reads and writes k basis coordinates z = a P m, a = \sqrt{k / 3V},
             instead of V*3 coordinates (``train.basis_batch`` makes the batch's): for a head in the span,
-            rac{1}{3V} \|\hat m - m\|^2 = rac{1}{k} \|\hat z - z\|^2 + rac{1}{3V} \|(I - Π)(b_rest - m)\|^2,
+            \frac{1}{3V} \|\hat m - m\|^2 = \frac{1}{k} \|\hat z - z\|^2 + \frac{1}{3V} \|(I - Π)(b_rest - m)\|^2,
             so a model's MSE on the k coordinates differs from its vertex MSE by a constant (the ground truth's
             motion outside the basis: below 0.1 mm for 17 of 64 directions on the sample corpus), the gradients are
             the vertex loss's, and a frame-distance kernel with the mean distance (CCRL's) is unchanged up to that

@@ -205,9 +205,10 @@ class DualTalker(OneDecoderHooks, nn.Module):
     @torch.no_grad()
     def kernel_weights(self, batch: dict, weights: LossWeights) -> Tensor | None:
         """CCRL's w_{k,t} (``losses.rbf_kernel_weights``) for a batch, assembled from per-clip matrices computed
-        once per (clip, crop offset, valid length, bandwidth, distance, coordinates) -> (B, T, T), or None when the batch has
-        no clip names or a mask that is not a valid prefix (then the loss computes it). Each clip's matrix is what
-        the batched function gives for that clip (the median heuristic is per sequence), so the loss is unchanged."""
+        once per (clip, crop offset, valid length, bandwidth, distance, coordinates per frame: V*3, or k in a basis)
+        -> (B, T, T), or None when the batch has no clip names or a mask that is not a valid prefix (then the loss
+        computes it). Each clip's matrix is what the batched function gives for that clip (the median heuristic is
+        per sequence), so the loss is unchanged."""
         mask, names = batch.get("mask"), batch.get("name")
         if mask is None or names is None or len(names) != mask.shape[0]:
             return None
