@@ -1,6 +1,6 @@
 """How long the commands take whose times the README and ``--help`` state: each run as a real process.
 
-    .venv/bin/python benchmarks/command_times.py                    # the quick ones (about a minute)
+    .venv/bin/python benchmarks/command_times.py                    # the quick ones (about four minutes)
     .venv/bin/python benchmarks/command_times.py --only make-unit   # one (or several: --only a --only b)
     .venv/bin/python benchmarks/command_times.py --all              # every one (about an hour on 2 cores)
     .venv/bin/python benchmarks/command_times.py --list             # the names, commands and where each is quoted
@@ -73,6 +73,13 @@ COMMANDS = (
                                    "{out}/animation", "--overwrite", "--format", "npy,gltf,html,mp4"),
             "(no time quoted: for scale; the README's animate example, on the quick checkpoint)",
             needs="train-check"),
+    Command("train-default", ("{cli}", "train", "--model", "dualtalker", "--out", "{out}/my_model_fast.pt",
+                              "--overwrite"),
+            "README command block (`train --model dualtalker`: the short recipe, \"about a minute on 2 cores\")",
+            makes="my_model_fast.pt"),
+    Command("train-faceformer-default", ("{cli}", "train", "--model", "faceformer", "--out",
+                                         "{out}/my_faceformer_fast.pt", "--overwrite"),
+            "docs/cli.md (the short recipe's FaceFormer-style 60 epochs)", makes="my_faceformer_fast.pt"),
     Command("train-100", ("{cli}", "train", "--model", "dualtalker", "--recipe", "tiny", "--epochs", "100", "--out",
                           "{out}/my_model.pt", "--overwrite"),   # tiny: what it meant before train's default changed
             "README (phonetic route paragraph: the 100-epoch figure)", heavy=True, makes="my_model.pt"),
