@@ -248,8 +248,8 @@ def live_parser() -> argparse.ArgumentParser:
                     help="recogniser past context: more closes the lips more often (results/live.md), costs CPU and "
                          "some latency (600: the cheaper setting before)")
     ap.add_argument("--encoder-ahead-frames", type=int, default=LiveSettings.ahead_frames,
-                    help="audio-encoder look-ahead in mesh frames (33 ms each) of the latency's fixed part: 1 or 0 "
-                         "closed the lips as often as 3 on a quarter of the real-voice prompts, with a little less "
+                    help="audio-encoder look-ahead in mesh frames (33 ms each) of the latency's fixed part: 1 "
+                         "closed the lips as often as 3 on the real-voice prompts, 67 ms sooner, with a little less "
                          "agreement with the offline animation (results/live.md)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
     ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")

@@ -320,7 +320,7 @@ HELP_DEFAULTS = {"train": {"--model": "dualtalker", "--epochs": "the recipe's",
                  "convert-templates": {"--out": "beside the pickle"},
                  "prepare-dataset": {},
                  "live": {"--port": "8765", "--host": "127.0.0.1", "--lookahead-ms": "200",
-                          "--context-ms": "2000", "--encoder-ahead-frames": "3", "--speaker": "SPK01"}}
+                          "--context-ms": "2000", "--encoder-ahead-frames": "1", "--speaker": "SPK01"}}
 
 
 def option_help(text: str) -> dict[str, str]:

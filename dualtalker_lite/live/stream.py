@@ -31,7 +31,7 @@ is asynchronous: the server calls ``push`` in a worker thread.
   ``viseme_PP``, ...: :mod:`dualtalker_lite.export.visemes`, what ``animate --format visemes`` writes), for avatars
   that are not this project's mesh. Each run of equal classes is a segment, coarticulated with the rig's dominance
   functions (:func:`~dualtalker_lite.export.visemes.viseme_weights`) over the last ``past_frames`` frames; a
-  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (100 ms) of the track:
+  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (33 ms) of the track:
   anticipation reaches that far and no further (offline it reaches a segment's whole dominance span). The live
   track has no /n l/ class of its own, so those phones weigh on ``viseme_DD`` and ``viseme_nn`` stays 0.
 """
@@ -60,7 +60,8 @@ class LiveSettings:
     past_s: float = 2.0           # recogniser context before the first frame not yet final (was 0.6, results/live.md)
     hop_s: float = 0.2            # hama runs once per hop of new audio
     past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
-    ahead_frames: int = 3         # audio-encoder look-ahead (mesh frames) after it
+    ahead_frames: int = 1         # audio-encoder look-ahead (mesh frames) after it (was 3: 1 closes the lips as
+                                  # often on all 255 real-voice prompts, 67 ms sooner; results/live.md)
 
     def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
         """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
@@ -206,7 +207,7 @@ class StreamingVisemeWeights:
 class IncrementalDecoder:
     """A model's autoregressive decoding, a few frames at a time, as features arrive.
 
-        dec = IncrementalDecoder(model, template, speaker=0, past_frames=60, ahead_frames=3)
+        dec = IncrementalDecoder(model, template, speaker=0, past_frames=60, ahead_frames=1)
         verts = dec.push(one_hot)        # (n, D_a) features of the next frames -> (k, V*3) vertices, k <= n + ...
         verts = dec.flush()              # end of stream: the frames still waiting for their look-ahead
 
@@ -217,8 +218,9 @@ class IncrementalDecoder:
     self-attention cache (default: the model's ``decoder_window``), so a long session runs in bounded memory.
     """
 
-    def __init__(self, model: torch.nn.Module, template: np.ndarray, speaker: int = 0, past_frames: int = 60,
-                 ahead_frames: int = 3, window: int | str | None = "config"):
+    def __init__(self, model: torch.nn.Module, template: np.ndarray, speaker: int = 0,
+                 past_frames: int = LiveSettings.past_frames, ahead_frames: int = LiveSettings.ahead_frames,
+                 window: int | str | None = "config"):
         from ..blocks.decoder import MotionDecoder, check_window
 
         if not isinstance(getattr(model, "decoder", None), MotionDecoder) or not hasattr(model, "encode_audio") \
