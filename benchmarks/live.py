@@ -145,7 +145,7 @@ def main(argv=None) -> None:
               f"{'offline std mm':>14} {'cpu/s':>6}")
         offline_verts = {name: animate_wave(model, wave, template, speaker, front_end=extractor)
                          for name, wave in waves.items()}
-        for past, ahead in [(60, 3), (60, 0), (30, 3), (120, 6)]:   # the first is LiveSettings' default
+        for past, ahead in [(60, 3), (60, 0), (30, 3), (120, 6)]:   # the first: the default until 4868760
             for name, wave in waves.items():
                 session = LiveSession(model, extractor, template, speaker,
                                       LiveSettings(past_frames=past, ahead_frames=ahead))
@@ -422,6 +422,8 @@ def fig_page(args) -> dict:
     import soundfile as sf
     from playwright.sync_api import sync_playwright
 
+    from dualtalker_lite.live.stream import LiveSettings
+
     exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
         raise SystemExit("figures page: no chromium (apt-get install chromium, or set DTL_CHROMIUM)")
@@ -431,12 +433,15 @@ def fig_page(args) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         wav = Path(tmp) / "speech.wav"
         sf.write(wav, wave, 16000, subtype="PCM_16")
-        for la in args.lookaheads:
+        aheads = args.ahead_frames or [LiveSettings.ahead_frames]
+        for la, ahead in [(la, ahead) for la in args.lookaheads for ahead in aheads]:
+            key = str(la) if ahead == LiveSettings.ahead_frames else f"{la} ms, encoder look-ahead {ahead} frames"
             with socket.socket() as s:
                 s.bind(("127.0.0.1", 0))
                 port = s.getsockname()[1]
             server = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.cli", "live", "--checkpoint",
-                                       str(args.checkpoint), "--port", str(port), "--lookahead-ms", str(la)],
+                                       str(args.checkpoint), "--port", str(port), "--lookahead-ms", str(la),
+                                       "--encoder-ahead-frames", str(ahead)],
                                       cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                       env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"})
             try:
@@ -473,10 +478,10 @@ def fig_page(args) -> dict:
             drawn = np.asarray(lat, float).reshape(-1, 2)                 # (frame, ms) per frame drawn
             kept = drawn[drawn[:, 0] >= warm]
             if len(kept) < 10:
-                raise SystemExit(f"figures page: only {len(kept)} frames drawn after the warm-up at look-ahead {la} ms")
-            out["lookaheads"][str(la)] = {"page": _lat(kept[:, 1] / 1000), "frames_drawn": len(drawn),
-                                          "draws_per_s": len(drawn) / (len(wave) / 16000)}
-            print(f"  look-ahead {la} ms: {out['lookaheads'][str(la)]}", flush=True)
+                raise SystemExit(f"figures page: only {len(kept)} frames drawn after the warm-up at look-ahead {key}")
+            out["lookaheads"][key] = {"page": _lat(kept[:, 1] / 1000), "frames_drawn": len(drawn),
+                                      "draws_per_s": len(drawn) / (len(wave) / 16000)}
+            print(f"  look-ahead {key}: {out['lookaheads'][key]}", flush=True)
     return out
 
 
@@ -644,7 +649,7 @@ def figures(argv) -> None:
     ap.add_argument("--past", type=float, default=None,
                     help="quality: the recogniser's past context in s (LiveSettings' default)")
     ap.add_argument("--ahead-frames", type=int, nargs="+", default=None,
-                    help="quality: the audio encoder's look-ahead(s) in mesh frames (LiveSettings' default, 3)")
+                    help="quality, page: the audio encoder's look-ahead(s) in mesh frames (LiveSettings' default)")
     ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
     ap.add_argument("--keep-earlier", type=Path, default=None, help="report: keep this earlier report whole")
