@@ -435,7 +435,7 @@ def fig_page(args) -> dict:
         sf.write(wav, wave, 16000, subtype="PCM_16")
         aheads = args.ahead_frames or [LiveSettings.ahead_frames]
         for la, ahead in [(la, ahead) for la in args.lookaheads for ahead in aheads]:
-            key = str(la) if ahead == LiveSettings.ahead_frames else f"{la} ms, encoder look-ahead {ahead} frames"
+            key = str(la) if aheads == [LiveSettings.ahead_frames] else f"{la} ms, encoder look-ahead {ahead} frames"
             with socket.socket() as s:
                 s.bind(("127.0.0.1", 0))
                 port = s.getsockname()[1]
