@@ -248,9 +248,9 @@ def live_parser() -> argparse.ArgumentParser:
                     help="recogniser past context: more closes the lips more often (results/live.md), costs CPU and "
                          "some latency (600: the cheaper setting before)")
     ap.add_argument("--encoder-ahead-frames", type=int, default=LiveSettings.ahead_frames,
-                    help="audio-encoder look-ahead in mesh frames (33 ms each) of the latency's fixed part: 1 "
-                         "closed the lips as often as 3 on the real-voice prompts, 67 ms sooner, with a little less "
-                         "agreement with the offline animation (results/live.md)")
+                    help="audio-encoder look-ahead in mesh frames (33 ms each) of the latency's fixed part: 0 "
+                         "closed the lips more often than 1 or 3 on the real-voice prompts, sooner, with a little "
+                         "less agreement with the offline animation (results/live.md)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
     ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")

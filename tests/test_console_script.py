@@ -319,8 +319,8 @@ HELP_DEFAULTS = {"train": {"--model": "dualtalker", "--epochs": "the recipe's",
                  "generate": {"--speakers": "10", "--processes": "2", "--format": "faceformer"},
                  "convert-templates": {"--out": "beside the pickle"},
                  "prepare-dataset": {},
-                 "live": {"--port": "8765", "--host": "127.0.0.1", "--lookahead-ms": "200",
-                          "--context-ms": "2000", "--encoder-ahead-frames": "1", "--speaker": "SPK01"}}
+                 "live": {"--port": "8765", "--host": "127.0.0.1", "--lookahead-ms": "250",
+                          "--context-ms": "2000", "--encoder-ahead-frames": "0", "--speaker": "SPK01"}}
 
 
 def option_help(text: str) -> dict[str, str]:

@@ -10,9 +10,9 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   kept (never revised). A mesh frame f then takes the nearest spike within ``window_s`` (after moving spikes
   ``lag_s`` earlier, as offline: :func:`~dualtalker_lite.recogniser.spike_track`), so it is final once the
   recogniser frames up to ``f / fps + lag_s + window_s`` are. Latency of the track: ``lookahead_s + lag_s +
-  window_s`` (0.2 + 0.02 + 0.1 s by default) plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
+  window_s`` (0.25 + 0.02 + 0.1 s by default) plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
   audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (:class:`LiveSettings`:
-  2 s past, 0.2 s ahead, hops of 0.2 s) cost 0.42 CPU s per s of audio for the track and decoder, 0.69 with the
+  2 s past, 0.25 s ahead, hops of 0.2 s) cost 0.45 CPU s per s of audio for the track and decoder, 0.69 with the
   server's scheduling over 10 minutes (``results/live.md``): below real time on one core. The past context is what the
   streamed track gains most from: on the real-voice benchmark 0.6 s of it closed the lips (< 1 mm) at 0.78 of /p b m/,
   2 s at 0.82, 3 and 4 s no more, against the offline track's 0.87 (``results/live.md``, "More recogniser context").
@@ -31,7 +31,7 @@ is asynchronous: the server calls ``push`` in a worker thread.
   ``viseme_PP``, ...: :mod:`dualtalker_lite.export.visemes`, what ``animate --format visemes`` writes), for avatars
   that are not this project's mesh. Each run of equal classes is a segment, coarticulated with the rig's dominance
   functions (:func:`~dualtalker_lite.export.visemes.viseme_weights`) over the last ``past_frames`` frames; a
-  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (33 ms) of the track:
+  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (none by default) of the track:
   anticipation reaches that far and no further (offline it reaches a segment's whole dominance span). The live
   track has no /n l/ class of its own, so those phones weigh on ``viseme_DD`` and ``viseme_nn`` stays 0.
 """
@@ -56,12 +56,13 @@ SAMPLE_RATE = 16000
 class LiveSettings:
     """What a live session trades: look-ahead (latency) against agreement with the offline animation, and past
     context and hop against cost. Defaults measured in ``docs/live.md``."""
-    lookahead_s: float = 0.2      # recogniser look-ahead
+    lookahead_s: float = 0.25     # recogniser look-ahead (was 0.2: 0.25 with ahead_frames 0 meets the closure target
+                                  # on all 255 real-voice prompts at a 50 ms smaller budget than 0.2 with 3; live.md)
     past_s: float = 2.0           # recogniser context before the first frame not yet final (was 0.6, results/live.md)
     hop_s: float = 0.2            # hama runs once per hop of new audio
     past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
-    ahead_frames: int = 1         # audio-encoder look-ahead (mesh frames) after it (was 3: 1 closes the lips as
-                                  # often on all 255 real-voice prompts, 67 ms sooner; results/live.md)
+    ahead_frames: int = 0         # audio-encoder look-ahead (mesh frames) after it (was 3: fewer close the lips
+                                  # more often live, at a little less agreement with offline; results/live.md)
 
     def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
         """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
