@@ -499,7 +499,7 @@ def fig_latency(args) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             clips.append(load_audio(p))
-    for la in (0, 100, 200):
+    for la in sorted({0, 100, 200, round(1000 * LiveSettings.lookahead_s)}):     # and the default's
         s = LiveSettings(lookahead_s=la / 1000)
         session = LiveSession(config.model, config.front_end, config.template, config.speaker, s)
         sim = simulate(session, wave, clock=args.clock)
@@ -678,12 +678,14 @@ FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose", "page")
 
 def report(out: Path, earlier: Path | None = None, key: str | None = None) -> None:
     """Join the steps' files into ``out``.json; ``earlier``: a previous report kept whole under ``key`` (figures of
-    an older default that the page still quotes)."""
+    an older default that the page still quotes), or, when that report already has ``key`` (it is the current
+    ``out`` itself, re-made after a step changed), its entry under ``key``: the same command re-makes the file."""
     parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in FIG_STEPS if (FIG_DIR / f"{k}.json").is_file()}
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "python benchmarks/live.py figures report"
     if earlier is not None:
-        parts[key or "earlier"] = json.loads(Path(earlier).read_text())
+        doc = json.loads(Path(earlier).read_text())
+        parts[key or "earlier"] = doc.get(key or "earlier", doc)
         command += f" --keep-earlier {earlier} --earlier-key {key or 'earlier'}"
     parts["report"] = provenance(command)  # each step's stamp is in its meta
     atomic_write_text(out.with_suffix(".json"), json.dumps(parts, indent=1))
