@@ -9,8 +9,9 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   frame j (t = 20 ms x j) is *final* once ``lookahead_s`` of audio after it has arrived, and only final frames are
   kept (never revised). A mesh frame f then takes the nearest spike within ``window_s`` (after moving spikes
   ``lag_s`` earlier, as offline: :func:`~dualtalker_lite.recogniser.spike_track`), so it is final once the
-  recogniser frames up to ``f / fps + lag_s + window_s`` are. Latency of the track: ``lookahead_s + lag_s +
-  window_s`` (0.25 + 0.02 + 0.1 s by default) plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
+  recogniser frames up to ``f / fps + lag_s + window_s`` are, or, when its nearest known spike is d < ``window_s``
+  away, up to ``f / fps + lag_s + d`` (a spike found later is farther: the same id, sooner). Latency of the track:
+  ``lookahead_s + lag_s + window_s`` (0.25 + 0.02 + 0.1 s by default) at most, plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
   audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (:class:`LiveSettings`:
   2 s past, 0.25 s ahead, hops of 0.2 s) cost 0.45 CPU s per s of audio for the track and decoder, 0.69 with the
   server's scheduling over 10 minutes (``results/live.md``): below real time on one core. The past context is what the
@@ -65,7 +66,8 @@ class LiveSettings:
                                   # more often live, at a little less agreement with offline; results/live.md)
 
     def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
-        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this."""
+        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this at most (in a
+        pause; during speech window_s is cut to the distance to the frame's nearest spike, StreamingVisemes)."""
         return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
 
 
@@ -81,10 +83,16 @@ class StreamingVisemes:
     ``window_s``, ``blank_bias``, ``fps`` and recogniser are used, so the track means what the model was trained
     on). hama runs only when at least ``hop_s`` of new audio has arrived. ``frames_done`` mesh frames have been
     returned so far; ``recogniser_seconds`` is the time spent in hama (the cost).
+
+    When a mesh frame is final: once every spike that could be its nearest is known. With ``full_window=True``
+    that is every spike within ``window_s`` (frame time + window_s known). By default a frame whose nearest known
+    spike lies d < window_s away is final as soon as the spikes up to frame time + d are known (any spike found
+    later is farther), so during speech, where hama spikes every 50-100 ms, a frame waits d instead of the whole
+    window; in a pause (no spike within the window) it waits the window. The ids are the same either way (tested).
     """
 
     def __init__(self, front_end: RecogniserExtractor, lookahead_s: float = LiveSettings.lookahead_s,
-                 past_s: float = LiveSettings.past_s, hop_s: float = LiveSettings.hop_s):
+                 past_s: float = LiveSettings.past_s, hop_s: float = LiveSettings.hop_s, full_window: bool = False):
         if not 0 <= lookahead_s <= 2.0:
             raise ValueError(f"lookahead must be between 0 and 2000 ms, got {lookahead_s * 1000:g} ms")
         if not 0 <= past_s <= 10.0 or not 0.02 <= hop_s <= 2.0:
@@ -99,6 +107,7 @@ class StreamingVisemes:
         self.spike_t, self.spike_v = np.empty(0), np.empty(0, np.int64)  # final spikes (lag-corrected s), visemes
         self.frames_done = 0
         self.recogniser_seconds = 0.0
+        self.full_window = bool(full_window)
         self._last_run = 0
 
     def push(self, samples: np.ndarray) -> np.ndarray:
@@ -150,7 +159,10 @@ class StreamingVisemes:
         else:  # mesh frame f is final once every spike within window_s of f / fps is known
             known_s = self.rec_done / RATE - self.ex.lag_s             # spikes before this time are all known
             stop = int(np.floor((known_s - self.ex.window_s) * fps - 1e-9)) + 1 if known_s > self.ex.window_s else 0
-            stop = min(stop, int(self.n * fps / SAMPLE_RATE))
+            limit = int(self.n * fps / SAMPLE_RATE)
+            if not self.full_window:                                   # ... or within its nearest known spike's d
+                stop = self._early_stop(max(stop, self.frames_done), limit, known_s)
+            stop = min(stop, limit)
         if stop <= self.frames_done:
             return np.empty(0, np.int64)
         f0 = self.frames_done
@@ -160,6 +172,20 @@ class StreamingVisemes:
         ids = spike_track(self.spike_t - f0 / fps, self.spike_v, stop - f0, fps, self.ex.window_s)
         self.frames_done = stop
         return ids
+
+
+    def _early_stop(self, f: int, limit: int, known_s: float) -> int:
+        """The first frame from ``f`` on that is not final yet (class doc): frame g is final when its nearest known
+        spike lies d <= window_s away and every spike before g / fps + d is known (a later one is farther)."""
+        fps, window, t = self.ex.fps, self.ex.window_s, self.spike_t
+        while f < limit and len(t):
+            tf = f / fps
+            i = int(np.searchsorted(t, tf))
+            d = min(abs(tf - t[i - 1]) if i > 0 else np.inf, abs(t[i] - tf) if i < len(t) else np.inf)
+            if d > window + 1e-9 or tf + d + 1e-6 >= known_s:
+                break
+            f += 1
+        return f
 
 
 class StreamingVisemeWeights:
