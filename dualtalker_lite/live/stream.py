@@ -21,7 +21,8 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   :meth:`~dualtalker_lite.blocks.decoder.MotionDecoder.cached_step`) for each new frame. The audio encoder of the
   models is non-causal (its receptive field is hundreds of frames: 454 for the tiny DualTalker), so offline
   decoding (``generate_chunks``) cannot start before it has seen 15 s of the future. Live, frame t's features are
-  encoded from the features of frames ``[t - past_frames, t + ahead_frames]`` only: an approximation (an encoder
+  encoded from the features of frames ``[t - past_frames, t + ahead_frames]`` (the earlier frames of a push that
+  decodes several: up to the last one's look-ahead, one encoder call per push): an approximation (an encoder
   trained on whole clips sees a window edge where it saw more speech), not the offline numbers. How close it comes
   is measured on a shipped clip (``benchmarks/live.py``, ``tests/test_live.py``: lip-distance correlation).
 
@@ -241,7 +242,9 @@ class IncrementalDecoder:
     For models with one :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (``model.decoder``) fed by
     ``model.encode_audio`` (DualTalker, FaceFormer); others are refused with one line. Frame t is decoded once the
     features of frame ``t + ahead_frames`` (plus the decoder's own alignment margin) have arrived; its encoded
-    features come from frames ``[t - past_frames, t + ahead_frames]`` only (module doc). ``window``: the decoder's
+    features come from frames ``[t - past_frames, t + ahead_frames]`` only (module doc), and, for the earlier frames
+    of a push that makes several decodable, from the frames up to the last one's look-ahead (one encoder call per
+    push): so the vertices depend a little on how the features are pushed. ``window``: the decoder's
     self-attention cache (default: the model's ``decoder_window``), so a long session runs in bounded memory.
     """
 

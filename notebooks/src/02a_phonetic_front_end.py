@@ -372,7 +372,7 @@ HTML(video._repr_html_())
 # **Live, while you speak.** The recording above is animated after you stop. For a face that follows you as you
 # speak, serve such a checkpoint with [`dualtalker-lite live --checkpoint runs/m.pt`](../docs/live.md) and open
 # <http://127.0.0.1:8765/>: the page streams the microphone to a local server that runs a causal version of
-# this viseme track (200 ms of look-ahead) and the model's cached decoder step, and draws the face, and beside
+# this viseme track (250 ms of look-ahead) and the model's cached decoder step, and draws the face, and beside
 # it a second head driven by the 15 standard viseme curves (`viseme_sil`, `viseme_PP`, ...), about half a
 # second behind the voice (`docs/live.md`).
 
