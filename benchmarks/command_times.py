@@ -20,7 +20,8 @@ Each command runs from the repository root as its own process (``subprocess.run`
   much more means company),
   ``OMP_NUM_THREADS`` as the command saw it, the commit (``+dirty`` with uncommitted changes) and the date.
 
-Rows are kept in ``results/command_times.json`` by name, so ``--only`` replaces those rows and keeps the others
+Rows are kept in ``results/command_times.json`` by name (written when the run ends; ``runs/command_times/
+rows_so_far.json`` after each command), so ``--only`` replaces those rows and keeps the others
 (each row carries its own machine, load and commit); ``results/command_times.md`` is rewritten from the JSON each
 time, with each time as the README and ``--help`` quote it: "about 12 min wall on 2 cores (8 CPU min)".
 
@@ -47,6 +48,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from dualtalker_lite.provenance import provenance  # noqa: E402  (no torch: this parent stays small)
+from dualtalker_lite.files import atomic_write_text  # noqa: E402
 OUT = ROOT / "runs" / "command_times"
 RESULTS = ROOT / "results" / "command_times"
 CLI = str(Path(sys.executable).with_name("dualtalker-lite"))
@@ -229,7 +231,9 @@ def main(argv: list[str] | None = None) -> None:
             continue
         rows[cmd.name] = measure(cmd)
         done.add(cmd.name)
-        write(rows)  # after each: a long --all run keeps what it measured if stopped
+        # after each, into runs/ (a long --all run keeps what it measured if stopped); results/ only at the end:
+        # writing it earlier would mark the tree dirty for the next rows' stamps (and fail make unit's provenance test)
+        atomic_write_text(OUT / "rows_so_far.json", json.dumps(rows, indent=1) + "\n")
     write(rows)
     failed = [n for n in done if rows[n]["status"] != 0]
     if failed:
