@@ -95,8 +95,7 @@ def test_streaming_track_has_the_offline_length_and_mostly_its_classes():
 
 def test_a_frame_is_final_once_its_nearest_spike_is_known_with_the_same_ids_as_waiting_the_whole_window():
     """The default finalisation (a frame whose nearest known spike is d <= 100 ms away waits for d, not the whole
-    window) gives exactly the ids of waiting the whole window, in the same pieces, and never later; the early frames
-    are what the rule says: each has a spike within the window, and every frame that waited is one without."""
+    window) gives exactly the ids of waiting the whole window, in the same pieces, and never later."""
     ex = new_extractor()
     wave = _wave()
     early, full = StreamingVisemes(ex), StreamingVisemes(ex, full_window=True)
@@ -112,8 +111,6 @@ def test_a_frame_is_final_once_its_nearest_spike_is_known_with_the_same_ids_as_w
     ahead = np.array(ahead)
     assert (ahead >= 0).all() and ahead.mean() > 0.5, ahead          # never later; frames sooner during speech
     # measured on this clip: up to 2 frames (67 ms) ahead after a push, 1.15 on average
-    with pytest.raises(ValueError, match="lookahead"):
-        StreamingVisemes(ex, lookahead_s=5)
 
 
 def test_incremental_decoder_with_whole_context_is_the_offline_decoding(config):
@@ -374,7 +371,7 @@ def test_a_streamed_clip_gives_every_frame_and_follows_the_offline_animation(con
     live = np.stack([frames[i] for i in range(len(frames))])
     lip = _lip(live, config)
     assert lip.std() > 0.2 * lip_off.std()                          # the face moves
-    assert np.corrcoef(lip, lip_off)[0, 1] > 0.9                    # measured: 0.997 (1 or 3 encoder frames)
+    assert np.corrcoef(lip, lip_off)[0, 1] > 0.9                    # measured: 0.995 (0 frames; 0.997 with 1 or 3)
 
 
 def test_streaming_viseme_weights_are_the_offline_coarticulation_with_whole_context():

@@ -11,12 +11,13 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   ``lag_s`` earlier, as offline: :func:`~dualtalker_lite.recogniser.spike_track`), so it is final once the
   recogniser frames up to ``f / fps + lag_s + window_s`` are, or, when its nearest known spike is d < ``window_s``
   away, up to ``f / fps + lag_s + d`` (a spike found later is farther: the same id, sooner). Latency of the track:
-  ``lookahead_s + lag_s + window_s`` (0.25 + 0.02 + 0.1 s by default) at most, plus up to one hop. Cost: hama on ``past_s + hop + lookahead_s`` of
-  audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the audio; the defaults (:class:`LiveSettings`:
-  2 s past, 0.25 s ahead, hops of 0.2 s) cost 0.45 CPU s per s of audio for the track and decoder, 0.69 with the
-  server's scheduling over 10 minutes (``results/live.md``): below real time on one core. The past context is what the
-  streamed track gains most from: on the real-voice benchmark 0.6 s of it closed the lips (< 1 mm) at 0.78 of /p b m/,
-  2 s at 0.82, 3 and 4 s no more, against the offline track's 0.87 (``results/live.md``, "More recogniser context").
+  ``lookahead_s + lag_s + window_s`` (0.25 + 0.02 + 0.1 s by default) at most, plus up to one hop. Cost: hama on
+  ``past_s + hop + lookahead_s`` of audio per hop, i.e. about ``(past_s + lookahead_s) / hop_s + 1`` times the
+  audio; the defaults (:class:`LiveSettings`: 2 s past, 0.25 s ahead, hops of 0.2 s) cost 0.45 CPU s per s of audio
+  for the track and decoder, 0.69 with the server's scheduling over 10 minutes (``results/live.md``, at 0.2 s ahead):
+  below real time on one core. The past context is what the streamed track gains most from: on the real-voice
+  benchmark 0.6 s of it closed the lips (< 1 mm) at 0.78 of /p b m/, 2 s at 0.82, 3 and 4 s no more, against the
+  offline track's 0.87 (``results/live.md``, "More recogniser context").
 * :class:`IncrementalDecoder` -- the model's autoregressive step (its KV cache,
   :meth:`~dualtalker_lite.blocks.decoder.MotionDecoder.cached_step`) for each new frame. The audio encoder of the
   models is non-causal (its receptive field is hundreds of frames: 454 for the tiny DualTalker), so offline
@@ -33,8 +34,8 @@ is asynchronous: the server calls ``push`` in a worker thread.
   ``viseme_PP``, ...: :mod:`dualtalker_lite.export.visemes`, what ``animate --format visemes`` writes), for avatars
   that are not this project's mesh. Each run of equal classes is a segment, coarticulated with the rig's dominance
   functions (:func:`~dualtalker_lite.export.visemes.viseme_weights`) over the last ``past_frames`` frames; a
-  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (none by default) of the track:
-  anticipation reaches that far and no further (offline it reaches a segment's whole dominance span). The live
+  frame's weights are computed when its vertices are, so they see the same ``ahead_frames`` (none by default) of the
+  track: anticipation reaches that far and no further (offline it reaches a segment's whole dominance span). The live
   track has no /n l/ class of its own, so those phones weigh on ``viseme_DD`` and ``viseme_nn`` stays 0.
 """
 from __future__ import annotations
@@ -174,7 +175,6 @@ class StreamingVisemes:
         self.frames_done = stop
         return ids
 
-
     def _early_stop(self, f: int, limit: int, known_s: float) -> int:
         """The first frame from ``f`` on that is not final yet (class doc): frame g is final when its nearest known
         spike lies d <= window_s away and every spike before g / fps + d is known (a later one is farther)."""
@@ -235,7 +235,7 @@ class StreamingVisemeWeights:
 class IncrementalDecoder:
     """A model's autoregressive decoding, a few frames at a time, as features arrive.
 
-        dec = IncrementalDecoder(model, template, speaker=0, past_frames=60, ahead_frames=1)
+        dec = IncrementalDecoder(model, template, speaker=0, past_frames=60, ahead_frames=0)
         verts = dec.push(one_hot)        # (n, D_a) features of the next frames -> (k, V*3) vertices, k <= n + ...
         verts = dec.flush()              # end of stream: the frames still waiting for their look-ahead
 
