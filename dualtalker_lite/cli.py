@@ -143,14 +143,19 @@ def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
                          "names modules that register more: docs/architecture.md)")
     ap.add_argument("--recipe", choices=("tiny", "fast"), default=None,
                     help="fast: the short recipe (TrainConfig.fast: the motion head started at the training motion's "
-                         "principal components, lr 6e-3, the step in their coordinates; dualtalker 30 epochs by "
-                         "default, faceformer 60; closes more lips on real voices than the tiny recipe for less CPU: "
-                         "results/time_to_quality_2core.md); "
+                         "principal components, lr 6e-3, the step in their coordinates, the bilabial contact "
+                         "term; dualtalker 20 epochs by default, faceformer 30; closes more lips on real voices "
+                         "than the tiny recipe for less CPU: results/time_to_quality_2core.md); "
                          "tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default) (default: fast for the "
                          "models it was measured on, dualtalker and faceformer; tiny for the others)")
     ap.add_argument("--epochs", type=int, default=None,
-                    help="passes over the training clips (default: the recipe's; fast: 30 for dualtalker, 40 for "
+                    help="passes over the training clips (default: the recipe's; fast: 20 for dualtalker, 30 for "
                          "faceformer; tiny: 45)")
+    ap.add_argument("--lip-contact", type=float, default=None, metavar="W",
+                    help="weight of the bilabial contact term (TrainConfig.lip_contact: the lip midpoints pulled "
+                         "together on frames labelled /p b m/, a deviation from the papers' losses, "
+                         "docs/design-notes.md); 0: the model's own loss alone (default: the recipe's, fast 0.001, "
+                         "tiny 0)")
     ap.add_argument("--clips", type=int, default=None,
                     help="train on N training clips only, spread evenly over the training set (a quick check; "
                          "default: all)")
@@ -311,6 +316,8 @@ def _check_train_args(args: argparse.Namespace) -> tuple[Path, Path, dict | None
         raise ValueError(f"--epochs {args.epochs}: must be at least 1")
     if args.checkpoint_every < 0:
         raise ValueError(f"--checkpoint-every {args.checkpoint_every}: must be 0 (never) or a number of epochs")
+    if args.lip_contact is not None and not (args.lip_contact >= 0 and math.isfinite(args.lip_contact)):
+        raise ValueError(f"--lip-contact {args.lip_contact}: must be a finite weight >= 0")
     if args.clips is not None and args.clips < 1:
         raise ValueError(f"--clips {args.clips}: must be at least 1")
     out = Path(args.out)
@@ -411,7 +418,7 @@ def _train(argv: list[str]) -> Path:
         args.features = front_ends.DEFAULT
     progress = progress_mode(args.quiet)  # a bar on a terminal (train's own), else lines (below), or none
     run = assemble_training(corpus=corpus, seed=args.seed, epochs=args.epochs, device=str(device),
-                            progress=progress == "bar", recipe=args.recipe,
+                            progress=progress == "bar", recipe=args.recipe, lip_contact=args.lip_contact,
                             **_training_clips(corpus, specs[args.model], args))
     weights = sum(p.numel() * p.element_size() for p in run.model.parameters())  # checkpoint ~1x, resume state ~3x
     check_free_space(out, weights * (4 if args.checkpoint_every else 1), "the checkpoint (and its resume state)")
@@ -419,7 +426,8 @@ def _train(argv: list[str]) -> Path:
     record = {"model": args.model, "corpus": str(Path(corpus.root).resolve()),
               "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
               "epochs": args.epochs, "clips": args.clips, "features": args.features, "seed": args.seed,
-              "training_clips": len(run.train_set), **({"recipe": args.recipe} if args.recipe != "tiny" else {})}
+              "training_clips": len(run.train_set), **({"recipe": args.recipe} if args.recipe != "tiny" else {}),
+              **({"lip_contact": run.train_config.lip_contact} if run.train_config.lip_contact else {})}
     done = 0 if resume is None else int(resume["train"]["epoch"])  # epochs completed before this run
     if resume is not None:
         _check_resume_args(resume_path, resume["args"], record)

@@ -22,7 +22,10 @@ FaceFormer-style baseline) starts the motion head at the training motion's top 6
 (``pca_init``, VOCA's initialisation), doubles the learning rate, and trains in those directions' coordinates
 (``basis_space``: each batch goes to 64 numbers per frame, :func:`basis_batch`, and the model's head and motion
 encoder stay in the span, ``MotionDecoder.set_motion_basis``): the vertex loss up to a constant at about two
-thirds of the step's CPU time (docs/design-notes.md, "The step in the basis's coordinates").
+thirds of the step's CPU time (docs/design-notes.md, "The step in the basis's coordinates"). It also adds the
+bilabial contact term (``lip_contact``, ``losses.contact``, eq. C1: the lip midpoints pulled together on frames
+labelled /p b m/), a named deviation from the papers' objectives (docs/design-notes.md, "The bilabial contact
+term"); ``lip_contact=0`` (``dualtalker-lite train --lip-contact 0``) trains the models' own losses alone.
 """
 from __future__ import annotations
 
@@ -68,6 +71,9 @@ class TrainConfig:
     basis_space: bool = False          # with pca_init: train the motion head and encoder in the span of those k
                                        # directions, the batch in k coordinates (basis_batch): the same loss up to a
                                        # constant, a third less CPU a step (MotionDecoder.set_motion_basis)
+    lip_contact: float = 0.0           # λ_c of the bilabial contact term (losses.contact, eq. C1, mm²): the lip
+                                       # midpoints pulled together on /p b m/ frames; a deviation from the papers,
+                                       # 0 = the model's own loss alone (needs the corpus's viseme labels)
     validate_every: int | None = 1     # epochs between validation LVEs (with a val loader); None: last; 0: never
     progress: bool = True
     device: str = "cpu"                # e.g. "cuda" for real datasets on a GPU
@@ -82,6 +88,8 @@ class TrainConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
         if not self.lr > 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
+        if not (self.lip_contact >= 0 and math.isfinite(self.lip_contact)):
+            raise ValueError(f"lip_contact must be a finite weight >= 0, got {self.lip_contact}")
         if self.basis_space and not self.pca_init:
             raise ValueError("basis_space trains in the span of the pca_init basis: set pca_init (e.g. 64) too")
 
@@ -116,8 +124,8 @@ RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, wa
 # noise, so 30 stays). FaceFormer-style 60: every one of 5 seeds at 0.81-0.90 (58 CPU s, less than its 40 epochs
 # without basis_space, 72; at 40 with it one seed of 3 at 0.79).
 # CorrTalk and EmoFace have none: no lever closed CorrTalk's lips within 10 epochs (docs/design-notes.md).
-FAST = dict(pca_init=64, lr=6e-3, basis_space=True)
-FAST_EPOCHS = {"dualtalker": 30, "faceformer": 60}
+FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
+FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30}
 
 
 def lr_factor(step: int, warmup_steps: int, decay: str, progress: float, min_lr_ratio: float = 0.0) -> float:
@@ -392,6 +400,85 @@ def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.T
     return (v[:, :k].T * std[:, None]).float()  # (k, V*3)
 
 
+_NO_VISEMES = ("TrainConfig.lip_contact: the training clips carry no 'visemes' labels (the frames of /p b m/); "
+               "train with lip_contact=0 or on a corpus with phone timing")
+
+
+class _LipContact:
+    """Eq. C1 (``losses.contact``) on a training step's output: the predicted lip midpoints on the batch's frames
+    labelled ``PP`` (/p b m/). In vertex coordinates they are 6 columns of ``out["vertices"]`` (B, T, V*3); in basis
+    coordinates (``basis_space``: ``out["vertices"]`` = z (B, T, k)) the model's vertices are template + P^T z / a +
+    the head bias's part outside the span (the mean motion's, which ``mean_init`` gave the head: ``MotionDecoder.
+    set_motion_basis``'s b_rest), so the midpoints are z @ rows + offset, rows = P[:, cols] / a (k, 6)."""
+
+    def __init__(self, lips: tuple[int, int], basis: torch.Tensor | None, mean: torch.Tensor | None):
+        from .face.visemes import VISEMES
+
+        self.pp = VISEMES.index("PP")
+        self.cols = torch.tensor([3 * lips[0] + i for i in range(3)] + [3 * lips[1] + i for i in range(3)])
+        self.rows = self.rest = None
+        if basis is not None:  # (k, V*3), rows orthonormal
+            k, v3 = basis.shape
+            self.rows = basis[:, self.cols.to(basis.device)] / (k / v3) ** 0.5  # (k, 6)
+            rest = torch.zeros(v3, dtype=basis.dtype, device=basis.device) if mean is None else \
+                mean.to(basis) - basis.T @ (basis @ mean.to(basis))  # (V*3,) outside the span
+            self.rest = rest[self.cols.to(basis.device)]  # (6,)
+        self.seen, self.warned = 0, False  # bilabial frames this epoch; said once that there were none
+
+    @staticmethod
+    def lips(cfg: "TrainConfig", train_loader) -> tuple[int, int] | None:
+        """The lip midpoints the term needs, or None (``lip_contact`` 0, or data without them: said on stderr).
+        Refuses a dataset whose clips carry no ``visemes`` labels."""
+        if not cfg.lip_contact:
+            return None
+        lips = _lip_midpoints(train_loader)
+        if lips is None:
+            print("train: lip_contact is set but the training data name no lip midpoints (the corpus's regions); "
+                  "the bilabial contact term is off", file=sys.stderr)
+            return None
+        data = getattr(train_loader, "dataset", None)
+        if data is not None and len(data) and "visemes" not in data[0]:
+            raise ValueError(_NO_VISEMES)
+        return lips
+
+    def __call__(self, vertices: torch.Tensor, batch: dict, template: torch.Tensor) -> torch.Tensor:
+        from .losses.contact import bilabial_contact
+
+        if "visemes" not in batch:
+            raise ValueError(_NO_VISEMES)
+        cols = self.cols.to(vertices.device)
+        if self.rows is None:
+            lip = vertices[..., cols]  # (B, T, 6)
+        else:
+            lip = vertices @ self.rows.to(vertices) + (template[:, cols] + self.rest.to(template))[:, None, :]
+        bilabial = (batch["visemes"] == self.pp) & batch["mask"]  # (B, T)
+        self.seen += int(bilabial.sum())
+        return bilabial_contact(lip[..., :3], lip[..., 3:], bilabial)
+
+    def end_epoch(self) -> None:
+        if not self.seen and not self.warned:
+            print("train: lip_contact: no training frame of this epoch is labelled /p b m/ (a corpus without phone "
+                  "timing?): the bilabial contact term is 0", file=sys.stderr)
+            self.warned = True
+        self.seen = 0
+
+
+def _lip_midpoints(train_loader) -> tuple[int, int] | None:
+    """The (upper, lower) lip-midpoint vertices of the training data's corpus (``regions["lip_midpoints"]``),
+    looking through a loader's dataset and wrappers (``Subset.dataset``, ``VisemeLabels.base``); None if none."""
+    data = getattr(train_loader, "dataset", train_loader)
+    for _ in range(5):
+        regions = getattr(getattr(data, "corpus", None), "regions", None) or {}
+        if "lip_midpoints" in regions:
+            up, lo = (int(i) for i in np.asarray(regions["lip_midpoints"]).reshape(-1)[:2])
+            return up, lo
+        inner = getattr(data, "dataset", None)
+        data = getattr(data, "base", None) if inner is None else inner
+        if data is None:
+            break
+    return None
+
+
 def basis_batch(batch: dict, basis: torch.Tensor) -> dict:
     r"""A batch in basis coordinates for a model training in the span of ``basis`` (k, V*3), rows orthonormal
     (``TrainConfig.basis_space``): "vertices" (B, T, V*3) -> z = a P (vertices - template) (B, T, k) with
@@ -461,12 +548,14 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     if cfg.basis_space and not (callable(set_basis) and callable(project)):  # before anything changes the model
         raise TypeError(f"TrainConfig.basis_space: {type(model).__name__} has no set_motion_basis(basis) and "
                         "project_motion_basis() (models with one MotionDecoder: dualtalker, faceformer)")
+    lips = _LipContact.lips(cfg, train_loader)  # before anything changes the model: refused or said in one line
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
-    init = hook(model, "init_output_bias")
+    init, mean = hook(model, "init_output_bias"), None
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
-        init(mean_motion(getattr(train_loader, "dataset", train_loader)))
+        mean = mean_motion(getattr(train_loader, "dataset", train_loader))
+        init(mean)
     init_basis, basis = hook(model, "init_output_basis"), None
     if cfg.pca_init:
         if not callable(init_basis):
@@ -491,6 +580,7 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
         basis = (basis / basis.norm(dim=1, keepdim=True)).to(cfg.device)  # (k, V*3) orthonormal, for basis_batch
     else:
         basis = None
+    contact = None if lips is None else _LipContact(lips, basis, mean)  # None: lip_contact off
     if resume is not None:  # after the initialisation above, which the saved weights then replace
         _restore(resume, model, opt, gen, train_loader)
         hist = History(**{k: list(v) for k, v in resume["history"].items()})
@@ -509,10 +599,15 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
             for group in opt.param_groups:
                 group["lr"] = cfg.lr * lr_factor(step, cfg.warmup_steps, cfg.decay, used, cfg.min_lr_ratio)
             batch = _to_device(_crop(batch, cfg.max_frames, gen), torch.device(cfg.device))
+            template = batch.get("template")  # (B, V*3), before basis_batch zeroes it
             if basis is not None:
                 batch = basis_batch(batch, basis)  # (B, T, k) coordinates
             out = model(batch)
             total, terms = model_loss(model, out, batch, weights)
+            if contact is not None:  # eq. C1, the short recipe's deviation from the model's own loss
+                c = contact(out["vertices"], batch, template)  # mm², unweighted
+                total = total + cfg.lip_contact * c
+                terms = {**terms, "contact": c.detach(), "total": total.detach()}
             _guard_finite(total, "loss", epoch, n_steps, batch)
             opt.zero_grad(set_to_none=True)
             total.backward()
@@ -530,6 +625,8 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
                 done = True
                 break
         hist.terms.append({k: v / n_steps for k, v in sums.items()})
+        if contact is not None:
+            contact.end_epoch()
         last = done or epoch == cfg.epochs - 1
         every = cfg.validate_every
         if validate and ((every is None and last) or (every and (epoch + 1) % every == 0)):

@@ -58,7 +58,8 @@ def test_console_script_is_declared():
 
 def test_train_fast_recipe_starts_the_head_at_the_principal_components_at_twice_the_rate(tmp_path):
     """`train --recipe fast` (issue 31), as a real process: the checkpoint records TrainConfig.fast's settings
-    (written out here: lr 6e-3, 64 PCA components, 30 epochs unless --epochs), the tiny recipe's otherwise."""
+    (written out here: lr 6e-3, 64 PCA components, the contact term at 1e-3, 20 epochs unless --epochs), the tiny
+    recipe's otherwise."""
     import subprocess
     import sys
 
@@ -68,5 +69,6 @@ def test_train_fast_recipe_starts_the_head_at_the_principal_components_at_twice_
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     cfg = load_checkpoint(ckpt)[1]["train_config"]
-    assert (cfg["lr"], cfg["pca_init"], cfg["epochs"], cfg["mean_init"]) == (6e-3, 64, 1, True)
+    assert (cfg["lr"], cfg["pca_init"], cfg["epochs"], cfg["mean_init"], cfg["lip_contact"]) == (6e-3, 64, 1, True,
+                                                                                                 1e-3)
     assert (cfg["batch_size"], cfg["warmup_steps"], cfg["decay"]) == (8, 30, "cosine")

@@ -523,6 +523,12 @@ def test_train_zero_epochs_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_train_negative_lip_contact_is_refused(tmp_path):
+    refused(cli("train", "--lip-contact", "-1", "--out", tmp_path / "m.pt"),
+            "--lip-contact -1.0: must be a finite weight >= 0")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_train_fast_recipe_for_a_model_without_one_is_refused(tmp_path):
     """--recipe fast exists for the models it was measured on (results/time_to_quality.md) only."""
     refused(cli("train", "--model", "corrtalk", "--recipe", "fast", "--out", tmp_path / "m.pt"),

@@ -87,7 +87,7 @@ class Assembly:
 def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = False, seed: int = 0,
                       epochs: int | None = 1, device: str = "cpu", progress: bool = False, threads: int | None = None,
                       time_budget_s: float | None = None, logmel: Any = None, record: Any = None,
-                      recipe: str = "tiny") -> Assembly:
+                      recipe: str = "tiny", lip_contact: float | None = None) -> Assembly:
     """Assemble the training of row ``spec`` on ``clips`` (log-mel clips of ``corpus``, or pairs of them when
     ``paired``) -> :class:`Assembly` (the steps are in the module docstring).
 
@@ -99,7 +99,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     them as they are, and the checkpoint names the recogniser). ``device``, ``progress`` and ``time_budget_s`` go to
     the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
     PCA-initialised head at lr 6e-3, for the models it was measured on); ``epochs`` sets the budget, None: the
-    recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``)."""
+    recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``); ``lip_contact`` the weight
+    of the bilabial contact term (``TrainConfig.lip_contact``), None: the recipe's (``fast``'s 1e-3, ``tiny``'s 0)."""
     from ..data.dataset import make_loader
     from ..data.pairs import make_pair_loader
     from ..models import registry
@@ -120,6 +121,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     fast = recipe == "fast" and trains  # the static template trains nothing: its recipe is moot
     preset = functools.partial(TrainConfig.fast, spec.model) if fast else TrainConfig.tiny
     budget = {} if epochs is None else {"epochs": epochs}
+    if lip_contact is not None:
+        budget["lip_contact"] = lip_contact
     train_config = preset(**budget, seed=seed, validate_every=0, device=str(device), progress=progress,
                           weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
     loader = None
