@@ -24,9 +24,9 @@
    ==================  ================================================================================
 
 Both models train with the short recipe (``--recipe fast``, ``train.TrainConfig.fast``: the PCA-initialised motion
-head at twice the learning rate, 30 epochs for DualTalker and 40 for FaceFormer-style, about 60 and 75 s of
-one-thread CPU time on this project's 2-core machine; they close more real /p b m/ than the tables' 37-epoch
-``--recipe tiny``, ``results/time_to_quality_2core.md``). To stay under four minutes on a busy machine, each model
+head at twice the learning rate, trained in its basis, with the bilabial contact term, 20 epochs for DualTalker and
+30 for FaceFormer-style, about 30 and 35 s of one-thread CPU time on this project's 2-core machine; they close more
+real /p b m/ than the tables' 37-epoch ``--recipe tiny``, ``results/time_to_quality_2core.md``). To stay under four minutes on a busy machine, each model
 also stops once ``--time-budget`` wall seconds of training have passed (default 180 s; the learning-rate schedule
 then ends early with it); ``metrics.json`` records the recipe, the epochs asked for and actually trained and each
 model's training CPU seconds, and a model that the budget stopped before its recipe's last epoch is named in one
@@ -112,7 +112,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m dualtalker_lite.demo", description=__doc__.split("\n")[0])
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
     p.add_argument("--recipe", choices=("fast", "tiny"), default="fast",
-                   help="training recipe: fast (default, TrainConfig.fast: 30 epochs DualTalker, 40 FaceFormer-style) "
+                   help="training recipe: fast (default, TrainConfig.fast: 20 epochs DualTalker, 30 FaceFormer-style) "
                         "or tiny (the tables' TrainConfig.tiny, 37 epochs: more CPU time, fewer closures on real voices)")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs per model, the same for both (default: the recipe's for each model)")

@@ -1,6 +1,7 @@
 """Training losses, one module per paper: ``dualtalker`` (eqs. 8-11 of DualTalker; re-exported here, so
 ``from dualtalker_lite.losses import joint_loss`` keeps working), ``reconstruction`` (the baselines' vertex MSE),
-``common`` (masked reductions shared by all).
+``common`` (masked reductions shared by all), ``contact`` (the short recipe's bilabial contact term, a project
+deviation added by ``train`` when ``TrainConfig.lip_contact`` is set).
 CorrTalk's and EmoFace's losses sit beside them in their own modules."""
 from .common import masked_mean
 from .corrtalk import CorrTalkWeights

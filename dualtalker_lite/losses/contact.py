@@ -1,5 +1,6 @@
-r"""The bilabial contact term: a project deviation from every paper, a named training option (``TrainConfig.lip_contact``),
-off in the papers' recipe (``TrainConfig.tiny``) and on in the short one (``TrainConfig.fast``, issue 31).
+r"""The bilabial contact term: a project deviation from every paper, a named training option
+(``TrainConfig.lip_contact``), off in the papers' recipe (``TrainConfig.tiny``) and on in the short one
+(``TrainConfig.fast``, issue 31).
 
 .. math::
 

@@ -31,6 +31,10 @@ Readings taken (the paper leaves these open; ``blocks.fusion`` has the reading o
   ``motion_dropout`` hides a fed-back past frame (zero motion) with probability p in training (``tiny()``: 0.5),
   ``scheduled_sampling`` (two-pass, primal only) is the alternative, and :meth:`DualTalker.init_output_bias` starts
   the motion head at the training set's mean motion (initialisation only; VOCA does the same).
+- A deviation from the paper's objective, in the short recipe only (``TrainConfig.fast``, ``dualtalker-lite
+  train``'s default; the tables' ``TrainConfig.tiny`` trains the joint loss alone): the bilabial contact term
+  λ_c L_contact (``losses.contact``, eq. C1: the lip midpoints pulled together on frames labelled /p b m/,
+  ``TrainConfig.lip_contact``; 0 switches it off).
 - Long audio: the extractor's self-attention is banded (+-``audio_radius`` frames) and ``generate`` decodes with
   bounded caches (``decoder_window`` tokens): exact for clips within both sizes, ``blocks.windowed`` bounds the rest.
   ``generate_chunks`` encodes the audio block by block within the extractor's receptive field (exact:

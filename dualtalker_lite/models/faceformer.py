@@ -17,7 +17,9 @@ Training uses a plain vertex reconstruction MSE, λ1 L_rec (FaceFormer's loss, `
 the value DualTalker's joint loss gave this model before issue 30, whose other terms were zero for it). The same
 project additions as DualTalker's apply: past-motion dropout (``motion_dropout``, 0.5 in ``tiny()``) and the
 mean-motion initialisation of the head (docs/design-notes.md), so the baseline is trained as well as the papers'
-models.
+models. Like DualTalker's, its objective gains the bilabial contact term λ_c L_contact (``losses.contact``, a
+project deviation; ``TrainConfig.lip_contact``, 0 switches it off) in the short recipe only (``TrainConfig.fast``);
+the tables' recipe trains the MSE alone.
 """
 from __future__ import annotations
 
