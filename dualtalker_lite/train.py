@@ -44,8 +44,8 @@ from tqdm.auto import tqdm
 from .models.contract import hook
 from .seeding import set_seed
 
-__all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "History", "lr_factor", "mean_motion", "loss_weights",
-           "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state", "predict",
+__all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "FAST_MODEL", "History", "lr_factor", "mean_motion",
+           "loss_weights", "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state", "predict",
            "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
@@ -105,7 +105,7 @@ class TrainConfig:
         (``lip_contact``), for the epochs :data:`FAST_EPOCHS` gives ``model`` (results/time_to_quality_2core.md)."""
         if model not in FAST_EPOCHS:
             raise ValueError(f"no short recipe measured for model {model!r} (measured: {sorted(FAST_EPOCHS)})")
-        return cls(**{**RECIPE, **FAST, "epochs": FAST_EPOCHS[model], **kw})
+        return cls(**{**RECIPE, **FAST, **FAST_MODEL.get(model, {}), "epochs": FAST_EPOCHS[model], **kw})
 
 
 # The recipe of the tiny models (module docstring: what changed and why, with the measurements). ``epochs`` is the
@@ -122,9 +122,12 @@ RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, wa
 # voices < 2 / < 1 mm 0.96 / 0.94-0.96, vowel frames shut <= 0.044, r 0.77, training-clip fit < 1 mm 0.92-0.94,
 # test-A with the true labels 0.90-0.95; without the term 30 epochs left one or two seeds in five at 0.75-0.79 < 1 mm
 # and the fit at 0.68); FaceFormer-style 30, 29-31 CPU s, every seed at 0.95 < 1 mm (60 before the term).
-# CorrTalk and EmoFace have none: they have no basis step (docs/design-notes.md).
+# CorrTalk 10 epochs without the basis step (its two decoders are combined per vertex by the mask, so it has none):
+# PCA-initialised heads, lr 6e-3 and the contact term close its lips where nothing did in 10 epochs before (0.00 < 1
+# mm without the term). EmoFace has none (its pseudo-pair training and Mesh Attention were not measured with it).
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
-FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30}
+FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
+FAST_MODEL = {"corrtalk": dict(basis_space=False)}  # per-model changes to FAST
 
 
 def lr_factor(step: int, warmup_steps: int, decay: str, progress: float, min_lr_ratio: float = 0.0) -> float:

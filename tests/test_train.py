@@ -448,8 +448,10 @@ def test_fast_recipe_is_the_tiny_recipe_with_the_pca_head_at_twice_the_rate():
     assert (ff["epochs"], ff["lr"], ff["pca_init"], ff["basis_space"], ff["lip_contact"]) == (30, 6e-3, 64, True, 1e-3)
     assert tiny["lip_contact"] == 0.0
     assert TrainConfig.fast(seed=3).seed == 3
-    with pytest.raises(ValueError, match="no short recipe measured for model 'corrtalk'"):
-        TrainConfig.fast("corrtalk")
+    ct = asdict(TrainConfig.fast("corrtalk"))  # no basis step: its two decoders are combined per vertex
+    assert (ct["epochs"], ct["lr"], ct["pca_init"], ct["basis_space"], ct["lip_contact"]) == (10, 6e-3, 64, False, 1e-3)
+    with pytest.raises(ValueError, match="no short recipe measured for model 'emoface'"):
+        TrainConfig.fast("emoface")
 
 
 # ---- basis_space: the step in k basis coordinates (issue 31) ------------------------------------------------------
