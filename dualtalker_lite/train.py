@@ -17,15 +17,15 @@ clipping at 1, batch 8 of whole clips, one torch thread, output-bias initialisat
 motion (``mean_init``), 37 epochs = 814 steps on the sample (about 120 CPU s for DualTalker). How each of these was
 chosen, with the measurements, is in docs/design-notes.md ("The CPU training recipe").
 
-The short recipe (``TrainConfig.fast()``, ``FAST``; ``dualtalker-lite train``'s default for DualTalker and the
-FaceFormer-style baseline) starts the motion head at the training motion's top 64 principal directions
+The short recipe (``TrainConfig.fast()``, ``FAST``; ``dualtalker-lite train``'s default for DualTalker, the
+FaceFormer-style baseline and CorrTalk) starts the motion head at the training motion's top 64 principal directions
 (``pca_init``, VOCA's initialisation), doubles the learning rate, and trains in those directions' coordinates
 (``basis_space``: each batch goes to 64 numbers per frame, :func:`basis_batch`, and the model's head and motion
-encoder stay in the span, ``MotionDecoder.set_motion_basis``): the vertex loss up to a constant at about two
-thirds of the step's CPU time (docs/design-notes.md, "The step in the basis's coordinates"). It also adds the
-bilabial contact term (``lip_contact``, ``losses.contact``, eq. C1: the lip midpoints pulled together on frames
-labelled /p b m/), a named deviation from the papers' objectives (docs/design-notes.md, "The bilabial contact
-term"); ``lip_contact=0`` (``dualtalker-lite train --lip-contact 0``) trains the models' own losses alone.
+encoder stay in the span, ``MotionDecoder.set_motion_basis``; not CorrTalk's, ``FAST_MODEL``): the vertex loss up to
+a constant at about two thirds of the step's CPU time (docs/design-notes.md, "The step in the basis's coordinates").
+It also adds the bilabial contact term (``lip_contact``, ``losses.contact``, eq. C1: the lip midpoints pulled together
+on frames labelled /p b m/), a named deviation from the papers' objectives (docs/design-notes.md, "The bilabial
+contact term"); ``lip_contact=0`` (``dualtalker-lite train --lip-contact 0``) trains the models' own losses alone.
 """
 from __future__ import annotations
 
