@@ -194,18 +194,21 @@ print({k: f"{float(v):.4f} mm" for k, v in terms.items()})
 # %% [markdown]
 # ## 3. Training CorrTalk and DualTalker with the same budget
 #
-# `train` with the package's recipe (`TrainConfig.tiny`: Adam, warm-up and cosine decay, gradient clipping, the
-# mean-motion and FAI initialisation), shortened so that it runs in seconds: 8 epochs of 6 batches of 8 clips
-# (48 steps) on random 40-frame crops at lr 6e-3. DualTalker gets exactly the same budget and
-# data. After every epoch `train` measures the validation lip vertex error of *generated* motion (LVE: per frame
-# the largest lip-vertex error, mm, averaged over frames).
+# `train` with the package's short recipe (`TrainConfig.fast`, notebook 08: Adam, warm-up and cosine decay, gradient
+# clipping, the mean-motion and FAI initialisation, both branches' motion heads started at the training motion's
+# top 64 principal components at lr 6e-3, and the bilabial contact term $\lambda_c L_{\rm contact}$ of notebook 08's
+# eq. C1, a project deviation from the paper's loss), shortened so that it runs in seconds: 24 epochs of 6 batches
+# of 8 clips (144 steps) on random 40-frame crops. DualTalker gets exactly the same budget and data (its recipe
+# also steps in the heads' basis; CorrTalk's cannot, its two decoders are combined vertex by vertex). After every
+# epoch `train` measures the validation lip vertex error of *generated* motion (LVE: per frame the largest
+# lip-vertex error, mm, averaged over frames).
 
 # %%
-EPOCHS = 8
-tc = TrainConfig.tiny(epochs=EPOCHS, lr=6e-3, max_frames=40, progress=False)
+EPOCHS = 24
 dcfg = DualTalkerConfig.tiny(n_vertices=V, n_speakers=len(corpus.train_speakers))
 models, hists, cpu_s = {}, {}, {}
 for label, make in (("CorrTalk", lambda: CorrTalk(cfg)), ("DualTalker", lambda: DualTalker(dcfg))):
+    tc = TrainConfig.fast(label.lower(), epochs=EPOCHS, max_frames=40, progress=False)  # short recipe, 40 frames
     set_seed(0)
     models[label] = make()
     c0 = time.process_time()
@@ -235,9 +238,11 @@ assert models["CorrTalk"].num_parameters() > 1.5 * models["DualTalker"].num_para
 # %%
 fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), constrained_layout=True)
 ep = np.arange(1, EPOCHS + 1)
-for key, label in (("reconstruction", "$L_{rec}$ (mm)"), ("velocity", "$L_{vel}$ (mm)"), ("total", "$L$")):
+for key, label in (("reconstruction", "$L_{rec}$ (mm)"), ("velocity", "$L_{vel}$ (mm)"),
+                   ("contact", "$L_{\\rm contact}$ (mm², unweighted)"),
+                   ("total", "$L$ (with $\\lambda_c L_{\\rm contact}$)")):
     axes[0].plot(ep, ct_hist.term(key), marker="o", ms=3, label=label)
-axes[0].set(title="CorrTalk: loss terms (training batches)", xlabel="epoch", ylabel="epoch mean (mm)")
+axes[0].set(title="CorrTalk: loss terms (training batches)", xlabel="epoch", ylabel="epoch mean", yscale="log")
 axes[1].plot(ep, hists["DualTalker"].term("primal"), marker="o", ms=3, label="$L_{\\rm Primal}$ (mm²)")
 axes[1].plot(ep, hists["DualTalker"].term("total"), marker="o", ms=3, label="weighted total")
 axes[1].set(title="DualTalker: joint loss (notebook 08)", xlabel="epoch", ylabel="epoch mean", yscale="log")
@@ -271,7 +276,7 @@ for key in ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "
     gt = f"   ground truth {sync['CorrTalk'][key + '_gt']:5.2f}" if key + "_gt" in sync["CorrTalk"] else ""
     print(f"{key:<22}" + "".join(f" {k} {s[key]:5.2f}" for k, s in sync.items()) + gt)
 assert all(v < lve_static for v in lve.values()) and all(s["lip_motion_ratio"] < 1 for s in sync.values())
-assert all(s["bilabial_closure_1mm"] <= 0.5 * s["bilabial_closure_1mm_gt"] for s in sync.values())  # far from it
+assert all(s["bilabial_closure_2mm"] >= 0.7 for s in sync.values())  # the lips close at most /p b m/
 assert sync["CorrTalk"]["bilabial_closure_2mm_gt"] == 1.0 and sync["CorrTalk"]["n_bilabials"] > 0
 
 # %% [markdown]
@@ -287,14 +292,19 @@ curves.update({k: lip_distance(p[b, :n_b], upper_mid, lower_mid) for k, p in pre
 corr = {k: np.corrcoef(curves["ground truth"], c)[0, 1] for k, c in curves.items() if k != "ground truth"}
 print(f"{CLIP}: correlation with the true lip distance:", {k: round(float(v), 2) for k, v in corr.items()})
 plot_lip_distance(times, curves, phonemes=corpus.meta(CLIP)["phonemes"],
-                  title=f"Lip distance, {CLIP}: '{corpus.meta(CLIP)['text']}' (48 training steps)")
+                  title=f"Lip distance, {CLIP}: '{corpus.meta(CLIP)['text']}' (144 training steps)")
 
 # %% [markdown]
-# After 48 steps both models stay close to the average mouth: the lips move far less than in the ground truth
-# (lip motion ratio under 1, asserted above), with some of the timing of the openings (the correlation), and
-# the closure rates at /p b m/ are far from the ground truth's. That is a few seconds of training, not a trained
-# model (notebook 08 shows the same for DualTalker). The comparison that counts is the table of section 6 (every
-# model trained with the full recipe, several seeds).
+# After 144 steps (about 24 CPU seconds for both) the lips of both models close at most /p b m/ of these unseen
+# sentences, from the log-mel spectrum of the corpus's voices: CorrTalk within 2 mm at 0.97, DualTalker at 0.76
+# (ground truth 1.00), with the timing of the openings (correlations 0.68 and 0.63 over all 12 clips). They do it
+# differently: DualTalker opens the vowels almost as wide as the ground truth (9.3 against 10.5 mm) and closes less
+# deeply; CorrTalk keeps its mouth too nearly shut (4.5 mm at the open vowels) and so closes easily: its larger
+# decoder has learnt the contact term's closures before the openings. With the recipe's whole budget (all 176
+# clips, 10 epochs, `dualtalker-lite train --model corrtalk`) it opens too: on 255 real prompts it closes < 1 mm at
+# 0.93-0.96 of the /p b m/ with vowel frames shut 0.05 (`results/time_to_quality_2core.md`). Before the short
+# recipe, 8 epochs (48 steps) of the tables' recipe closed no /p b m/ at all. The comparison that counts is the table
+# of section 6 (every model trained with the full recipe, several seeds).
 #
 # ## 4. Where each branch is wrong (Fig. 9 analogue)
 #
@@ -333,7 +343,7 @@ plot_branch_error_maps(face0, corpus.faces, *err_maps.values())
 # %% [markdown]
 # As in the paper's Fig. 9: the weak branch is far off at the mouth and the jaw (it carries little of their
 # motion), the strong branch is off where the mask gives it little (the forehead, asserted above), and the sum is
-# the closest of the three. The mask itself moved during training, but little in 48 steps:
+# the closest of the three. The mask itself moved during training (by 0.04 on average, at most 0.26):
 
 # %%
 mask_now = ct.mask.detach()
@@ -490,7 +500,7 @@ display(Markdown(experiments.table_markdown("main", main_specs, main_runs, main_
 #
 # ## 7. Side by side, with the speech
 #
-# The test clip of sections 3-4: ground truth, DualTalker and CorrTalk after the 48 training steps of section 3.
+# The test clip of sections 3-4: ground truth, DualTalker and CorrTalk after the 144 training steps of section 3.
 
 # %%
 # NBVAL_IGNORE_OUTPUT
@@ -529,7 +539,9 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 # - The loss is a per-vertex Euclidean distance plus the same distance on frame differences (eqs. 9-11,
 #   reconstructed; means over valid frames and vertices, in mm).
 # - The package's `train` trains it with no CorrTalk-specific code: the model supplies its loss, its loss
-#   weights and its data-dependent initialisation (mean motion, FAI mask).
+#   weights and its data-dependent initialisation (mean motion, FAI mask). With the short recipe (PCA-initialised
+#   heads and the bilabial contact term, a deviation from the paper's loss) 144 steps close its lips at 0.97 of
+#   test-A's /p b m/, where the tables' recipe closed none in 48; it still opens the vowels too little.
 # - The Fig. 9 analogue shows the division of labour: each branch alone is wrong where the mask gives it little,
 #   the sum is close everywhere.
 # - Whether each component helps on this corpus is answered by the Table III analogue from `results/`, with
