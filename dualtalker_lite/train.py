@@ -45,8 +45,8 @@ from .models.contract import hook
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "FAST_MODEL", "History", "lr_factor", "mean_motion",
-           "loss_weights", "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state", "predict",
-           "validation_lve", "save_checkpoint", "load_checkpoint"]
+           "loss_weights", "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state",
+           "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
 
 
 @dataclass
@@ -124,7 +124,7 @@ RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, wa
 # and the fit at 0.68); FaceFormer-style 30, 29-31 CPU s, every seed at 0.95 < 1 mm (60 before the term).
 # CorrTalk 10 epochs without the basis step (its two decoders are combined per vertex by the mask, so it has none):
 # PCA-initialised heads, lr 6e-3 and the contact term close its lips where nothing did in 10 epochs before (0.00 < 1
-# mm without the term). EmoFace has none (its pseudo-pair training and Mesh Attention were not measured with it).
+# mm without the term). EmoFace has none (no PCA head, no basis step; the term alone: docs/design-notes.md).
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
 FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
 FAST_MODEL = {"corrtalk": dict(basis_space=False)}  # per-model changes to FAST
