@@ -425,7 +425,7 @@ class _LipContact:
             rest = torch.zeros(v3, dtype=basis.dtype, device=basis.device) if mean is None else \
                 mean.to(basis) - basis.T @ (basis @ mean.to(basis))  # (V*3,) outside the span
             self.rest = rest[self.cols.to(basis.device)]  # (6,)
-        self.seen, self.warned = 0, False  # bilabial frames this epoch; said once that there were none
+        self.seen, self.warned = 0, False  # bilabial frames this epoch (a tensor while training); said once
 
     @staticmethod
     def lips(cfg: "TrainConfig", train_loader) -> tuple[int, int] | None:
@@ -454,11 +454,11 @@ class _LipContact:
         else:
             lip = vertices @ self.rows.to(vertices) + (template[:, cols] + self.rest.to(template))[:, None, :]
         bilabial = (batch["visemes"] == self.pp) & batch["mask"]  # (B, T)
-        self.seen += int(bilabial.sum())
+        self.seen = self.seen + bilabial.sum()  # no host sync per step
         return bilabial_contact(lip[..., :3], lip[..., 3:], bilabial)
 
     def end_epoch(self) -> None:
-        if not self.seen and not self.warned:
+        if not int(self.seen) and not self.warned:
             print("train: lip_contact: no training frame of this epoch is labelled /p b m/ (a corpus without phone "
                   "timing?): the bilabial contact term is 0", file=sys.stderr)
             self.warned = True
@@ -468,16 +468,11 @@ class _LipContact:
 def _lip_midpoints(train_loader) -> tuple[int, int] | None:
     """The (upper, lower) lip-midpoint vertices of the training data's corpus (``regions["lip_midpoints"]``),
     looking through a loader's dataset and wrappers (``Subset.dataset``, ``VisemeLabels.base``); None if none."""
-    data = getattr(train_loader, "dataset", train_loader)
-    for _ in range(5):
+    for data in _wrapped_datasets(train_loader):
         regions = getattr(getattr(data, "corpus", None), "regions", None) or {}
         if "lip_midpoints" in regions:
             up, lo = (int(i) for i in np.asarray(regions["lip_midpoints"]).reshape(-1)[:2])
             return up, lo
-        inner = getattr(data, "dataset", None)
-        data = getattr(data, "base", None) if inner is None else inner
-        if data is None:
-            break
     return None
 
 
@@ -493,19 +488,26 @@ def basis_batch(batch: dict, basis: torch.Tensor) -> dict:
     return {**batch, "vertices": z, "template": z.new_zeros(z.shape[0], k), "basis_k": k}
 
 
+def _wrapped_datasets(train_loader, depth: int = 4):
+    """The loader's dataset, then what it wraps (``Subset.dataset``, ``VisemeLabels.base``, ...), outermost first;
+    nothing for a list of batches."""
+    dataset = getattr(train_loader, "dataset", None)
+    for _ in range(depth):
+        if dataset is None:
+            return
+        yield dataset
+        inner = getattr(dataset, "dataset", None)
+        dataset = getattr(dataset, "base", None) if inner is None else inner
+
+
 def _generators(train_loader) -> dict[str, torch.Generator]:
     """The loader's and its dataset's own torch generators (shuffle order; crops, pseudo-pair partners)."""
     gens = {}
     if isinstance(getattr(train_loader, "generator", None), torch.Generator):
         gens["loader"] = train_loader.generator
-    dataset = getattr(train_loader, "dataset", None)
-    for i in range(4):  # the dataset, then what it wraps (Subset.dataset, VisemeLabels.base, ...)
-        if dataset is None:
-            break
+    for i, dataset in enumerate(_wrapped_datasets(train_loader)):
         if isinstance(getattr(dataset, "generator", None), torch.Generator):
             gens[f"dataset{i}"] = dataset.generator
-        inner = getattr(dataset, "dataset", None)
-        dataset = getattr(dataset, "base", None) if inner is None else inner
     return gens
 
 

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 from torch import Tensor
 
+from .common import masked_mean
+
 __all__ = ["bilabial_contact"]
 
 
@@ -39,5 +41,5 @@ def bilabial_contact(upper: Tensor, lower: Tensor, bilabial: Tensor, scale: floa
     if upper.shape != lower.shape or upper.shape[:-1] != bilabial.shape or upper.shape[-1] != 3:
         raise ValueError(f"bilabial_contact: upper, lower (B, T, 3) and bilabial (B, T), got {tuple(upper.shape)}, "
                          f"{tuple(lower.shape)} and {tuple(bilabial.shape)}")
-    gap = (upper - lower)[bilabial] * scale  # (N, 3) mm
-    return gap.square().sum(-1).sum() / max(int(gap.shape[0]), 1)
+    gap2 = ((upper - lower) * scale).square().sum(-1)  # (B, T) squared midpoint distance, mm²
+    return masked_mean(gap2, bilabial)  # over the bilabial frames; 0 if none (padding never enters)
