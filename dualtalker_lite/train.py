@@ -102,10 +102,12 @@ class TrainConfig:
     def fast(cls, model: str = "dualtalker", **kw) -> "TrainConfig":
         """The short recipe (issue 31, ``FAST``): the tiny recipe with the PCA-initialised motion head at twice the
         learning rate, trained in the basis's coordinates (``basis_space``), with the bilabial contact term
-        (``lip_contact``), for the epochs :data:`FAST_EPOCHS` gives ``model`` (results/time_to_quality_2core.md)."""
-        if model not in FAST_EPOCHS:
-            raise ValueError(f"no short recipe measured for model {model!r} (measured: {sorted(FAST_EPOCHS)})")
-        return cls(**{**RECIPE, **FAST, **FAST_MODEL.get(model, {}), "epochs": FAST_EPOCHS[model], **kw})
+        (``lip_contact``), for the epochs :data:`FAST_EPOCHS` gives ``model`` (results/time_to_quality_2core.md).
+        VOCA-style has no measured budget: only with ``epochs=`` (the tables' one budget for every row)."""
+        if model not in FAST_EPOCHS and not (model in FAST_MODEL and "epochs" in kw):
+            raise ValueError(f"no short recipe measured for model {model!r} (measured: {sorted(FAST_EPOCHS)}"
+                             f"{'; give epochs=' if model in FAST_MODEL else ''})")
+        return cls(**{**RECIPE, **FAST, **FAST_MODEL.get(model, {}), "epochs": FAST_EPOCHS.get(model), **kw})
 
 
 # The recipe of the tiny models (module docstring: what changed and why, with the measurements). ``epochs`` is the
@@ -127,7 +129,8 @@ RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, wa
 # mm without the term). EmoFace has none (no PCA head, no basis step; the term alone: docs/design-notes.md).
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
 FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
-FAST_MODEL = {"corrtalk": dict(basis_space=False)}  # per-model changes to FAST
+# per-model changes to FAST; VOCA-style (a sliding window, no autoregressive decoder) has no basis step either
+FAST_MODEL = {"corrtalk": dict(basis_space=False), "voca": dict(basis_space=False)}
 
 
 def lr_factor(step: int, warmup_steps: int, decay: str, progress: float, min_lr_ratio: float = 0.0) -> float:

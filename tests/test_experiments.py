@@ -204,6 +204,9 @@ def test_reuse_refuses_a_table_with_another_budget(quick_tables, tmp_path):
         ex.reusable_runs([path], 37, json.loads(path.read_text())["corpus"], quick=True)
     with pytest.raises(ValueError, match=r"main\.json: cannot reuse its runs: quick is True, this invocation has False"):
         ex.reusable_runs([path], 1, json.loads(path.read_text())["corpus"], quick=False)
+    with pytest.raises(ValueError, match=r"main\.json: cannot reuse its runs: recipe is 'tiny', this invocation has "
+                                         r"'fast'"):  # a table written before --recipe: the tiny recipe
+        ex.reusable_runs([path], 1, json.loads(path.read_text())["corpus"], quick=True, recipe="fast")
     bad = tmp_path / "junk.json"
     bad.write_text("[1, 2]")
     with pytest.raises(ValueError, match=r"junk\.json: not a table written by this runner"):
@@ -221,6 +224,24 @@ def test_save_models_writes_one_loadable_checkpoint_per_trained_run(tmp_path):
     model, ckpt = load_checkpoint(models / "DualTalker_seed0.pt")
     assert type(model).__name__ == "DualTalker" and ckpt["train_config"]["epochs"] == 1
     assert ex.command._slug("w/o Mesh Attention") == "w-o_Mesh_Attention"
+
+
+def test_fast_recipe_tables_record_it_and_train_each_row_with_it(tmp_path):
+    """--recipe fast (issue 31 item 6): every trained row is assembled with TrainConfig.fast at the one budget,
+    the shared-weights row without the PCA head and basis step its tied head cannot have; the table says so."""
+    from dualtalker_lite.checkpoints import load_checkpoint
+
+    out, models = tmp_path / "t", tmp_path / "models"
+    ex.main(["--table", "ablation", "--quick", "--recipe", "fast", "--out", str(out), "--no-progress",
+             "--save-models", str(models)])
+    payload = json.loads((out / "ablation.json").read_text())
+    assert payload["recipe"] == "fast"
+    full = load_checkpoint(models / "DualTalker_full_seed0.pt")[1]["train_config"]
+    tied = load_checkpoint(models / "shared_enc-dec_weights_seed0.pt")[1]["train_config"]
+    assert (full["lr"], full["pca_init"], full["basis_space"], full["lip_contact"]) == (6e-3, 64, True, 1e-3)
+    assert (tied["lr"], tied["pca_init"], tied["basis_space"], tied["lip_contact"]) == (6e-3, 0, False, 1e-3)
+    md = (out / "ablation.md").read_text()
+    assert "the short recipe (`TrainConfig.fast`" in md and "short recipe with pca_init=0, basis_space=False" in md
 
 
 # ------------------------------------------------------------------------------ the demo

@@ -452,6 +452,11 @@ def test_fast_recipe_is_the_tiny_recipe_with_the_pca_head_at_twice_the_rate():
     assert (ct["epochs"], ct["lr"], ct["pca_init"], ct["basis_space"], ct["lip_contact"]) == (10, 6e-3, 64, False, 1e-3)
     with pytest.raises(ValueError, match="no short recipe measured for model 'emoface'"):
         TrainConfig.fast("emoface")
+    with pytest.raises(ValueError, match=r"no short recipe measured for model 'voca'.*give epochs="):
+        TrainConfig.fast("voca")  # no measured budget: the tables give their one budget
+    voca = asdict(TrainConfig.fast("voca", epochs=30))  # a sliding window: no basis step
+    assert (voca["epochs"], voca["lr"], voca["pca_init"], voca["basis_space"], voca["lip_contact"]) == \
+        (30, 6e-3, 64, False, 1e-3)
 
 
 # ---- basis_space: the step in k basis coordinates (issue 31) ------------------------------------------------------

@@ -99,7 +99,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     them as they are, and the checkpoint names the recogniser). ``device``, ``progress`` and ``time_budget_s`` go to
     the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
     PCA-initialised head at lr 6e-3, for the models it was measured on); ``epochs`` sets the budget, None: the
-    recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``); ``lip_contact`` the weight
+    recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``); with ``fast`` the row's
+    ``fast_changes`` apply (the shared-weights ablation: no PCA head, no basis step); ``lip_contact`` the weight
     of the bilabial contact term (``TrainConfig.lip_contact``), None: the recipe's (``fast``'s 1e-3, ``tiny``'s 0)."""
     from ..data.dataset import make_loader
     from ..data.pairs import make_pair_loader
@@ -120,7 +121,9 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     trains = any(p.requires_grad for p in model.parameters())
     fast = recipe == "fast" and trains  # the static template trains nothing: its recipe is moot
     preset = functools.partial(TrainConfig.fast, spec.model) if fast else TrainConfig.tiny
-    budget = {} if epochs is None else {"epochs": epochs}
+    budget = {**spec.fast_changes} if fast else {}
+    if epochs is not None:
+        budget["epochs"] = epochs
     if lip_contact is not None:
         budget["lip_contact"] = lip_contact
     train_config = preset(**budget, seed=seed, validate_every=0, device=str(device), progress=progress,

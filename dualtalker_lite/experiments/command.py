@@ -23,6 +23,8 @@ from .report import refresh_table, write_table
 from .runner import data_split, load_data, run_specs
 from .specs import FEATURES, TABLES, RunSpec, table_specs, table_split
 
+RECIPES = ("tiny", "fast")  # assembly.assemble_training's recipes
+
 # ------------------------------------------------------------------------------------------- command line
 def _display_path(path: str | Path) -> str:
     """The corpus folder as written into results: relative to the repository (or the working directory) when
@@ -42,8 +44,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--table", nargs="+", default=["main"], choices=[*TABLES, "all"],
                    help="one or more tables (identical runs shared between them), or 'all'")
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    p.add_argument("--recipe", choices=RECIPES, default="tiny",
+                   help="training recipe of every trained row: tiny (default; TrainConfig.tiny, the models' own "
+                        "losses) or fast (TrainConfig.fast, train's default: the PCA-initialised head at lr 6e-3, "
+                        "the basis step where the model has one, and the bilabial contact term)")
     p.add_argument("--epochs", type=int, default=None,
-                   help="fixed training budget of every trained model (default: the recipe's, TrainConfig.tiny())")
+                   help="fixed training budget of every trained model (default: the recipe's: tiny 37; fast the "
+                        "longest of its per-model budgets, 30, so that every model has converged)")
     p.add_argument("--features", choices=FEATURES, default=FEATURES[0],
                    help="front end of every row that does not name its own: visemes (default: the phonetic route, "
                         "trained on the corpus's viseme labels and tested on the phoneme recogniser's tracks; "
@@ -68,11 +75,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False,
-                  commit: str | None = None) -> tuple[dict, list[dict]]:
+                  commit: str | None = None, recipe: str = "tiny") -> tuple[dict, list[dict]]:
     """Runs of earlier tables that a new invocation may take over: {(key, seed): run}, plus one provenance entry
     per table (file name, the commits of the runs taken, runs taken, runs left to recompute). Only tables with the
-    same epoch budget, the same corpus and the same ``--quick`` setting qualify; a table that does not is refused
-    with one line naming it and the mismatch.
+    same epoch budget, the same corpus, the same ``--quick`` setting and the same recipe (a table written before
+    ``--recipe`` existed: "tiny") qualify; a table that does not is refused with one line naming it and the
+    mismatch.
 
     Each run keeps the commit it was computed at (its ``git``; a run without one takes its table's, unless that
     table itself reused runs: then its origin is unknown). A run from a dirty tree or of unknown origin is not
@@ -88,8 +96,8 @@ def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: 
             runs = payload["runs"]
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise ValueError(f"{path}: not a table written by this runner ({type(e).__name__}: {e})") from None
-        for field_, want in (("epochs", epochs), ("corpus", corpus), ("quick", quick)):
-            if payload.get(field_) != want:
+        for field_, want in (("epochs", epochs), ("corpus", corpus), ("quick", quick), ("recipe", recipe)):
+            if payload.get(field_, "tiny" if field_ == "recipe" else None) != want:
                 raise ValueError(f"{path}: cannot reuse its runs: {field_} is {payload.get(field_)!r}, "
                                  f"this invocation has {want!r}")
         table_git = payload.get("git", "") if not payload.get("reused_from") else "unknown"
@@ -115,9 +123,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
         return {Path(p).stem: refresh_table(p) for p in args.refresh}
     tables = list(TABLES) if "all" in args.table else list(dict.fromkeys(args.table))
     if args.epochs is None:
-        from ..train import TrainConfig
+        from ..train import FAST_EPOCHS, TrainConfig
 
-        args.epochs = TrainConfig.tiny().epochs
+        args.epochs = max(FAST_EPOCHS.values()) if args.recipe == "fast" else TrainConfig.tiny().epochs
     epochs, seeds = (1, args.seeds[:1]) if args.quick else (args.epochs, args.seeds)
     torch.set_num_threads(1)
     data = load_data(args.corpus, args.quick)
@@ -129,7 +137,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
             for seed in seeds:
                 unique.setdefault((s.key(table_split(t)), seed), (s, seed, table_split(t)))
     stamp = provenance("python -m dualtalker_lite.experiments " + shlex.join(argv))
-    old, reused = (reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick, stamp["commit"])
+    old, reused = (reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick, stamp["commit"],
+                                 args.recipe)
                    if args.reuse else ({}, []))
     taken = {k: old[k] for k in unique if k in old}
     cost = {"template": 0, "voca": 1, "corrtalk": 4, "emoface": 5}  # longest jobs first: the pool finishes together
@@ -138,16 +147,16 @@ def main(argv: Sequence[str] | None = None) -> dict:
     print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused"
           f"{f' ({not_clean} stored runs not from a clean commit are recomputed)' if not_clean else ''} "
           f"({', '.join(tables)}; seeds {seeds}; "
-          f"{epochs} epochs; {args.processes} process(es))", flush=True)
+          f"{epochs} epochs, recipe {args.recipe}; {args.processes} process(es))", flush=True)
     checkpoints = None
     if args.save_models is not None:
         args.save_models.mkdir(parents=True, exist_ok=True)
         checkpoints = [args.save_models / f"{_slug(spec.row)}_seed{seed}.pt" for spec, seed, _ in jobs]
     results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, checkpoints=checkpoints,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, recipe=args.recipe)
     by_key = {**taken, **{(r["key"], r["seed"]): {**r, "git": stamp["commit"]} for r in results}}
     meta = {"command": stamp["command"], "argv": argv,
-            "seeds": seeds, "epochs": epochs, "processes": args.processes, "quick": args.quick,
+            "seeds": seeds, "epochs": epochs, "recipe": args.recipe, "processes": args.processes, "quick": args.quick,
             "features": args.features,
             "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": stamp["commit"],
             "created": stamp["created"], "torch": torch.__version__, "machine": stamp["machine"],

@@ -157,6 +157,13 @@ def refresh_table(path: str | Path) -> tuple[Path, Path]:
     return path, md_path
 
 
+RECIPE_LINES = {  # the training recipe of a table (its meta's "recipe", --recipe), as its header says it
+    "tiny": "the tiny recipe (`TrainConfig.tiny`: each model's own losses)",
+    "fast": "the short recipe (`TrainConfig.fast`: the PCA-initialised motion head at lr 6e-3, the basis step where "
+            "the model has one, and the bilabial contact term at λ_c 1e-3 in every trained row, a project "
+            "deviation from the papers' losses; rows that change it say so)"}
+
+
 def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dict,
                    metrics: Sequence[str] | None = None) -> str:
     """The Markdown table of :func:`write_table`, from the runs (summaries recomputed with the current collapse
@@ -179,10 +186,11 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
         columns = [c for c in columns if c[0] in set(metrics)]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
     caveat = [f"> {meta['caveat']}", ""] if meta.get("caveat") else []  # e.g. stale rows (kept by refresh_table)
+    recipe = RECIPE_LINES[meta.get("recipe", "tiny")]  # tables written before --recipe: the tiny recipe
     lines = [f"# {TITLES[table]}", "", *caveat,
              f"Command: `{meta['command']}`", "", _front_end_line(specs, meta), "",
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
-             f"(fixed budget, no early stopping, no model selection); train clips: {meta['n_train_clips']}; "
+             f"(fixed budget, no early stopping, no model selection), {recipe}; train clips: {meta['n_train_clips']}; "
              f"{split} clips: {meta['n_test_clips']}{quick}; "
              f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
              f"commit {meta['git']}; {meta['created']}.{shown}", "",
@@ -193,6 +201,8 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
     for s in specs:
         sm = summary[s.row]
         note = s.note
+        if meta.get("recipe") == "fast" and s.fast_changes:
+            note = f"{note}; short recipe with {', '.join(f'{k}={v}' for k, v in s.fast_changes.items())}"
         if ref is not None and s.row != ref.row and s.model != "template":
             cmp = _compare(sm, summary[ref.row], ref.row, s.expect)
             note = f"{note}; {cmp}" if note else cmp

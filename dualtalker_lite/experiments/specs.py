@@ -79,6 +79,9 @@ class RunSpec:
     reference: bool = False                             # the row every other row of the table is compared with
     expect: str = ""                                    # the paper's claim vs the reference: "worse" | "better" |
                                                         # "" (the paper has no such row: no claim)
+    fast_changes: dict = field(default_factory=dict)    # what this row changes in the short recipe (--recipe fast;
+                                                        # TrainConfig fields); not in key(): the recipe is the
+                                                        # table's (checked on reuse), this follows from the row
 
     def __post_init__(self):
         if self.data not in DATA:
@@ -165,7 +168,9 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
                     note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
                          "driving signal, so an easier input than in the paper)", expect="worse"),
             RunSpec("shared enc/dec weights", **full, model_overrides={"share_enc_dec": True},
-                    note="decoders = transposed encoders", expect="worse"),
+                    note="decoders = transposed encoders", expect="worse",
+                    # the tied head has no weights of its own to start from the PCA basis, nor a basis step
+                    fast_changes={"pca_init": 0, "basis_space": False}),
         ]
     if table == "sweep":
         if bandwidth is None:
