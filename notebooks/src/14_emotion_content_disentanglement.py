@@ -338,7 +338,10 @@ print(f"{emo_name} against its neutral twin: {diff_mm.mean():.2f} mm per vertex 
 #   the paper's $\lambda$'s in metres equal ours in mm on every vertex term.
 # - After a few dozen steps, read the classifier's accuracy, the probes and the $\eta^2$ table above: they show how far
 #   the two feature spaces have split at this budget (the printed numbers, not a claim of this notebook). A real
-#   split needs the longer runs of notebook 15 and the experiments.
+#   split needs the longer runs of notebook 15 and the experiments. Its lips do not close yet either: notebook 15
+#   (section 6) trains an EmoFace whose lips close at the /p b m/ of unseen emotional sentences in 100 steps, on the
+#   phonetic route with the short recipe's levers; this notebook keeps both branches on the log-mel, because its
+#   question is what each branch takes from the sound.
 #
 # ## Exercises
 #
