@@ -126,7 +126,8 @@ RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, wa
 # and the fit at 0.68); FaceFormer-style 30, 29-31 CPU s, every seed at 0.95 < 1 mm (60 before the term).
 # CorrTalk 10 epochs without the basis step (its two decoders are combined per vertex by the mask, so it has none):
 # PCA-initialised heads, lr 6e-3 and the contact term close its lips where nothing did in 10 epochs before (0.00 < 1
-# mm without the term). EmoFace has none (no PCA head, no basis step; the term alone: docs/design-notes.md).
+# mm without the term). EmoFace has no measured budget (its Mesh Attention mixes the branches per vertex: no basis
+# step); its PCA heads, lr 6e-3 and the term close its lips in notebook 15's 100 steps (docs/design-notes.md).
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
 FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
 # per-model changes to FAST; VOCA-style (a sliding window, no autoregressive decoder) has no basis step either
