@@ -402,7 +402,7 @@ n_k = lens[k]
 plot_lip_distance(np.arange(n_k) / corpus.fps,
                   {"ground truth": lip_distance(tb["vertices"][k, :n_k], upper_mid, lower_mid),
                    "EmoFace (tiny), 100 steps": lip_distance(lip_pred[k, :n_k], upper_mid, lower_mid)},
-                  phonemes=corpus.meta(tb["name"][k])["phonemes"], figsize=(11, 3.2),
+                  phonemes=[s for s in corpus.meta(tb["name"][k])["phonemes"] if s[0] in BILABIALS], figsize=(11, 3.2),
                   title=f"Lip distance, {tb['name'][k]}: '{corpus.meta(tb['name'][k])['text']}' (/p b m/ shaded)")
 
 # %% [markdown]
