@@ -204,9 +204,13 @@ def test_reuse_refuses_a_table_with_another_budget(quick_tables, tmp_path):
         ex.reusable_runs([path], 37, json.loads(path.read_text())["corpus"], quick=True)
     with pytest.raises(ValueError, match=r"main\.json: cannot reuse its runs: quick is True, this invocation has False"):
         ex.reusable_runs([path], 1, json.loads(path.read_text())["corpus"], quick=False)
-    with pytest.raises(ValueError, match=r"main\.json: cannot reuse its runs: recipe is 'tiny', this invocation has "
-                                         r"'fast'"):  # a table written before --recipe: the tiny recipe
-        ex.reusable_runs([path], 1, json.loads(path.read_text())["corpus"], quick=True, recipe="fast")
+    old = json.loads(path.read_text())
+    del old["recipe"]  # a table written before --recipe: the tiny recipe
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    with pytest.raises(ValueError, match=r"old\.json: cannot reuse its runs: recipe is 'tiny', this invocation has "
+                                         r"'fast'"):
+        ex.reusable_runs([tmp_path / "old.json"], 1, old["corpus"], quick=True, recipe="fast")
+    assert len(ex.reusable_runs([tmp_path / "old.json"], 1, old["corpus"], quick=True, commit=old["git"])[0]) > 0
     bad = tmp_path / "junk.json"
     bad.write_text("[1, 2]")
     with pytest.raises(ValueError, match=r"junk\.json: not a table written by this runner"):

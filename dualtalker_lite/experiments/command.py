@@ -97,9 +97,9 @@ def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: 
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise ValueError(f"{path}: not a table written by this runner ({type(e).__name__}: {e})") from None
         for field_, want in (("epochs", epochs), ("corpus", corpus), ("quick", quick), ("recipe", recipe)):
-            if payload.get(field_, "tiny" if field_ == "recipe" else None) != want:
-                raise ValueError(f"{path}: cannot reuse its runs: {field_} is {payload.get(field_)!r}, "
-                                 f"this invocation has {want!r}")
+            have = payload.get(field_, "tiny" if field_ == "recipe" else None)  # before --recipe: the tiny one
+            if have != want:
+                raise ValueError(f"{path}: cannot reuse its runs: {field_} is {have!r}, this invocation has {want!r}")
         table_git = payload.get("git", "") if not payload.get("reused_from") else "unknown"
         kept = [{**run, "git": run.get("git") or table_git} for run in runs]
         kept = [run for run in kept if is_clean_commit(run["git"]) or run["git"] == commit]

@@ -157,8 +157,7 @@ def refresh_table(path: str | Path) -> tuple[Path, Path]:
     return path, md_path
 
 
-RECIPE_LINES = {  # the training recipe of a table (its meta's "recipe", --recipe), as its header says it
-    "tiny": "the tiny recipe (`TrainConfig.tiny`: each model's own losses)",
+RECIPE_LINES = {  # a table header's words for a recipe other than the tiny one (its meta's "recipe", --recipe)
     "fast": "the short recipe (`TrainConfig.fast`: the PCA-initialised motion head at lr 6e-3, the basis step where "
             "the model has one, and the bilabial contact term at λ_c 1e-3 in every trained row, a project "
             "deviation from the papers' losses; rows that change it say so)"}
@@ -186,11 +185,12 @@ def table_markdown(table: str, specs: list[RunSpec], runs: list[dict], meta: dic
         columns = [c for c in columns if c[0] in set(metrics)]
     quick = " (QUICK smoke run: not a result)" if meta["quick"] else ""
     caveat = [f"> {meta['caveat']}", ""] if meta.get("caveat") else []  # e.g. stale rows (kept by refresh_table)
-    recipe = RECIPE_LINES[meta.get("recipe", "tiny")]  # tables written before --recipe: the tiny recipe
+    recipe = meta.get("recipe", "tiny")  # tables written before --recipe: the tiny recipe, which goes unsaid
+    recipe = f", {RECIPE_LINES[recipe]}" if recipe != "tiny" else ""
     lines = [f"# {TITLES[table]}", "", *caveat,
              f"Command: `{meta['command']}`", "", _front_end_line(specs, meta), "",
              f"Seeds: {len(seeds)} ({', '.join(map(str, seeds))}); epochs: {meta['epochs']} for every trained model "
-             f"(fixed budget, no early stopping, no model selection), {recipe}; train clips: {meta['n_train_clips']}; "
+             f"(fixed budget, no early stopping, no model selection){recipe}; train clips: {meta['n_train_clips']}; "
              f"{split} clips: {meta['n_test_clips']}{quick}; "
              f"autoregressive generation; mean ± sample std over seeds. Corpus `{meta['corpus']}`; "
              f"commit {meta['git']}; {meta['created']}.{shown}", "",
