@@ -1,6 +1,6 @@
 """Every results file can be traced to a command run from a clean commit (issue 30, item 5).
 
-Each file in ``results/`` and ``results/phonetic/`` (the Markdown pages and their JSON; ``README.md`` is the index
+Each file in ``results/`` and its folders (``results/phonetic/``, ...; the Markdown pages and their JSON; ``README.md`` is the index
 of the pages, the ``.png`` figures are described by their page) must:
 
 - name the command that made it and the commit it was made from (a hexadecimal id; each run of a table carries
@@ -27,7 +27,7 @@ from dualtalker_lite.provenance import is_clean_commit
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
-FILES = sorted(p for p in [*RESULTS.glob("*"), *(RESULTS / "phonetic").glob("*")]
+FILES = sorted(p for p in RESULTS.rglob("*")  # results/ and every folder in it (phonetic/, ...)
                if p.suffix in (".md", ".json") and p.name != "README.md")
 # made from a dirty tree (or reusing runs of one) before issue 30; tools/rerun_results.sh re-makes each (empty since
 # the emotional tables were re-made at 49c71c6: every file in results/ is traceable)
