@@ -14,25 +14,18 @@ import numpy as np
 
 from dualtalker_lite.experiments.runner import load_data, test_features
 from dualtalker_lite.face.visemes import VISEMES
-from dualtalker_lite.metrics import BILABIALS
+from dualtalker_lite.metrics import BILABIALS, segment_extrema
 
 PP = VISEMES.index("PP")
 
 
 def marked(classes: np.ndarray, segments, fps: float, tolerance: int = 1) -> tuple[int, int]:
-    """Per-frame viseme ids (T,) and phone segments [(symbol, start s, end s), ...] -> (bilabial segments whose
-    frames, widened by ``tolerance`` frames each side, hold a PP frame; bilabial segments). A segment covers the
-    frames from floor(start * fps) to ceil(end * fps) - 1 (at least its first frame)."""
-    hit = total = 0
-    for symbol, start, end in segments:
-        if symbol not in BILABIALS:
-            continue
-        first = int(np.floor(start * fps))
-        last = max(first, int(np.ceil(end * fps)) - 1)
-        lo, hi = max(0, first - tolerance), min(len(classes), last + tolerance + 1)
-        total += 1
-        hit += bool((classes[lo:hi] == PP).any())
-    return hit, total
+    """Per-frame viseme ids (T,) and phone segments [(symbol, start s, end s), ...] -> (bilabial segments with a PP
+    frame among their frames widened by ``tolerance`` each side; bilabial segments). The frames of a segment are
+    the closure metrics' (``metrics.segment_frames``, through ``segment_extrema``)."""
+    found = segment_extrema((classes == PP).astype(float), segments, BILABIALS, reduce="max", fps=fps,
+                            tolerance_frames=tolerance)
+    return int((found > 0).sum()), len(found)
 
 
 def main() -> None:
