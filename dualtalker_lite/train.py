@@ -103,7 +103,7 @@ class TrainConfig:
         """The short recipe (issue 31, ``FAST``): the tiny recipe with the PCA-initialised motion head at twice the
         learning rate, trained in the basis's coordinates (``basis_space``), with the bilabial contact term
         (``lip_contact``), for the epochs :data:`FAST_EPOCHS` gives ``model`` (results/time_to_quality_2core.md).
-        VOCA-style has no measured budget: only with ``epochs=`` (the tables' one budget for every row)."""
+        VOCA-style and EmoFace have no measured budget: only with ``epochs=`` (the tables' one budget for every row)."""
         if model not in FAST_EPOCHS and not (model in FAST_MODEL and "epochs" in kw):
             raise ValueError(f"no short recipe measured for model {model!r} (measured: {sorted(FAST_EPOCHS)}"
                              f"{'; give epochs=' if model in FAST_MODEL else ''})")
@@ -127,11 +127,14 @@ RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, wa
 # CorrTalk 10 epochs without the basis step (its two decoders are combined per vertex by the mask, so it has none):
 # PCA-initialised heads, lr 6e-3 and the contact term close its lips where nothing did in 10 epochs before (0.00 < 1
 # mm without the term). EmoFace has no measured budget (its Mesh Attention mixes the branches per vertex: no basis
-# step); its PCA heads, lr 6e-3 and the term close its lips in notebook 15's 100 steps (docs/design-notes.md).
+# step); its PCA heads, lr 6e-3 and the term close its lips in notebook 15's 100 steps (docs/design-notes.md), and the
+# emotional tables give it their one budget (``epochs=``).
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
 FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
-# per-model changes to FAST; VOCA-style (a sliding window, no autoregressive decoder) has no basis step either
-FAST_MODEL = {"corrtalk": dict(basis_space=False), "voca": dict(basis_space=False)}
+# per-model changes to FAST; VOCA-style (a sliding window, no autoregressive decoder) and EmoFace (Mesh Attention
+# mixes two decoders per vertex, as CorrTalk's mask does) have no basis step either
+FAST_MODEL = {"corrtalk": dict(basis_space=False), "voca": dict(basis_space=False),
+              "emoface": dict(basis_space=False)}
 
 
 def lr_factor(step: int, warmup_steps: int, decay: str, progress: float, min_lr_ratio: float = 0.0) -> float:
