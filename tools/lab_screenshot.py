@@ -49,6 +49,8 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="runs/screenshots")
     ap.add_argument("--record", default=None, help="audio file the fake microphone plays; press Record/Stop")
     ap.add_argument("--timeout", type=float, default=240, help="seconds to wait for Run All")
+    ap.add_argument("--show", action="append", default=[], metavar="TEXT",
+                    help="also screenshot the page scrolled to the first cell holding TEXT (NAME-show1.png, ...)")
     args = ap.parse_args(argv)
     exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
@@ -98,6 +100,10 @@ def main(argv=None) -> None:
                 time.sleep(2)
             print(f"run all: {time.time() - t0:.0f} s", flush=True)
             page.screenshot(path=str(out / f"{args.notebook}.png"))
+            for i, text in enumerate(args.show, 1):          # a section in the middle: scrolled to its cell
+                page.locator(".jp-Cell", has_text=text).first.scroll_into_view_if_needed(timeout=30000)
+                time.sleep(1)
+                page.screenshot(path=str(out / f"{args.notebook}-show{i}.png"))
             if args.record:
                 button = page.locator("button.dtl-rec").first
                 button.scroll_into_view_if_needed()

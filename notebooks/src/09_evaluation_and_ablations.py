@@ -20,8 +20,8 @@
 # 5. both conventions side by side for the three models, next to the lip-sync metrics (closures at /p b m/,
 #    opening at vowels);
 # 6. the committed main table (`results/main.json`, `results/main.md`, Table I analogue): error bars over 5
-#    seeds, collapse flags, lip-sync metrics, and a discussion, then the ablations (Table IV analogue) and the
-#    CCRL sweep;
+#    seeds, collapse flags, lip-sync metrics, and a discussion, then the ablations (Table IV analogue), the
+#    CCRL sweep, and the same three tables at the short recipe where every model closes the lips;
 # 7. the lip distance of DualTalker's Fig. 5, per-vertex error maps (CorrTalk Fig. 5 style), unseen speakers
 #    (test-B) with a training speaker's style, and a side-by-side animation with the speech.
 
@@ -749,6 +749,94 @@ assert not any(sm["collapsed"] for sm in sw_sm.values())
 # λ4 = 0.1 looked measurably worse than 0.01; with five it is not).
 
 # %% [markdown]
+# ### The same tables at the short recipe (issue 31)
+#
+# The tables above compare models that have not finished learning one thing: at 37 epochs of the tiny recipe they
+# close under 1 mm at 9-35 % of the bilabials, against the truth's 89 % (notebook 08's time-to-quality curves: the
+# closures arrive last). `dualtalker-lite train`'s short recipe (`TrainConfig.fast`, notebook 08: the motion head
+# started at the training motion's 64 principal components, lr 6e-3, the step in those components' coordinates where
+# the model has one, and the bilabial contact term at $\lambda_c = 10^{-3}$, a named deviation from the papers'
+# losses, the same in every row) converges in 10-30 epochs. The same tables were trained with it, 30 epochs in every
+# row (the longest of the per-model budgets, so no row under-fits), 5 seeds, by
+#
+# ```bash
+# python -m dualtalker_lite.experiments --table main ablation corrtalk sweep --seeds 0 1 2 3 4 \
+#     --recipe fast --features logmel --processes 2 --out results/logmel_fast/ --no-progress
+# ```
+#
+# The cell reads them and prints each row at both recipes (the ablation and sweep rows that repeat the main
+# table's DualTalker or each other are left out).
+
+# %%
+# NBVAL_CHECK_OUTPUT
+FAST_COMMAND = ("python -m dualtalker_lite.experiments --table main ablation corrtalk sweep --seeds 0 1 2 3 4 "
+                "--recipe fast --features logmel --processes 2 --out results/logmel_fast/ --no-progress")
+fast, fast_sm, tiny_sm = {}, {}, {"main": summary, "ablation": abl_sm, "sweep": sw_sm}
+for t in tiny_sm:
+    f_specs, f_runs, f_meta = fast[t] = experiments.load_table(RESULTS / "logmel_fast" / f"{t}.json")
+    assert f_meta["command"] == FAST_COMMAND, f"results/logmel_fast/{t}.json was regenerated: update the text"
+    assert (f_meta["recipe"], f_meta["epochs"], f_meta["seeds"]) == ("fast", 30, [0, 1, 2, 3, 4])
+    assert {r["train_config"]["lip_contact"] for r in f_runs if r["row"] != "Static template"} == {1e-3}
+    fast_sm[t] = {s.row: experiments.summarize([r for r in f_runs if r["row"] == s.row]) for s in f_specs}
+REPEATS = ("Static template", "DualTalker (full)", "λ4=0", SW_REF)            # shown once, in the main table
+print(f"{'row (tiny recipe -> short recipe)':43s} {'LVE (mm)':>15s} {'closed < 1 mm':>15s} {'vowel max (mm)':>15s}")
+for t, sms in fast_sm.items():
+    for row, f in sms.items():
+        if row not in REPEATS:
+            old = tiny_sm[t][row]
+            print(f"{t + ': ' + row:43s}", *(f"{old[k]['mean']:6.2f} -> {f[k]['mean']:5.2f}" for k in
+                  ("lve_euclidean", "bilabial_closure_1mm", "open_vowel_max_mm")))
+ROWS = ("VOCA-style", "FaceFormer-style", "DualTalker", "CorrTalk")
+assert all(fast_sm["main"][k]["bilabial_closure_1mm"]["mean"] > summary[k]["bilabial_closure_1mm"]["mean"] + 0.2
+           and fast_sm["main"][k]["lve_euclidean"]["mean"] > summary[k]["lve_euclidean"]["mean"] for k in ROWS)
+
+# %% [markdown]
+# The verdicts again, with the same 2-standard-error rule (LVE, then closed < 1 mm, against the same reference
+# rows as above):
+
+# %%
+# NBVAL_CHECK_OUTPUT
+INFONCE = "λ4=0.1, σ=median, InfoNCE reading"
+FAST_CLAIMS = {("main", "VOCA-style", "DualTalker"): ("higher", "higher"),
+               ("main", "FaceFormer-style", "DualTalker"): ("higher", "within seed noise"),
+               ("ablation", "w/o CCRL", "DualTalker (full)"): ("within seed noise", "within seed noise"),
+               ("ablation", "w/o dual training", "DualTalker (full)"): ("within seed noise", "within seed noise"),
+               ("ablation", "phoneme one-hot features", "DualTalker (full)"): ("lower", "higher"),
+               ("ablation", "shared enc/dec weights", "DualTalker (full)"): ("higher", "lower"),
+               ("sweep", INFONCE, SW_REF): ("within seed noise", "higher")}
+FAST_CLAIMS.update({("sweep", row, SW_REF): ("within seed noise",) * 2 for row in fast_sm["sweep"]
+                    if row not in (SW_REF, INFONCE)})
+for (t, row, ref), expected in FAST_CLAIMS.items():
+    got = tuple(verdict(row, k, ref, fast_sm[t]) for k in ("lve_euclidean", "bilabial_closure_1mm"))
+    print(f"{t + ': ' + row:44s} LVE {got[0]}, closed < 1 mm {got[1]}")
+    assert got == expected, (t, row)
+assert not any(sm["collapsed"] for sms in fast_sm.values() for sm in sms.values())  # shared weights: 0/5 now
+
+# %% [markdown]
+# **What changes when every model has learned to close the lips** (the numbers printed above):
+#
+# - *The closures arrive, in every row.* Under 1 mm at the bilabials: DualTalker 0.22 -> 0.58, FaceFormer-style
+#   0.31 -> 0.54, VOCA-style 0.09 -> 0.66, CorrTalk 0.35 -> 0.69 (truth 0.89).
+# - *They cost LVE, in every row*: DualTalker +0.11 mm, FaceFormer-style +0.14, CorrTalk +0.93 and VOCA-style
+#   +1.18. The last two train without the basis step (VOCA-style has no autoregressive decoder, CorrTalk mixes two
+#   decoders per vertex) and open the vowels only 8-10 mm (truth 13.6): they close more and open less than the truth. LVE, a worst lip vertex
+#   averaged over frames, charges the smaller opening more than it pays for the closures.
+# - *DualTalker still has the lowest LVE, beyond seed noise*, as the paper claims, but the closure ranking turns:
+#   VOCA-style now closes measurably more often than DualTalker and FaceFormer-style as often (at the tiny recipe
+#   FaceFormer-style closed more).
+# - *The ablations:* CCRL and the dual task stay without a measurable effect on LVE (the paper's claims still not
+#   reproduced), and CCRL's cost in closures at the tiny recipe is gone. Phoneme one-hot input stays far better.
+#   Shared weights stay worse and no longer collapse (0 of 5 seeds).
+# - *The sweep:* every setting within noise on LVE, and of the bandwidth effects on closures only the InfoNCE
+#   reading's survives (0.66 against 0.58 under 1 mm): the "narrower kernel closes more" lead above was a property
+#   of under-fitted models.
+#
+# Which tables to read? The tiny-recipe tables train the papers' own losses; the short-recipe tables add a term
+# that is not in any paper and converge. The verdicts that hold in both (DualTalker's LVE lead, no effect of CCRL or
+# the dual task, the one-hot and shared-weight rows) are the robust ones; the closure rankings depend on the recipe.
+# `results/README.md` has both side by side.
+
+# %% [markdown]
 # ## 7. Lip distance (DualTalker Fig. 5)
 #
 # DualTalker's Fig. 5 plots, for one test sequence, the distance between the midpoints of the upper and lower lips
@@ -873,6 +961,10 @@ print(f"notebook run time so far: {time.perf_counter() - t_start:.1f} s")
 #   highest FDD of the trained models). CorrTalk ties DualTalker on LVE and closes more often. In the ablations,
 #   CCRL and the dual task have no measurable effect on LVE, CCRL costs closures, and phoneme-id input (the rig's
 #   own driving signal) closes 87 % of the bilabials: the audio front-end is what limits the closures.
+# - **At the short recipe** (`results/logmel_fast/`, the same tables with `train`'s converging recipe and its
+#   contact term): every model closes under 1 mm at 54-69 % of the bilabials, every LVE grows (0.11-1.18 mm),
+#   DualTalker keeps the lowest LVE, CCRL and the dual task stay without effect, and the closure rankings change:
+#   verdicts on closures depend on the recipe, those on LVE above mostly do not.
 # - **Lip sync** (`lip_sync_metrics`): closure rates at /p b m/ (< 2 mm, < 1 mm), the smallest lip distance there, the
 #   largest at open vowels and the correlation of the lip-distance curves, each next to the ground truth's own
 #   score. A model can have a moderate LVE and still never close the lips: report both. The < 2 mm rate alone
