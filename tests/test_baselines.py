@@ -141,12 +141,13 @@ def test_the_baselines_loss_is_the_vertex_mse_and_the_value_the_joint_loss_gave_
     total, terms = model.loss(out, batch, None)
     assert set(terms) == {"primal", "total"}
     expected = _hand_mse_mm2(out["vertices"].detach(), batch["vertices"], batch["mask"])
-    assert float(total) == pytest.approx(expected, rel=1e-5) and float(terms["primal"]) == float(total)
+    value = total.item()  # the loss's value (``total`` keeps its graph for the backward pass below)
+    assert value == pytest.approx(expected, rel=1e-5) and terms["primal"].item() == value
     old = {**out, **dict.fromkeys(("audio", "x", "y", "x_fused", "y_fused"))}  # what the baselines emitted then
     for lambdas in ({}, {"lambda2": 0.0, "lambda3": 0.0, "lambda4": 0.0}):  # default λ's and the tables' PRIMAL_ONLY
-        assert float(joint_loss(old, batch, LossWeights(**lambdas))[0]) == float(total)
+        assert joint_loss(old, batch, LossWeights(**lambdas))[0].item() == value
     half, _ = model.loss(out, batch, ReconstructionWeights(lambda1=0.5))
-    assert float(half) == 0.5 * float(total)
+    assert half.item() == 0.5 * value
     total.backward()
     head = model.decoder if which == "voca" else model.decoder.motion_decoder
     assert head.weight.grad.abs().sum() > 0
