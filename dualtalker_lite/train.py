@@ -35,6 +35,7 @@ import random
 import sys
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
@@ -474,12 +475,16 @@ class _LipContact:
 
 def _lip_midpoints(train_loader) -> tuple[int, int] | None:
     """The (upper, lower) lip-midpoint vertices of the training data's corpus (``regions["lip_midpoints"]``),
-    looking through a loader's dataset and wrappers (``Subset.dataset``, ``VisemeLabels.base``); None if none."""
+    looking through a loader's dataset and wrappers (``Subset.dataset``, ``VisemeLabels.base``) and into the parts
+    of a ``ConcatDataset`` (the emotional tables' ``train`` + ``train_emo``); None if none."""
     for data in _wrapped_datasets(train_loader):
         regions = getattr(getattr(data, "corpus", None), "regions", None) or {}
         if "lip_midpoints" in regions:
             up, lo = (int(i) for i in np.asarray(regions["lip_midpoints"]).reshape(-1)[:2])
             return up, lo
+        for part in getattr(data, "datasets", None) or ():  # a ConcatDataset: its first part that names them
+            if (lips := _lip_midpoints(SimpleNamespace(dataset=part))) is not None:
+                return lips
     return None
 
 

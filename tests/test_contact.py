@@ -2,7 +2,7 @@
 train(), and its refusals."""
 import pytest
 import torch
-from torch.utils.data import Dataset, Subset
+from torch.utils.data import ConcatDataset, Dataset, Subset
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
@@ -57,7 +57,7 @@ def test_the_term_in_basis_coordinates_is_the_vertex_one(kind):
     in_basis = _LipContact((3, 7), p, mean)(model(basis_batch(batch, p))["vertices"], batch, template)
     model.set_motion_basis(None)  # the same (projected) weights, vertex coordinates
     plain = _LipContact((3, 7), None, None)(model(batch)["vertices"], batch, template)
-    assert float(plain) > 0.1
+    assert plain.item() > 0.1
     torch.testing.assert_close(in_basis, plain, rtol=1e-4, atol=1e-6)
 
 
@@ -127,3 +127,15 @@ def test_the_term_is_refused_without_labels_and_off_without_midpoints(phonetic, 
     assert capsys.readouterr().err.splitlines() == [
         "train: lip_contact is set but the training data name no lip midpoints (the corpus's regions); the "
         "bilabial contact term is off"]
+
+
+def test_the_term_finds_the_midpoints_through_a_concatenation(capsys):
+    """The emotional tables train on ConcatDataset([train, train_emo]) under the viseme wrapper: the term must find
+    the corpus's lip midpoints through it (it was silently off there before, with lip_contact recorded as set)."""
+    corpus = Corpus(sample_path())
+    parts = [Subset(TalkingFaceDataset(corpus, split), range(8)) for split in ("train", "train_emo")]
+    clips = VisemeLabels(ConcatDataset(parts))
+    hist = train(_model(corpus), make_loader(clips, 8, shuffle=True, seed=0),
+                 TrainConfig.tiny(epochs=1, progress=False, lip_contact=1e-3))
+    assert "contact" in hist.terms[-1] and hist.terms[-1]["contact"] > 0
+    assert capsys.readouterr().err == ""

@@ -197,6 +197,24 @@ def test_reuse_recomputes_runs_of_a_dirty_tree(quick_tables, tmp_path):
     assert len(ex.reusable_runs([path], 1, payload["corpus"], quick=True)[0]) == 3  # its own runs: its commit
 
 
+def test_reuse_recomputes_a_run_whose_contact_term_never_ran(quick_tables, tmp_path):
+    """A run whose recipe sets lip_contact but whose loss history has no "contact" term (the term was off: the
+    emotional tables' concatenated clips before the fix) is not taken over; one that logged it is, and so is a
+    run without the term in its recipe."""
+    payload = json.loads((quick_tables / "main.json").read_text())
+    a, b, c = payload["runs"][:3]
+    on = {**a["train_config"], "lip_contact": 1e-3}
+    payload["runs"] = [{**a, "git": "abc1234", "train_config": on, "loss_history": [{"total": 1.0}]},
+                       {**b, "git": "abc1234", "train_config": on, "loss_history": [{"total": 1.0, "contact": 0.5}]},
+                       {**c, "git": "abc1234", "train_config": {**c["train_config"], "lip_contact": 0.0},
+                        "loss_history": [{"total": 1.0}]}]
+    path = tmp_path / "main.json"
+    path.write_text(json.dumps(payload))
+    found, sources = ex.reusable_runs([path], 1, payload["corpus"], quick=True)
+    assert sorted(found) == sorted([(b["key"], b["seed"]), (c["key"], c["seed"])])
+    assert sources[0]["n_runs"] == 2 and sources[0]["n_runs_not_clean"] == 1
+
+
 def test_reuse_refuses_a_table_with_another_budget(quick_tables, tmp_path):
     """A table trained for another number of epochs (or on another corpus) is refused, naming the file."""
     path = quick_tables / "main.json"

@@ -86,7 +86,10 @@ def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: 
     table itself reused runs: then its origin is unknown). A run from a dirty tree or of unknown origin is not
     taken over: it is recomputed, so a table re-made from a clean commit holds no number of a dirty one. The one
     exception: a run stamped with this invocation's own ``commit`` (the same dirty tree, e.g. while developing;
-    the new table is then stamped dirty as well)."""
+    the new table is then stamped dirty as well). Nor is a run whose recipe sets the bilabial contact term
+    (``lip_contact``) but whose loss history never logged it: the term was off in that run (until 2026-11-28 the
+    emotional tables' concatenated clips hid the lip midpoints from it), so its numbers are not those of its
+    recorded recipe; it is recomputed and counted in ``n_runs_not_clean``."""
     found: dict = {}
     sources = []
     for path in paths:
@@ -102,12 +105,20 @@ def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: 
                 raise ValueError(f"{path}: cannot reuse its runs: {field_} is {have!r}, this invocation has {want!r}")
         table_git = payload.get("git", "") if not payload.get("reused_from") else "unknown"
         kept = [{**run, "git": run.get("git") or table_git} for run in runs]
-        kept = [run for run in kept if is_clean_commit(run["git"]) or run["git"] == commit]
+        kept = [run for run in kept if (is_clean_commit(run["git"]) or run["git"] == commit)
+                and not _contact_missing(run)]
         for run in kept:
             found.setdefault((run["key"], run["seed"]), run)
         sources.append({"table": path.name, "run_commits": sorted({run["git"] for run in kept}),
                         "n_runs": len(kept), "n_runs_not_clean": len(runs) - len(kept)})
     return found, sources
+
+
+def _contact_missing(run: dict) -> bool:
+    """A stored run whose recipe sets ``lip_contact`` but whose per-epoch loss terms never name "contact"."""
+    history = run.get("loss_history") or []
+    return bool((run.get("train_config") or {}).get("lip_contact")) and bool(history) and \
+        not any("contact" in epoch for epoch in history)
 
 
 def _slug(row: str) -> str:
