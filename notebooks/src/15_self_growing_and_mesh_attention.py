@@ -345,9 +345,11 @@ fig_p
 # %% [markdown]
 # ## 6. Lips that close, in every emotion
 #
-# Section 4's model trained 20 steps on 8 clips: its lips barely move. Trained as the tables train it (12 epochs of
+# Section 4's model trained 20 steps on 8 clips: its lips barely move. Trained with the tiny recipe (12 epochs of
 # the 560 clips, about 12 CPU minutes) EmoFace's lips still close at fewer than half the /p b m/ of `test_emo_a`
-# within 1 mm (0.47, `results/phonetic/emotion.md`). Two changes make them close within a notebook's budget, both
+# within 1 mm (0.47 over 5 seeds: the phonetic emotion table at that recipe, `git show
+# fb6916a:results/phonetic/emotion.md`; `results/README.md` has it beside the short recipe's). Two changes make
+# them close within a notebook's budget, both
 # from `dualtalker-lite train`'s short recipe (`TrainConfig.fast`, notebook 08), both switchable and neither the
 # paper's:
 #
