@@ -285,7 +285,7 @@ def test_loss_method_is_the_joint_loss_and_the_output_bias_init_gives_the_mean()
     out = model(batch)
     total, terms = model.loss(out, batch, LossWeights())
     ref_total, ref_terms = joint_loss(out, batch, LossWeights())
-    assert float(total) == float(ref_total) and terms.keys() == ref_terms.keys()
+    assert total.item() == ref_total.item() and terms.keys() == ref_terms.keys()
     mean = torch.linspace(-0.01, 0.01, V * 3)  # metres
     model.init_output_bias(mean)
     pred = model.eval().generate(batch["audio"], batch["template"], batch["speaker"])
