@@ -35,7 +35,6 @@ import random
 import sys
 import time
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
@@ -482,9 +481,6 @@ def _lip_midpoints(train_loader) -> tuple[int, int] | None:
         if "lip_midpoints" in regions:
             up, lo = (int(i) for i in np.asarray(regions["lip_midpoints"]).reshape(-1)[:2])
             return up, lo
-        for part in getattr(data, "datasets", None) or ():  # a ConcatDataset: its first part that names them
-            if (lips := _lip_midpoints(SimpleNamespace(dataset=part))) is not None:
-                return lips
     return None
 
 
@@ -501,15 +497,19 @@ def basis_batch(batch: dict, basis: torch.Tensor) -> dict:
 
 
 def _wrapped_datasets(train_loader, depth: int = 4):
-    """The loader's dataset, then what it wraps (``Subset.dataset``, ``VisemeLabels.base``, ...), outermost first;
+    """The loader's dataset, then what it wraps (``Subset.dataset``, ``VisemeLabels.base``, ...; each part of a
+    ``ConcatDataset``, the emotional tables' ``train`` + ``train_emo``, in turn), outermost first, depth first;
     nothing for a list of batches."""
-    dataset = getattr(train_loader, "dataset", None)
-    for _ in range(depth):
-        if dataset is None:
+    def walk(dataset, left: int):
+        if dataset is None or left == 0:
             return
         yield dataset
         inner = getattr(dataset, "dataset", None)
-        dataset = getattr(dataset, "base", None) if inner is None else inner
+        inner = getattr(dataset, "base", None) if inner is None else inner
+        for part in getattr(dataset, "datasets", None) or [inner]:
+            yield from walk(part, left - 1)
+
+    yield from walk(getattr(train_loader, "dataset", None), depth)
 
 
 def _generators(train_loader) -> dict[str, torch.Generator]:

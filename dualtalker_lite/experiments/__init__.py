@@ -56,7 +56,7 @@ from .evaluation import (COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, Audi
                          typical_bandwidth)
 from ..provenance import _git, is_clean_commit, machine, machine_line, provenance
 from .report import (DEFINITIONS, EMOTION_DEFINITIONS, _collapse_note, _compare, _fmt, load_table, summarize,
-                     table_markdown, write_table)
+                     table_markdown, verdict, write_table)
 from .runner import (_DATA, feature_view, _job, _trimmed, _worker_init, build_model, data_split, load_data, run_one,
                      run_specs, test_features, training_set)
 from .specs import (CORRTALK_NOTE, DATA, EMOFACE_NOTE, EMOTION_METRICS, EMOTIONAL_TRAIN, FEATURES, FRONT_ENDS,
@@ -67,6 +67,6 @@ __all__ = ["TABLES", "METRICS", "FEATURES", "RunSpec", "table_specs", "test_feat
            "PhonemeOneHot", "over_smoothing_ratio",
            "typical_bandwidth", "swap_partners", "AudioSwapped", "audio_sensitivity", "collapse_reasons",
            "is_collapsed",
-           "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize",
+           "load_data", "build_model", "predict_split", "split_metrics", "run_one", "run_specs", "summarize", "verdict",
            "write_table", "load_table", "table_markdown", "main", "provenance", "machine", "Assembly",
            "assemble_training"]

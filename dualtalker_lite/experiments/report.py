@@ -37,7 +37,7 @@ def summarize(runs: list[dict]) -> dict:
     return out
 
 
-def _verdict(a: dict, b: dict, higher_is_better: bool) -> tuple[float, str]:
+def verdict(a: dict, b: dict, higher_is_better: bool) -> tuple[float, str]:
     """(mean difference a - b, "better" / "worse" / "within seed noise"): the difference against two standard
     errors, sqrt(s_a^2 / n_a + s_b^2 / n_b)."""
     diff = a["mean"] - b["mean"]
@@ -48,21 +48,21 @@ def _verdict(a: dict, b: dict, higher_is_better: bool) -> tuple[float, str]:
 
 
 def _compare(row: dict, ref: dict, name: str, expect: str = "") -> str:
-    """'LVE +0.12 mm vs <ref>: worse; closed <1 mm -0.08: worse' (2-standard-error rule over seeds, :func:`_verdict`),
+    """'LVE +0.12 mm vs <ref>: worse; closed <1 mm -0.08: worse' (2-standard-error rule over seeds, :func:`verdict`),
     and whether the LVE verdict matches the paper's claim ``expect`` ("worse"/"better" than the reference: the
     papers judge by LVE). The closure at /p b m/ under 1 mm is judged the same way, without a claim: LVE alone
     rewards an average mouth that never closes."""
     a, b = row["lve_euclidean"], ref["lve_euclidean"]
     if a["n"] < 2 or b["n"] < 2:
         return f"LVE {a['mean'] - b['mean']:+.3f} mm vs {name} (one seed, no error bar)"
-    diff, verdict = _verdict(a, b, higher_is_better=False)
-    text = f"LVE {diff:+.3f} mm vs {name}: {verdict}"
-    if expect and verdict != expect:
+    diff, word = verdict(a, b, higher_is_better=False)
+    text = f"LVE {diff:+.3f} mm vs {name}: {word}"
+    if expect and word != expect:
         text += f" (paper: {expect}; **not reproduced**)"
     a, b = row.get("bilabial_closure_1mm"), ref.get("bilabial_closure_1mm")
     if a and b and a["n"] >= 2 and b["n"] >= 2 and math.isfinite(a["mean"]) and math.isfinite(b["mean"]):
-        diff, verdict = _verdict(a, b, higher_is_better=True)
-        text += f"; closed <1 mm {diff:+.3f}: {verdict}"
+        diff, word = verdict(a, b, higher_is_better=True)
+        text += f"; closed <1 mm {diff:+.3f}: {word}"
     return text
 
 

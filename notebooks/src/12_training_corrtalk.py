@@ -522,10 +522,8 @@ KEYS = ("lve_euclidean", "bilabial_closure_1mm", "open_vowel_max_mm")
 
 
 def lve_verdict(a: dict, b: dict) -> str:
-    """Row a against reference b on LVE: the tables' 2-standard-error rule over seeds (notebook 09)."""
-    a, b = a["lve_euclidean"], b["lve_euclidean"]
-    diff, se = a["mean"] - b["mean"], np.sqrt(a["std"] ** 2 / a["n"] + b["std"] ** 2 / b["n"])
-    return "within seed noise" if abs(diff) <= 2 * se else ("worse" if diff > 0 else "better")
+    """Row a against reference b on LVE: the tables' 2-standard-error rule over seeds (notebook 09 derives it)."""
+    return experiments.verdict(a["lve_euclidean"], b["lve_euclidean"], higher_is_better=False)[1]
 
 
 # %%
