@@ -101,8 +101,9 @@ def main(argv=None) -> None:
             print(f"run all: {time.time() - t0:.0f} s", flush=True)
             page.screenshot(path=str(out / f"{args.notebook}.png"))
             for i, text in enumerate(args.show, 1):          # a section in the middle: scrolled to its cell
-                page.locator(".jp-Cell", has_text=text).first.scroll_into_view_if_needed(timeout=30000)
-                time.sleep(1)
+                for _ in range(3):  # again after cells above it finish their layout (they move it down)
+                    page.locator(".jp-Cell", has_text=text).first.scroll_into_view_if_needed(timeout=30000)
+                    time.sleep(1.5)
                 page.screenshot(path=str(out / f"{args.notebook}-show{i}.png"))
             if args.record:
                 button = page.locator("button.dtl-rec").first
