@@ -558,9 +558,7 @@ full = experiments.summarize([r for r in tables["emoface"][1] if r["row"] == "Em
 verdicts = {}
 for row in list(ab_lve)[1:]:  # the table's note: 2-standard-error rule on LVE against the full model
     a = experiments.summarize([r for r in tables["emoface"][1] if r["row"] == row])["lve_euclidean"]
-    se = math.sqrt(a["std"] ** 2 / a["n"] + full["std"] ** 2 / full["n"])
-    diff = a["mean"] - full["mean"]
-    verdicts[row] = "within seed noise" if abs(diff) <= 2 * se else ("worse" if diff > 0 else "better")
+    verdicts[row] = experiments.verdict(a, full, higher_is_better=False)[1]
 print(verdicts)
 assert set(verdicts.values()) == {"within seed noise"}  # no ablation is measurably worse (nor better)
 assert ab_lve["w/o self-growing"] == max(ab_lve.values())  # the largest difference, not past the noise
@@ -616,23 +614,23 @@ FAST_KEYS = ("lve_euclidean", "bilabial_closure_1mm", "open_vowel_max_mm", "emot
 
 # %%
 # NBVAL_CHECK_OUTPUT
-word, short = {}, {}
+word, means = {}, {}
 for t, ref in (("emotion", "EmoFace"), ("emoface", "EmoFace (full)")):
     for recipe, (specs_t, runs_t, meta_t) in (("tiny", tables[t]), ("short", fast_tables[t])):
         sm = {s.row: experiments.summarize([r for r in runs_t if r["row"] == s.row]) for s in specs_t}
         for row, m in sm.items():
             word[t, recipe, row] = "reference" if row == ref else experiments.verdict(
                 m["lve_euclidean"], sm[ref]["lve_euclidean"], higher_is_better=False)[1]
-            short[t, recipe, row] = {k: m[k]["mean"] if k in m else math.nan for k in FAST_KEYS}
+            means[t, recipe, row] = {k: m[k]["mean"] if k in m else math.nan for k in FAST_KEYS}
             print(f"{recipe:5s} {len(meta_t['seeds'])} seeds {row:25s}",
-                  ", ".join(f"{v:5.2f}" for v in short[t, recipe, row].values()), f"| LVE: {word[t, recipe, row]}")
+                  ", ".join(f"{v:5.2f}" for v in means[t, recipe, row].values()), f"| LVE: {word[t, recipe, row]}")
 rows = {t: [s.row for s in tables[t][0]] for t in tables}
 for recipe in ("tiny", "short"):  # EmoFace below every other row; no ablation measurably different on LVE
     assert [word["emotion", recipe, r] for r in rows["emotion"]] == ["worse"] * 3 + ["reference"]
     assert [word["emoface", recipe, r] for r in rows["emoface"][1:]] == ["within seed noise"] * 4
-assert all(short[t, "short", r]["bilabial_closure_1mm"] > short[t, "tiny", r]["bilabial_closure_1mm"]
+assert all(means[t, "short", r]["bilabial_closure_1mm"] > means[t, "tiny", r]["bilabial_closure_1mm"]
            for t in rows for r in rows[t])                                        # every row closes more often
-assert short["emotion", "short", "EmoFace"]["emotion_accuracy"] > 0.45          # the recognition holds
+assert means["emotion", "short", "EmoFace"]["emotion_accuracy"] > 0.45          # the recognition holds
 
 # %% [markdown]
 # **What the short recipe changes.** Every row closes under 1 mm far more often (0.54-0.78 of the bilabials in the
@@ -651,7 +649,8 @@ assert short["emotion", "short", "EmoFace"]["emotion_accuracy"] > 0.45          
 # Section 6 steered a model trained for 100 steps. `benchmarks/emotion_control.py` does the same with the five
 # EmoFace models of the tiny-recipe table: the *neutral* reading of sentence s02 by SPK01-06 rendered with every
 # emotion and level condition, measured with the "right emotion" measures, against the same speakers' real
-# emotional readings of that sentence (`test_emo_a`). It wrote `results/emotion_control.json`; one dot per condition and model:
+# emotional readings of that sentence (`test_emo_a`). It wrote `results/emotion_control.json`; one dot per
+# condition and model:
 
 # %%
 CONTROL_COMMAND = "python benchmarks/emotion_control.py " + " ".join(
