@@ -64,7 +64,7 @@ def run_demo(seed: int, out: Path, busy: int) -> dict:
     return {"wall_s": wall, "load_1min_at_end": load, "warnings": warnings}
 
 
-def real_voice_metrics(out: Path) -> dict:
+def real_voice_metrics(out: Path, inputs: Path) -> dict:
     """Both checkpoints of one demo run on the real voices (recipe_curves.real_metrics) -> {label: metrics}."""
     import recipe_curves as rc
     import torch
@@ -73,7 +73,7 @@ def real_voice_metrics(out: Path) -> dict:
 
     torch.set_num_threads(1)
     if not rc.rv.DATA:
-        rc.load(rc.OUT / "inputs.pth")
+        rc.load(inputs)
     res = {}
     for label, name in CHECKPOINTS.items():
         model, _ = load_checkpoint(out / name)
@@ -125,6 +125,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "demo_load")
     ap.add_argument("--report", type=Path, default=ROOT / "results" / "demo_load.md")
+    ap.add_argument("--inputs", type=Path, default=ROOT / "runs" / "recipe_curves" / "inputs.pth",
+                    help="the real voices' frozen inputs, made by `python benchmarks/recipe_curves.py inputs`")
     ap.add_argument("--render-only", action="store_true",
                     help="write the page again from the report's JSON (its rows and stamp), running nothing")
     args = ap.parse_args(argv)
@@ -134,6 +136,9 @@ def main(argv: list[str] | None = None) -> None:
         saved.pop("targets")
         saved.setdefault("time_budget_s", demo_defaults().time_budget)
         return report(rows, saved, busy, args.report)
+    import recipe_curves as rc
+
+    rc.check_inputs(args.inputs)  # before any demo runs: the real-voice step needs it at the end of each seed
     stamp = {**provenance("python benchmarks/demo_load.py " + shlex.join(argv)),
              "time_budget_s": demo_defaults().time_budget}
     rows = []
@@ -141,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
         out = args.out / f"s{seed}"
         run = run_demo(seed, out, args.busy)
         metrics = json.loads((out / "metrics.json").read_text())
-        real = real_voice_metrics(out)
+        real = real_voice_metrics(out, args.inputs)
         for label in CHECKPOINTS:
             m = metrics["models"][label]["metrics"]
             row = {"seed": seed, "model": label, "wall_s": run["wall_s"], "load": run["load_1min_at_end"],

@@ -104,8 +104,16 @@ class Tracks(torch.utils.data.Dataset):
         return item
 
 
+def check_inputs(inputs: Path) -> None:
+    """Stop with one line when the frozen inputs file is missing: it is made once by the ``inputs`` step."""
+    if not Path(inputs).is_file():
+        raise SystemExit(f"{inputs}: no such file; make it first with `python benchmarks/recipe_curves.py inputs` "
+                         "(needs real_voices.py's recordings, pocketsphinx and the recogniser)")
+
+
 def load(inputs: Path) -> None:
     """real_voices.DATA as its metric functions need it, from the frozen inputs and the shipped corpus."""
+    check_inputs(inputs)
     frozen = torch.load(inputs, weights_only=False)
     corpus = Corpus(sample_path())
     meta = (Path(corpus.root) / "metadata.json").read_bytes()
@@ -335,6 +343,7 @@ def main() -> None:
             points = tuple(p for p in (args.points or POINTS.get(name, POINTS["new"])) if p <= cfg["epochs"])
             jobs += [(m, name, s, cfg, points, str(args.out), str(args.inputs)) for m in args.models
                      for s in args.seeds]
+        check_inputs(args.inputs)  # before any folder is made or job started
         args.out.mkdir(parents=True, exist_ok=True)
         prov = args.out / "provenance.json"  # a list: several run commands may write into one folder
         before = json.loads(prov.read_text()) if prov.is_file() else []
