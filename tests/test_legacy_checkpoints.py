@@ -61,7 +61,13 @@ def test_a_checkpoint_written_before_issue_30_gives_its_recorded_outputs(kind, c
 def test_the_same_seed_gives_the_weights_the_old_code_trained(kind):
     """make_legacy.py's recipe replayed today: build with seed 0, perturb, 5 Adam steps of the model's own loss. The
     perturbation walks the parameters in the old code's order (the names of the old state_dict, renamed), since
-    the layers register some of them in another order now; everything else is the recipe as it ran."""
+    the layers register some of them in another order now; everything else is the recipe as it ran.
+
+    Equal to the bit on the machine that wrote the files, but not across CPU instruction sets: there float sums
+    round otherwise (on an AVX2-only EPYC up to 3.2e-5, in attention key biases, whose true gradient is 0 and whose
+    Adam step follows the rounding noise). So the weights must agree within 2e-4: five times under what one Adam
+    step moves a weight (lr 1e-3, a missing or extra step fails), a hundred times under the perturbation (0.02, a
+    changed random order fails)."""
     legacy = torch.load(LEGACY / f"{kind}.pt", weights_only=True)
     old = upgrade_state_dict(legacy["model_class"], legacy["state_dict"], legacy["format_version"])
     build = dict((k, b) for k, b, _ in RECIPE.models())[kind]
@@ -85,4 +91,4 @@ def test_the_same_seed_gives_the_weights_the_old_code_trained(kind):
     new = model.state_dict()
     assert set(new) == set(old)
     for name in new:
-        assert torch.equal(new[name], old[name]), name
+        torch.testing.assert_close(new[name], old[name], rtol=0, atol=2e-4, msg=name)

@@ -356,7 +356,8 @@ lip_hist = train(lip_model, make_pair_loader(phonetic_pairs, batch_size=8, seed=
 assert lip_hist.steps[-1] == 100 and lip_hist.term("contact")[-1] < 0.5 * lip_hist.term("contact")[0]
 
 # %%
-# NBVAL_CHECK_OUTPUT
+# trained-model figures: nbval does not compare them (their last digit differs between CPU instruction sets);
+# the assert is the check
 emo_test = TalkingFaceDataset(corpus, "test_emo_a", pairs.extractor)
 labelled = VisemeLabels(emo_test, keep_audio=True)
 own, other = (labelled[emo_test.names.index(n)] for n in ("SPK03_s02-happy2", "SPK03_s02-angry2"))

@@ -383,7 +383,8 @@ print(f"{lip_hist.steps[-1]} steps in {lip_cpu:.0f} CPU s; contact term {lip_his
       f"{lip_hist.term('contact')[-1]:.2f} mm² (first and last epoch's mean)")
 
 # %%
-# NBVAL_CHECK_OUTPUT
+# trained-model figures: nbval does not compare them (their last digit differs between CPU instruction sets);
+# the assert is the check
 phonetic_test = VisemeLabels(test_set, keep_audio=True)  # the 48 test_emo_a clips, their viseme labels
 tb = collate([phonetic_test[i] for i in range(len(phonetic_test))])
 lip_pred = predict(lip_model, tb)  # (B, T, V*3) autoregressive; the emotion recognised from the speech
