@@ -4,14 +4,22 @@
 #   make test   every test CI runs: installs the test tools it can first (make test-tools), then the unit tests, the
 #               tests that need those tools and nbval over every notebook; lists every skipped test at the end
 #   make unit   the quick check: tests/ without the notebooks and without the tests that need test tools
+#   make gpu-check  the GPU check (benchmarks/gpu.py -> results/gpu.md); one line and exit 0 without CUDA
+# make test, unit and nbval run pytest in TEST_JOBS worker processes (pytest-xdist; default: the cores present,
+# `make test TEST_JOBS=1` for one process), each with one torch/OpenMP thread: tests are small tensors and
+# subprocesses, so a process per core beats threads in one process (docs/testing.md).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 export OMP_NUM_THREADS ?= 2
 export MPLBACKEND ?= Agg
+TEST_JOBS ?= $(shell nproc 2>/dev/null || echo 2)
+# --dist loadscope: a test module (a notebook: its cells) runs whole on one worker, so module fixtures are built once
+# and a notebook's cells run in order in one kernel
+XDIST  := -n $(TEST_JOBS) --dist loadscope
 
-.PHONY: lab demo test test-tools unit nbval env sample bench clean katex
+.PHONY: lab demo test test-tools unit nbval env sample bench gpu-check clean katex
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -39,7 +47,7 @@ demo: $(STAMP)
 # (those tests then fail instead of skipping). pytest's summary (-ra, pyproject.toml) lists every skipped test with its
 # reason; any pytest failure, "no tests collected" (status 5) included, fails make.
 test: $(STAMP)
-	bash tools/test_tools.sh $(PY) -m pytest tests notebooks --nbval-lax --durations=15
+	OMP_NUM_THREADS=1 bash tools/test_tools.sh $(PY) -m pytest tests notebooks --nbval-lax $(XDIST) --durations=25
 
 test-tools:
 	bash tools/test_tools.sh
@@ -47,10 +55,10 @@ test-tools:
 # The quick check while editing: no notebooks, no installs, none of the tests marked `tools` (the glTF validator,
 # three.js, KaTeX, the browser and the real recordings; pyproject.toml's markers).
 unit: $(STAMP)
-	$(PY) -m pytest tests -m "not tools"
+	OMP_NUM_THREADS=1 $(PY) -m pytest tests -m "not tools" $(XDIST)
 
 nbval: $(STAMP)
-	$(PY) -m pytest notebooks --nbval-lax
+	OMP_NUM_THREADS=1 $(PY) -m pytest notebooks --nbval-lax $(XDIST)
 
 # KaTeX (pinned by tools/katex/package-lock.json, ~1 MB) for tests/test_notebook_math.py, which renders every
 # formula of the notebooks as JupyterLab's KaTeX would; without it that test is skipped (make test-tools installs it
@@ -68,6 +76,11 @@ sample: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py
+
+# The GPU check (benchmarks/gpu.py): the CUDA tests, the four papers' models at their paper() sizes for a few hundred
+# steps with and without --amp, and animate --device cuda of an hour -> results/gpu.md. Without CUDA: one line, exit 0.
+gpu-check: $(STAMP)
+	$(PY) benchmarks/gpu.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

@@ -188,7 +188,9 @@ def test_convert_templates_refuses_with_one_line_and_keeps_the_old_npz(tmp_path,
     the previous templates.npz stays byte-identical."""
     good = {"F2": np.full((5, 3), 0.1), "M3": np.full((5, 3), -0.1)}
     (tmp_path / "good.pkl").write_bytes(pickle.dumps(good, protocol=2))
-    assert cli("convert-templates", tmp_path / "good.pkl", "--out", tmp_path / "templates.npz").returncode == 0
+    from dualtalker_lite.cli import main as cli_main  # the earlier npz: made in this process (the refusal is not)
+
+    assert cli_main(["convert-templates", str(tmp_path / "good.pkl"), "--out", str(tmp_path / "templates.npz")]) == 0
     before = snapshot(tmp_path)
     make, message = FORGED[case]
     (tmp_path / "bad.pkl").write_bytes(make(tmp_path))
@@ -238,9 +240,10 @@ def test_legitimate_pickles_still_load(tmp_path):
 
 # ------------------------------------------------------------------------------------------ names and zips
 @pytest.mark.parametrize("name", ["../../x", "/etc/passwd", "a/b", "..", "a\\b"])
-def test_template_names_with_paths_are_refused(tmp_path, name):
+def test_template_names_with_paths_are_refused(tmp_path, name, capsys):
     (tmp_path / "t.pkl").write_bytes(pickle.dumps({name: np.full((5, 3), 0.1)}, protocol=2))
-    refused(cli("convert-templates", tmp_path / "t.pkl"), tmp_path / "t.pkl", "template name", "not a plain name")
+    refused_in_process(capsys, ["convert-templates", tmp_path / "t.pkl"], tmp_path / "t.pkl", "template name",
+                       "not a plain name")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.pkl"]
 
 
@@ -763,7 +766,9 @@ def test_train_killed_after_a_periodic_save_resumes_to_the_same_weights(tmp_path
     assert a["history"]["terms"] == b["history"]["terms"] and a["history"]["steps"] == b["history"]["steps"]
 
 
-def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_path):
+def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_path, capsys):
+    """The kill and the first refusal after it are real processes (the claim a SIGKILL left, the exit status); the
+    refusals that follow read the same state file, so they run in this process (a process start each saved ~1.5 s)."""
     out = tmp_path / "m.pt"
     assert refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "no saved training state")
     pid = _train_killed_after_first_state_save(out, "--checkpoint-every", "1")
@@ -779,15 +784,16 @@ def test_train_resume_refuses_other_arguments_a_corrupt_state_and_no_state(tmp_p
             argv[argv.index(extra[0]) + 1] = extra[1]
         else:
             argv += extra
-        refused(cli(*argv, "--out", out, "--resume"), "m.pt.resume", field, "resume with the same arguments")
-    refused(cli(*TRAIN_SMALL, "--out", out), "m.pt.resume", "pass --resume")
+        refused_in_process(capsys, [*argv, "--out", out, "--resume"], "m.pt.resume", field,
+                           "resume with the same arguments")
+    refused_in_process(capsys, [*TRAIN_SMALL, "--out", out], "m.pt.resume", "pass --resume")
     assert snapshot(tmp_path) == before
     state = out.with_name("m.pt.resume")
     data = bytearray(state.read_bytes())
     data[len(data) // 2] ^= 0xFF
     state.write_bytes(bytes(data))
     before = snapshot(tmp_path)
-    refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "corrupt training state")
+    refused_in_process(capsys, [*TRAIN_SMALL, "--out", out, "--resume"], "m.pt.resume", "corrupt training state")
     state.write_bytes(bytes(data[:1000]))
     before = snapshot(tmp_path)
     refused(cli(*TRAIN_SMALL, "--out", out, "--resume"), "m.pt.resume", "corrupt training state")

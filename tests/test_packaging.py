@@ -60,8 +60,15 @@ def test_ci_is_make_test_and_make_test_installs_the_test_tools():
     assert ci == ["set -euo pipefail", 'cd "$(dirname "$0")/.."', "make test"]
     makefile = (ROOT / "Makefile").read_text()
     recipe = makefile.split("\ntest: $(STAMP)\n", 1)[1].splitlines()[0].strip()
-    assert recipe == "bash tools/test_tools.sh $(PY) -m pytest tests notebooks --nbval-lax --durations=15"
-    assert makefile.split("\nunit: $(STAMP)\n", 1)[1].splitlines()[0].strip() == '$(PY) -m pytest tests -m "not tools"'
+    assert recipe == ("OMP_NUM_THREADS=1 bash tools/test_tools.sh $(PY) -m pytest tests notebooks --nbval-lax $(XDIST) "
+                      "--durations=25")
+    assert makefile.split("\nunit: $(STAMP)\n", 1)[1].splitlines()[0].strip() == \
+        'OMP_NUM_THREADS=1 $(PY) -m pytest tests -m "not tools" $(XDIST)'
+    # one worker per core, a module (a notebook's cells) whole on one worker: pytest-xdist, installed by [dev]
+    assert "\nXDIST  := -n $(TEST_JOBS) --dist loadscope\n" in makefile
+    assert "\nTEST_JOBS ?= $(shell nproc 2>/dev/null || echo 2)\n" in makefile
+    dev = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]["dev"]
+    assert any(d.startswith("pytest-xdist") for d in dev)
     script = (ROOT / "tools" / "test_tools.sh").read_text()
     for variable in ("DUALTALKER_REQUIRE_EXPORT_TOOLS", "DUALTALKER_REQUIRE_KATEX", "DUALTALKER_REQUIRE_REAL_VOICES"):
         assert f"export {variable}=" in script
