@@ -18,7 +18,9 @@ Each command runs from the repository root as its own process (``subprocess.run`
   highest value while the command ran, sampled every ~5 s (the command's own busy threads count there too: one
   single-threaded command on a quiet machine approaches 1, ``make unit`` with its two OpenMP threads up to 2;
   much more means company),
-  ``OMP_NUM_THREADS`` as the command saw it, the commit (``+dirty`` with uncommitted changes) and the date.
+  ``OMP_NUM_THREADS`` as the command saw it, the commit (``+dirty`` with uncommitted changes) and the date;
+- ``busy_processes``: how many CPU-bound processes (``while True: pass``) ran beside it on purpose (``make-test-busy``:
+  one, the "busy machine" case of CI's time limit); their CPU time is not counted.
 
 Rows are kept in ``results/command_times.json`` by name (written when the run ends; ``runs/command_times/
 rows_so_far.json`` after each command), so ``--only`` replaces those rows and keeps the others
@@ -62,6 +64,7 @@ class Command:
     heavy: bool = False     # over ~3 minutes: only with --all or --only
     needs: str | None = None  # a command whose output this one reads (run first when that output is missing)
     makes: str | None = None  # the file this command writes, relative to {out}
+    busy: int = 0           # CPU-bound processes (a Python busy loop each) running beside it the whole time
 
 
 COMMANDS = (
@@ -91,7 +94,9 @@ COMMANDS = (
     Command("make-unit", ("make", "unit"), "README Quick start (`make unit`)", heavy=True),
     Command("make-bench", ("make", "bench"),
             "benchmarks/run_all.py docstring (\"about 12 minutes ... on a busy 2-core machine\")", heavy=True),
-    Command("make-test", ("make", "test"), "(no time quoted: CI's run)", heavy=True),
+    Command("make-test", ("make", "test"), "README Quick start (`make test`, what CI runs)", heavy=True),
+    Command("make-test-busy", ("make", "test"), "README Quick start (`make test` beside one CPU-bound process)",
+            heavy=True, busy=1),
 )
 BY_NAME = {c.name: c for c in COMMANDS}
 
@@ -120,29 +125,38 @@ def measure(cmd: Command) -> dict:
     argv = command_line(cmd)
     load, stamp = os.getloadavg()[0], provenance(shown(cmd))  # the code measured: as it was at the start
     print(f"== {cmd.name}: {shlex.join(argv)} (load {load:.2f})", flush=True)
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.monotonic()
-    with open(OUT / f"{cmd.name}.log", "w") as log:
-        proc = subprocess.Popen(argv, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
-        peak_load = load
-        while proc.poll() is None:  # the 1-minute load every ~5 s: its highest includes this command's own threads
-            peak_load = max(peak_load, os.getloadavg()[0])
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                pass
-    wall = time.monotonic() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    # the company (``busy``): started first, killed and reaped after the command, outside its CPU figure
+    company = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(cmd.busy)]
+    try:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.monotonic()
+        with open(OUT / f"{cmd.name}.log", "w") as log:
+            proc = subprocess.Popen(argv, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+            peak_load = load
+            while proc.poll() is None:  # the 1-minute load every ~5 s: its highest includes the command's threads
+                peak_load = max(peak_load, os.getloadavg()[0])
+                try:
+                    proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    pass
+        wall = time.monotonic() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    finally:
+        for p in company:
+            p.kill()
+            p.wait()
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     lines = (OUT / f"{cmd.name}.log").read_text(errors="replace").strip().splitlines()
     row = {"name": cmd.name, "command": shown(cmd), "quoted": cmd.quoted, "status": proc.returncode,
            "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "cores": os.cpu_count(),
            "load_1min_at_start": round(load, 2), "load_1min_max": round(peak_load, 2),
            "omp_num_threads": os.environ.get("OMP_NUM_THREADS",
-                                             "unset (make: 2)" if cmd.argv[0] == "make" else "unset"),
+                                             ("unset (make test: 1 per worker)" if cmd.argv[:2] == ("make", "test") else "unset (make: 2)")
+                                             if cmd.argv[0] == "make" else "unset"),
            "commit": stamp["commit"], "machine": stamp["machine"],
            "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
-           "python": platform.python_version(), "last_line": lines[-1][:300] if lines else ""}
+           "python": platform.python_version(), "last_line": lines[-1][:300] if lines else "",
+           "busy_processes": cmd.busy}
     print(f"   {about(row)}, status {proc.returncode}; last line: {row['last_line']}", flush=True)
     return row
 
@@ -164,6 +178,11 @@ def _load(row: dict, key: str) -> str:
     return f"{row[key]:.2f}" if isinstance(row.get(key), (int, float)) else "not recorded"
 
 
+def _busy(row: dict) -> str:
+    n = row.get("busy_processes", 0)
+    return f" ({n} busy process{'es' if n > 1 else ''} beside it, on purpose)" if n else ""
+
+
 def write(rows: dict) -> None:
     ordered = [rows[c.name] for c in COMMANDS if c.name in rows]
     RESULTS.with_suffix(".tmp").write_text(json.dumps(ordered, indent=1) + "\n")
@@ -180,7 +199,7 @@ def write(rows: dict) -> None:
         m = r.get("machine")  # rows measured before issue 30 name only the cores
         cores = f"{r['cores']} ({m['cpu']}; Python {m['python']}, torch {m['torch']})" if m else r["cores"]
         lines.append(f"| {r['name']} | `{r['command']}` | {about(r)} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
-                     f"{r['status']} | {cores} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')} | "
+                     f"{r['status']} | {cores} | {r['load_1min_at_start']:.2f} / {_load(r, 'load_1min_max')}{_busy(r)} | "
                      f"{r['omp_num_threads']} | "
                      f"{r['commit']} | {r['date_utc']} | {r['quoted']} |")
     notes = [r for r in ordered if r.get("note")]
