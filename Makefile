@@ -27,7 +27,7 @@ $(STAMP): pyproject.toml
 	# torch first, the CPU build where it can be had (tools/install_torch.py says which and how much it
 	# downloads): with torch 2.13.0 present, nothing else pulls CUDA packages.
 	$(PY) tools/install_torch.py
-	$(PY) -m pip install --quiet -e ".[notebooks,speech,phonetic,live,dev]"
+	$(PY) -m pip install --quiet -e ".[notebooks,speech,phonetic,live,cluster,dev]"
 	touch $(STAMP)
 
 env: $(STAMP)

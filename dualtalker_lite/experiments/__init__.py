@@ -17,6 +17,9 @@ Every run follows one protocol ("same features, same data, same training budget"
 
 Runs are independent jobs ``(row, seed)``; ``--processes N`` spreads them over N worker processes, each with one
 torch thread, and the metrics do not depend on N (each run reseeds everything and builds its own loader).
+``--executor dask`` runs the same jobs on a dask LocalCluster, ``--executor dask://HOST:PORT`` on the workers of a
+running dask scheduler (several machines, Slurm via dask-jobqueue: docs/cluster.md); the numbers are the same bit
+for bit, and a run whose worker dies fails alone (the finished ones are kept for ``--reuse``).
 Identical configurations that appear in several requested tables (e.g. the full DualTalker in all three) run once.
 
 Tables (``TABLES``): ``main`` (static template, VOCA-style, FaceFormer-style, DualTalker, CorrTalk), ``ablation``

@@ -20,7 +20,7 @@ from ..files import repo_root
 from .evaluation import typical_bandwidth
 from ..provenance import is_clean_commit, provenance
 from .report import refresh_table, write_table
-from .runner import data_split, load_data, run_specs
+from .runner import data_split, executor_kind, load_data, run_specs
 from .specs import FEATURES, TABLES, RunSpec, table_specs, table_split
 
 RECIPES = ("tiny", "fast")  # assembly.assemble_training's recipes
@@ -56,7 +56,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "trained on the corpus's viseme labels and tested on the phoneme recogniser's tracks; "
                         "EmoFace keeps log-mel) or logmel (the papers' kind of input; the tables made before "
                         "issue 19)")
-    p.add_argument("--processes", type=int, default=1, help="worker processes, one torch thread each")
+    p.add_argument("--processes", type=int, default=1,
+                   help="worker processes, one torch thread each (--executor local: the pool; dask: the "
+                        "LocalCluster's workers; ignored for dask://, whose workers are the scheduler's)")
+    p.add_argument("--executor", default="local", metavar="{local,dask,dask://HOST:PORT}",
+                   help="where the runs execute: local (default; this process or a pool of --processes), dask (a "
+                        "dask LocalCluster on this machine) or dask://HOST:PORT (a running dask scheduler, e.g. on a "
+                        "Slurm cluster: docs/cluster.md); the numbers are the same bit for bit (needs the [cluster] "
+                        "extra for dask)")
     p.add_argument("--out", type=Path, default=Path("results"))
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     p.add_argument("--quick", action="store_true", help="smoke test: 1 epoch, first seed only, few clips")
@@ -71,7 +78,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--refresh", nargs="+", type=Path, default=[], metavar="TABLE_JSON",
                    help="compute nothing: rewrite these stored tables (JSON and Markdown) with the current row notes, "
                         "paper claims and definitions, their numbers untouched")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    try:
+        executor_kind(args.executor)
+    except ValueError as e:
+        p.error(str(e))
+    return args
 
 
 def reusable_runs(paths: Sequence[str | Path], epochs: int, corpus: str, quick: bool = False,
@@ -121,6 +133,35 @@ def _contact_missing(run: dict) -> bool:
         not any("contact" in epoch for epoch in history)
 
 
+def _executor_text(args: argparse.Namespace) -> str:
+    """How the runs were executed, as each results file records it."""
+    kind = executor_kind(args.executor)
+    if kind == "local":
+        return f"local ({args.processes} process{'es' if args.processes > 1 else ''})"
+    if kind == "dask":
+        return f"dask LocalCluster ({max(1, args.processes)} worker process{'es' if args.processes > 1 else ''})"
+    return f"dask scheduler {args.executor}"
+
+
+def _stop_with_partial_runs(args, failures: list[str], by_key: dict, epochs: int, data: dict, stamp: dict,
+                            n_runs: int) -> None:
+    """Some runs failed (dask): keep the finished ones in ``<out>/partial_runs.json`` (a file ``--reuse`` takes),
+    print one line per failed run and exit 1; no table is written from an incomplete set of runs."""
+    from ..files import atomic_write_text
+
+    path = Path(args.out) / "partial_runs.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"command": stamp["command"], "git": stamp["commit"], "created": stamp["created"],
+               "epochs": epochs, "corpus": _display_path(data["path"]), "quick": args.quick, "recipe": args.recipe,
+               "executor": _executor_text(args), "failed": failures, "runs": list(by_key.values())}
+    atomic_write_text(path, json.dumps(payload, indent=1) + "\n")
+    for line in failures:
+        print(f"error: {line}", file=sys.stderr)
+    print(f"error: {len(failures)} of {n_runs} runs failed; the {len(by_key)} that finished are kept in {path}: run "
+          f"the same command with --reuse {path} to compute only the failed ones", file=sys.stderr)
+    raise SystemExit(1)
+
+
 def _slug(row: str) -> str:
     """A row label as a file name: 'w/o Mesh Attention' -> 'w-o_Mesh_Attention'."""
     return re.sub(r"[^A-Za-z0-9.-]+", "_", row.replace("/", "-")).strip("_")
@@ -158,16 +199,21 @@ def main(argv: Sequence[str] | None = None) -> dict:
     print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused"
           f"{f' ({not_clean} stored runs not from a clean commit are recomputed)' if not_clean else ''} "
           f"({', '.join(tables)}; seeds {seeds}; "
-          f"{epochs} epochs, recipe {args.recipe}; {args.processes} process(es))", flush=True)
+          f"{epochs} epochs, recipe {args.recipe}; {_executor_text(args)})", flush=True)
     checkpoints = None
     if args.save_models is not None:
         args.save_models.mkdir(parents=True, exist_ok=True)
         checkpoints = [args.save_models / f"{_slug(spec.row)}_seed{seed}.pt" for spec, seed, _ in jobs]
+    failures: list[str] = []
     results = run_specs(jobs, epochs, args.processes, args.corpus, args.quick, checkpoints=checkpoints,
-                        progress=not args.no_progress, recipe=args.recipe)
-    by_key = {**taken, **{(r["key"], r["seed"]): {**r, "git": stamp["commit"]} for r in results}}
+                        progress=not args.no_progress, recipe=args.recipe, executor=args.executor,
+                        failures=failures)
+    by_key = {**taken, **{(r["key"], r["seed"]): {**r, "git": stamp["commit"]} for r in results if r is not None}}
+    if failures:
+        _stop_with_partial_runs(args, failures, by_key, epochs, data, stamp, len(unique))
     meta = {"command": stamp["command"], "argv": argv,
-            "seeds": seeds, "epochs": epochs, "recipe": args.recipe, "processes": args.processes, "quick": args.quick,
+            "seeds": seeds, "epochs": epochs, "recipe": args.recipe, "processes": args.processes,
+            "executor": _executor_text(args), "quick": args.quick,
             "features": args.features,
             "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": stamp["commit"],
             "created": stamp["created"], "torch": torch.__version__, "machine": stamp["machine"],

@@ -193,22 +193,56 @@ def _job(args: tuple) -> tuple[int, dict]:
     return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe=recipe)
 
 
+def executor_kind(executor: str) -> str | None:
+    """``--executor`` -> "local", "dask" (a LocalCluster here) or the scheduler address of ``dask://HOST:PORT``
+    (given as ``tcp://HOST:PORT``, what dask's clients take); one ValueError line for anything else."""
+    if executor in ("local", "dask"):
+        return executor
+    for prefix in ("dask://", "tcp://"):
+        if executor.startswith(prefix):
+            host, _, port = executor[len(prefix):].rpartition(":")
+            if host and port.isdigit():
+                return f"tcp://{host}:{port}"
+    raise ValueError(f"--executor {executor!r}: expected local, dask or dask://HOST:PORT (a running dask scheduler)")
+
+
+def _dask_job(args: tuple) -> tuple[int, dict]:
+    """One job on a dask worker: one torch thread, as in the local pool (a worker may hold several jobs over its
+    life; each reseeds everything, so the thread count is all that must match)."""
+    torch.set_num_threads(1)
+    return _job(args)
+
+
 def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_path: str | None = None,
               quick: bool = False, checkpoints: list | None = None, progress: bool = True,
-              time_budget_s: float | None = None, recipe: str = "tiny") -> list[dict]:
-    """Run (spec, seed) or (spec, seed, test split) jobs, in this process (``processes=1``) or in a spawn pool;
-    results in job order.
+              time_budget_s: float | None = None, recipe: str = "tiny", executor: str = "local",
+              failures: list | None = None) -> list[dict]:
+    """Run (spec, seed) or (spec, seed, test split) jobs -> results in job order.
+
+    ``executor`` "local": in this process (``processes=1``) or in a spawn pool of ``processes`` workers; a failed
+    run stops them all and raises. "dask": the same jobs on a dask ``LocalCluster`` of ``processes`` worker
+    processes (one thread each) on this machine; ``dask://HOST:PORT``: on a running dask scheduler's workers (a
+    cluster started by dask-jobqueue, or ``dask scheduler`` / ``dask worker`` by hand: docs/cluster.md). On dask a run
+    whose worker dies or whose job raises fails alone: its result is None, one line naming the row, the seed and the
+    cause goes to ``failures`` (a list; required with dask) and the other runs finish. The runs are the same
+    :func:`run_one` calls whatever the executor, so their numbers are the same bit for bit (each run reseeds
+    everything, one torch thread; tested).
 
     ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``, ``recipe`` and
     ``epochs`` None."""
     from tqdm.auto import tqdm
 
+    kind = executor_kind(executor)
     checkpoints = checkpoints or [None] * len(jobs)
     args = [(i, asdict(job[0]), job[1], epochs, corpus_path, quick, ckpt, time_budget_s,
              job[2] if len(job) > 2 else TEST_SPLIT, recipe) for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
     results: list = [None] * len(jobs)
     bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)
-    if processes <= 1:
+    if kind != "local":
+        if failures is None:
+            raise ValueError("run_specs(executor='dask...') needs a failures list for the runs that fail")
+        _run_on_dask(args, kind, processes, results, failures, bar)
+    elif processes <= 1:
         for a in args:
             i, res = _job(a)
             results[i] = res
@@ -232,3 +266,43 @@ def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_
         pool.shutdown(wait=True)
     bar.close()
     return results
+
+
+def _run_on_dask(args: list[tuple], kind: str, processes: int, results: list, failures: list, bar) -> None:
+    """The jobs on dask (``kind``: "dask" for a LocalCluster of ``processes`` workers, else a scheduler address):
+    fills ``results`` in place; a failed job leaves None and appends one line to ``failures``.
+
+    A worker that dies fails the job it held at once (the scheduler's ``allowed-failures`` 0 on the LocalCluster;
+    a scheduler started elsewhere keeps its own setting, dask's default 3: the job is retried on other workers
+    first). Ctrl-C cancels what is left and closes the cluster."""
+    try:
+        import dask
+        from distributed import Client, LocalCluster, as_completed as dask_completed
+    except ImportError:
+        raise ValueError("--executor dask needs the dask.distributed package: pip install -e '.[cluster]'") from None
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.worker.daemon": False,
+                          "logging.distributed": "error"}):
+        cluster = None
+        if kind == "dask":
+            cluster = LocalCluster(n_workers=max(1, processes), threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=50)
+        client = Client(cluster if cluster is not None else kind, timeout="30s")
+        try:
+            futures = {client.submit(_dask_job, a, key=f"run-{a[0]}-{a[1]['row']}-seed{a[2]}", pure=False): a
+                       for a in args}
+            for fut in dask_completed(futures):
+                a = futures[fut]
+                if fut.status == "finished":
+                    i, res = fut.result()
+                    results[i] = res
+                    bar.set_postfix_str(f"{res['row']} seed {res['seed']}")
+                else:
+                    error = fut.exception()
+                    cause = (f"its worker died ({type(error).__name__})" if type(error).__name__ == "KilledWorker"
+                             else f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}")
+                    failures.append(f"run {a[1]['row']!r} seed {a[2]} failed: {cause}")
+                bar.update()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
