@@ -119,6 +119,13 @@ def shown(cmd: Command) -> str:
     return " ".join(shlex.quote(a.format(cli="dualtalker-lite", out="runs/command_times")) for a in cmd.argv)
 
 
+def _omp_default(cmd: Command) -> str:
+    """OMP_NUM_THREADS as the command sees it when this process has none: the Makefile's."""
+    if cmd.argv[0] != "make":
+        return "unset"
+    return f"unset (make {cmd.argv[1]}: 1 per worker)" if cmd.argv[1] in ("test", "unit", "nbval") else "unset (make: 2)"
+
+
 def measure(cmd: Command) -> dict:
     """Run ``cmd`` once as a process -> its row (wall and CPU seconds, status, machine, commit)."""
     OUT.mkdir(parents=True, exist_ok=True)
@@ -150,9 +157,7 @@ def measure(cmd: Command) -> dict:
     row = {"name": cmd.name, "command": shown(cmd), "quoted": cmd.quoted, "status": proc.returncode,
            "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "cores": os.cpu_count(),
            "load_1min_at_start": round(load, 2), "load_1min_max": round(peak_load, 2),
-           "omp_num_threads": os.environ.get("OMP_NUM_THREADS",
-                                             ("unset (make test: 1 per worker)" if cmd.argv[:2] == ("make", "test") else "unset (make: 2)")
-                                             if cmd.argv[0] == "make" else "unset"),
+           "omp_num_threads": os.environ.get("OMP_NUM_THREADS", _omp_default(cmd)),
            "commit": stamp["commit"], "machine": stamp["machine"],
            "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
            "python": platform.python_version(), "last_line": lines[-1][:300] if lines else "",

@@ -193,8 +193,10 @@ def _origin(client):
 
 
 async def _still_serves(client):
-    """The page loads and a fresh WebSocket says hello: the server survived what came before."""
-    assert (await client.get("/")).status == 200
+    """The page loads and a fresh WebSocket says hello: the server survived what came before. The page names its
+    icon inline (no request for /favicon.ico, a 404 on every load before)."""
+    page = await client.get("/")
+    assert page.status == 200 and '<link rel="icon" href="data:,">' in await page.text()
     ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
     hello = json.loads((await ws.receive(timeout=10)).data)
     assert hello["type"] == "hello" and hello["fps"] == 30
@@ -578,6 +580,7 @@ def _rig_lip_from_viseme_curves(config):
     return _rig_lip_from_weights(viseme_curves(_wave(), front_end=config.front_end).weights, config)
 
 
+@pytest.mark.tools  # needs chromium (tools/test_tools.sh): make test runs it, make unit leaves it out
 def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, tmp_path):
     exe, sync_playwright = _chromium()
     _, lip_off = offline
