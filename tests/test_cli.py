@@ -72,3 +72,18 @@ def test_train_fast_recipe_starts_the_head_at_the_principal_components_at_twice_
     assert (cfg["lr"], cfg["pca_init"], cfg["epochs"], cfg["mean_init"], cfg["lip_contact"]) == (6e-3, 64, 1, True,
                                                                                                  1e-3)
     assert (cfg["batch_size"], cfg["warmup_steps"], cfg["decay"]) == (8, 30, "cosine")
+
+
+@pytest.mark.parametrize("command", [None, "animate", "live", "train", "evaluate", "generate", "convert-templates",
+                                     "prepare-dataset"])
+def test_help_names_no_issue_numbers(command, capsys):
+    """What a user reads (every --help) speaks of the program, not of this project's issue tracker."""
+    import re
+
+    try:
+        status = main([command, "--help"] if command else ["--help"])
+    except SystemExit as e:  # argparse's --help
+        status = e.code
+    text = capsys.readouterr().out
+    assert status == 0 and "dualtalker-lite" in text, text
+    assert not re.search(r"\bissues? #?\d", text, re.IGNORECASE), re.search(r".*\bissues? #?\d.*", text, re.I)[0]

@@ -1,4 +1,4 @@
-"""The live server: a local web page captures the microphone, the server animates the face as you speak (issue 33).
+"""The live server: a local web page captures the microphone, the server animates the face as you speak.
 
     dualtalker-lite live --checkpoint runs/m.pt            # then open http://127.0.0.1:8765/ and press Start
 
