@@ -134,9 +134,10 @@ def _cache_option(ap: argparse.ArgumentParser, tail: str = "") -> None:
 
 def train_parser(models: Sequence[str]) -> argparse.ArgumentParser:
     """``dualtalker-lite train``'s options; ``models``: the ``--model`` choices (the registry's trainable models)."""
-    ap = _new_parser("train", "Train one model of the experiment tables on a corpus (the recipe of TrainConfig.tiny) "
-                              "and save a self-describing checkpoint. EmoFace trains on train + train_emo with each "
-                              "clip's pseudo-pair partner, the other models on train.", TRAIN_EXAMPLE)
+    ap = _new_parser("train", "Train one model of the experiment tables on a corpus (by default with the short "
+                              "recipe where one was measured, --recipe below) and save a self-describing checkpoint. "
+                              "EmoFace trains on train + train_emo with each clip's pseudo-pair partner, the other "
+                              "models on train.", TRAIN_EXAMPLE)
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--model", choices=sorted(models), default="dualtalker",
                     help="which registered model to train (dualtalker_lite.models.registry; $DUALTALKER_PLUGINS "

@@ -87,3 +87,12 @@ def test_help_names_no_issue_numbers(command, capsys):
     text = capsys.readouterr().out
     assert status == 0 and "dualtalker-lite" in text, text
     assert not re.search(r"\bissues? #?\d", text, re.IGNORECASE), re.search(r".*\bissues? #?\d.*", text, re.I)[0]
+
+
+def test_train_help_describes_the_default_recipe(capsys):
+    """train's default is the short recipe where one was measured: its description no longer says the tiny one."""
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "by default with the short recipe where one was measured" in text
+    assert "(the recipe of TrainConfig.tiny)" not in text
