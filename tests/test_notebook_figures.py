@@ -48,3 +48,13 @@ def test_figures_and_tables_fit_the_page(nb):
     assert wide == [], f"{nb.name}: figures wider than {MAX_WIDTH_PX} px (cell, px): {wide}; use figsize <= 12 in"
     assert tables == [], (f"{nb.name}: tables with more than {MAX_TABLE_COLUMNS} columns (cell, columns): {tables}; "
                           f"show the metrics the text discusses: table_markdown(..., metrics=[...])")
+
+
+def test_the_overview_map_lists_every_notebook():
+    """Notebook 00's map names every notebook of the series (02a and CorrTalk's and EmoFace's 10-15 included) and
+    nothing that is not one."""
+    cells = json.loads((ROOT / "notebooks" / "00_overview.ipynb").read_text())["cells"]
+    section = next("".join(c["source"]) for c in cells
+                   if c["cell_type"] == "markdown" and "".join(c["source"]).startswith("## 4. The map of this series"))
+    mapped = re.findall(r"^\| \*\*(\d\d[a-z]?)\*\* ", section, re.MULTILINE)
+    assert mapped == [nb.name.split("_", 1)[0] for nb in NOTEBOOKS]

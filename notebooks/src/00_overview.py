@@ -12,7 +12,7 @@
 # 1. The task: speech in, per-frame 3D vertex displacements of a template out (DualTalker eq. 1).
 # 2. Why it is hard: one-to-many mapping, coarticulation, and the over-smoothing a regressor falls into.
 # 3. What each of the three papers adds.
-# 4. The map of this series (notebooks 00-09).
+# 4. The map of this series (notebooks 00-15: DualTalker, then CorrTalk, then EmoFace).
 # 5. A 30-second tour: one clip of the corpus — its text, frames, lip distance, and an animation with its speech.
 # 6. Your own recording: upload a WAV, pick a checkpoint and a speaker, watch the animation with sound.
 #
@@ -156,6 +156,7 @@ plt.show()
 # | **00** overview | the task, the papers, a tour of one clip (this notebook) |
 # | **01** synthetic talking faces | the corpus: template mesh, rig, espeak-ng speech, visemes, coarticulation, speakers, emotions |
 # | **02** audio features | STFT, mel filterbank, log-mel, alignment to 30 fps; where wav2vec 2.0 fits |
+# | **02a** phonetic front end | why log-mel from one voice fails on people; a phoneme recogniser's viseme track, the route that lip-syncs real voices |
 # | **03** attention | scaled dot-product and multi-head attention (eqs. 3-4), FaceFormer's biases, alignment mask |
 # | **04** speaker-aware gate | DualTalker's SE-style speaker gate (eq. 5) |
 # | **05** cross-modal fusion and dual integration | audio-visual integration (eq. 6) and its dual with shared Q/K (eq. 7) |
@@ -163,6 +164,12 @@ plt.show()
 # | **07** CCRL kernel weighting | the kernel-weighted cross-modal contrastive loss (eqs. 9-11) |
 # | **08** training DualTalker | the joint loss with $\lambda_1..\lambda_4$, the training loop, checkpoints |
 # | **09** evaluation and ablations | LVE, FDD, EVE, lip-distance plots; the ablations of DualTalker Table IV |
+# | **10** facial activity intensity | CorrTalk: how much each vertex moves (FAI, eq. 3) and the mask it gives (eqs. 7-8) |
+# | **11** hierarchical speech features | CorrTalk: phoneme-, word- and utterance-level windows of the speech encoder (eqs. 1, 4-6) |
+# | **12** training CorrTalk | CorrTalk's strong/weak dual-branch decoder trained (eqs. 7-11), its Table III ablations, beside DualTalker |
+# | **13** spiral convolution | EmoFace: k-rings, spirals and SpiralConv3D on the mesh (eqs. 1-3), Mesh Attention, the Table 4 sweep |
+# | **14** emotion/content disentanglement | EmoFace: pseudo-pairs, two encoders, cross-reconstruction and the emotion classifier (eqs. 7-18) |
+# | **15** self-growing and Mesh Attention | EmoFace: self-growing training (eq. 6), the Mesh Attention map, emotion control, the Table 2/3 analogues |
 
 # %% [markdown]
 # ## 5. A 30-second tour of one clip
