@@ -613,10 +613,12 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
                 page.screenshot(path=str(shots / "live_page.png"))
                 state = page.evaluate("() => [dtlLive.lip, dtlLive.latencyMs, dtlLive.shown, "
                                       "document.querySelector('.latency').textContent, dtlLive.shownLatencyMs]")
+                header_running = page.evaluate("() => document.querySelector('.msg').textContent")
                 second = page.evaluate("() => [dtlLive.avatarGap, dtlLive.avatarShown, dtlLive.avatar.rest.gap, "
                                        "dtlLive.visemes]")
                 page.click("button.start")                          # stop
                 page.wait_for_function("() => dtlLive.status.startsWith('stopped')", timeout=60000)
+                header_stopped = page.evaluate("() => document.querySelector('.msg').textContent")
                 # no microphone permission: one line says so; a file still plays through the live path
                 denied = browser.new_page(viewport={"width": 800, "height": 600})
                 denied.on("request", lambda r: requests.append(r.url))
@@ -636,6 +638,10 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     finally:
         server.close()
     lip, latency, shown, latency_text, drawn = state
+    # the header's instruction follows the state: not "press Start" while it runs (it said so throughout before)
+    assert "press Start and speak" not in header_running and "press Start and speak" in header_stopped, \
+        (header_running, header_stopped)
+    assert header_running.startswith("tiny.pt, speaker SPK01 (look-ahead "), header_running
     lip = np.array([np.nan if v is None else v for v in lip], float)
     assert np.isfinite(lip).all() and lip.std() > 0.2 * lip_off.std()   # the face moves
     corr, lag = _best_lag_corr(lip, lip_off)

@@ -190,11 +190,11 @@ try {
       sent.push([state.samplesSent, clockAt]);
     };
     source.connect(node);
-    state.running = true; button.textContent = 'Stop'; button.disabled = false;
+    state.running = true; button.textContent = 'Stop'; button.disabled = false; header(true);
     if (ctx.state === 'suspended') await ctx.resume();
   };
   const stop = (flush = true) => {
-    state.running = false; button.textContent = 'Start';
+    state.running = false; button.textContent = 'Start'; header(false);
     if (stopAudio) { stopAudio(); stopAudio = null; }
     if (ctx) { ctx.close(); ctx = null; }
     if (ws && ws.readyState === WebSocket.OPEN && flush) ws.send(JSON.stringify({ type: 'stop' }));
@@ -230,12 +230,16 @@ try {
                : `cannot start: ${e && e.message || e}`);
     console.error(e);
   };
+  // the header follows the state: the instruction only while stopped (the status line says what is going on)
+  function header(running) {
+    msg.textContent = `${info.checkpoint}, speaker ${info.speaker}${running ? '' : ': press Start and speak'} ` +
+                      `(look-ahead ${info.lookahead_ms} ms, expected latency ${(1000 * info.latency_s).toFixed(0)} ms)`;
+  }
   button.onclick = () => { if (state.running) stop(); else startMicrophone().catch(failed); };
   fileInput.onchange = () => { if (fileInput.files[0]) { if (state.running) stop(); startFile(fileInput.files[0]).catch(failed); } };
   Object.assign(state, { ready: true, mesh, info, avatar, start: () => startMicrophone().catch(failed), stop,
                          playFile: (f) => startFile(f).catch(failed) });
-  msg.textContent = `${info.checkpoint}, speaker ${info.speaker}: press Start and speak ` +
-                    `(look-ahead ${info.lookahead_ms} ms, expected latency ${(1000 * info.latency_s).toFixed(0)} ms)`;
+  header(false);
   button.disabled = false;
 } catch (e) {
   state.error = String(e && e.stack || e);
