@@ -1,6 +1,6 @@
 # dualtalker-lite: every target creates/reuses the virtual environment .venv itself.
 #   make lab    open JupyterLab on notebooks/         (main job, interactive)
-#   make demo   headless end-to-end run -> runs/demo/ (main job, no browser)
+#   make demo   headless end-to-end run -> runs/demo/ (main job, no browser); options: make demo ARGS="--seed 1"
 #   make test   every test CI runs: installs the test tools it can first (make test-tools), then the unit tests, the
 #               tests that need those tools and nbval over every notebook; lists every skipped test at the end
 #   make unit   the quick check: tests/ without the notebooks and without the tests that need test tools
@@ -39,7 +39,7 @@ lab: $(STAMP)
 	$(VENV)/bin/jupyter lab $(LAB_FLAGS) notebooks/
 
 demo: $(STAMP)
-	$(PY) -m dualtalker_lite.demo --out runs/demo
+	$(PY) -m dualtalker_lite.demo --out runs/demo $(ARGS)
 
 # What CI runs (.ci/run is `make test`). tools/test_tools.sh installs the test tools this machine allows (npm
 # packages into the checkout; chromium and the real recordings with apt-get, as root only), prints one line per tool

@@ -55,22 +55,41 @@ def test_lip_distance_figure_shows_ipa_and_explains_it():
     assert fig.get_supxlabel() == demo.PHONE_CAPTION and "IPA" in demo.PHONE_CAPTION
 
 
-def test_budget_notes_name_every_model_the_time_budget_cut_short():
-    """A model that the demo's --time-budget stopped before the recipe's last epoch is named in one line (stderr and
-    metrics.json's "truncated"); a model trained to the end, and the static template (no training), are not."""
+def test_budget_notes_name_every_model_a_budget_cut_short():
+    """A model that a demo budget stopped before the recipe's last epoch is named in one line (stderr and
+    metrics.json's "truncated") with the budget(s) in force; a model trained to the end, and the static template (no
+    training), are not."""
     from dualtalker_lite.demo import budget_notes
 
     results = {"Static template": {"epochs": 0, "model_config": None, "train_config": {"epochs": 12}},
                "FaceFormer-style": {"epochs": 20, "model_config": {}, "train_config": {"epochs": 20}},
                "DualTalker": {"epochs": 7, "model_config": {}, "train_config": {"epochs": 12}}}
-    notes = budget_notes(results, budget=150.0)   # each model against its own recipe's epochs (here 20 and 12)
+    notes = budget_notes(results, cpu_budget=150.0)   # each model against its own recipe's epochs (here 20 and 12)
     assert list(notes) == ["DualTalker"]
-    assert notes["DualTalker"].startswith("DualTalker stopped after 7 of 12 epochs: the --time-budget of 150 wall "
-                                          "seconds ran out")
+    assert notes["DualTalker"] == ("DualTalker stopped after 7 of 12 epochs: the --cpu-budget of 150 CPU seconds ran "
+                                   "out; its checkpoint is under-trained. Re-run with --cpu-budget 0 --time-budget 0, "
+                                   "or train it with dualtalker-lite train")
+    both = budget_notes(results, cpu_budget=150.0, time_budget=60.0)["DualTalker"]
+    assert "the --cpu-budget of 150 CPU seconds or the --time-budget of 60 wall seconds ran out" in both
     assert budget_notes({"DualTalker": {"epochs": 12, "model_config": {}, "train_config": {"epochs": 12}}},
-                        budget=150.0) == {}
+                        cpu_budget=150.0) == {}
     results["FaceFormer-style"]["epochs"] = 12   # 12 epochs is DualTalker's whole recipe, not FaceFormer-style's
-    assert list(budget_notes(results, budget=150.0)) == ["FaceFormer-style", "DualTalker"]
+    assert list(budget_notes(results, cpu_budget=150.0)) == ["FaceFormer-style", "DualTalker"]
+
+
+def test_the_demo_budget_is_cpu_seconds_by_default():
+    """A busy machine must not cut the demo's models short (a 180 s wall budget stopped DualTalker at 17 of 20
+    epochs): the default budget is 150 CPU seconds per model, no wall-clock one, and it reaches train()."""
+    from dualtalker_lite.demo import parse_args
+    from dualtalker_lite.experiments import runner
+    from dualtalker_lite.experiments.specs import RunSpec
+
+    args = parse_args([])
+    assert (args.cpu_budget, args.time_budget) == (150.0, 0.0)
+    # a CPU budget spent at the first step: training stops in the first of 3 epochs (the step budget's rule)
+    run = runner.run_one(RunSpec(row="VOCA-style", model="voca"), 0, 3, quick=True, cpu_budget_s=1e-6)
+    assert run["epochs"] == 1 and run["train_config"]["cpu_budget_s"] == 1e-6 and run["train_config"]["epochs"] == 3
+    assert runner.run_one(RunSpec(row="VOCA-style", model="voca"), 0, 2, quick=True)["epochs"] == 2
 
 
 def test_demo_trains_each_model_with_the_short_recipe_by_default():

@@ -86,7 +86,8 @@ class Assembly:
 
 def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = False, seed: int = 0,
                       epochs: int | None = 1, device: str = "cpu", progress: bool = False, threads: int | None = None,
-                      time_budget_s: float | None = None, logmel: Any = None, record: Any = None,
+                      time_budget_s: float | None = None, cpu_budget_s: float | None = None, logmel: Any = None,
+                      record: Any = None,
                       recipe: str = "tiny", lip_contact: float | None = None) -> Assembly:
     """Assemble the training of row ``spec`` on ``clips`` (log-mel clips of ``corpus``, or pairs of them when
     ``paired``) -> :class:`Assembly` (the steps are in the module docstring).
@@ -96,8 +97,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
 
     ``record``: the front end to record in the checkpoint instead of the row's own (the command trains a phonetic
     model on the recogniser's tracks of a corpus without viseme labels: its clips hold those tracks, its row reads
-    them as they are, and the checkpoint names the recogniser). ``device``, ``progress`` and ``time_budget_s`` go to
-    the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
+    them as they are, and the checkpoint names the recogniser). ``device``, ``progress``, ``time_budget_s`` (wall
+    seconds) and ``cpu_budget_s`` (this process's CPU seconds in ``train``) go to the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
     PCA-initialised head at lr 6e-3, for the models it was measured on); ``epochs`` sets the budget, None: the
     recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``); with ``fast`` the row's
     ``fast_changes`` apply (the shared-weights ablation: no PCA head, no basis step); ``lip_contact`` the weight
@@ -127,7 +128,8 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     if lip_contact is not None:
         budget["lip_contact"] = lip_contact
     train_config = preset(**budget, seed=seed, validate_every=0, device=str(device), progress=progress,
-                          weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s)
+                          weights=loss_weights(model, spec.loss), time_budget_s=time_budget_s,
+                          cpu_budget_s=cpu_budget_s)
     loader = None
     if trains:
         loader = (make_pair_loader if paired else make_loader)(train_set, train_config.batch_size, shuffle=True,

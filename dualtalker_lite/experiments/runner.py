@@ -105,7 +105,8 @@ def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
 
 def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: str | None = None, quick: bool = False,
             checkpoint: str | Path | None = None, time_budget_s: float | None = None,
-            test_split: str = TEST_SPLIT, clips: dict | None = None, recipe: str = "tiny") -> dict:
+            test_split: str = TEST_SPLIT, clips: dict | None = None, recipe: str = "tiny",
+            cpu_budget_s: float | None = None) -> dict:
     """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on ``test_split`` -> a result.
 
     ``recipe``: "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``, the demo's); ``epochs``
@@ -117,7 +118,9 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
     whose clips all read one sentence (``test_emo_a``) that audio comes from ``TEST_SPLIT``.
 
     ``checkpoint``: also save the trained model there. ``time_budget_s`` (the demo only; the tables never use it):
-    stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine.
+    stop after the epoch in which that many seconds have passed, so the epoch count depends on the machine;
+    ``cpu_budget_s`` (the demo's default): the same in CPU seconds of this process, which another job on the machine
+    barely changes.
     ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
     """
     from ..train import save_checkpoint, train
@@ -129,7 +132,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
         base_train, paired = training_set(data, spec, seed)
         test_set = test_features(data, test_split, spec.features)
         run = assemble_training(spec, base_train, data["view"], paired=paired, seed=seed, epochs=epochs, threads=1,
-                                time_budget_s=time_budget_s, logmel=data["train"].extractor, recipe=recipe)
+                                time_budget_s=time_budget_s, cpu_budget_s=cpu_budget_s,
+                                logmel=data["train"].extractor, recipe=recipe)
         model, model_cfg, train_cfg, train_set = run.model, run.model_config, run.train_config, run.train_set
         t0 = time.perf_counter()
         history = None if run.loader is None else train(model, run.loader, train_cfg)
@@ -189,8 +193,9 @@ def _worker_init(parent_pid: int | None = None) -> None:
 
 
 def _job(args: tuple) -> tuple[int, dict]:
-    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe = args
-    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe=recipe)
+    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe, cpu_budget = args
+    return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe=recipe,
+                          cpu_budget_s=cpu_budget)
 
 
 def executor_kind(executor: str) -> str | None:
@@ -216,7 +221,7 @@ def _dask_job(args: tuple) -> tuple[int, dict]:
 def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_path: str | None = None,
               quick: bool = False, checkpoints: list | None = None, progress: bool = True,
               time_budget_s: float | None = None, recipe: str = "tiny", executor: str = "local",
-              failures: list | None = None) -> list[dict]:
+              failures: list | None = None, cpu_budget_s: float | None = None) -> list[dict]:
     """Run (spec, seed) or (spec, seed, test split) jobs -> results in job order.
 
     ``executor`` "local": in this process (``processes=1``) or in a spawn pool of ``processes`` workers; a failed
@@ -228,14 +233,15 @@ def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_
     :func:`run_one` calls whatever the executor, so their numbers are the same bit for bit (each run reseeds
     everything, one torch thread; tested).
 
-    ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``, ``recipe`` and
-    ``epochs`` None."""
+    ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``, ``cpu_budget_s``,
+    ``recipe`` and ``epochs`` None."""
     from tqdm.auto import tqdm
 
     kind = executor_kind(executor)
     checkpoints = checkpoints or [None] * len(jobs)
     args = [(i, asdict(job[0]), job[1], epochs, corpus_path, quick, ckpt, time_budget_s,
-             job[2] if len(job) > 2 else TEST_SPLIT, recipe) for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
+             job[2] if len(job) > 2 else TEST_SPLIT, recipe, cpu_budget_s)
+            for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
     results: list = [None] * len(jobs)
     bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)
     if kind != "local":
