@@ -58,3 +58,13 @@ def test_the_overview_map_lists_every_notebook():
                    if c["cell_type"] == "markdown" and "".join(c["source"]).startswith("## 4. The map of this series"))
     mapped = re.findall(r"^\| \*\*(\d\d[a-z]?)\*\* ", section, re.MULTILINE)
     assert mapped == [nb.name.split("_", 1)[0] for nb in NOTEBOOKS]
+
+
+def test_notebook_08_warns_about_8_khz_audio_in_words_for_its_viseme_model():
+    """Its model reads the recogniser's viseme track: the telephone-band warning speaks of the recogniser, not of
+    log-mel models (it did, under the model that reads visemes)."""
+    texts = ["".join(out.get("text", "")) for cell in json.loads((ROOT / "notebooks" / "08_training_dualtalker.ipynb")
+                                                             .read_text())["cells"] for out in cell.get("outputs", [])]
+    warnings = [line for text in texts for line in text.splitlines() if "sampled at 8000 Hz" in line]
+    assert len(warnings) == 2 and all("phoneme recogniser copes with telephone-band speech" in w for w in warnings)
+    assert not any("log-mel models" in w for w in warnings)

@@ -303,7 +303,7 @@ subject = corpus.train_speakers[0]
 real = {}
 for p in sorted(REAL.glob("*.json")):
     info = json.loads(p.read_text())
-    wave = load_audio(p.with_suffix(".flac"))                 # 8 kHz -> 16 kHz (one warning line each)
+    wave = load_audio(p.with_suffix(".flac"), front_end="visemes")  # 8 kHz -> 16 kHz, one warning line each
     verts = animate_wave(model, wave, corpus.template(subject), 0, front_end=front_end)   # (T, V*3)
     d = lip_distance(verts, upper_mid, lower_mid)
     real[info["name"]] = dict(info, wave=wave, verts=verts, d=d,
