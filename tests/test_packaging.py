@@ -123,7 +123,8 @@ def test_readme_examples_write_distinct_folders():
 
 def test_readme_python_example_runs_as_written_on_the_phonetic_route():
     """README's Python example (issue 30: the phonetic route, the default) runs as written, but for one epoch instead
-    of the recipe's 37: it trains on the corpus's viseme labels and animates a clip through the recogniser's track."""
+    of the short recipe's 20 (the recipe `dualtalker-lite train` uses by default, not the tables' tiny one): it
+    trains on the corpus's viseme labels and animates a clip through the recogniser's track."""
     import numpy as np
     import pytest
 
@@ -131,10 +132,10 @@ def test_readme_python_example_runs_as_written_on_the_phonetic_route():
     text = (ROOT / "README.md").read_text().split("## Using the package", 1)[1]
     code = text.split("```python\n", 1)[1].split("```", 1)[0]
     assert "VisemeLabels" in code and "build(DEFAULT)" in code and "audio_dim=160" not in code
-    assert code.count("TrainConfig.tiny()") == 1
+    assert code.count('TrainConfig.fast("dualtalker")') == 1 and "TrainConfig.tiny" not in code
     namespace: dict = {}
-    exec(compile(code.replace("TrainConfig.tiny()", "TrainConfig.tiny(epochs=1, progress=False)"), "README.md",
-                 "exec"), namespace)
+    exec(compile(code.replace('TrainConfig.fast("dualtalker")', 'TrainConfig.fast("dualtalker", epochs=1, '
+                                                                'progress=False)'), "README.md", "exec"), namespace)
     model, corpus, verts = namespace["model"], namespace["corpus"], namespace["verts"]
     assert model.cfg.audio_dim == 15  # one-hot over the 15 visemes of face/visemes.py
     assert len(namespace["history"].terms) == 1
