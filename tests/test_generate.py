@@ -265,3 +265,24 @@ def test_cli_scales_the_held_out_sentences_to_a_small_corpus(tmp_path, capsys, m
     main(["--out", str(tmp_path / "e"), "--speakers", "6", "--sentences", "48"])
     out = capsys.readouterr().out                  # the default corpus: nothing scaled, no note
     assert not out.startswith("note:") and "'train': 136, 'val': 16, 'test_a': 40" in out
+
+
+def test_generate_says_which_speakers_train_and_counts_each_split(tmp_path, capsys, monkeypatch):
+    """`--speakers 4` holds the last 2 out for test_b by default: one note says so before anything is synthesized
+    (a user expected 4 training speakers and got 2), and the last line counts each split's clips, sentences and
+    speakers (a hand-made two-speaker corpus: 3 clips of 2 sentences in train, 1 in test_b)."""
+    import dualtalker_lite.data.generate as gen
+
+    clips = {"S0_a": {"subject": "S0", "sentence_id": "a"}, "S0_b": {"subject": "S0", "sentence_id": "b"},
+             "S1_a": {"subject": "S1", "sentence_id": "a"}, "S2_a": {"subject": "S2", "sentence_id": "a"}}
+    fake = {"clips": clips, "n_vertices": 10, "splits": {"train": ["S0_a", "S0_b", "S1_a"], "test_b": ["S2_a"]}}
+    monkeypatch.setattr(gen, "generate_corpus", lambda *a, **k: fake)  # nothing synthesized
+    gen.main(["--out", str(tmp_path / "c"), "--speakers", "4", "--sentences", "20", "--processes", "1"])
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == ("note: 4 speakers: 2 in training, the last 2 held out for test_b (unseen speakers; "
+                      "--unseen-speakers sets how many, 0 for none)")
+    assert out[-1] == (f"wrote 4 clips to {tmp_path / 'c'} (10 vertices); splits: train 3 clips (2 sentences, "
+                       f"2 speakers), test_b 1 clip (1 sentence, 1 speaker)")
+    gen.main(["--out", str(tmp_path / "d"), "--speakers", "4", "--unseen-speakers", "1", "--sentences", "20",
+              "--processes", "1"])
+    assert not any(line.startswith("note: 4 speakers") for line in capsys.readouterr().out.splitlines())

@@ -478,6 +478,10 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
         plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)  # fail before synthesizing anything
     except ValueError as err:
         ap.exit(2, f"error: {err}\n")
+    if args.speakers is not None and args.unseen_speakers is None and spec.unseen_speakers:
+        print(f"note: {spec.speakers} speakers: {spec.speakers - spec.unseen_speakers} in training, the last "
+              f"{spec.unseen_speakers} held out for test_b (unseen speakers; --unseen-speakers sets how many, 0 for "
+              f"none)", flush=True)
     if scaled:
         print(f"note: {spec.sentences} sentences: {spec.val_sentences} for validation and {spec.test_sentences} for "
               f"test-A, {spec.sentences - spec.val_sentences - spec.test_sentences} for training (scaled down from "
@@ -485,8 +489,21 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
               f"them)", flush=True)
     meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
                            progress=progress_mode(args.quiet), overwrite=args.overwrite)
-    sizes = {k: len(v) for k, v in meta["splits"].items()}
-    print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: {sizes}")
+    print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: "
+          f"{split_summary(meta)}")
+
+
+def split_summary(meta: dict) -> str:
+    """Each split's clips, sentences and speakers, as ``generate`` ends: ``train 6 clips (3 sentences, 2
+    speakers), ...`` (an emotional split holds each sentence once per emotion and level)."""
+    parts = []
+    for split, names in meta["splits"].items():
+        clips = [meta["clips"][n] for n in names]
+        sentences = len({c.get("sentence_id") for c in clips})
+        speakers = len({c.get("subject") for c in clips})
+        parts.append(f"{split} {len(names)} clip{'s' if len(names) != 1 else ''} ({sentences} sentence"
+                     f"{'s' if sentences != 1 else ''}, {speakers} speaker{'s' if speakers != 1 else ''})")
+    return ", ".join(parts)
 
 
 if __name__ == "__main__":
