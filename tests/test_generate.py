@@ -251,20 +251,25 @@ def test_cli_scales_the_held_out_sentences_to_a_small_corpus(tmp_path, capsys, m
 
     def planned(spec, out, **kwargs):
         plans = plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)])
-        return {"splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS}, "clips": plans,
+        return {"splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS},
+                "clips": {p.name: {"subject": p.subject, "sentence_id": p.sentence} for p in plans},
                 "n_vertices": spec.vertices, "spec": spec}
 
     monkeypatch.setattr(gen, "generate_corpus", planned)
-    main(["--out", str(tmp_path / "c"), "--speakers", "6", "--sentences", "20"])
+    main(["--out", str(tmp_path / "c"), "--speakers", "6", "--sentences", "20", "--unseen-speakers", "2"])
     out = capsys.readouterr().out
     assert out.startswith("note: 20 sentences: 2 for validation and 4 for test-A, 14 for training")
-    assert "'train': 56, 'val': 8, 'test_a': 16, 'test_b': 8" in out
-    main(["--out", str(tmp_path / "d"), "--speakers", "6", "--sentences", "20", "--test-sentences", "10"])
+    # 4 seen speakers: 14 x 4 = 56 training clips, 2 x 4 = 8 validation, 4 x 4 = 16 test-A; test-B: 2 unseen x 4
+    assert "splits: train 56 clips (14 sentences, 4 speakers), val 8 clips (2 sentences, 4 speakers), test_a 16 " \
+           "clips (4 sentences, 4 speakers), test_b 8 clips (4 sentences, 2 speakers)" in out
+    main(["--out", str(tmp_path / "d"), "--speakers", "6", "--sentences", "20", "--test-sentences", "10",
+          "--unseen-speakers", "2"])
     out = capsys.readouterr().out                  # an explicit count is kept (only the other one is scaled)
-    assert "2 for validation and 10 for test-A, 8 for training" in out and "'train': 32, 'val': 8, 'test_a': 40" in out
-    main(["--out", str(tmp_path / "e"), "--speakers", "6", "--sentences", "48"])
+    assert "2 for validation and 10 for test-A, 8 for training" in out
+    assert "splits: train 32 clips (8 sentences, 4 speakers), val 8 clips (2 sentences, 4 speakers), test_a 40" in out
+    main(["--out", str(tmp_path / "e"), "--speakers", "6", "--sentences", "48", "--unseen-speakers", "2"])
     out = capsys.readouterr().out                  # the default corpus: nothing scaled, no note
-    assert not out.startswith("note:") and "'train': 136, 'val': 16, 'test_a': 40" in out
+    assert not out.startswith("note:") and "splits: train 136 clips (34 sentences, 4 speakers), val 16 clips" in out
 
 
 def test_generate_says_which_speakers_train_and_counts_each_split(tmp_path, capsys, monkeypatch):
