@@ -198,7 +198,7 @@ def _job(args: tuple) -> tuple[int, dict]:
                           cpu_budget_s=cpu_budget)
 
 
-def executor_kind(executor: str) -> str | None:
+def executor_kind(executor: str) -> str:
     """``--executor`` -> "local", "dask" (a LocalCluster here) or the scheduler address of ``dask://HOST:PORT``
     (given as ``tcp://HOST:PORT``, what dask's clients take); one ValueError line for anything else."""
     if executor in ("local", "dask"):
@@ -286,6 +286,7 @@ def _run_on_dask(args: list[tuple], kind: str, processes: int, results: list, fa
         from distributed import Client, LocalCluster, as_completed as dask_completed
     except ImportError:
         raise ValueError("--executor dask needs the dask.distributed package: pip install -e '.[cluster]'") from None
+    # worker.daemon False: a worker process may start processes of its own, as a run in the local pool may
     with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.worker.daemon": False,
                           "logging.distributed": "error"}):
         cluster = None
