@@ -280,14 +280,15 @@ def test_generate_says_which_speakers_train_and_counts_each_split(tmp_path, caps
 
     clips = {"S0_a": {"subject": "S0", "sentence_id": "a"}, "S0_b": {"subject": "S0", "sentence_id": "b"},
              "S1_a": {"subject": "S1", "sentence_id": "a"}, "S2_a": {"subject": "S2", "sentence_id": "a"}}
-    fake = {"clips": clips, "n_vertices": 10, "splits": {"train": ["S0_a", "S0_b", "S1_a"], "test_b": ["S2_a"]}}
+    fake = {"clips": clips, "n_vertices": 10,
+            "splits": {"train": ["S0_a", "S0_b", "S1_a"], "test_b": ["S2_a"], "train_emo": []}}
     monkeypatch.setattr(gen, "generate_corpus", lambda *a, **k: fake)  # nothing synthesized
     gen.main(["--out", str(tmp_path / "c"), "--speakers", "4", "--sentences", "20", "--processes", "1"])
     out = capsys.readouterr().out.splitlines()
     assert out[0] == ("note: 4 speakers: 2 in training, the last 2 held out for test_b (unseen speakers; "
                       "--unseen-speakers sets how many, 0 for none)")
     assert out[-1] == (f"wrote 4 clips to {tmp_path / 'c'} (10 vertices); splits: train 3 clips (2 sentences, "
-                       f"2 speakers), test_b 1 clip (1 sentence, 1 speaker)")
+                       f"2 speakers), test_b 1 clip (1 sentence, 1 speaker), train_emo 0 clips")
     gen.main(["--out", str(tmp_path / "d"), "--speakers", "4", "--unseen-speakers", "1", "--sentences", "20",
               "--processes", "1"])
     assert not any(line.startswith("note: 4 speakers") for line in capsys.readouterr().out.splitlines())

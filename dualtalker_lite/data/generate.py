@@ -498,6 +498,9 @@ def split_summary(meta: dict) -> str:
     speakers), ...`` (an emotional split holds each sentence once per emotion and level)."""
     parts = []
     for split, names in meta["splits"].items():
+        if not names:
+            parts.append(f"{split} 0 clips")
+            continue
         clips = [meta["clips"][n] for n in names]
         sentences = len({c.get("sentence_id") for c in clips})
         speakers = len({c.get("subject") for c in clips})
