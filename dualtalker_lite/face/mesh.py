@@ -265,7 +265,46 @@ def _features(x, y, front, shape: FaceShape):
 
 
 def _build(shape: FaceShape, n_rows: int, n_cols: int) -> dict:
-    """Vertices, faces and grid bookkeeping of one head (no regions)."""
+    """Vertices, faces and grid bookkeeping of one head (no regions), in the steps of the module docstring.
+
+    The points grow in a dict of parallel arrays (x, y, z, row, col, side): the rings, the lower-lip copies, the
+    two poles, then (after the features) the mouth bag; the last step reorders them so the jaw's vertices lead.
+    """
+    ring = _ring_grid(shape, n_rows, n_cols)                                        # steps 1-2
+    pts = ring["points"]
+    upper, lower = _cut_mouth_slit(pts, ring, shape)                                # step 3
+    top, bottom = _append_points(pts, x=[0.0, 0.0], y=[shape.b, shape.y_bottom - 0.01], z=[0.0, -0.2 * shape.c],
+                                 row=[n_rows, -1], col=[0, 0], side=[0, 0])        # crown, under the neck
+    faces = _ring_faces(ring, lower, top, bottom)
+    # Step 4: features, faded out towards the sides and the back of the head.
+    x, z = pts["x"], pts["z"]
+    front = smoothstep(0.15, 0.55, z / np.maximum(np.hypot(x / shape.a, z / shape.c) * shape.c, 1e-9))
+    pts["z"] = z + _features(x, pts["y"], front, shape)
+    bag, bag_faces = _add_mouth_bag(pts, ring, upper, lower, shape)
+    faces = np.concatenate([faces, bag_faces])
+    # Store the vertices ring by ring from the neck up, the lower-lip copies and the mouth bag just before the
+    # mouth ring: all the vertices the jaw moves then form one contiguous block at the start (rig.py relies on it).
+    r_m, vid = ring["rows"]["mouth"], ring["vid"]
+    order = np.concatenate([[bottom], vid[:r_m].ravel(), lower, *bag, vid[r_m:].ravel(), [top]])
+    return _reordered(pts, faces, order, ring, upper, lower, shape)
+
+
+def _append_points(pts: dict, **new) -> np.ndarray:
+    """Append points (one sequence per array of ``pts``) in place; returns their indices."""
+    start = len(pts["x"])
+    for key, values in new.items():
+        pts[key] = np.concatenate([pts[key], values])
+    return np.arange(start, start + len(new["x"]))
+
+
+def _ring_grid(shape: FaceShape, n_rows: int, n_cols: int) -> dict:
+    """Steps 1-2: the (n_rows, n_cols) grid of ring points, with the bookkeeping the later steps read.
+
+    Returns ``points`` (x, y, z, row, col, side: flat arrays of n_rows * n_cols), ``vid`` (n_rows, n_cols)
+    indices, the signed column ``col`` of each ring position (0, 1, .., half, -(half-1), .., -1), the angles
+    ``th`` (n_cols,) and ``th_half`` (half + 1,), the anchor indices ``rows`` and ``cols``, and ``slit_pos``: the
+    ring positions strictly between the mouth corners, ordered -x .. +x.
+    """
     half = n_cols // 2
     y_r, rows = _rows(shape, n_rows)
     th_half, cols = _columns(shape, half)
@@ -278,38 +317,40 @@ def _build(shape: FaceShape, n_rows: int, n_cols: int) -> dict:
     X = a_r[:, None] * sin_th[None, :]                                              # (n_rows, n_cols)
     Y = np.repeat(y_r[:, None], n_cols, axis=1)
     Z = c_r[:, None] * cos_th[None, :]
-    vid = np.arange(n_rows * n_cols).reshape(n_rows, n_cols)
-    x, y, z = X.ravel(), Y.ravel(), Z.ravel()
-    row = np.repeat(np.arange(n_rows), n_cols)
-    colv = np.tile(col, n_rows)
-    side = np.zeros(n_rows * n_cols, dtype=np.int64)
-    # Mouth slit: duplicate the mouth ring between the corners; originals = upper lip, copies = lower lip.
-    r_m, k_c = rows["mouth"], cols["corner"]
-    slit_pos = np.nonzero(np.abs(col) < k_c)[0]
+    slit_pos = np.nonzero(np.abs(col) < cols["corner"])[0]                          # the mouth ring's slit part
     slit_pos = slit_pos[np.argsort(col[slit_pos])]                                  # ordered -x .. +x
-    upper = vid[r_m, slit_pos]
-    lower = np.arange(len(x), len(x) + len(upper))
-    gap = 0.5 * shape.lip_gap * (1.0 - (th[slit_pos] / th_half[k_c]) ** 2)         # half gap, 0 at corners
-    x = np.concatenate([x, x[upper]])
-    y = np.concatenate([y, y[upper] - gap])
-    y[upper] += gap
-    z = np.concatenate([z, z[upper]])
-    row = np.concatenate([row, np.full(len(upper), r_m)])
-    colv = np.concatenate([colv, colv[upper]])
-    side = np.concatenate([side, np.full(len(upper), -1)])
-    side[upper] = 1
-    # Poles: crown and a point under the neck.
-    top, bottom = len(x), len(x) + 1
-    x = np.concatenate([x, [0.0, 0.0]])
-    y = np.concatenate([y, [shape.b, shape.y_bottom - 0.01]])
-    z = np.concatenate([z, [0.0, -0.2 * shape.c]])
-    row = np.concatenate([row, [n_rows, -1]])
-    colv = np.concatenate([colv, [0, 0]])
-    side = np.concatenate([side, [0, 0]])
-    # Faces: quads between ring r (bottom) and ring r+1 (top). Seen from above the mouth ring is the upper
-    # lip (originals); seen from below it is the lower lip (copies). No quad joins the two: the slit.
+    points = {"x": X.ravel(), "y": Y.ravel(), "z": Z.ravel(), "row": np.repeat(np.arange(n_rows), n_cols),
+              "col": np.tile(col, n_rows), "side": np.zeros(n_rows * n_cols, dtype=np.int64)}
+    return {"points": points, "vid": np.arange(n_rows * n_cols).reshape(n_rows, n_cols), "col": col, "th": th,
+            "th_half": th_half, "rows": rows, "cols": cols, "slit_pos": slit_pos}
+
+
+def _cut_mouth_slit(pts: dict, ring: dict, shape: FaceShape) -> tuple[np.ndarray, np.ndarray]:
+    """Step 3: duplicate the mouth ring between the corners; originals = upper lip (side 1), copies = lower (-1).
+
+    The two rows part by ``lip_gap`` at the middle, ``lip_gap (1 - (th / th_corner)^2)``, and meet at the corners.
+    Returns the indices of the upper-lip row and of its lower-lip copies, both ordered -x .. +x.
+    """
+    slit_pos, r_m, k_c = ring["slit_pos"], ring["rows"]["mouth"], ring["cols"]["corner"]
+    upper = ring["vid"][r_m, slit_pos]
+    gap = 0.5 * shape.lip_gap * (1.0 - (ring["th"][slit_pos] / ring["th_half"][k_c]) ** 2)  # half gap, 0 at corners
+    lower = _append_points(pts, x=pts["x"][upper], y=pts["y"][upper] - gap, z=pts["z"][upper],
+                           row=np.full(len(upper), r_m), col=pts["col"][upper], side=np.full(len(upper), -1))
+    pts["y"][upper] += gap
+    pts["side"][upper] = 1
+    return upper, lower
+
+
+def _ring_faces(ring: dict, lower: np.ndarray, top, bottom) -> np.ndarray:
+    """Triangles (F, 3) of the rings and the two pole fans; the mouth slit stays open.
+
+    Quads join ring r (bottom) and ring r+1 (top). Seen from above the mouth ring is the upper lip (originals);
+    seen from below it is the lower lip (copies). No quad joins the two: the slit.
+    """
+    vid, col = ring["vid"], ring["col"]
+    n_cols = len(col)
     top_ring = vid.copy()
-    top_ring[r_m, slit_pos] = lower
+    top_ring[ring["rows"]["mouth"], ring["slit_pos"]] = lower
     j0, j1 = np.arange(n_cols), (np.arange(n_cols) + 1) % n_cols
     a, b = vid[:-1][:, j0], vid[:-1][:, j1]                                          # (n_rows-1, n_cols)
     d, c = top_ring[1:][:, j0], top_ring[1:][:, j1]
@@ -320,48 +361,56 @@ def _build(shape: FaceShape, n_rows: int, n_cols: int) -> dict:
     faces = [t1.reshape(-1, 3), t2.reshape(-1, 3)]
     faces.append(np.stack([vid[-1, j0], vid[-1, j1], np.full(n_cols, top)], -1))
     faces.append(np.stack([vid[0, j1], vid[0, j0], np.full(n_cols, bottom)], -1))
-    faces = np.concatenate(faces).astype(np.int64)
-    # Features, faded out towards the sides and the back of the head.
-    front = smoothstep(0.15, 0.55, z / np.maximum(np.hypot(x / shape.a, z / shape.c) * shape.c, 1e-9))
-    z = z + _features(x, y, front, shape)
-    # Mouth bag: behind the lips, two smaller loops and a centre vertex close the mouth into a pocket (the
-    # mesh is watertight; when the jaw opens one sees the pocket, not the inside of the skull).
-    pos = {int(cc): j for j, cc in enumerate(col)}
-    loop = np.concatenate([[vid[r_m, pos[-k_c]]], upper, [vid[r_m, pos[k_c]]], lower[::-1]])
+    return np.concatenate(faces).astype(np.int64)
+
+
+def _add_mouth_bag(pts: dict, ring: dict, upper: np.ndarray, lower: np.ndarray,
+                   shape: FaceShape) -> tuple[list, np.ndarray]:
+    """The pocket behind the lips: two smaller loops (side 2, 3) and a centre vertex (side 4), and their faces.
+
+    The loop runs round the slit (corner, upper lip, corner, lower lip backwards); the bag's loops shrink it to
+    90% and 60% in x and sink it 6 and 16 mm, so the mesh is watertight and an open jaw shows the pocket, not
+    the inside of the skull. Returns ``[loop, bag loop 1, bag loop 2, [centre]]`` indices and the new faces.
+    """
+    r_m, k_c = ring["rows"]["mouth"], ring["cols"]["corner"]
+    x, z = pts["x"], pts["z"]
+    pos = {int(cc): j for j, cc in enumerate(ring["col"])}
+    loop = np.concatenate([[ring["vid"][r_m, pos[-k_c]]], upper, [ring["vid"][r_m, pos[k_c]]], lower[::-1]])
     half_sign = np.concatenate([[0.0], np.ones(len(upper)), [0.0], -np.ones(len(lower))])
     prof = np.clip(1.0 - (x[loop] / shape.x_corner) ** 2, 0.0, 1.0)
-    bag = [len(x) + np.arange(len(loop)), len(x) + len(loop) + np.arange(len(loop))]
-    centre = len(x) + 2 * len(loop)
-    z_c = z[loop].mean()
-    x = np.concatenate([x, 0.9 * x[loop], 0.6 * x[loop], [0.0]])
-    y = np.concatenate([y, shape.y_mouth + 0.004 * half_sign * prof, shape.y_mouth + 0.008 * half_sign * prof,
-                        [shape.y_mouth]])
-    z = np.concatenate([z, z[loop] - 0.006, z[loop] - 0.016, [z_c - 0.026]])
-    row = np.concatenate([row, np.full(2 * len(loop) + 1, r_m)])
-    colv = np.concatenate([colv, colv[loop], colv[loop], [0]])
-    side = np.concatenate([side, np.full(len(loop), 2), np.full(len(loop), 3), [4]])
-    i0 = np.arange(len(loop))
-    i1 = (i0 + 1) % len(loop)
+    n = len(loop)
+    new = _append_points(pts, x=np.concatenate([0.9 * x[loop], 0.6 * x[loop], [0.0]]),
+                         y=np.concatenate([shape.y_mouth + 0.004 * half_sign * prof,
+                                           shape.y_mouth + 0.008 * half_sign * prof, [shape.y_mouth]]),
+                         z=np.concatenate([z[loop] - 0.006, z[loop] - 0.016, [z[loop].mean() - 0.026]]),
+                         row=np.full(2 * n + 1, r_m), col=np.concatenate([pts["col"][loop], pts["col"][loop], [0]]),
+                         side=np.concatenate([np.full(n, 2), np.full(n, 3), [4]]))
+    bag, centre = [new[:n], new[n:2 * n]], new[2 * n]
+    i0 = np.arange(n)
+    i1 = (i0 + 1) % n
+    faces = []
     for A, B in ((loop, bag[0]), (bag[0], bag[1])):                                  # winding: reversed loop edges
-        faces = np.concatenate([faces, np.stack([A[i1], A[i0], B[i0]], -1), np.stack([A[i1], B[i0], B[i1]], -1)])
-    faces = np.concatenate([faces, np.stack([bag[1][i1], bag[1][i0], np.full(len(loop), centre)], -1)])
-    theta = np.arctan2(np.abs(x), z)                                                 # 0 front .. pi back
-    # Store the vertices ring by ring from the neck up, the lower-lip copies and the mouth bag just before the
-    # mouth ring: all the vertices the jaw moves then form one contiguous block at the start (rig.py relies on it).
-    order = np.concatenate([[bottom], vid[:r_m].ravel(), lower, bag[0], bag[1], [centre], vid[r_m:].ravel(), [top]])
+        faces += [np.stack([A[i1], A[i0], B[i0]], -1), np.stack([A[i1], B[i0], B[i1]], -1)]
+    faces.append(np.stack([bag[1][i1], bag[1][i0], np.full(n, centre)], -1))
+    return [*bag, [centre]], np.concatenate(faces)
+
+def _reordered(pts: dict, faces: np.ndarray, order: np.ndarray, ring: dict, upper: np.ndarray, lower: np.ndarray,
+               shape: FaceShape) -> dict:
+    """The head with its points stored in ``order`` (faces and slit renumbered), its landmarks and grid."""
     new = np.empty_like(order)
     new[order] = np.arange(len(order))
-    vertices = np.stack([x, y, z], -1)[order]
-    faces, upper, lower = new[faces], new[upper], new[lower]
-    row, colv, side, theta = row[order], colv[order], side[order], theta[order]
+    theta = np.arctan2(np.abs(pts["x"]), pts["z"])                                   # 0 front .. pi back
+    vertices = np.stack([pts["x"], pts["y"], pts["z"]], -1)[order]
+    corner = ring["vid"][ring["rows"]["mouth"], ring["cols"]["corner"]]
     landmarks = {"y_eye": shape.y_eye, "x_eye": shape.x_eye, "eye_width": shape.eye_width, "y_brow": shape.y_brow,
                  "y_nose": shape.y_nose, "y_mouth": shape.y_mouth, "x_corner": shape.x_corner,
                  "y_chin": shape.y_chin, "y_hair": shape.y_hair, "lip_thickness": shape.lip_thickness,
                  "hinge_y": shape.y_nose + 0.004, "hinge_z": -0.08 * shape.c,
-                 "th_corner": float(theta[new[vid[r_m, k_c]]]), "head_a": shape.a, "head_c": shape.c}
-    grid = {"row": row, "col": colv, "side": side, "theta": theta, "rows": rows, "cols": cols}
-    return {"vertices": vertices, "faces": faces, "slit": np.stack([upper, lower]), "landmarks": landmarks,
-            "grid": grid}
+                 "th_corner": float(theta[corner]), "head_a": shape.a, "head_c": shape.c}
+    grid = {"row": pts["row"][order], "col": pts["col"][order], "side": pts["side"][order], "theta": theta[order],
+            "rows": ring["rows"], "cols": ring["cols"]}
+    return {"vertices": vertices, "faces": new[faces], "slit": np.stack([new[upper], new[lower]]),
+            "landmarks": landmarks, "grid": grid}
 
 
 # ------------------------------------------------------------------------------------------ regions
