@@ -17,7 +17,7 @@ from torch import Tensor
 from .common import _masked, masked_mean, masked_mse
 
 __all__ = ["masked_mean", "primal_loss", "dual_loss", "duality_loss", "rbf_kernel_weights", "READINGS",
-           "ccrl_anchor_losses", "ccrl_loss", "LossWeights", "joint_loss"]
+           "ccrl_anchor_losses", "ccrl_pairs", "ccrl_anchor_weights", "ccrl_loss", "LossWeights", "joint_loss"]
 
 
 def primal_loss(pred_vertices: Tensor, vertices: Tensor, mask: Tensor, scale: float = 1.0) -> Tensor:
@@ -142,6 +142,48 @@ def ccrl_anchor_losses(p: Tensor, q: Tensor, kernel_weights: Tensor, mask: Tenso
     return torch.where(is_anchor, log_denominator - pos, torch.zeros_like(pos)), is_anchor
 
 
+def ccrl_pairs(x: Tensor, y: Tensor, second_term: Literal["swap", "fused", "none"] = "swap",
+               x_fused: Tensor | None = None, y_fused: Tensor | None = None) -> list[tuple[Tensor, Tensor]]:
+    r"""The (anchor, partner) feature pairs whose L_CCRL terms eq. 11 adds; all (B, T, d).
+
+        L_CCRL = L_CCRL(X, Y) + L_CCRL(X, Y)                                                    (eq. 11)
+
+    Eq. 11 prints L(X, Y) twice (``second_term``). "swap" (default): L(X, Y) + L(Y, X), anchors from both
+    modalities, the symmetric CLIP-style reading that needs nothing beyond X, Y. "fused": L(X, Y) + L(X̆, Y̆) with
+    the fused features of eqs. 6-7, since the text "brings (X, Y) and (X̂, Ŷ) closer". "none": L(X, Y) alone.
+
+    The (X̂, Ŷ) pair. The text (around eq. 3) calls Ŷ the temporally encoded past-motion sequence fed to the
+    motion-attentive module; X̂ would be its lip-reading counterpart (the encoded past audio). Those inputs are
+    shifted by one frame and carry the style embedding, so pairing them frame by frame with each other is
+    ill-defined; this implementation uses the fused states X̆, Y̆ (eq. 8's pair) for the "fused" option.
+    """
+    pairs = [(x, y)]
+    if second_term == "swap":
+        pairs.append((y, x))
+    elif second_term == "fused":
+        if x_fused is None or y_fused is None:
+            raise ValueError("second_term='fused' needs x_fused and y_fused")
+        pairs.append((x_fused, y_fused))
+    elif second_term != "none":
+        raise ValueError(f"second_term must be 'swap', 'fused' or 'none', got {second_term!r}")
+    return pairs
+
+
+def ccrl_anchor_weights(kernel_weights: Tensor, mask: Tensor, dtype: torch.dtype,
+                        anchor_weighting: Literal["uniform", "kernel_mean"] = "uniform") -> Tensor:
+    r"""How much each anchor a weighs in the mean over anchors: (B, T, T) weights, (B, T) mask -> (B, T).
+
+    "uniform" (default) = 1 for every valid frame, a plain mean over anchors, as [59] does (each anchor's own
+    normaliser is inside l_a); "kernel_mean": anchor a weighs mean_t w_{a,t} (anchors in dense, often-revisited
+    poses weigh more), normalised by the sum of those weights in :func:`ccrl_loss`.
+    """
+    if anchor_weighting == "uniform":
+        return mask.to(dtype)  # (B, T) every anchor weighs 1
+    if anchor_weighting == "kernel_mean":
+        return kernel_weights.to(dtype).sum(-1) / mask.sum(1, keepdim=True).clamp(min=1)  # (B, T) mean_t w_{a,t}
+    raise ValueError(f"anchor_weighting must be 'uniform' or 'kernel_mean', got {anchor_weighting!r}")
+
+
 def ccrl_loss(x: Tensor, y: Tensor, motion: Tensor | None, mask: Tensor, bandwidth: float | None = None, *,
               kernel_weights: Tensor | None = None, x_fused: Tensor | None = None, y_fused: Tensor | None = None,
               second_term: Literal["swap", "fused", "none"] = "swap", reading: Reading = "kernel",
@@ -155,10 +197,12 @@ def ccrl_loss(x: Tensor, y: Tensor, motion: Tensor | None, mask: Tensor, bandwid
         L_CCRL = L_CCRL(X, Y) + L_CCRL(X, Y)                                                    (eq. 11)
     with w_t = K(M_k - M_t) a Gaussian (RBF) kernel on the ground-truth motion (:func:`rbf_kernel_weights`,
     or ``kernel_weights``), s^inter_t = cos(X_k, Y_t), s^intra_t = cos(X_k, X_t) for the anchor X_k.
-    Per-anchor terms: :func:`ccrl_anchor_losses`; the loss is their mean over anchors (``anchor_weighting``),
-    pooled over the batch like the MSE terms; negatives come from the anchor's own sequence only.
+    Per-anchor terms: :func:`ccrl_anchor_losses`; the loss is their weighted mean over anchors
+    (:func:`ccrl_anchor_weights`), pooled over the batch like the MSE terms; negatives come from the anchor's own
+    sequence only; eq. 11's two terms: :func:`ccrl_pairs`.
 
-    Readings (the text is ambiguous; each alternative is an argument):
+    Readings (the text is ambiguous; each alternative is an argument; (b) anchor weights and (c)-(d) eq. 11's
+    second term are read in :func:`ccrl_anchor_weights` and :func:`ccrl_pairs`):
 
     (a) What w_k is (``reading``). Eq. 9 is the "exponential" kernel-weighted contrastive loss of the paper's
         reference [59] (Barbano et al., ISBI 2023, building on y-aware InfoNCE, Dufumier et al. 2021): for an
@@ -175,18 +219,6 @@ def ccrl_loss(x: Tensor, y: Tensor, motion: Tensor | None, mask: Tensor, bandwid
                     s' (not printed): l_a ≥ 0. Frames with w ≈ 1 are neither attracted nor repelled.
         "decoupled" the same single positive with s' exactly as printed (the DCL form: l_a goes negative, its
                     floor depends on T; bounded below only because Sim is a cosine).
-    (b) Anchor weights (``anchor_weighting``): "uniform" (default) = plain mean over anchors, as [59] does
-        (each anchor's own normaliser is inside l_a); "kernel_mean": anchor a weighs mean_t w_{a,t}
-        (anchors in dense, often-revisited poses weigh more), normalised by the sum of those weights.
-    (c) Eq. 11 prints L(X, Y) twice (``second_term``). "swap" (default): L(X, Y) + L(Y, X), anchors from both
-        modalities, the symmetric CLIP-style reading that needs nothing beyond X, Y. "fused": L(X, Y) +
-        L(X̆, Y̆) with the fused features of eqs. 6-7, since the text "brings (X, Y) and (X̂, Ŷ) closer".
-        "none": L(X, Y) alone.
-    (d) The (X̂, Ŷ) pair. The text (around eq. 3) calls Ŷ the temporally encoded past-motion sequence fed to
-        the motion-attentive module; X̂ would be its lip-reading counterpart (the encoded past audio). Those
-        inputs are shifted by one frame and carry the style embedding, so pairing them frame by frame with
-        each other is ill-defined; this implementation uses the fused states X̆, Y̆ (eq. 8's pair) for the
-        "fused" option and says so.
     (e) "(1 - w_t) acts as a temperature": every negative logit is multiplied by (1 - w_{a,t}); an extra
         global ``temperature`` τ divides all logits, positives included (default 1, i.e. none, as printed).
 
@@ -199,24 +231,11 @@ def ccrl_loss(x: Tensor, y: Tensor, motion: Tensor | None, mask: Tensor, bandwid
         if motion is None:
             raise ValueError("ccrl_loss needs motion or kernel_weights")
         kernel_weights = rbf_kernel_weights(motion, bandwidth, mask, distance)  # (B, T, T)
-    pairs = [(x, y)]
-    if second_term == "swap":
-        pairs.append((y, x))
-    elif second_term == "fused":
-        if x_fused is None or y_fused is None:
-            raise ValueError("second_term='fused' needs x_fused and y_fused")
-        pairs.append((x_fused, y_fused))
-    elif second_term != "none":
-        raise ValueError(f"second_term must be 'swap', 'fused' or 'none', got {second_term!r}")
-    if anchor_weighting == "uniform":
-        a = mask.to(x.dtype)  # (B, T) every anchor weighs 1
-    elif anchor_weighting == "kernel_mean":
-        a = kernel_weights.to(x.dtype).sum(-1) / mask.sum(1, keepdim=True).clamp(min=1)  # (B, T) mean_t w_{a,t}
-    else:
-        raise ValueError(f"anchor_weighting must be 'uniform' or 'kernel_mean', got {anchor_weighting!r}")
+    pairs = ccrl_pairs(x, y, second_term, x_fused, y_fused)                     # eq. 11's terms
+    a = ccrl_anchor_weights(kernel_weights, mask, x.dtype, anchor_weighting)    # (B, T)
     total = x.new_zeros(())
     for p, q in pairs:
-        losses, is_anchor = ccrl_anchor_losses(p, q, kernel_weights, mask, temperature, reading)
+        losses, is_anchor = ccrl_anchor_losses(p, q, kernel_weights, mask, temperature, reading)  # eqs. 9-10
         a_k = torch.where(is_anchor, a, torch.zeros_like(a))
         total = total + (a_k * losses).sum() / a_k.sum().clamp(min=torch.finfo(a.dtype).tiny)
     return total
