@@ -374,6 +374,28 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     model class, wrong config fields, weights of another shape, NaN weights).
     """
     path = Path(path)
+    ckpt, note = upgrade_checkpoint(_read_checkpoint_dict(path, map_location))
+    validate_fields(ckpt, str(path))
+    if ckpt.get("features") is not None:  # an old spelling of the front end ("hama") -> today's ("visemes", ...)
+        ckpt["features"] = front_ends.canonical(ckpt["features"])
+    model = _build_model(ckpt, path)
+    _load_weights(model, ckpt, path)
+    model.eval()
+    if note:
+        print(f"note: {path}: {note}", file=sys.stderr)
+    info = {"format_version": 1, "package_version": None, "speakers": None, "topology": None, "features": None,
+            "n_vertices": getattr(hook(model, "cfg"), "n_vertices", None), "train_config": None,
+            "history": None}
+    info.update(ckpt)
+    return model, info
+
+
+def _read_checkpoint_dict(path: Path, map_location: str | torch.device) -> dict:
+    """The checkpoint dict stored at ``path``, as written (before any upgrade), with every required key.
+
+    Refuses, in one line naming ``path``: a folder, a missing file, a file failing its integrity record, one
+    ``torch.load(weights_only=True)`` cannot read, anything but a dict, a bare state_dict, missing keys.
+    """
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, not a checkpoint file")
     if not path.is_file():
@@ -392,31 +414,42 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     missing = [k for k in REQUIRED_KEYS if k not in ckpt]
     if missing:
         raise ValueError(f"{path}: checkpoint is missing key(s) {missing} (has {sorted(map(str, ckpt))[:8]})")
-    ckpt, note = upgrade_checkpoint(ckpt)
-    validate_fields(ckpt, str(path))
-    if ckpt.get("features") is not None:  # an old spelling of the front end ("hama") -> today's ("visemes", ...)
-        ckpt["features"] = front_ends.canonical(ckpt["features"])
+    return ckpt
+
+
+def _build_model(ckpt: dict, path: Path) -> torch.nn.Module:
+    """A fresh model of the checkpoint's registered ``model_class`` built from its ``model_config``.
+
+    The config must be a dict whose fields the config class knows, of the types it declares; whatever the
+    constructor then refuses is one ``ValueError`` line naming ``path``.
+    """
     registry = model_registry()
     name = ckpt["model_class"]
     if name not in registry:
         raise ValueError(f"{path}: unknown model class {name!r}; known: {sorted(registry)}")
     cls, cfg_cls = registry[name]
-    if cfg_cls is not None:
-        cfg = ckpt["model_config"]
-        if not isinstance(cfg, dict):
-            raise ValueError(f"{path}: model_config must be a dict, found a {type(cfg).__name__}")
-        known = {f.name for f in dataclasses.fields(cfg_cls)}
-        unknown = sorted(set(cfg) - known)
-        if unknown:
-            raise ValueError(f"{path}: model_config has field(s) {unknown} that {cfg_cls.__name__} does not know "
-                             f"(written by another version of the package?)")
-        _check_config_types(cfg, cfg_cls, str(path))
-        try:
-            model = cls(cfg_cls(**cfg))
-        except (TypeError, ValueError, AssertionError, RuntimeError) as e:
-            raise ValueError(f"{path}: invalid model_config for {name}: {_first_line(e)}") from e
-    else:
-        model = cls()
+    if cfg_cls is None:
+        return cls()
+    cfg = ckpt["model_config"]
+    if not isinstance(cfg, dict):
+        raise ValueError(f"{path}: model_config must be a dict, found a {type(cfg).__name__}")
+    known = {f.name for f in dataclasses.fields(cfg_cls)}
+    unknown = sorted(set(cfg) - known)
+    if unknown:
+        raise ValueError(f"{path}: model_config has field(s) {unknown} that {cfg_cls.__name__} does not know "
+                         f"(written by another version of the package?)")
+    _check_config_types(cfg, cfg_cls, str(path))
+    try:
+        return cls(cfg_cls(**cfg))
+    except (TypeError, ValueError, AssertionError, RuntimeError) as e:
+        raise ValueError(f"{path}: invalid model_config for {name}: {_first_line(e)}") from e
+
+
+def _load_weights(model: torch.nn.Module, ckpt: dict, path: Path) -> None:
+    """Load the checkpoint's ``state_dict`` into ``model`` after checking its tensors (finite, plain dict).
+
+    Weights of another shape or with missing/extra keys (an edited or mixed-up checkpoint) are one line.
+    """
     state = ckpt["state_dict"]
     if not isinstance(state, dict):
         raise ValueError(f"{path}: state_dict must be a dict of tensors, found a {type(state).__name__}")
@@ -425,16 +458,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         model.load_state_dict(state)
     except RuntimeError as e:
         msg = " ".join(str(e).split())
-        raise ValueError(f"{path}: weights do not fit a {name} built from its model_config "
+        raise ValueError(f"{path}: weights do not fit a {ckpt['model_class']} built from its model_config "
                          f"(edited or mixed-up checkpoint?): {msg[:300]}") from e
-    model.eval()
-    if note:
-        print(f"note: {path}: {note}", file=sys.stderr)
-    info = {"format_version": 1, "package_version": None, "speakers": None, "topology": None, "features": None,
-            "n_vertices": getattr(hook(model, "cfg"), "n_vertices", None), "train_config": None,
-            "history": None}
-    info.update(ckpt)
-    return model, info
 
 
 def describe(ckpt: dict) -> str:
