@@ -178,7 +178,8 @@ def _check_plain(obj, source: str, array_cls: type = np.ndarray):
     Visits each object once (shared references cost nothing; a list referenced ten times at each of 18 levels is
     checked in microseconds), refuses cycles, more than ``MAX_DEPTH`` levels and data that expands to more than
     ``MAX_OBJECTS`` objects when shared references are counted where they are used (what ``np.asarray`` or a
-    loop over it would visit)."""
+    loop over it would visit). The walk is depth-first with an explicit stack (no recursion limit): a container
+    is met twice, first to push its children, then, once they are done, to rebuild it from their plain forms."""
     done: dict[int, tuple] = {}     # id -> (plain object, depth, expanded size)
     active: set[int] = set()        # on the current path (a cycle if met again)
     keep = []                       # keep the originals alive, so no id is reused during the walk
@@ -188,54 +189,83 @@ def _check_plain(obj, source: str, array_cls: type = np.ndarray):
         key = id(node)
         if key in done and not children_done:
             continue
-        if isinstance(node, np.ndarray):
-            if node.dtype.hasobject:
-                raise UnsafePickleError(f"{source}: holds a numpy array of Python objects; only numeric arrays "
-                                        f"allowed")
-            plain = node.view(np.ndarray) if type(node) is array_cls else node
-            if type(plain) is not np.ndarray:
-                raise UnsafePickleError(f"{source}: holds a {type(node).__name__}; only plain arrays allowed")
-            done[key] = (plain, 1, 1)
+        leaf = _plain_leaf(node, source, array_cls)
+        if leaf is not _CONTAINER:
+            done[key] = (leaf, 1, 1)
             keep.append(node)
             continue
-        if isinstance(node, _SCALARS):
-            done[key] = (node, 1, 1)
-            keep.append(node)
-            continue
-        if isinstance(node, dict):
-            kids = [x for kv in node.items() for x in kv]
-        elif isinstance(node, (list, tuple)):
-            kids = list(node)
-        else:
-            raise UnsafePickleError(f"{source}: holds a {type(node).__name__}; only plain data is allowed")
-        if not children_done:
-            if key in active:
-                raise UnsafePickleError(f"{source}: refers to itself (a cycle); plain data never does")
-            active.add(key)
+        kids = _children(node, source)
+        if not children_done:                          # first visit: the children first, then this node again
+            _enter(key, kids, active, source)
             stack.append((node, True))
             stack.extend((k, False) for k in reversed(kids) if id(k) not in done)
-            for k in kids:
-                if id(k) in active:
-                    raise UnsafePickleError(f"{source}: refers to itself (a cycle); plain data never does")
             continue
         active.discard(key)
-        parts = [done[id(k)] for k in kids]
-        depth = 1 + max((p[1] for p in parts), default=0)
-        size = 1 + sum(p[2] for p in parts)
-        if depth > MAX_DEPTH:
-            raise UnsafePickleError(f"{source}: nested more than {MAX_DEPTH} levels deep")
-        if size > MAX_OBJECTS:
-            raise UnsafePickleError(f"{source}: too big: its shared references expand to more than {MAX_OBJECTS:,} "
-                                    f"objects (a forged pickle?)")
-        values = [p[0] for p in parts]
-        if isinstance(node, dict):
-            plain = type(node)(zip(values[0::2], values[1::2])) if type(node) is not dict else \
-                dict(zip(values[0::2], values[1::2]))
-        else:
-            plain = type(node)(values) if type(node) in (list, tuple) else list(values)
-        done[key] = (plain, depth, size)
+        done[key] = _plain_container(node, [done[id(k)] for k in kids], source)
         keep.append(node)
     return done[id(obj)][0]
+
+
+_CONTAINER = object()  # what _plain_leaf returns for a dict, list or tuple
+
+
+def _plain_leaf(node, source: str, array_cls: type):
+    """A leaf's plain form (a numeric ndarray, a scalar), or ``_CONTAINER`` for anything else.
+
+    An array the guarded loader built (``array_cls``) becomes a plain ndarray view; arrays of Python objects and
+    ndarray subclasses are refused."""
+    if isinstance(node, np.ndarray):
+        if node.dtype.hasobject:
+            raise UnsafePickleError(f"{source}: holds a numpy array of Python objects; only numeric arrays "
+                                    f"allowed")
+        plain = node.view(np.ndarray) if type(node) is array_cls else node
+        if type(plain) is not np.ndarray:
+            raise UnsafePickleError(f"{source}: holds a {type(node).__name__}; only plain arrays allowed")
+        return plain
+    if isinstance(node, _SCALARS):
+        return node
+    return _CONTAINER
+
+
+def _children(node, source: str) -> list:
+    """The objects a container holds, in order (a dict's keys and values interleaved); any other type is refused."""
+    if isinstance(node, dict):
+        return [x for kv in node.items() for x in kv]
+    if isinstance(node, (list, tuple)):
+        return list(node)
+    raise UnsafePickleError(f"{source}: holds a {type(node).__name__}; only plain data is allowed")
+
+
+def _enter(key: int, kids: list, active: set[int], source: str) -> None:
+    """Put the container ``key`` on the current path, refusing a cycle: it, or one of its children, already on it."""
+    if key in active:
+        raise UnsafePickleError(f"{source}: refers to itself (a cycle); plain data never does")
+    active.add(key)
+    for k in kids:
+        if id(k) in active:
+            raise UnsafePickleError(f"{source}: refers to itself (a cycle); plain data never does")
+
+
+def _plain_container(node, parts: list[tuple], source: str) -> tuple:
+    """(plain copy, depth, expanded size) of a container from its children's; refuses too deep or too big.
+
+    depth = 1 + the deepest child's, size = 1 + the sum of the children's sizes (a shared child counts each time
+    it is used). A dict subclass the loader admitted is rebuilt as its own type; a list or tuple subclass becomes
+    a list."""
+    depth = 1 + max((p[1] for p in parts), default=0)
+    size = 1 + sum(p[2] for p in parts)
+    if depth > MAX_DEPTH:
+        raise UnsafePickleError(f"{source}: nested more than {MAX_DEPTH} levels deep")
+    if size > MAX_OBJECTS:
+        raise UnsafePickleError(f"{source}: too big: its shared references expand to more than {MAX_OBJECTS:,} "
+                                f"objects (a forged pickle?)")
+    values = [p[0] for p in parts]
+    if isinstance(node, dict):
+        plain = type(node)(zip(values[0::2], values[1::2])) if type(node) is not dict else \
+            dict(zip(values[0::2], values[1::2]))
+    else:
+        plain = type(node)(values) if type(node) in (list, tuple) else list(values)
+    return plain, depth, size
 
 
 def safe_load_pickle(path: str | os.PathLike):
@@ -458,8 +488,11 @@ def prepare_dataset(root: str | os.PathLike, preset: str, overwrite: bool = Fals
 
 
 def _build_dataset(root: Path, preset: str, out: Path) -> dict:
-    """:func:`prepare_dataset`'s work: read ``root``, write the outputs into the folder ``out``."""
-    from ..checks import load_npy, load_npz
+    """:func:`prepare_dataset`'s work: read ``root``, write the outputs into the folder ``out``.
+
+    Clips with both files -> the preset's splits -> the templates (checked, derived from the pickle if need be)
+    -> the named regions and the render mesh's faces, where the dataset has them -> ``metadata.json``.
+    """
     from ..files import default_file_mode
 
     p = PRESETS[preset]
@@ -474,30 +507,8 @@ def _build_dataset(root: Path, preset: str, out: Path) -> dict:
     if empty:
         raise ValueError(f"{root}: FaceFormer's {preset} split(s) {empty} match no clip (subject names or "
                          f"sentence numbers differ from the preset?)")
-    npz, pkl = root / "templates.npz", root / "templates.pkl"
-    if pkl.exists() or not npz.exists():  # derived from the pickle, every run: never a stale npz
-        convert_templates(pkl, out / "templates.npz", overwrite=True)
-        t_source, t_name = out / "templates.npz", pkl
-    else:
-        t_source, t_name = npz, npz
-    subjects = {parse_clip_name(c)[0] for c in used}
-    t = load_npz(t_source, sorted(subjects))
-    missing = sorted(subjects - set(t))
-    if missing:
-        raise ValueError(f"{t_name} has no template for subject(s) {missing}")
-    sizes = {t[s].size // 3 for s in subjects}
-    if sizes != {p.n_vertices}:
-        raise ValueError(f"{root}: templates have {sorted(sizes)} vertices, the {preset} preset expects "
-                         f"{p.n_vertices}")
-    regions = {}
-    for region, rel in p.region_files.items():
-        if (root / rel).is_file():
-            regions[region] = read_index_file(root / rel, p.n_vertices).tolist()
-    if p.masks_pickle and (root / p.masks_pickle).is_file():
-        masks = safe_load_pickle(root / p.masks_pickle)
-        for region, parts in p.mask_regions.items():
-            if region not in regions and all(k in masks for k in parts):
-                regions[region] = sorted({int(i) for k in parts for i in np.asarray(masks[k]).reshape(-1)})
+    _check_templates(root, preset, {parse_clip_name(c)[0] for c in used}, out)
+    regions = _dataset_regions(root, p)
     if regions:
         (out / "regions.json").write_text(json.dumps(regions))
     mesh = root / p.render_mesh
@@ -505,13 +516,7 @@ def _build_dataset(root: Path, preset: str, out: Path) -> dict:
         import trimesh
 
         np.save(out / "faces.npy", np.asarray(trimesh.load(mesh, process=False, force="mesh").faces, np.int64))
-    clips = {}
-    for name in used:
-        subject, sentence = parse_clip_name(name)
-        split = next(s for s, c in splits.items() if name in c)
-        shape = load_npy(root / "vertices_npy" / f"{name}.npy", f"vertices of clip {name!r}").shape
-        clips[name] = {"subject": subject, "sentence_id": sentence, "split": split,
-                       "n_source_frames": int(shape[0])}
+    clips = _clip_table(root, used, splits)
     train_subjects = sorted({clips[c]["subject"] for c in splits.get("train", [])})
     meta = {"format": "faceformer", "dataset": preset, "fps": p.fps, "source_fps": p.source_fps,
             "mesh_stride": p.mesh_stride, "sample_rate": 16000, "n_vertices": p.n_vertices, "units": p.units,
@@ -522,6 +527,64 @@ def _build_dataset(root: Path, preset: str, out: Path) -> dict:
     for f in out.iterdir():
         os.chmod(f, default_file_mode())
     return meta
+
+
+def _check_templates(root: Path, preset: str, subjects: set[str], out: Path) -> None:
+    """Check that every subject of the splits has a template of the preset's vertex count.
+
+    A ``templates.pkl`` (FaceFormer's) is converted into ``out/templates.npz`` on every run, so the npz is never
+    stale; without a pickle the dataset's own ``templates.npz`` is read (and left where it is).
+    """
+    from ..checks import load_npz
+
+    p = PRESETS[preset]
+    npz, pkl = root / "templates.npz", root / "templates.pkl"
+    if pkl.exists() or not npz.exists():  # derived from the pickle, every run: never a stale npz
+        convert_templates(pkl, out / "templates.npz", overwrite=True)
+        t_source, t_name = out / "templates.npz", pkl
+    else:
+        t_source, t_name = npz, npz
+    t = load_npz(t_source, sorted(subjects))
+    missing = sorted(subjects - set(t))
+    if missing:
+        raise ValueError(f"{t_name} has no template for subject(s) {missing}")
+    sizes = {t[s].size // 3 for s in subjects}
+    if sizes != {p.n_vertices}:
+        raise ValueError(f"{root}: templates have {sorted(sizes)} vertices, the {preset} preset expects "
+                         f"{p.n_vertices}")
+
+
+def _dataset_regions(root: Path, p: DatasetPreset) -> dict[str, list[int]]:
+    """Named vertex regions of the dataset: from the preset's index files, then from its masks pickle (VOCASET's
+    ``FLAME_masks.pkl``).
+
+    An index file wins over the pickle's masks for the same region; a region whose files are absent is left out.
+    """
+    regions = {}
+    for region, rel in p.region_files.items():
+        if (root / rel).is_file():
+            regions[region] = read_index_file(root / rel, p.n_vertices).tolist()
+    if p.masks_pickle and (root / p.masks_pickle).is_file():
+        masks = safe_load_pickle(root / p.masks_pickle)
+        for region, parts in p.mask_regions.items():
+            if region not in regions and all(k in masks for k in parts):
+                regions[region] = sorted({int(i) for k in parts for i in np.asarray(masks[k]).reshape(-1)})
+    return regions
+
+
+def _clip_table(root: Path, used: list[str], splits: dict[str, list[str]]) -> dict[str, dict]:
+    """``{clip: {subject, sentence_id, split, n_source_frames}}`` of the clips in a split (each .npy is opened
+    safely, to read its frame count)."""
+    from ..checks import load_npy
+
+    clips = {}
+    for name in used:
+        subject, sentence = parse_clip_name(name)
+        split = next(s for s, c in splits.items() if name in c)
+        shape = load_npy(root / "vertices_npy" / f"{name}.npy", f"vertices of clip {name!r}").shape
+        clips[name] = {"subject": subject, "sentence_id": sentence, "split": split,
+                       "n_source_frames": int(shape[0])}
+    return clips
 
 
 # -------------------------------------------------------------------------------------- commands
