@@ -46,7 +46,8 @@ from ..console import HelpFormatter, progress_mode
 from .sentences import SENTENCES, sentence_id
 
 __all__ = ["CorpusSpec", "ClipPlan", "plan_corpus", "held_out_sentences", "fitting_held_out", "render_clip",
-           "generate_corpus", "read_sentences", "main", "SPLITS", "MAX_SENTENCE_CHARS"]
+           "generate_corpus", "read_sentences", "generate_parser", "spec_from_args", "main", "SPLITS",
+           "MAX_SENTENCE_CHARS"]
 
 FPS = 30
 SAMPLE_RATE = 16000
@@ -320,13 +321,30 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
     ``texts``: the sentences (default :data:`SENTENCES`), e.g. from :func:`read_sentences`.
     Everything is planned and checked before the first file is written.
     """
-    import soundfile as sf
-    from ..console import progress_iter
-    from ..face import CONTROL_NAMES, VISEMES, FaceRig, build_template, make_speakers
-    from .speech import ENGLISH_PHONEMES, emotional_prosody, speaker_voices, synthesize_many
+    from .speech import emotional_prosody, synthesize_many
 
     texts = tuple(texts) if texts is not None else SENTENCES
-    out = Path(out)
+    speakers, voices, plans = _plan_speakers_and_clips(spec, only, texts)
+    target = claim_output(out, overwrite, sentences_file)  # before any long work
+    requests = [(" ".join(texts[i] for i in p.sentences), emotional_prosody(voices[p.subject], p.emotion, p.level))
+                for p in plans]
+    utterances = synthesize_many(requests, processes=processes, progress=progress)
+
+    with target as root:  # a hidden sibling of out, moved into place when complete
+        clips, controls, rigs = _write_clips(root, spec, plans, utterances, speakers, texts, progress)
+        n_vertices = _write_topology(root, spec.vertices)
+        _write_speakers(root, spec, speakers, controls, rigs)
+        meta = _corpus_metadata(spec, n_vertices, voices, plans, clips, only, sentences_file)
+        _write_metadata(root, meta)
+    return meta
+
+
+def _plan_speakers_and_clips(spec: CorpusSpec, only: list[str] | None, texts) -> tuple[dict, dict, list[ClipPlan]]:
+    """The speakers' faces ``{name: Speaker}``, their voices ``{name: VoiceSpec}`` and the clip plans (just ``only``'s
+    clips if given: an unknown name is an error)."""
+    from ..face import make_speakers
+    from .speech import speaker_voices
+
     speakers = make_speakers(spec.speakers, seed=spec.seed, n_vertices=spec.vertices)
     by_name = {s.name: s for s in speakers}
     voices = dict(zip(by_name, speaker_voices(spec.speakers)))
@@ -336,63 +354,95 @@ def generate_corpus(spec: CorpusSpec, out: str | Path, processes: int = 2, progr
         if unknown:
             raise ValueError(f"only: clips not in this corpus: {unknown[:5]}")
         plans = [p for p in plans if p.name in set(only)]
-    target = claim_output(out, overwrite, sentences_file)  # before any long work
-    requests = [(" ".join(texts[i] for i in p.sentences), emotional_prosody(voices[p.subject], p.emotion, p.level))
-                for p in plans]
-    utterances = synthesize_many(requests, processes=processes, progress=progress)
+    return by_name, voices, plans
 
-    with target as root:  # a hidden sibling of out, moved into place when complete
-        audio_dir = root / ("audio" if spec.format == "compact" else "wav")
-        audio_dir.mkdir(parents=True, exist_ok=True)
-        if spec.format == "faceformer":
-            (root / "vertices_npy").mkdir(exist_ok=True)
-        rigs = {name: FaceRig(s) for name, s in by_name.items()}
-        clips, controls = {}, {}
-        for plan, utt in progress_iter(list(zip(plans, utterances)), progress, "generate: face clip", desc="faces"):
-            clip = render_clip(plan, utt, by_name[plan.subject], texts)
-            clips[plan.name] = clip["meta"]
-            pcm = to_pcm16(utt.wave)
-            if spec.format == "compact":
-                sf.write(audio_dir / f"{plan.name}.flac", pcm, SAMPLE_RATE, subtype="PCM_16", format="FLAC",
-                         compression_level=1.0)  # smallest files; still bit-exact PCM
-                controls[plan.name] = clip["controls"]
-            else:
-                sf.write(audio_dir / f"{plan.name}.wav", pcm, SAMPLE_RATE, subtype="PCM_16")
-                verts = rigs[plan.subject].animate(clip["controls"])  # (T, V, 3)
-                np.save(root / "vertices_npy" / f"{plan.name}.npy", verts.reshape(len(verts), -1))
 
-        mesh = build_template(n_vertices=spec.vertices)
-        np.save(root / "faces.npy", mesh.faces.astype(np.int64))
-        regions = {k: [int(i) for i in v] for k, v in mesh.regions.items()}
-        regions["lip_midpoints"] = [int(i) for i in mesh.lip_midpoints]
-        (root / "regions.json").write_text(json.dumps(regions))
+def _write_clips(root: Path, spec: CorpusSpec, plans: list[ClipPlan], utterances: list, speakers: dict, texts,
+                 progress: bool | str) -> tuple[dict, dict, dict]:
+    """Render and write every clip: its speech (16-bit WAV, or FLAC in the compact layout) and its faces.
+
+    FaceFormer's layout stores each clip's vertices (``vertices_npy/<clip>.npy``, (T, V*3)); the compact one keeps
+    the rig controls (T, C), returned for ``controls.npz``. Returns ``(metadata of each clip, controls, rigs)``.
+    """
+    import soundfile as sf
+    from ..console import progress_iter
+    from ..face import FaceRig
+
+    audio_dir = root / ("audio" if spec.format == "compact" else "wav")
+    audio_dir.mkdir(parents=True, exist_ok=True)
+    if spec.format == "faceformer":
+        (root / "vertices_npy").mkdir(exist_ok=True)
+    rigs = {name: FaceRig(s) for name, s in speakers.items()}
+    clips, controls = {}, {}
+    for plan, utt in progress_iter(list(zip(plans, utterances)), progress, "generate: face clip", desc="faces"):
+        clip = render_clip(plan, utt, speakers[plan.subject], texts)
+        clips[plan.name] = clip["meta"]
+        pcm = to_pcm16(utt.wave)
         if spec.format == "compact":
-            np.savez_compressed(root / "controls.npz", **controls)
-            (root / "speakers.json").write_text(json.dumps({n: s.to_dict() for n, s in by_name.items()}, indent=1))
+            sf.write(audio_dir / f"{plan.name}.flac", pcm, SAMPLE_RATE, subtype="PCM_16", format="FLAC",
+                     compression_level=1.0)  # smallest files; still bit-exact PCM
+            controls[plan.name] = clip["controls"]
         else:
-            np.savez(root / "templates.npz", **{n: r.template.reshape(-1) for n, r in rigs.items()})
-        n_seen = spec.speakers - spec.unseen_speakers
-        observed = set(ENGLISH_PHONEMES) | {p for c in clips.values() for p, _, _ in c["phonemes"]}
-        meta = {
-            "format": spec.format, "version": 2, "fps": FPS, "sample_rate": SAMPLE_RATE,
-            "n_vertices": int(mesh.vertices.shape[0]),
-            "generator": {"spec": asdict(spec), "versions": _versions(), "only": only,
-                          "sentences_file": sentences_file},
-            "speakers": {n: {"voice": asdict(voices[n]), "split": "seen" if i < n_seen else "unseen"}
-                         for i, n in enumerate(by_name)},
-            "emotions": ["neutral", *EMOTIONAL],
-            "controls": list(CONTROL_NAMES),
-            "phoneme_inventory": ["_", *sorted(observed - {"_"})],
-            "viseme_inventory": list(VISEMES),
-            "splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS},
-            "pairs": _pairs(clips),
-            "clips": clips,
-        }
-        # One clip per line: compact, yet readable and diff-friendly.
-        body = ",\n".join(f"{json.dumps(k)}:{json.dumps(v, separators=(',', ':'))}" for k, v in clips.items())
-        head = json.dumps({k: v for k, v in meta.items() if k != "clips"}, indent=1)
-        (root / "metadata.json").write_text(head[:-2] + ',\n "clips": {\n' + body + "\n}\n}\n")
-    return meta
+            sf.write(audio_dir / f"{plan.name}.wav", pcm, SAMPLE_RATE, subtype="PCM_16")
+            verts = rigs[plan.subject].animate(clip["controls"])  # (T, V, 3)
+            np.save(root / "vertices_npy" / f"{plan.name}.npy", verts.reshape(len(verts), -1))
+    return clips, controls, rigs
+
+
+def _write_topology(root: Path, vertices: int) -> int:
+    """Write the template mesh's faces (``faces.npy``) and named regions with the lip midpoints
+    (``regions.json``), shared by every speaker; returns the mesh's vertex count."""
+    from ..face import build_template
+
+    mesh = build_template(n_vertices=vertices)
+    np.save(root / "faces.npy", mesh.faces.astype(np.int64))
+    regions = {k: [int(i) for i in v] for k, v in mesh.regions.items()}
+    regions["lip_midpoints"] = [int(i) for i in mesh.lip_midpoints]
+    (root / "regions.json").write_text(json.dumps(regions))
+    return int(mesh.vertices.shape[0])
+
+
+def _write_speakers(root: Path, spec: CorpusSpec, speakers: dict, controls: dict, rigs: dict) -> None:
+    """What rebuilds each speaker's faces: compact layout, the control tracks (``controls.npz``) and the speakers'
+    face shapes (``speakers.json``); FaceFormer's layout, each speaker's neutral template (``templates.npz``)."""
+    if spec.format == "compact":
+        np.savez_compressed(root / "controls.npz", **controls)
+        (root / "speakers.json").write_text(json.dumps({n: s.to_dict() for n, s in speakers.items()}, indent=1))
+    else:
+        np.savez(root / "templates.npz", **{n: r.template.reshape(-1) for n, r in rigs.items()})
+
+
+def _corpus_metadata(spec: CorpusSpec, n_vertices: int, voices: dict, plans: list[ClipPlan], clips: dict,
+                     only: list[str] | None, sentences_file: str | None) -> dict:
+    """The corpus's ``metadata.json`` (``docs/design.md``): format, rates, how it was generated, the speakers and
+    their split, the inventories, the splits, the emotional pairs and every clip's metadata."""
+    from ..face import CONTROL_NAMES, VISEMES
+    from .speech import ENGLISH_PHONEMES
+
+    n_seen = spec.speakers - spec.unseen_speakers
+    observed = set(ENGLISH_PHONEMES) | {p for c in clips.values() for p, _, _ in c["phonemes"]}
+    return {
+        "format": spec.format, "version": 2, "fps": FPS, "sample_rate": SAMPLE_RATE,
+        "n_vertices": n_vertices,
+        "generator": {"spec": asdict(spec), "versions": _versions(), "only": only,
+                      "sentences_file": sentences_file},
+        "speakers": {n: {"voice": asdict(voices[n]), "split": "seen" if i < n_seen else "unseen"}
+                     for i, n in enumerate(voices)},
+        "emotions": ["neutral", *EMOTIONAL],
+        "controls": list(CONTROL_NAMES),
+        "phoneme_inventory": ["_", *sorted(observed - {"_"})],
+        "viseme_inventory": list(VISEMES),
+        "splits": {s: [p.name for p in plans if p.split == s] for s in SPLITS},
+        "pairs": _pairs(clips),
+        "clips": clips,
+    }
+
+
+def _write_metadata(root: Path, meta: dict) -> None:
+    """Write ``metadata.json`` with one clip per line: compact, yet readable and diff-friendly."""
+    body = ",\n".join(f"{json.dumps(k)}:{json.dumps(v, separators=(',', ':'))}" for k, v in meta["clips"].items())
+    head = json.dumps({k: v for k, v in meta.items() if k != "clips"}, indent=1)
+    (root / "metadata.json").write_text(head[:-2] + ',\n "clips": {\n' + body + "\n}\n}\n")
 
 
 def _emotion_list(text: str) -> tuple[str, ...]:
@@ -427,6 +477,27 @@ GENERATE_EXAMPLE = """examples:
 
 def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     """Command line (``python -m dualtalker_lite.data.generate`` or ``dualtalker-lite generate``, ``prog``)."""
+    ap = generate_parser(prog)
+    args = ap.parse_args(argv)
+    try:
+        texts = read_sentences(args.sentences_file) if args.sentences_file else SENTENCES
+    except ValueError as err:  # names the file and the line: "my.txt:3: empty line"
+        ap.exit(2, f"error: --sentences-file {err}\n")
+    try:
+        spec, scaled = spec_from_args(args, texts)
+        plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)  # fail before synthesizing anything
+    except ValueError as err:
+        ap.exit(2, f"error: {err}\n")
+    _print_notes(args, spec, scaled)
+    meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
+                           progress=progress_mode(args.quiet), overwrite=args.overwrite)
+    print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: "
+          f"{split_summary(meta)}")
+
+
+def generate_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``generate``: output, preset, sentences, emotions, the corpus-size options of
+    :data:`SPEC_HELP` (default None: "not given", so ``--preset sample`` keeps its own values), layout, processes."""
     prog = prog or "python -m dualtalker_lite.data.generate"
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0],
                                  epilog=GENERATE_EXAMPLE.format(prog=prog), formatter_class=HelpFormatter)
@@ -454,30 +525,37 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
     ap.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                     help="no progress on stderr (otherwise bars on a terminal, else a line at most every ~10 s for "
                          "the speech, then for the faces); the final line stays")
-    args = ap.parse_args(argv)
-    try:
-        texts = read_sentences(args.sentences_file) if args.sentences_file else SENTENCES
-    except ValueError as err:  # names the file and the line: "my.txt:3: empty line"
-        ap.exit(2, f"error: --sentences-file {err}\n")
-    try:
-        base = asdict(CorpusSpec.sample() if args.preset == "sample" else CorpusSpec())
-        if args.sentences_file and args.sentences is None:
-            base["sentences"] = len(texts)
-        if args.long_clips is not None:
-            base["long_clips"] = tuple(int(n) for n in args.long_clips.split(",") if n.strip())
-        base.update({k: v for k, v in vars(args).items() if k in base and v is not None and k != "long_clips"})
-        scaled = []
-        # held_out_sentences, cut to leave one for training (2 sentences: 0 and 1, not 1 and 1)
-        for key, n in zip(("val_sentences", "test_sentences"), fitting_held_out(base["sentences"])):
-            if args.preset is None and getattr(args, key) is None and n != base[key]:
-                base[key] = n
-                scaled.append(key)
-        if args.emotion_speakers is None:  # fewer speakers than the default: every seen speaker is emotional
-            base["emotion_speakers"] = min(base["emotion_speakers"], base["speakers"] - base["unseen_speakers"])
-        spec = CorpusSpec(**base)
-        plan_corpus(spec, [f"S{i}" for i in range(spec.speakers)], texts)  # fail before synthesizing anything
-    except ValueError as err:
-        ap.exit(2, f"error: {err}\n")
+    return ap
+
+
+def spec_from_args(args: argparse.Namespace, texts) -> tuple[CorpusSpec, list[str]]:
+    """The :class:`CorpusSpec` of ``generate``'s arguments and which held-out counts were scaled down.
+
+    Start from the preset (or the defaults), count the sentences file's lines unless ``--sentences`` is given,
+    apply every option given; without a preset, the val/test sentences not given shrink to fit a small corpus
+    (:func:`fitting_held_out`), and without ``--emotion-speakers`` every seen speaker of a small corpus is
+    emotional. A ``CorpusSpec`` it cannot build is a ``ValueError``.
+    """
+    base = asdict(CorpusSpec.sample() if args.preset == "sample" else CorpusSpec())
+    if args.sentences_file and args.sentences is None:
+        base["sentences"] = len(texts)
+    if args.long_clips is not None:
+        base["long_clips"] = tuple(int(n) for n in args.long_clips.split(",") if n.strip())
+    base.update({k: v for k, v in vars(args).items() if k in base and v is not None and k != "long_clips"})
+    scaled = []
+    # held_out_sentences, cut to leave one for training (2 sentences: 0 and 1, not 1 and 1)
+    for key, n in zip(("val_sentences", "test_sentences"), fitting_held_out(base["sentences"])):
+        if args.preset is None and getattr(args, key) is None and n != base[key]:
+            base[key] = n
+            scaled.append(key)
+    if args.emotion_speakers is None:  # fewer speakers than the default: every seen speaker is emotional
+        base["emotion_speakers"] = min(base["emotion_speakers"], base["speakers"] - base["unseen_speakers"])
+    return CorpusSpec(**base), scaled
+
+
+def _print_notes(args: argparse.Namespace, spec: CorpusSpec, scaled: list[str]) -> None:
+    """Say what the user did not ask for but gets: unseen speakers held out, held-out sentences scaled down."""
+    d = CorpusSpec()
     if args.speakers is not None and args.unseen_speakers is None and spec.unseen_speakers:
         print(f"note: {spec.speakers} speakers: {spec.speakers - spec.unseen_speakers} in training, the last "
               f"{spec.unseen_speakers} held out for test_b (unseen speakers; --unseen-speakers sets how many, 0 for "
@@ -487,10 +565,6 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> None:
               f"test-A, {spec.sentences - spec.val_sentences - spec.test_sentences} for training (scaled down from "
               f"{d.val_sentences} and {d.test_sentences} of {d.sentences}; --val-sentences and --test-sentences set "
               f"them)", flush=True)
-    meta = generate_corpus(spec, args.out, processes=args.processes, texts=texts, sentences_file=args.sentences_file,
-                           progress=progress_mode(args.quiet), overwrite=args.overwrite)
-    print(f"wrote {len(meta['clips'])} clips to {args.out} ({meta['n_vertices']} vertices); splits: "
-          f"{split_summary(meta)}")
 
 
 def split_summary(meta: dict) -> str:
