@@ -133,86 +133,118 @@ def table_specs(table: str, bandwidth: float | None = None, features: str = "log
 
 
 def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
-    full = dict(model="dualtalker")
-    if table == "main":
-        return [
-            RunSpec("Static template", "template", note="zero motion: the floor to beat"),
-            RunSpec("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
-            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
-                    expect="worse"),
-            RunSpec("DualTalker", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
-            RunSpec("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
-        ]
-    if table == "corrtalk":
-        ct = dict(model="corrtalk")
-        return [
-            RunSpec("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
-            RunSpec("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
-                    note="frame level only (softmax over one level = 1)", expect="worse"),
-            RunSpec("single branch", **ct, model_overrides={"dual_branch": False},
-                    note="one FaceFormer-style branch decodes the whole face, no mask", expect="worse"),
-            RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
-                    note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
-            RunSpec("phoneme one-hot features", **ct, features="phonemes",
-                    note="the project's front-end swap, not a paper row (the paper swaps wavLM -> wav2vec 2.0, never "
-                         "phoneme ids): log-mel -> one-hot phoneme ids, the rig's own driving signal (an easier input)"),
-        ]
-    if table == "ablation":
-        return [
-            RunSpec("DualTalker (full)", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
-            RunSpec("w/o CCRL", **full, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
-            RunSpec("w/o dual training", **full, model_overrides={"dual": False},
-                    loss={"lambda2": 0.0, "lambda3": 0.0},
-                    note="no lip reading, λ2=λ3=0; CCRL kept (λ4=0.01 on X, Y)", expect="worse"),
-            RunSpec("phoneme one-hot features", **full, features="phonemes",
-                    note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
-                         "driving signal, so an easier input than in the paper)", expect="worse"),
-            RunSpec("shared enc/dec weights", **full, model_overrides={"share_enc_dec": True},
-                    note="decoders = transposed encoders", expect="worse",
-                    # the tied head has no weights of its own to start from the PCA basis, nor a basis step
-                    fast_changes={"pca_init": 0, "basis_space": False}),
-        ]
+    """The rows of ``table`` as written (the log-mel front end; :func:`table_specs` swaps it): one function each."""
     if table == "sweep":
-        if bandwidth is None:
-            raise ValueError("the sweep needs the typical bandwidth (see typical_bandwidth)")
-        rows = [
-            RunSpec("λ4=0", **full, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
-            RunSpec("λ4=0.01, σ=median", **full, note="the default", reference=True),
-            RunSpec("λ4=0.1, σ=median", **full, loss={"lambda4": 0.1}),
-            RunSpec("λ4=0.1, σ=median, InfoNCE reading", **full, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
-                    note="CCRL with one positive in the denominator (the reading before issue 8)"),
-        ]
-        for factor in (0.5, 2.0):
-            sigma = factor * bandwidth
-            rows.append(RunSpec(f"λ4=0.1, σ={factor:g}×typ = {sigma * 1e3:.3g} mm", **full,
-                                loss={"lambda4": 0.1, "bandwidth": sigma},
-                                note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
-        return rows
-    if table == "emotion":
-        emo = dict(data="emotional")  # every row trains on the same clips: train + train_emo
-        return [
-            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
-                    "input (the emotion must come from the audio)", expect="worse"),
-            RunSpec("DualTalker", **full, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input (not in EmoFace's "
-                    "Table 2: no paper claim)"),
-            RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input (not in EmoFace's "
-                    "Table 2: no paper claim)"),
-            RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
-        ]
-    if table == "emoface":
-        ef = dict(model="emoface", data="pairs")
-        return [
-            RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
-            RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
-                    note="the mean of the two branches (the map held at 0.5); the paper's 'Add' adds them",
-                    expect="worse"),
-            RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
-                    note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame); not a "
-                         "row of the paper's Table 3 (its Table 4 varies SpiralConv3D's settings instead)"),
-            RunSpec("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
-                    note="plain teacher forcing (ground-truth past motion at every epoch)", expect="worse"),
-            RunSpec("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
-                    note="same pair loader, no cross pass (λ_cross term 0); not a row of the paper's Table 3"),
-        ]
-    raise ValueError(f"unknown table {table!r}; choose from {TABLES}")
+        return _sweep_rows(bandwidth)
+    builders = {"main": _main_rows, "corrtalk": _corrtalk_rows, "ablation": _ablation_rows,
+                "emotion": _emotion_rows, "emoface": _emoface_rows}
+    if table not in builders:
+        raise ValueError(f"unknown table {table!r}; choose from {TABLES}")
+    return builders[table]()
 
+
+_FULL = dict(model="dualtalker")  # DualTalker rows: RunSpec(label, **_FULL, ...)
+
+
+def _main_rows() -> list[RunSpec]:
+    """Table I analogue: the baselines (static template, VOCA-style, FaceFormer-style), DualTalker (the
+    reference) and CorrTalk, each on the neutral clips."""
+    return [
+        RunSpec("Static template", "template", note="zero motion: the floor to beat"),
+        RunSpec("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
+        RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
+                expect="worse"),
+        RunSpec("DualTalker", **_FULL, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+        RunSpec("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
+    ]
+
+
+def _corrtalk_rows() -> list[RunSpec]:
+    """Table III analogue: CorrTalk (the reference) without the hierarchical encoder, with one branch, with a
+    random mask, with phoneme features."""
+    ct = dict(model="corrtalk")
+    return [
+        RunSpec("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
+        RunSpec("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
+                note="frame level only (softmax over one level = 1)", expect="worse"),
+        RunSpec("single branch", **ct, model_overrides={"dual_branch": False},
+                note="one FaceFormer-style branch decodes the whole face, no mask", expect="worse"),
+        RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
+                note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
+        RunSpec("phoneme one-hot features", **ct, features="phonemes",
+                note="the project's front-end swap, not a paper row (the paper swaps wavLM -> wav2vec 2.0, never "
+                     "phoneme ids): log-mel -> one-hot phoneme ids, the rig's own driving signal (an easier input)"),
+    ]
+
+
+def _ablation_rows() -> list[RunSpec]:
+    """Table IV analogue: DualTalker (the reference) without CCRL, without the dual task, with phoneme
+    features, with tied encoder/decoder weights."""
+    return [
+        RunSpec("DualTalker (full)", **_FULL, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+        RunSpec("w/o CCRL", **_FULL, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
+        RunSpec("w/o dual training", **_FULL, model_overrides={"dual": False},
+                loss={"lambda2": 0.0, "lambda3": 0.0},
+                note="no lip reading, λ2=λ3=0; CCRL kept (λ4=0.01 on X, Y)", expect="worse"),
+        RunSpec("phoneme one-hot features", **_FULL, features="phonemes",
+                note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
+                     "driving signal, so an easier input than in the paper)", expect="worse"),
+        RunSpec("shared enc/dec weights", **_FULL, model_overrides={"share_enc_dec": True},
+                note="decoders = transposed encoders", expect="worse",
+                # the tied head has no weights of its own to start from the PCA basis, nor a basis step
+                fast_changes={"pca_init": 0, "basis_space": False}),
+    ]
+
+
+def _sweep_rows(bandwidth: float | None) -> list[RunSpec]:
+    """CCRL sweep: λ4 in {0, 0.01, 0.1}, the InfoNCE reading, and fixed σ's of 0.5 and 2 times ``bandwidth`` (the
+    typical median-heuristic σ, metres: required)."""
+    if bandwidth is None:
+        raise ValueError("the sweep needs the typical bandwidth (see typical_bandwidth)")
+    rows = [
+        RunSpec("λ4=0", **_FULL, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
+        RunSpec("λ4=0.01, σ=median", **_FULL, note="the default", reference=True),
+        RunSpec("λ4=0.1, σ=median", **_FULL, loss={"lambda4": 0.1}),
+        RunSpec("λ4=0.1, σ=median, InfoNCE reading", **_FULL, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
+                note="CCRL with one positive in the denominator (the reading before issue 8)"),
+    ]
+    for factor in (0.5, 2.0):
+        sigma = factor * bandwidth
+        rows.append(RunSpec(f"λ4=0.1, σ={factor:g}×typ = {sigma * 1e3:.3g} mm", **_FULL,
+                            loss={"lambda4": 0.1, "bandwidth": sigma},
+                            note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
+    return rows
+
+
+def _emotion_rows() -> list[RunSpec]:
+    """EmoFace's Table 2/3 analogue: FaceFormer-style, DualTalker and CorrTalk trained on the emotional clips
+    against EmoFace (the reference) on its pseudo-pairs."""
+    emo = dict(data="emotional")  # every row trains on the same clips: train + train_emo
+    return [
+        RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
+                "input (the emotion must come from the audio)", expect="worse"),
+        RunSpec("DualTalker", **_FULL, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input (not in EmoFace's "
+                "Table 2: no paper claim)"),
+        RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input (not in EmoFace's "
+                "Table 2: no paper claim)"),
+        RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
+    ]
+
+
+def _emoface_rows() -> list[RunSpec]:
+    """EmoFace ablations: EmoFace (the reference) without Mesh Attention, SpiralConv3D, self-growing or
+    cross-reconstruction, all on the pseudo-pairs."""
+    ef = dict(model="emoface", data="pairs")
+    return [
+        RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
+        RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
+                note="the mean of the two branches (the map held at 0.5); the paper's 'Add' adds them",
+                expect="worse"),
+        RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
+                note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame); not a "
+                     "row of the paper's Table 3 (its Table 4 varies SpiralConv3D's settings instead)"),
+        RunSpec("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
+                note="plain teacher forcing (ground-truth past motion at every epoch)", expect="worse"),
+        RunSpec("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
+                note="same pair loader, no cross pass (λ_cross term 0); not a row of the paper's Table 3"),
+    ]
