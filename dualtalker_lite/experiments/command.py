@@ -39,6 +39,8 @@ def _display_path(path: str | Path) -> str:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The runner's arguments (tables, seeds, recipe, budget, front end, executor, output, reuse); an executor it
+    cannot read is a usage error."""
     p = argparse.ArgumentParser(prog="python -m dualtalker_lite.experiments",
                                 description=sys.modules[__package__].__doc__.split("\n")[0])
     p.add_argument("--table", nargs="+", default=["main"], choices=[*TABLES, "all"],
@@ -168,7 +170,11 @@ def _slug(row: str) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> dict:
-    """Run the requested tables and write them; returns {table: (json path, md path)}."""
+    """Run the requested tables and write them; returns {table: (json path, md path)}.
+
+    The distinct runs of every table (a row shared by two tables runs once), minus those ``--reuse`` takes over,
+    run longest first; the tables are then written from the runs (``report.write_table``) and printed.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parse_args(argv)
     if args.refresh:
@@ -183,18 +189,13 @@ def main(argv: Sequence[str] | None = None) -> dict:
     data = load_data(args.corpus, args.quick)
     bandwidth = typical_bandwidth(data["train"]) if "sweep" in tables else None
     specs = {t: table_specs(t, bandwidth, args.features) for t in tables}
-    unique: dict[tuple, tuple[RunSpec, int, str]] = {}
-    for t in tables:
-        for s in specs[t]:
-            for seed in seeds:
-                unique.setdefault((s.key(table_split(t)), seed), (s, seed, table_split(t)))
+    unique = _distinct_runs(tables, specs, seeds)
     stamp = provenance("python -m dualtalker_lite.experiments " + shlex.join(argv))
     old, reused = (reusable_runs(args.reuse, epochs, _display_path(data["path"]), args.quick, stamp["commit"],
                                  args.recipe)
                    if args.reuse else ({}, []))
     taken = {k: old[k] for k in unique if k in old}
-    cost = {"template": 0, "voca": 1, "corrtalk": 4, "emoface": 5}  # longest jobs first: the pool finishes together
-    jobs = sorted((job for k, job in unique.items() if k not in taken), key=lambda job: -cost.get(job[0].model, 3))
+    jobs = _longest_first([job for k, job in unique.items() if k not in taken])
     not_clean = sum(r["n_runs_not_clean"] for r in reused)
     print(f"{len(jobs)} distinct runs to compute, {len(taken)} reused"
           f"{f' ({not_clean} stored runs not from a clean commit are recomputed)' if not_clean else ''} "
@@ -218,13 +219,36 @@ def main(argv: Sequence[str] | None = None) -> dict:
             "corpus": _display_path(data["path"]), "typical_bandwidth_m": bandwidth, "git": stamp["commit"],
             "created": stamp["created"], "torch": torch.__version__, "machine": stamp["machine"],
             "torch_threads_per_process": 1, "reused_from": reused, "n_runs_reused": len(taken)}
-    written = {}
+    return {t: _write_one_table(t, specs[t], seeds, by_key, meta, data, Path(args.out)) for t in tables}
+
+
+def _distinct_runs(tables: list[str], specs: dict, seeds: list[int]) -> dict[tuple, tuple[RunSpec, int, str]]:
+    """``{(run key, seed): (spec, seed, test split)}`` over every table's rows and seeds, in table order; a row
+    that two tables share with the same test split (equal keys) is one run."""
+    unique: dict[tuple, tuple[RunSpec, int, str]] = {}
     for t in tables:
-        split = table_split(t)
-        runs = [{**by_key[(s.key(split), seed)], "row": s.row} for s in specs[t] for seed in seeds]
-        n_train = sorted({r.get("n_train_clips", 0) for r in runs})
-        table_meta = {**meta, "test_split": split, "n_test_clips": len(data_split(data, split)),
-                      "n_train_clips": n_train[0] if len(n_train) == 1 else n_train}
-        written[t] = write_table(t, specs[t], runs, table_meta, Path(args.out))
-        print(Path(written[t][1]).read_text(), flush=True)
+        for s in specs[t]:
+            for seed in seeds:
+                unique.setdefault((s.key(table_split(t)), seed), (s, seed, table_split(t)))
+    return unique
+
+
+def _longest_first(jobs: list[tuple[RunSpec, int, str]]) -> list[tuple[RunSpec, int, str]]:
+    """The jobs with the longest models first, so a pool of workers finishes together (a stable sort: ties keep
+    their order)."""
+    cost = {"template": 0, "voca": 1, "corrtalk": 4, "emoface": 5}  # every other model: 3
+    return sorted(jobs, key=lambda job: -cost.get(job[0].model, 3))
+
+
+def _write_one_table(table: str, specs: list[RunSpec], seeds: list[int], by_key: dict, meta: dict, data: dict,
+                     out: Path) -> tuple:
+    """Write ``table`` from the runs (``report.write_table``: the JSON and the Markdown), print the Markdown, and
+    return the two paths. Its metadata adds the test split and the clip counts to the invocation's ``meta``."""
+    split = table_split(table)
+    runs = [{**by_key[(s.key(split), seed)], "row": s.row} for s in specs for seed in seeds]
+    n_train = sorted({r.get("n_train_clips", 0) for r in runs})
+    table_meta = {**meta, "test_split": split, "n_test_clips": len(data_split(data, split)),
+                  "n_train_clips": n_train[0] if len(n_train) == 1 else n_train}
+    written = write_table(table, specs, runs, table_meta, Path(out))
+    print(Path(written[1]).read_text(), flush=True)
     return written

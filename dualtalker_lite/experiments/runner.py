@@ -123,7 +123,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
     barely changes.
     ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
     """
-    from ..train import save_checkpoint, train
+    from ..train import train
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
     threads = torch.get_num_threads()
@@ -134,34 +134,16 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
         run = assemble_training(spec, base_train, data["view"], paired=paired, seed=seed, epochs=epochs, threads=1,
                                 time_budget_s=time_budget_s, cpu_budget_s=cpu_budget_s,
                                 logmel=data["train"].extractor, recipe=recipe)
-        model, model_cfg, train_cfg, train_set = run.model, run.model_config, run.train_config, run.train_set
+        model, model_cfg, train_cfg = run.model, run.model_config, run.train_config
         t0 = time.perf_counter()
         history = None if run.loader is None else train(model, run.loader, train_cfg)
         train_seconds = time.perf_counter() - t0
-        if checkpoint is not None and model_cfg is not None:  # phonetic rows record the recogniser: any voice
-            save_checkpoint(checkpoint, model, model_cfg, train_cfg, history, speakers=data["corpus"].train_speakers,
-                            faces=data["corpus"].faces, features=run.features)
+        if checkpoint is not None and model_cfg is not None:
+            _save_row_checkpoint(checkpoint, run, history, data["corpus"])
         t1 = time.perf_counter()
         out = predict_split(model, test_set)
-        corpus = data["corpus"]
-        metrics = split_metrics(out, corpus.regions, [corpus.meta(n)["phonemes"] for n in out["names"]])
-        per_emotion = None
-        if len({corpus.meta(n).get("emotion", "neutral") for n in out["names"]}) > 1:
-            extra, per_emotion = emotion_split_metrics(model, test_set, out, corpus.emotions, corpus.regions)
-            metrics.update(extra)
-        reasons, metrics["audio_sensitivity"] = [], 0.0  # the static template ignores the audio by design
-        if spec.model != "template":  # collapse check: the same faces driven by another sentence's audio
-            sentences = [corpus.meta(n).get("sentence_id", n) for n in out["names"]]
-            source = None
-            if len(set(sentences)) == 1 and test_split != TEST_SPLIT:  # one sentence: borrow test-A's audio
-                source = test_features(data, TEST_SPLIT, spec.features)
-            ids = None if source is None else [corpus.meta(source[i]["name"]).get("sentence_id")
-                                               for i in range(len(source))]
-            partners = swap_partners(sentences, ids)
-            swapped = predict_split(model, AudioSwapped(test_set, partners, source))
-            metrics["audio_sensitivity"] = audio_sensitivity(out["preds"], swapped["preds"], out["gts"],
-                                                             corpus.regions["lips"])
-            reasons = collapse_reasons(metrics)
+        metrics, per_emotion = _test_metrics(model, test_set, out, data["corpus"])
+        reasons = _collapse_check(model, spec, data, test_set, out, test_split, metrics)
         result = {"row": spec.row, "key": spec.key(test_split), "seed": seed,
                   "epochs": len(history.terms) if history else 0,
                   "metrics": metrics, "collapsed": bool(reasons), "collapse_reasons": reasons,
@@ -172,7 +154,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
                   "model_config": asdict(model_cfg) if model_cfg is not None else None,
                   "train_config": {k: v for k, v in asdict(train_cfg).items()},
                   "loss_history": history.terms if history else [],
-                  "test_clips": out["names"], "n_train_clips": len(train_set), "pid": os.getpid()}
+                  "test_clips": out["names"], "n_train_clips": len(run.train_set), "pid": os.getpid()}
         if test_split != TEST_SPLIT:
             result["test_split"] = test_split
         if per_emotion is not None:
@@ -180,6 +162,49 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
         return result
     finally:
         torch.set_num_threads(threads)
+
+
+def _save_row_checkpoint(path: str | Path, run, history, corpus) -> None:
+    """Save a trained row's model with its recipe, history, training speakers, faces and front end (a phonetic
+    row records the recogniser, so the checkpoint animates any voice)."""
+    from ..checkpoints import save_checkpoint
+
+    save_checkpoint(path, run.model, run.model_config, run.train_config, history, speakers=corpus.train_speakers,
+                    faces=corpus.faces, features=run.features)
+
+
+def _test_metrics(model, test_set: Dataset, out: dict, corpus) -> tuple[dict, dict | None]:
+    """The row's metrics on its test split (:func:`split_metrics`) -> ``(metrics, per-emotion expression or None)``;
+    on a split with more than one emotion, the emotional metrics join them (:func:`emotion_split_metrics`)."""
+    metrics = split_metrics(out, corpus.regions, [corpus.meta(n)["phonemes"] for n in out["names"]])
+    per_emotion = None
+    if len({corpus.meta(n).get("emotion", "neutral") for n in out["names"]}) > 1:
+        extra, per_emotion = emotion_split_metrics(model, test_set, out, corpus.emotions, corpus.regions)
+        metrics.update(extra)
+    return metrics, per_emotion
+
+
+def _collapse_check(model, spec: RunSpec, data: dict, test_set: Dataset, out: dict, test_split: str,
+                    metrics: dict) -> list[str]:
+    """The collapse check: the same faces driven by another sentence's audio -> the reasons a row collapsed.
+
+    Sets ``metrics["audio_sensitivity"]`` (:func:`audio_sensitivity` on the lips; 0 for the static template, which
+    ignores the audio by design). On a split whose clips all read one sentence (``test_emo_a``) the swapped-in
+    audio comes from ``TEST_SPLIT``."""
+    metrics["audio_sensitivity"] = 0.0
+    if spec.model == "template":
+        return []
+    corpus = data["corpus"]
+    sentences = [corpus.meta(n).get("sentence_id", n) for n in out["names"]]
+    source = None
+    if len(set(sentences)) == 1 and test_split != TEST_SPLIT:  # one sentence: borrow test-A's audio
+        source = test_features(data, TEST_SPLIT, spec.features)
+    ids = None if source is None else [corpus.meta(source[i]["name"]).get("sentence_id") for i in range(len(source))]
+    partners = swap_partners(sentences, ids)
+    swapped = predict_split(model, AudioSwapped(test_set, partners, source))
+    metrics["audio_sensitivity"] = audio_sensitivity(out["preds"], swapped["preds"], out["gts"],
+                                                     corpus.regions["lips"])
+    return collapse_reasons(metrics)
 
 
 def _worker_init(parent_pid: int | None = None) -> None:
