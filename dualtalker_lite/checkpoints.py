@@ -280,6 +280,8 @@ _FIELD_TYPES = {
 
 
 def _check_config_types(cfg: dict, cfg_cls: type, source: str) -> None:
+    """Each ``model_config`` field whose declared type ``_FIELD_TYPES`` knows holds a value of that type (a
+    hand-edited ``"n_heads": "4"`` is one line naming ``source``, not a failure deep in the model)."""
     for f in dataclasses.fields(cfg_cls):
         if f.name not in cfg:
             continue
@@ -290,6 +292,8 @@ def _check_config_types(cfg: dict, cfg_cls: type, source: str) -> None:
 
 
 def _check_features(features: Any, source: str) -> None:
+    """The checkpoint's ``features`` (None, or ``{name, settings}``): a known front end, and settings its code can
+    use (the recogniser checks its own; log-mel's keys, types, band limits and per-band statistics here)."""
     if features is None:
         return
     if not isinstance(features, dict):
@@ -363,6 +367,7 @@ def validate_fields(ckpt: dict, source: str) -> None:
 
 
 def _first_line(e: BaseException) -> str:
+    """An exception's first line (its type's name when it has no message), for one-line errors."""
     return (str(e).strip().splitlines() or [type(e).__name__])[0]
 
 
