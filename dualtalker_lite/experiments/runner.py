@@ -208,6 +208,7 @@ def _collapse_check(model, spec: RunSpec, data: dict, test_set: Dataset, out: di
 
 
 def _worker_init(parent_pid: int | None = None) -> None:
+    """Set up a spawned pool worker: one torch thread, Ctrl-C left to the parent, exit when the parent dies."""
     import signal
 
     from ..processes import watch_parent
@@ -218,6 +219,8 @@ def _worker_init(parent_pid: int | None = None) -> None:
 
 
 def _job(args: tuple) -> tuple[int, dict]:
+    """One job of :func:`run_specs` (a plain tuple, so it pickles to a worker) -> (its index, :func:`run_one`'s
+    result)."""
     index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe, cpu_budget = args
     return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe=recipe,
                           cpu_budget_s=cpu_budget)
