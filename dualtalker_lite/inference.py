@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -50,14 +51,16 @@ import torch
 from .audio import AudioStream, load_audio
 from . import front_ends
 from .checkpoints import describe, load_checkpoint, topology_fingerprint
+from .data import sample_path
 from .data.corpus import Corpus, check_face_size
-from .streaming import predict_chunks, write_npy_stream
+from .streaming import fixed_mmap_threshold, predict_chunks, write_npy_stream
 from .checks import check_finite, resolve_device
 from .console import ProgressLines, progress_mode
 from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
-           "resolve_emotion", "check_corpus", "write_obj", "write_glb", "write_outputs", "run", "FORMAT_ALIASES"]
+           "resolve_face", "SpeakerFace", "resolve_emotion", "check_corpus", "write_obj", "write_glb",
+           "write_outputs", "run", "FORMAT_ALIASES"]
 
 FPS = 30
 FORMATS = ("npy", "obj", "gltf", "html", "mp4", "visemes")
@@ -147,8 +150,6 @@ def resolve_emotion(value: str | None, corpus: Corpus | None) -> int | None:
     if str(value).strip().lstrip("-").isdigit():
         return int(value)
     if corpus is None:
-        from .data import sample_path
-
         corpus = Corpus(sample_path())
     if value not in corpus.emotions:
         raise ValueError(f"unknown emotion {value!r}; the corpus {corpus.root.name} has: {', '.join(corpus.emotions)}")
@@ -166,6 +167,38 @@ def check_corpus(corpus: Corpus, ckpt: dict) -> None:
     if topo is not None and topology_fingerprint(corpus.faces) != topo:
         raise ValueError(f"corpus {corpus.root} has another mesh topology than the model was trained on "
                          f"(fingerprint {topology_fingerprint(corpus.faces)} vs {topo})")
+
+
+class SpeakerFace(NamedTuple):
+    """Whose face a run animates: what :func:`resolve_face` returns."""
+    speaker: int                    # the speaker's style index in the model
+    template: np.ndarray            # (V*3,) float32, the neutral face in metres
+    faces: np.ndarray               # (F, 3) triangles
+    corpus: Corpus | None           # the corpus read (for its faces, speaker and emotion names), or None
+
+
+def resolve_face(ckpt: dict, speaker: str, template: str | Path | None = None,
+                 corpus: str | Path | None = None) -> SpeakerFace:
+    """``--speaker``, ``--template`` and ``--corpus`` -> the speaker's style index and neutral face, checked
+    against the checkpoint: the one reading that ``animate`` and ``live`` share.
+
+    A corpus (``corpus``, default ``data_samples/``) is read when one is named, when no template is, or when the
+    checkpoint records no speaker names (an old one: the corpus names them), and refused if its vertex count or
+    topology is not the model's (:func:`check_corpus`). The index comes from :func:`resolve_speaker`; the face from
+    ``template`` (:func:`read_template`) or else the corpus's template of ``speaker``."""
+    c = None
+    if corpus or not template or not ckpt.get("speakers"):
+        c = Corpus(corpus or sample_path())
+        check_corpus(c, ckpt)
+    index, _ = resolve_speaker(ckpt, speaker, c)
+    if template:
+        verts, faces = read_template(template, ckpt.get("n_vertices"), ckpt.get("topology"),
+                                     units=ckpt.get("units") or "m")
+        return SpeakerFace(index, verts, faces, c)
+    if speaker not in c.speakers:
+        raise ValueError(f"corpus {c.root} has no face for speaker {speaker!r}; pass --template mesh.obj (the "
+                         f"speaker's neutral face with the model's topology)")
+    return SpeakerFace(index, c.template(speaker), c.faces, c)
 
 
 # ----------------------------------------------------------------------------- writers
@@ -265,19 +298,8 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
 def run(args: argparse.Namespace) -> list[Path]:
     """The ``animate`` command on the arguments :func:`dualtalker_lite.cli.animate_parser` parsed -> the paths written;
     raises one line on any problem (the command layer, :mod:`dualtalker_lite.cli`, turns it into exit status 2)."""
-    from .data import sample_path
-    from .streaming import fixed_mmap_threshold
-
     fixed_mmap_threshold()  # flat memory in the audio's length: freed blocks go back to the system
-    formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in
-                                  (f.strip().lower() for f in args.format.split(",")) if f))
-    unknown = sorted(set(formats) - set(FORMATS))
-    if unknown or not formats:
-        raise ValueError(f"--format {args.format!r}: unknown format(s) {unknown}; choose from {', '.join(FORMATS)}")
-    if args.no_video:
-        formats = tuple(f for f in formats if f != "mp4")
-    if not formats:
-        raise ValueError("nothing to write: --no-video removed the only format; add e.g. --format npy")
+    formats = _formats(args.format, args.no_video)
     if args.chunk < 1:
         raise ValueError(f"--chunk {args.chunk}: must be a positive number of frames")
     if "visemes" in formats:
@@ -296,19 +318,7 @@ def run(args: argparse.Namespace) -> list[Path]:
                              inputs=[("checkpoint", args.checkpoint), ("recording", args.wav),
                                      ("template", args.template), ("corpus", args.corpus or sample_path())])
     device = resolve_device(args.device)
-    corpus = None
-    if args.corpus or not args.template or not ckpt.get("speakers"):
-        corpus = Corpus(args.corpus or sample_path())
-        check_corpus(corpus, ckpt)
-    speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
-    if args.template:
-        template, faces = read_template(args.template, ckpt.get("n_vertices"), ckpt.get("topology"),
-                                        units=ckpt.get("units") or "m")
-    else:
-        if args.speaker not in corpus.speakers:
-            raise ValueError(f"corpus {corpus.root} has no face for speaker {args.speaker!r}; pass --template "
-                             f"mesh.obj (the speaker's neutral face with the model's topology)")
-        template, faces = corpus.template(args.speaker), corpus.faces
+    speaker, template, faces, corpus = resolve_face(ckpt, args.speaker, args.template, args.corpus)
     front_end = front_ends.from_settings(ckpt.get("features"), str(args.checkpoint), cache=not args.no_cache)
     wave = AudioStream(args.wav, sample_rate=front_end.sample_rate,  # checked now, read block by block later
                        front_end=front_end.front_end)
@@ -329,6 +339,21 @@ def run(args: argparse.Namespace) -> list[Path]:
     print(f"{n_frames} frames ({n_frames / FPS:.1f} s){_conditions_used(model, args.emotion, conditions, corpus)} -> "
           + ", ".join(map(str, names)))
     return names
+
+
+def _formats(spec: str, no_video: bool) -> tuple[str, ...]:
+    """``--format`` (comma-separated names, any case, aliases such as ``glb``) less the mp4 with ``--no-video`` ->
+    the formats to write, each once, in the order given; one line for an unknown name or nothing left to write."""
+    formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in
+                                  (f.strip().lower() for f in spec.split(",")) if f))
+    unknown = sorted(set(formats) - set(FORMATS))
+    if unknown or not formats:
+        raise ValueError(f"--format {spec!r}: unknown format(s) {unknown}; choose from {', '.join(FORMATS)}")
+    if no_video:
+        formats = tuple(f for f in formats if f != "mp4")
+    if not formats:
+        raise ValueError("nothing to write: --no-video removed the only format; add e.g. --format npy")
+    return formats
 
 
 def _frame_progress(blocks, n_frames: int, chunk: int, mode: str):

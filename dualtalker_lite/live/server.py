@@ -2,17 +2,12 @@
 
     dualtalker-lite live --checkpoint runs/m.pt            # then open http://127.0.0.1:8765/ and press Start
 
-What runs where:
-
-* **the page** (``page/index.html``, ``page/live.js``, ``page/worklet.js``; three.js from the package's vendored
-  ``export/vendor/three``, served by this server, nothing fetched from anywhere else): ``getUserMedia`` + an
-  AudioWorklet turn the microphone (or a file played through the same path) into 16 kHz mono 16-bit PCM, sent over
-  a WebSocket in 100 ms messages; it draws the frames that come back on the speaker's template mesh, shows a level
-  meter and the measured latency (capture of a frame's audio -> its vertices on the page).
-* **the server** (this module, aiohttp): per connection a :class:`~dualtalker_lite.live.stream.LiveSession`
-  (causal viseme track + the model's KV-cache step), run in a worker thread so the event loop keeps serving. Every
-  binary message is pushed to it (messages that arrive while it computes are pushed together, so a server that
-  fell behind catches up); the frames that became final go back as one binary message.
+The page (``page/``: ``index.html``, ``live.js``, ``worklet.js``, ``avatar.js``; three.js is the package's vendored
+``export/vendor/three``, served here, nothing is fetched from elsewhere) sends the microphone, or a file played
+through the same path, as 16 kHz mono int16 PCM in 100 ms messages, and draws the frames that come back on the
+speaker's template mesh. This module (aiohttp) serves the page and runs each WebSocket as a :class:`LiveConnection`
+(its state machine is in its docstring): a :class:`~dualtalker_lite.live.stream.LiveSession` (causal viseme track +
+the model's KV-cache step) in a worker thread, fed at once all the audio that arrived while it computed.
 
 The protocol (``/ws``):
 
@@ -28,24 +23,15 @@ server -> client, binary    uint32 LE ``first``, ``n``, ``samples`` (audio recei
                             float32 LE (n, V, 3) vertices of frames ``first .. first + n - 1``
 ==========================  =====================================================================================
 
-The viseme curves (``viseme_sil`` ... ``viseme_U``, :mod:`dualtalker_lite.export.visemes`; live:
-:class:`~dualtalker_lite.live.stream.StreamingVisemeWeights`) drive avatars other than this project's mesh: the
-page shows them on a second, stylised head (``page/avatar.js``), and ``/mesh`` carries what it needs
+The viseme curves (``viseme_sil`` ... ``viseme_U``, :mod:`dualtalker_lite.export.visemes`) drive avatars other than
+this project's mesh, such as the page's stylised second head (``page/avatar.js``); ``/mesh`` carries what it needs
 (``avatar``: the rig's mouth controls of each viseme, :func:`avatar_controls`).
 
-Safety rules (each tested in ``tests/test_live.py``):
-
-* binds to 127.0.0.1 unless ``--host`` says otherwise;
-* the Host header must name the address the request came in on (or ``localhost`` on a loopback address): a page
-  of another site that points its own name at 127.0.0.1 (DNS rebinding) gets 403;
-* a WebSocket whose ``Origin`` is not this server's own (``http://`` + that Host), or has none, gets 403;
-* messages above ``max_message_bytes`` close the connection (aiohttp's ``max_msg_size``, code 1009); text that is
-  not one of the commands, binary of an odd length, audio arriving faster than ``max_speed`` x real time (after a
-  2 s allowance) or more than ``max_messages_per_s`` messages a second close it too (code 1008 or 1003), with one
-  log line naming the client and the reason; a client silent for ``idle_timeout_s`` is closed; a client that goes
-  away mid-stream just ends its session; a session that fails (a bug) is closed with code 1011 and its error.
-  At most ``max_sessions`` connections at once (more get 503). Nothing of that stops the server, which keeps
-  serving the others.
+Safety (``docs/live.md``, "Safety rules"; each rule tested in ``tests/test_live.py``): the server binds to
+127.0.0.1 unless ``--host`` says otherwise; a Host header that does not name the address the request came in on
+(DNS rebinding) gets 403, and so does a WebSocket whose Origin is not this server's; at most ``max_sessions``
+connections (503). A client that breaks :class:`Limits` (size 1009; odd length or unknown text 1003; flood, too
+fast or silent 1008) or whose session fails (1011) loses its own connection, with one log line; the server serves on.
 """
 from __future__ import annotations
 
@@ -61,10 +47,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import front_ends
+from ..checkpoints import load_checkpoint
+from ..export.html import vendor_dir
 from ..export.visemes import NAMES, rig_viseme_targets
-from .stream import SAMPLE_RATE, LiveSession, LiveSettings
+from ..inference import resolve_face
+from .stream import SAMPLE_RATE, IncrementalDecoder, LiveSession, LiveSettings
 
-__all__ = ["LiveConfig", "Limits", "make_app", "serve", "PAGE_DIR", "HEADER", "avatar_controls"]
+__all__ = ["LiveConfig", "Limits", "LiveConnection", "make_app", "load_config", "serve", "PAGE_DIR", "HEADER",
+           "avatar_controls"]
 
 log = logging.getLogger("dualtalker_lite.live")
 PAGE_DIR = Path(__file__).with_name("page")
@@ -74,6 +65,7 @@ MAX_BATCH_S = 5.0                       # at most this much backlog per push (ha
 _PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript", "avatar.js": "text/javascript"}
 AVATAR_CONTROLS = ("jaw_open", "lip_press", "lip_pucker", "lip_stretch", "smile_left", "smile_right",
                    "upper_lip_raise", "lower_lip_depress")          # the mouth controls the stylised head reads
+GOING_AWAY, UNSUPPORTED_DATA, POLICY_VIOLATION, INTERNAL_ERROR = 1001, 1003, 1008, 1011  # close codes, RFC 6455
 
 
 def avatar_controls() -> dict:
@@ -131,221 +123,93 @@ def _peer(request) -> str:
     return f"{peer[0]}:{peer[1]}" if peer else "?"
 
 
+def _mesh_doc(config: LiveConfig) -> str:
+    """``/mesh``: the face the page draws (template, triangles, lip midpoints), the stream's timing and the second
+    head's viseme -> mouth-control table, as JSON."""
+    fe, settings = config.front_end, config.settings
+    return json.dumps({
+        "template": np.round(np.asarray(config.template, np.float64).reshape(-1), 7).tolist(),
+        "faces": np.asarray(config.faces, np.int64).reshape(-1).tolist(),
+        "fps": fe.fps, "sample_rate": SAMPLE_RATE,
+        "lip_midpoints": list(map(int, config.lip_midpoints)) if config.lip_midpoints else None,
+        "speaker": config.speaker_name, "checkpoint": Path(config.checkpoint).name,
+        "latency_s": settings.latency_s(fe.fps, fe.lag_s, fe.window_s),
+        "lookahead_ms": round(settings.lookahead_s * 1000), "avatar": avatar_controls()})
+
+
+def _static_file(path: str) -> tuple[Path, str] | None:
+    """A URL path -> (the file, its content type) when it is one the page needs, else None: ``/`` the page,
+    ``/page/<name>`` its scripts (:data:`_PAGES`), ``/vendor/three/<name>`` three.js (:data:`_VENDOR`)."""
+    folder, _, name = path.rpartition("/")
+    if path == "/":
+        return PAGE_DIR / "index.html", "text/html"
+    if folder == "/page" and name in _PAGES:
+        return PAGE_DIR / name, _PAGES[name]
+    if folder == "/vendor/three" and name in _VENDOR:
+        return vendor_dir() / name, "text/plain" if name == "LICENSE" else "text/javascript"
+    return None
+
+
+async def _static(request):
+    """The handler of ``/``, ``/page/{name}`` and ``/vendor/three/{name}``: the file, read afresh, or 404."""
+    from aiohttp import web
+
+    found = _static_file(request.path)
+    if found is None:
+        raise web.HTTPNotFound()
+    path, kind = found
+    return web.Response(text=path.read_text(encoding="utf-8"), content_type=kind)
+
+
+async def _guard(request, handler):
+    """Middleware: 403 for a Host header that does not name this server (DNS rebinding); every page response gets
+    a Content-Security-Policy of ``default-src 'self'`` (nothing loaded from elsewhere) and is never cached."""
+    from aiohttp import web
+
+    if request.host not in _allowed_hosts(request):
+        log.warning("refused %s: Host %r is not this server's address", _peer(request), request.host)
+        return web.Response(status=403, text="403: wrong Host header (use the address the server printed)\n")
+    response = await handler(request)
+    if not isinstance(response, web.WebSocketResponse):
+        response.headers["Content-Security-Policy"] = (
+            f"default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+            f"connect-src 'self' ws://{request.host}; media-src 'self' blob:; img-src 'self' data:")
+        response.headers["X-Content-Type-Options"] = "nosniff"
+        response.headers["Cache-Control"] = "no-store"
+    return response
+
+
 def make_app(config: LiveConfig):
     """The aiohttp application: ``/`` the page, ``/page/*`` its scripts, ``/vendor/three/*`` three.js, ``/mesh`` the
-    face (JSON), ``/ws`` the live WebSocket.
+    face (JSON), ``/ws`` the live WebSocket (one :class:`LiveConnection` per client).
 
     Run it with ``handler_cancellation=True`` (``web.AppRunner(app, handler_cancellation=True)``, as :func:`serve`
     does; ``TestServer(app, handler_cancellation=True)`` in tests): aiohttp's server-side WebSocket does not notice
     a client whose connection simply drops (killed tab, pulled cable; aiohttp issues #2309, #4877), only the
     cancellation of the handler tells it, and a session would otherwise hold its thread and memory until the idle
     timeout."""
-    from aiohttp import WSCloseCode, WSMsgType, web
+    from aiohttp import web
 
-    from ..export.html import vendor_dir
-
-    limits = config.limits
-    executor = ThreadPoolExecutor(max_workers=2, thread_name_prefix="live")
-    sessions: set = set()
-
-    @web.middleware
-    async def guard(request, handler):
-        if request.host not in _allowed_hosts(request):
-            log.warning("refused %s: Host %r is not this server's address", _peer(request), request.host)
-            return web.Response(status=403, text="403: wrong Host header (use the address the server printed)\n")
-        response = await handler(request)
-        if not isinstance(response, web.WebSocketResponse):
-            response.headers["Content-Security-Policy"] = (
-                f"default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
-                f"connect-src 'self' ws://{request.host}; media-src 'self' blob:; img-src 'self' data:")
-            response.headers["X-Content-Type-Options"] = "nosniff"
-            response.headers["Cache-Control"] = "no-store"
-        return response
-
-    async def index(request):
-        return web.Response(text=(PAGE_DIR / "index.html").read_text(encoding="utf-8"), content_type="text/html")
-
-    async def page_file(request):
-        name = request.match_info["name"]
-        if name not in _PAGES:
-            raise web.HTTPNotFound()
-        return web.Response(text=(PAGE_DIR / name).read_text(encoding="utf-8"), content_type=_PAGES[name])
-
-    async def vendor(request):
-        name = request.match_info["name"]
-        if name not in _VENDOR:
-            raise web.HTTPNotFound()
-        kind = "text/plain" if name == "LICENSE" else "text/javascript"
-        return web.Response(text=(vendor_dir() / name).read_text(encoding="utf-8"), content_type=kind)
-
-    mesh_doc = json.dumps({
-        "template": np.round(np.asarray(config.template, np.float64).reshape(-1), 7).tolist(),
-        "faces": np.asarray(config.faces, np.int64).reshape(-1).tolist(),
-        "fps": config.front_end.fps, "sample_rate": SAMPLE_RATE,
-        "lip_midpoints": list(map(int, config.lip_midpoints)) if config.lip_midpoints else None,
-        "speaker": config.speaker_name, "checkpoint": Path(config.checkpoint).name,
-        "latency_s": config.settings.latency_s(config.front_end.fps, config.front_end.lag_s,
-                                               config.front_end.window_s),
-        "lookahead_ms": round(config.settings.lookahead_s * 1000), "avatar": avatar_controls()})
+    executor = ThreadPoolExecutor(max_workers=2, thread_name_prefix="live")   # the sessions' computing
+    sockets: set = set()                                    # the open WebSockets: max_sessions, closed at shutdown
+    mesh_doc = _mesh_doc(config)
 
     async def mesh(request):
         return web.Response(text=mesh_doc, content_type="application/json")
 
-    def new_session(visemes: bool = False) -> LiveSession:
-        return LiveSession(config.model, config.front_end, config.template, config.speaker, config.settings,
-                           visemes=visemes)
-
     async def websocket(request):
-        peer = _peer(request)
-        origin = request.headers.get("Origin")
-        if origin != f"http://{request.host}":
-            log.warning("refused WebSocket from %s: Origin %r is not this server's (http://%s)", peer, origin,
-                        request.host)
-            return web.Response(status=403, text="403: cross-origin WebSocket refused\n")
-        if len(sessions) >= limits.max_sessions:
-            log.warning("refused WebSocket from %s: already %d sessions", peer, len(sessions))
-            return web.Response(status=503, text="503: too many live sessions\n")
-        ws = web.WebSocketResponse(max_msg_size=limits.max_message_bytes + 1, heartbeat=20.0)  # aiohttp: < this
-        await ws.prepare(request)
-        sessions.add(ws)
-        loop = asyncio.get_running_loop()
-        session = await loop.run_in_executor(executor, new_session)
-        started, samples, stopped, visemes = time.monotonic(), 0, False, False
-        window_start, window_count = started, 0
-
-        async def close(code, reason: str):
-            log.warning("closed %s: %s", peer, reason)
-            if not ws.closed:
-                try:
-                    await ws.send_str(json.dumps({"type": "error", "message": reason}))
-                    await ws.close(code=code, message=reason[:120].encode())
-                except ConnectionResetError:                           # it went away meanwhile
-                    pass
-
-        async def send(first: int, verts: np.ndarray, weights: np.ndarray):
-            if len(verts) and not ws.closed:
-                if visemes:                                   # the same frames' viseme curves, first
-                    await ws.send_str(json.dumps({"type": "visemes", "first": first,
-                                                  "weights": np.round(weights, 4).tolist()}))
-                await ws.send_bytes(HEADER.pack(first, len(verts), samples) + verts.astype("<f4").tobytes())
-
-        def push(current, audio):
-            first, verts = current.push(audio)
-            return first, verts, current.pop_weights()
-
-        def flush(current):
-            first, verts = current.flush()
-            return first, verts, current.pop_weights()
-
-        # Audio waits in ``backlog`` while the session computes; ``work`` takes all of it at once (at most
-        # MAX_BATCH_S), so a server that fell behind runs hama once on the whole backlog instead of once per
-        # message: its cost per second of audio drops and it catches up instead of falling further behind.
-        backlog: list[np.ndarray] = []
-        worker = None
-
-        async def work(current):
-            try:
-                while backlog:
-                    take, n = [], 0
-                    while backlog and n < MAX_BATCH_S * SAMPLE_RATE:
-                        take.append(backlog.pop(0))
-                        n += take[-1].size
-                    await send(*await loop.run_in_executor(executor, push, current, np.concatenate(take)))
-            except ConnectionResetError as e:                           # the client went away while computing
-                log.warning("closed %s: %s", peer, e or "the client went away mid-stream")
-                backlog.clear()
-            except Exception as e:                                     # a bug: say so, end this session only
-                backlog.clear()
-                await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
-
-        await ws.send_str(json.dumps({"type": "hello", "fps": config.front_end.fps, "sample_rate": SAMPLE_RATE,
-                                      "max_message_bytes": limits.max_message_bytes, "viseme_names": list(NAMES)}))
-        try:
-            while not ws.closed:
-                try:
-                    msg = await ws.receive(timeout=limits.idle_timeout_s)
-                except asyncio.TimeoutError:
-                    await close(WSCloseCode.POLICY_VIOLATION, f"no message for {limits.idle_timeout_s:g} s")
-                    break
-                now = time.monotonic()
-                if now - window_start >= 1.0:
-                    window_start, window_count = now, 0
-                window_count += 1
-                if window_count > limits.max_messages_per_s:
-                    await close(WSCloseCode.POLICY_VIOLATION,
-                                f"more than {limits.max_messages_per_s:g} messages a second")
-                    break
-                if msg.type == WSMsgType.BINARY:
-                    data = msg.data
-                    if len(data) % 2:
-                        await close(WSCloseCode.UNSUPPORTED_DATA, f"binary message of odd length {len(data)} "
-                                    f"(expected int16 PCM)")
-                        break
-                    samples += len(data) // 2
-                    stopped = False
-                    if samples / SAMPLE_RATE > limits.max_speed * (now - started) + 2.0:
-                        await close(WSCloseCode.POLICY_VIOLATION, f"audio faster than {limits.max_speed:g}x "
-                                    f"real time")
-                        break
-                    backlog.append(np.frombuffer(data, dtype="<i2").astype(np.float32) / 32768.0)
-                    if worker is None or worker.done():
-                        worker = asyncio.create_task(work(session))
-                elif msg.type == WSMsgType.TEXT:
-                    try:
-                        command = json.loads(msg.data)
-                        kind = command.get("type")
-                    except (ValueError, AttributeError):
-                        command, kind = {}, None
-                    if worker is not None:
-                        await worker                              # the audio before the command, first
-                    stopped = kind == "stop"
-                    if kind == "stop":
-                        first, verts, weights = await loop.run_in_executor(executor, flush, session)
-                        await send(first, verts, weights)
-                        await ws.send_str(json.dumps({"type": "done", "frames": first + len(verts),
-                                                      "samples": samples}))
-                    elif kind == "start":
-                        visemes = command.get("visemes") is True
-                        session = await loop.run_in_executor(executor, new_session, visemes)
-                        started, samples = time.monotonic(), 0
-                    else:
-                        await close(WSCloseCode.UNSUPPORTED_DATA, f"unknown text message {msg.data[:40]!r} "
-                                    f"(expected JSON {{\"type\": \"start\"|\"stop\"}})")
-                        break
-                elif msg.type == WSMsgType.ERROR:  # e.g. a message over max_msg_size (aiohttp closes with 1009)
-                    log.warning("closed %s: %s", peer, ws.exception())
-                    break
-                else:  # CLOSE / CLOSING / CLOSED: the client went away
-                    if samples and not stopped:
-                        log.warning("closed %s: the client went away mid-stream (after %.1f s of audio)", peer,
-                                    samples / SAMPLE_RATE)
-                    break
-        except ConnectionResetError:
-            log.warning("closed %s: the client went away mid-stream", peer)
-        except asyncio.CancelledError:  # handler_cancellation: the TCP connection was lost (or the server stops)
-            log.warning("closed %s: connection lost mid-stream (client gone or server stopping) after %.1f s of "
-                        "audio", peer, samples / SAMPLE_RATE)
-            raise
-        except Exception as e:                                         # a bug: say so, end this session only
-            await close(WSCloseCode.INTERNAL_ERROR, f"the live session failed: {type(e).__name__}: {e}")
-        finally:
-            sessions.discard(ws)
-            backlog.clear()
-            if worker is not None and not worker.done():
-                worker.cancel()
-        return ws
+        return await LiveConnection.handle(request, config, executor, sockets)
 
     async def on_shutdown(app):
-        for ws in list(sessions):
-            await ws.close(code=WSCloseCode.GOING_AWAY, message=b"server shutting down")
+        for ws in list(sockets):
+            await ws.close(code=GOING_AWAY, message=b"server shutting down")
 
     async def on_cleanup(app):
         executor.shutdown(wait=False, cancel_futures=True)
 
-    app = web.Application(middlewares=[guard], client_max_size=64 * 1024)
-    app.router.add_get("/", index)
-    app.router.add_get("/page/{name}", page_file)
-    app.router.add_get("/vendor/three/{name}", vendor)
+    app = web.Application(middlewares=[web.middleware(_guard)], client_max_size=64 * 1024)
+    for route in ("/", "/page/{name}", "/vendor/three/{name}"):
+        app.router.add_get(route, _static)
     app.router.add_get("/mesh", mesh)
     app.router.add_get("/ws", websocket)
     app.on_shutdown.append(on_shutdown)
@@ -353,17 +217,253 @@ def make_app(config: LiveConfig):
     return app
 
 
+class _Refused(Exception):
+    """What the client did breaks the protocol or a limit: its connection is closed with ``code`` and the reason."""
+
+    def __init__(self, code: int, reason: str):
+        super().__init__(reason)
+        self.code = code
+
+
+def _push(session: LiveSession, audio: np.ndarray):
+    """(In a worker thread.) Audio (N,) -> (first, vertices (n, V, 3), viseme weights (n, 15)) of the frames that
+    became final."""
+    first, verts = session.push(audio)
+    return first, verts, session.pop_weights()
+
+
+def _flush(session: LiveSession):
+    """(In a worker thread.) The end of the stream -> the frames held back for look-ahead, as :func:`_push`."""
+    first, verts = session.flush()
+    return first, verts, session.pop_weights()
+
+
+class LiveConnection:
+    """One client of ``/ws``: the live protocol as a state machine, one method per message or event.
+
+    =========  =======================================  ==================================================  =========
+    state      message or event                         what the server does                                next
+    =========  =======================================  ==================================================  =========
+    (opening)  the handshake (:meth:`handle`)           403 for a foreign Origin, 503 at ``max_sessions``;  ready
+                                                        else ``hello`` and a fresh session (:meth:`open`)
+    any        binary: int16 PCM (:meth:`audio`)        queue it; the worker (:meth:`work`) pushes the      streaming
+                                                        whole backlog, sends the frames now final
+    any        ``start`` (:meth:`start`)                after the queued audio: a fresh session; the        ready
+                                                        speed limit's clock and sample count restart
+    any        ``stop`` (:meth:`stop`)                  after the queued audio: flush, the last frames,     stopped
+                                                        then ``done``
+    any        other text, odd length, too fast, more   ``error`` message, close 1003 or 1008               closed
+               than ``max_messages_per_s``, or silence
+               for ``idle_timeout_s``
+    any        a message over ``max_message_bytes``     aiohttp closes with 1009; one log line              closed
+    any        the session raises (:meth:`fail`)        ``error`` message, close 1011                       closed
+    any        the client goes away (:meth:`gone`)      one log line (with the audio's length when          closed
+                                                        streaming); the session ends
+    =========  =======================================  ==================================================  =========
+
+    Every close is one log line naming the client and the reason; nothing of it stops the server. A message that
+    breaks a rule raises :class:`_Refused` wherever it is found; :meth:`run` turns it into the close.
+    """
+
+    def __init__(self, ws, config: LiveConfig, executor: ThreadPoolExecutor, peer: str):
+        self.ws, self.config, self.executor, self.peer = ws, config, executor, peer
+        self.limits = config.limits
+        self.state = "ready"                                # ready | streaming | stopped; closed ends run()
+        self.session: LiveSession | None = None
+        self.visemes = False                                # the client asked for the viseme curves
+        self.started, self.samples = time.monotonic(), 0    # since the start: the speed limit's clock, audio
+        self.window = (self.started, 0)                     # the current second's start and message count
+        # Audio waits in ``backlog`` while the session computes; the worker takes all of it at once (at most
+        # MAX_BATCH_S), so a server that fell behind runs hama once on the whole backlog instead of once per
+        # message: its cost per second of audio drops and it catches up instead of falling further behind.
+        self.backlog: list[np.ndarray] = []
+        self.worker: asyncio.Task | None = None
+
+    @classmethod
+    async def handle(cls, request, config: LiveConfig, executor: ThreadPoolExecutor, sockets: set):
+        """The ``/ws`` handler: refuse at the handshake (403, 503), else run one connection to its end."""
+        from aiohttp import web
+
+        peer, limits = _peer(request), config.limits
+        origin = request.headers.get("Origin")
+        if origin != f"http://{request.host}":
+            log.warning("refused WebSocket from %s: Origin %r is not this server's (http://%s)", peer, origin,
+                        request.host)
+            return web.Response(status=403, text="403: cross-origin WebSocket refused\n")
+        if len(sockets) >= limits.max_sessions:
+            log.warning("refused WebSocket from %s: already %d sessions", peer, len(sockets))
+            return web.Response(status=503, text="503: too many live sessions\n")
+        ws = web.WebSocketResponse(max_msg_size=limits.max_message_bytes + 1, heartbeat=20.0)  # aiohttp: < this
+        await ws.prepare(request)
+        sockets.add(ws)
+        try:
+            await cls(ws, config, executor, peer).run()
+        finally:
+            sockets.discard(ws)
+        return ws
+
+    async def run(self) -> None:
+        """Open, then hand each message to its method until the connection ends, whatever ends it."""
+        from aiohttp import WSMsgType
+
+        await self.open()
+        try:
+            while not self.ws.closed:
+                try:
+                    msg = await self.ws.receive(timeout=self.limits.idle_timeout_s)
+                except asyncio.TimeoutError:
+                    raise _Refused(POLICY_VIOLATION, f"no message for {self.limits.idle_timeout_s:g} s") from None
+                now = time.monotonic()
+                self.count(now)
+                if msg.type == WSMsgType.BINARY:
+                    await self.audio(msg.data, now)
+                elif msg.type == WSMsgType.TEXT:
+                    await self.command(msg.data)
+                elif msg.type == WSMsgType.ERROR:  # e.g. a message over max_msg_size (aiohttp closes with 1009)
+                    log.warning("closed %s: %s", self.peer, self.ws.exception())
+                    break
+                else:                              # CLOSE / CLOSING / CLOSED: the client went away
+                    self.gone()
+                    break
+        except _Refused as e:
+            await self.close(e.code, str(e))
+        except ConnectionResetError:
+            log.warning("closed %s: the client went away mid-stream", self.peer)
+        except asyncio.CancelledError:  # handler_cancellation: the TCP connection was lost (or the server stops)
+            log.warning("closed %s: connection lost mid-stream (client gone or server stopping) after %.1f s of "
+                        "audio", self.peer, self.samples / SAMPLE_RATE)
+            raise
+        except Exception as e:                                         # a bug: say so, end this session only
+            await self.fail(e)
+        finally:
+            self.backlog.clear()
+            if self.worker is not None and not self.worker.done():
+                self.worker.cancel()
+
+    # ---------------------------------------------------------------------------------- messages and events
+    async def open(self) -> None:
+        """Connected: a fresh session (built in a worker thread), then ``hello`` with the stream's settings."""
+        self.session = await self._in_thread(self._new_session)
+        await self.ws.send_str(json.dumps({"type": "hello", "fps": self.config.front_end.fps,
+                                           "sample_rate": SAMPLE_RATE,
+                                           "max_message_bytes": self.limits.max_message_bytes,
+                                           "viseme_names": list(NAMES)}))
+
+    def count(self, now: float) -> None:
+        """Any message: at most ``max_messages_per_s`` in each one-second window, else 1008."""
+        start, n = self.window
+        if now - start >= 1.0:
+            start, n = now, 0
+        self.window = (start, n + 1)
+        if n + 1 > self.limits.max_messages_per_s:
+            raise _Refused(POLICY_VIOLATION, f"more than {self.limits.max_messages_per_s:g} messages a second")
+
+    async def audio(self, data: bytes, now: float) -> None:
+        """Binary: int16 PCM of even length (else 1003), at most ``max_speed`` x real time since the start after a
+        2 s allowance (else 1008). Queued in ``backlog`` as float32 in [-1, 1); a worker is started if none runs."""
+        if len(data) % 2:
+            raise _Refused(UNSUPPORTED_DATA, f"binary message of odd length {len(data)} (expected int16 PCM)")
+        self.samples += len(data) // 2
+        self.state = "streaming" if self.samples else "ready"
+        if self.samples / SAMPLE_RATE > self.limits.max_speed * (now - self.started) + 2.0:
+            raise _Refused(POLICY_VIOLATION, f"audio faster than {self.limits.max_speed:g}x real time")
+        self.backlog.append(np.frombuffer(data, dtype="<i2").astype(np.float32) / 32768.0)
+        if self.worker is None or self.worker.done():
+            self.worker = asyncio.create_task(self.work())
+
+    async def command(self, text: str) -> None:
+        """Text: a JSON command, run after the audio that came before it: ``start`` or ``stop``, else 1003."""
+        try:
+            command = json.loads(text)
+            kind = command.get("type")
+        except (ValueError, AttributeError):
+            command, kind = {}, None
+        if self.worker is not None:
+            await self.worker                                  # the audio before the command, first
+        if kind == "start":
+            await self.start(visemes=command.get("visemes") is True)
+        elif kind == "stop":
+            await self.stop()
+        else:
+            raise _Refused(UNSUPPORTED_DATA, f"unknown text message {text[:40]!r} "
+                                             f"(expected JSON {{\"type\": \"start\"|\"stop\"}})")
+
+    async def start(self, visemes: bool) -> None:
+        """``{"type": "start"}``: a fresh session (sending the viseme curves too if asked); the clock of the speed
+        limit and the sample count restart."""
+        self.visemes = visemes
+        self.session = await self._in_thread(self._new_session, visemes)
+        self.started, self.samples, self.state = time.monotonic(), 0, "ready"
+
+    async def stop(self) -> None:
+        """``{"type": "stop"}``: flush the session (the frames it held back for look-ahead; the frame count is the
+        offline one), send them, then ``{"type": "done", "frames": n, "samples": N}``."""
+        self.state = "stopped"
+        first, verts, weights = await self._in_thread(_flush, self.session)
+        await self.send(first, verts, weights)
+        await self.ws.send_str(json.dumps({"type": "done", "frames": first + len(verts), "samples": self.samples}))
+
+    async def work(self) -> None:
+        """The worker task: push the backlog into the session, at most ``MAX_BATCH_S`` at once, until it is empty,
+        and send each push's frames back. A client gone meanwhile ends it; a failing session closes with 1011."""
+        try:
+            while self.backlog:
+                take, n = [], 0
+                while self.backlog and n < MAX_BATCH_S * SAMPLE_RATE:
+                    take.append(self.backlog.pop(0))
+                    n += take[-1].size
+                await self.send(*await self._in_thread(_push, self.session, np.concatenate(take)))
+        except ConnectionResetError as e:                           # the client went away while computing
+            log.warning("closed %s: %s", self.peer, e or "the client went away mid-stream")
+            self.backlog.clear()
+        except Exception as e:                                     # a bug: say so, end this session only
+            self.backlog.clear()
+            await self.fail(e)
+
+    def gone(self) -> None:
+        """The client closed the connection: one log line if it did so mid-stream (audio sent, no ``stop``)."""
+        if self.state == "streaming":
+            log.warning("closed %s: the client went away mid-stream (after %.1f s of audio)", self.peer,
+                        self.samples / SAMPLE_RATE)
+
+    async def fail(self, error: Exception) -> None:
+        """The session raised (a bug): say so and end this connection only (1011)."""
+        await self.close(INTERNAL_ERROR, f"the live session failed: {type(error).__name__}: {error}")
+
+    # ---------------------------------------------------------------------------------------------- helpers
+    async def send(self, first: int, verts: np.ndarray, weights: np.ndarray) -> None:
+        """Frames ``first .. first + n - 1`` to the client: their viseme curves first if asked, then the binary
+        message (:data:`HEADER` + float32 (n, V, 3)); nothing for no frames or a closed socket."""
+        if len(verts) and not self.ws.closed:
+            if self.visemes:
+                await self.ws.send_str(json.dumps({"type": "visemes", "first": first,
+                                                   "weights": np.round(weights, 4).tolist()}))
+            await self.ws.send_bytes(HEADER.pack(first, len(verts), self.samples) + verts.astype("<f4").tobytes())
+
+    async def close(self, code: int, reason: str) -> None:
+        """One log line, an ``error`` message with the reason, then the close with ``code``."""
+        log.warning("closed %s: %s", self.peer, reason)
+        if not self.ws.closed:
+            try:
+                await self.ws.send_str(json.dumps({"type": "error", "message": reason}))
+                await self.ws.close(code=code, message=reason[:120].encode())
+            except ConnectionResetError:                               # it went away meanwhile
+                pass
+
+    def _new_session(self, visemes: bool = False) -> LiveSession:
+        c = self.config
+        return LiveSession(c.model, c.front_end, c.template, c.speaker, c.settings, visemes=visemes)
+
+    def _in_thread(self, fn, *args):
+        """Run ``fn(*args)`` in the server's worker threads (the event loop keeps serving) -> an awaitable."""
+        return asyncio.get_running_loop().run_in_executor(self.executor, fn, *args)
+
+
 def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = None, corpus: str | None = None,
                 settings: LiveSettings | None = None) -> LiveConfig:
-    """A :class:`LiveConfig` from a checkpoint, as ``animate`` reads one (speaker, template, corpus); refuses a model
-    the live path cannot run (not the viseme track, or not a one-decoder model) before anything is served."""
-    from .. import front_ends
-    from ..checkpoints import load_checkpoint
-    from ..data import sample_path
-    from ..data.corpus import Corpus
-    from ..inference import check_corpus, read_template, resolve_speaker
-    from .stream import IncrementalDecoder
-
+    """A :class:`LiveConfig` from a checkpoint, its face read as ``animate`` reads it
+    (:func:`~dualtalker_lite.inference.resolve_face`: speaker, template, corpus); refuses a model the live path
+    cannot run (not the viseme track, or not a one-decoder model) before anything is served."""
     if not Path(checkpoint).is_file():
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
     model, ckpt = load_checkpoint(checkpoint)
@@ -372,26 +472,15 @@ def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = 
         raise ValueError(f"{checkpoint}: live needs a model trained on the recogniser's viseme track "
                          f"(train --features visemes, the default); this one reads {features.get('name')!r}")
     front_end = front_ends.from_settings(features, checkpoint, cache=False)  # live windows are never seen twice
-    c = None
-    if corpus or not template or not ckpt.get("speakers"):
-        c = Corpus(corpus or sample_path())
-        check_corpus(c, ckpt)
-    index, _ = resolve_speaker(ckpt, speaker, c)
-    if template:
-        verts, faces = read_template(template, ckpt.get("n_vertices"), ckpt.get("topology"),
-                                     units=ckpt.get("units") or "m")
-        lips = None
-    else:
-        if speaker not in c.speakers:
-            raise ValueError(f"corpus {c.root} has no face for speaker {speaker!r}; pass --template mesh.obj")
-        verts, faces = c.template(speaker), c.faces
-        lips = tuple(int(i) for i in np.asarray(c.regions.get("lip_midpoints", [])).reshape(-1)[:2]) or None
+    face = resolve_face(ckpt, speaker, template, corpus)
+    regions = {} if template else face.corpus.regions        # a --template has none: the page shows no lip distance
+    lips = tuple(int(i) for i in np.asarray(regions.get("lip_midpoints", [])).reshape(-1)[:2]) or None
     try:
-        IncrementalDecoder(model, verts, index)           # refuses other model families with one line
+        IncrementalDecoder(model, face.template, face.speaker)  # refuses other model families with one line
     except ValueError as e:
         raise ValueError(f"{checkpoint}: {e}") from None
-    return LiveConfig(model=model, front_end=front_end, template=np.asarray(verts, np.float32).reshape(-1),
-                      faces=np.asarray(faces), speaker=index, speaker_name=speaker, lip_midpoints=lips,
+    return LiveConfig(model=model, front_end=front_end, template=np.asarray(face.template, np.float32).reshape(-1),
+                      faces=np.asarray(face.faces), speaker=face.speaker, speaker_name=speaker, lip_midpoints=lips,
                       settings=settings or LiveSettings(), checkpoint=str(checkpoint))
 
 
