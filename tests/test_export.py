@@ -148,6 +148,18 @@ def test_motionless_and_single_frame_clips_still_export(clip, tmp_path):
     assert one.frames == 1 and one.max_error < 1e-4
 
 
+def test_write_glb_is_a_deprecated_door_to_write_gltf(clip, tmp_path):
+    """The old ``inference.write_glb`` still writes, for one release, the very bytes of ``write_gltf``, and warns
+    naming it (CHANGELOG.md, Deprecated)."""
+    from dualtalker_lite.inference import write_glb
+
+    verts, template, faces, _ = clip
+    write_gltf(tmp_path / "new.glb", verts[:40], faces, template, fps=30)  # write_glb's fps is inference.FPS, 30
+    with pytest.warns(DeprecationWarning, match=r"export\.gltf\.write_gltf"):
+        write_glb(tmp_path / "old.glb", verts[:40], faces, template=template)
+    assert (tmp_path / "old.glb").read_bytes() == (tmp_path / "new.glb").read_bytes()
+
+
 # ------------------------------------------------------------------------------------------ Khronos validator
 def _absent(message: str):
     """Skip with ``message``, or fail where CI installed the tools (tools/test_tools.sh sets DUALTALKER_REQUIRE_EXPORT_TOOLS)."""
