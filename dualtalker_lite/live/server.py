@@ -71,7 +71,8 @@ PAGE_DIR = Path(__file__).with_name("page")
 HEADER = struct.Struct("<III")          # first frame, frame count, samples received
 _VENDOR = ("three.module.min.js", "OrbitControls.js", "LICENSE")  # what the page imports of export/vendor/three
 MAX_BATCH_S = 5.0                       # at most this much backlog per push (hama reads at most 30 s per call)
-_PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript", "avatar.js": "text/javascript"}
+_PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript", "avatar.js": "text/javascript",
+          "scene.js": "text/javascript"}     # scene.js: the exported viewer's stage (export/page), shared
 AVATAR_CONTROLS = ("jaw_open", "lip_press", "lip_pucker", "lip_stretch", "smile_left", "smile_right",
                    "upper_lip_raise", "lower_lip_depress")          # the mouth controls the stylised head reads
 
@@ -142,7 +143,7 @@ def make_app(config: LiveConfig):
     timeout."""
     from aiohttp import WSCloseCode, WSMsgType, web
 
-    from ..export.html import vendor_dir
+    from ..export.html import page_dir, vendor_dir
 
     limits = config.limits
     executor = ThreadPoolExecutor(max_workers=2, thread_name_prefix="live")
@@ -169,7 +170,8 @@ def make_app(config: LiveConfig):
         name = request.match_info["name"]
         if name not in _PAGES:
             raise web.HTTPNotFound()
-        return web.Response(text=(PAGE_DIR / name).read_text(encoding="utf-8"), content_type=_PAGES[name])
+        folder = page_dir() if name == "scene.js" else PAGE_DIR
+        return web.Response(text=(folder / name).read_text(encoding="utf-8"), content_type=_PAGES[name])
 
     async def vendor(request):
         name = request.match_info["name"]
