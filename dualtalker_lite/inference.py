@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -56,6 +57,7 @@ from .data.corpus import Corpus, check_face_size
 from .streaming import fixed_mmap_threshold, predict_chunks, write_npy_stream
 from .checks import check_finite, resolve_device
 from .console import ProgressLines, progress_mode
+from .export.gltf import write_gltf
 from .files import AtomicOutputDir
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
@@ -219,7 +221,7 @@ def _frames(clip) -> np.ndarray:
 
 def write_glb(path: str | Path, clip, faces: np.ndarray, fps: float = FPS, template: np.ndarray | None = None,
               wave: np.ndarray | None = None, sample_rate: int = 16000):
-    """Animated glTF 2.0 binary with morph targets: :func:`dualtalker_lite.export.gltf.write_gltf` (its report).
+    """Deprecated (one release, then gone): call :func:`dualtalker_lite.export.gltf.write_gltf`, which this calls.
 
     The earlier writer (one mesh node per frame, flipped by scale keys) is gone: 35 MB per minute of the
     sample's face, a JSON part of about 0.6 kB per frame held in memory (issue 22: 3 GB for an hour), no sound,
@@ -227,8 +229,9 @@ def write_glb(path: str | Path, clip, faces: np.ndarray, fps: float = FPS, templ
     0.1 mm of every frame (``results/exports.md``), and is what Blender (shape keys + an action), three.js and
     game engines animate.
     """
-    from .export.gltf import write_gltf
-
+    warnings.warn("dualtalker_lite.inference.write_glb is deprecated and goes in the next release: use "
+                  "dualtalker_lite.export.gltf.write_gltf(path, clip, faces, template=..., wave=..., "
+                  "sample_rate=..., fps=...), which writes the same file", DeprecationWarning, stacklevel=2)
     return write_gltf(path, clip, faces, template=template, wave=wave, sample_rate=sample_rate, fps=fps)
 
 
@@ -265,8 +268,8 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
         from .export.html import write_html
 
         glb = folder / ("animation.glb" if "gltf" in formats else ".viewer.glb")  # html only: a temporary .glb
-        report = write_glb(glb, clip, faces, template=template, wave=wave if "gltf" in formats else None,
-                           sample_rate=sample_rate)
+        report = write_gltf(glb, clip, faces, template=template, wave=wave if "gltf" in formats else None,
+                            sample_rate=sample_rate, fps=FPS)
         print(report.line())
         if "gltf" in formats:
             written += [glb] + ([report.audio] if report.audio else [])

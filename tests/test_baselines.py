@@ -7,13 +7,7 @@ from dualtalker_lite.models.baselines import StaticTemplate, VocaConfig, VocaSty
 B, T, V, D_A, N_SPK = 2, 12, 10, 160, 3
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    """Tiny tensors: one thread is fastest, and avoids oversubscription when the CPU is shared. Restored after."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 def _batch(seed: int = 0, T: int = T) -> dict:

@@ -25,7 +25,7 @@ import soundfile as sf
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.export.gltf import morph_basis, read_gltf_animation, split_signed, write_gltf
-from dualtalker_lite.export.html import iframe_html, vendor_dir, viewer_html, write_html
+from dualtalker_lite.export.html import SCENE_MODULE, iframe_html, page_dir, vendor_dir, viewer_html, write_html
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_MODULES = ROOT / "tools" / "node" / "node_modules"
@@ -148,6 +148,18 @@ def test_motionless_and_single_frame_clips_still_export(clip, tmp_path):
     assert one.frames == 1 and one.max_error < 1e-4
 
 
+def test_write_glb_is_a_deprecated_door_to_write_gltf(clip, tmp_path):
+    """The old ``inference.write_glb`` still writes, for one release, the very bytes of ``write_gltf``, and warns
+    naming it (CHANGELOG.md, Deprecated)."""
+    from dualtalker_lite.inference import write_glb
+
+    verts, template, faces, _ = clip
+    write_gltf(tmp_path / "new.glb", verts[:40], faces, template, fps=30)  # write_glb's fps is inference.FPS, 30
+    with pytest.warns(DeprecationWarning, match=r"export\.gltf\.write_gltf"):
+        write_glb(tmp_path / "old.glb", verts[:40], faces, template=template)
+    assert (tmp_path / "old.glb").read_bytes() == (tmp_path / "new.glb").read_bytes()
+
+
 # ------------------------------------------------------------------------------------------ Khronos validator
 def _absent(message: str):
     """Skip with ``message``, or fail where CI installed the tools (tools/test_tools.sh sets DUALTALKER_REQUIRE_EXPORT_TOOLS)."""
@@ -201,6 +213,25 @@ def test_html_page_inlines_everything(clip, tmp_path):
     assert "../utils/BufferGeometryUtils.js" not in page  # the one relative import is renamed to the map's name
     frame = iframe_html(page)
     assert frame.startswith("<iframe srcdoc=") and "<script" not in frame  # escaped into the attribute
+    assert f'"{SCENE_MODULE}": "data:text/javascript;base64,' in page  # the shared stage, inlined too
+
+
+def test_one_stage_for_the_exported_and_the_live_page():
+    """The three.js stage (renderer, lights, camera, orbit controls, framing) is written once, in
+    export/page/scene.js: the exported viewer inlines it, the live page's import map serves it, and neither page
+    builds a renderer or a light of its own."""
+    from dualtalker_lite.export import html
+    from dualtalker_lite.live.server import PAGE_DIR
+
+    live_page = (PAGE_DIR / "index.html").read_text()
+    assert f'"{SCENE_MODULE}": "/page/scene.js"' in live_page
+    pages = {"export/html.py": html._PAGE, **{name: (PAGE_DIR / name).read_text() for name in ("live.js", "avatar.js")}}
+    for name, source in pages.items():
+        assert f"from '{SCENE_MODULE}'" in source, name
+        for own in ("WebGLRenderer", "HemisphereLight", "DirectionalLight", "OrbitControls"):
+            assert own not in source, (name, own)
+    stage = (page_dir() / "scene.js").read_text()
+    assert all(own in stage for own in ("WebGLRenderer", "HemisphereLight", "DirectionalLight", "OrbitControls"))
 
 
 # ------------------------------------------------------------------------------------------ a real browser

@@ -7,7 +7,7 @@ import torch
 from dualtalker_lite.blocks.hierarchical import (LEVELS, HierarchicalFeatureExtractor, SpeechFormerBlock,
                                                  WeightGenerator, window_radius)
 
-torch.set_num_threads(1)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 def dense_windowed_block(block: SpeechFormerBlock, x, radius, key_mask=None):

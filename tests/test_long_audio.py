@@ -22,12 +22,7 @@ from dualtalker_lite.export.render import MeshRenderer, RasterRenderer
 WHITE = np.array([255, 255, 255])
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 @pytest.fixture(scope="module")

@@ -15,10 +15,11 @@ from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.train import (TrainConfig, load_checkpoint, motion_basis, predict, reuse_freed_memory,
                                    save_checkpoint, train, validation_lve)
 
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
+
 
 @pytest.fixture(scope="module")
 def data():
-    torch.set_num_threads(1)
     corpus = Corpus(sample_path())
     train_set = Subset(TalkingFaceDataset(corpus, "train"), range(16))
     val_set = Subset(TalkingFaceDataset(corpus, "val"), range(4))

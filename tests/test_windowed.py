@@ -12,12 +12,7 @@ from dualtalker_lite.blocks.windowed import (SlidingKVCache, alibi_bias_sum, ali
 from dualtalker_lite.blocks.audio_encoder import AudioFeatureExtractor
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
 
 def _qkv(t, b=2, h=2, d=8, seed=0):

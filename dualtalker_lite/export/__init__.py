@@ -3,7 +3,8 @@
 - :mod:`~dualtalker_lite.export.gltf`: ``write_gltf`` -> ``animation.glb`` (template mesh, PCA morph targets chosen
   by error, one weights animation at the mesh frame rate) + ``animation.wav``; ``read_gltf_animation`` reads it back.
 - :mod:`~dualtalker_lite.export.html`: ``viewer_html`` (the HTML string, for notebooks) and ``write_html`` -> one
-  .html with three.js, the animation and the audio inlined (no network requests).
+  .html with three.js, the animation and the audio inlined (no network requests). Its three.js stage,
+  ``page/scene.js``, is the live page's too (``live/page`` imports it; the live server serves it).
 - :mod:`~dualtalker_lite.export.visemes` (issue 33): ``viseme_curves`` -> the 15 standard viseme weights per frame
   (``viseme_sil`` .. ``viseme_U``), coarticulated as the rig does; ``write_visemes`` -> ``visemes.json`` and
   ``visemes.csv``; ``apply_viseme_weights`` poses any mesh from them.

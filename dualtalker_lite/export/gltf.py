@@ -19,7 +19,7 @@ key's value to its slider range (default [0, 1]; its glTF importer widens it fro
 Unity clamps blend shapes to [0, 100]. So each component k becomes up to two targets, ``+max(c_k) B_k`` driven by
 ``max(c_tk, 0) / max(c_k)`` and ``min(c_k) B_k`` driven by ``min(c_tk, 0) / min(c_k)``: identical at every
 keyframe, weights always in [0, 1], the basis shape is the neutral template. Cost: up to 2K weights per frame
-(the rig's motion: K = 17, 33 targets, 0.24 MB of weights per minute; far below the 5 MB target).
+(what that weighs for the rig's motion: ``docs/exports.md``).
 
 **PCA in bounded memory** (:func:`morph_basis`). The covariance ``D^T D`` is 3V x 3V: 175 MB in float64 for the
 sample's 1,558 vertices but 1.8 GB for VOCASET's 5,023, and the frames' Gram matrix ``D D^T`` is T x T: 93 GB
@@ -34,10 +34,9 @@ for an hour. Neither is formed. The prediction is read from its memory map in bl
 4. selection of K (smallest K whose blocks all meet ``tol``), then 5. the exact check of the written arrays.
 
 Memory: Q and Y (3V x l), M and C (T x l, float32) and a few copies of one block of frames (at most 64 MB
-each): about 200 MB for an hour of the sample's face at l = 64 (``results/exports.md``: 471 MB peak for the
-whole export, 230 MB of it the caller's speech). If K = l is not enough, l doubles (up to min(T, 3V), where
-the basis is exact). The approximation of the randomized sketch can only cost a larger K (a bigger file), never a
-wrong one: the reported error is measured on the written arrays against the raw frames.
+each; an hour's figures in ``docs/exports.md``). If K = l is not enough, l doubles (up to min(T, 3V), where the
+basis is exact). The randomized sketch can only cost a larger K (a bigger file), never a wrong one: the reported
+error is measured on the written arrays against the raw frames.
 """
 from __future__ import annotations
 
@@ -303,58 +302,21 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
     ``extras.audio``; ``tol``: max vertex error in metres (0.1 mm). Each file appears only when complete.
     Returns a :class:`GltfReport` (its ``line()`` is what ``animate`` prints).
     """
-    import pygltflib as g
-
     path = Path(path)
     clip = _as_frames(clip)
     T, N = clip.shape
-    faces = np.asarray(faces)
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-        raise ValueError(f"faces must be (F, 3) triangles, got shape {faces.shape}")
-    if faces.min() < 0 or faces.max() >= N // 3:
-        raise ValueError(f"faces index vertices outside 0..{N // 3 - 1}")
+    faces = _checked_faces(faces, N // 3)
     if template is None:
         template = sum(D.sum(0, dtype=np.float64) for _, D in _offsets(clip, np.float32(0), block)) / T
     base = np.asarray(template, np.float32).reshape(-1)
     if not np.isfinite(base).all():
         raise ValueError("template has non-finite vertices")
     basis, targets, names, weights, max_err, mean_err = _fit_morph_targets(clip, base, tol, block)
-    K = basis.components.shape[0]
-    V, J = N // 3, len(targets)
+    K, J = basis.components.shape[0], len(targets)
 
-    # ---- binary buffer: indices | base | targets | times | weights (each view 4-byte aligned)
-    index_type = np.uint16 if V <= 65535 else np.uint32
-    pieces, views = [], []
-
-    def add_view(data: np.ndarray, target: int | None) -> int:
-        offset = sum(p.nbytes + (-p.nbytes % 4) for p in pieces)  # each view starts 4-byte aligned
-        pieces.append(data)  # written to the file by _write_glb, block by block: never joined in memory
-        views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=data.nbytes, target=target))
-        return len(views) - 1
-
-    accessors = []
-
-    def add_accessor(view, ctype, count, kind, offset=0, lo=None, hi=None) -> int:
-        accessors.append(g.Accessor(bufferView=view, byteOffset=offset, componentType=ctype, count=int(count),
-                                    type=kind, min=lo, max=hi))
-        return len(accessors) - 1
-
-    v_idx = add_view(faces.astype(index_type).reshape(-1), _ELEMENT_ARRAY_BUFFER)
-    a_idx = add_accessor(v_idx, _USHORT if index_type is np.uint16 else _UINT, faces.size, g.SCALAR)
-    vertex_data = np.concatenate([base[None], targets]).astype("<f4")  # (1 + J, 3V)
-    per = vertex_data.reshape(1 + J, V, 3)
-    lo, hi = per.min(1), per.max(1)  # (1 + J, 3): required min/max of POSITION accessors
-    # one buffer view per vertex accessor (views shared by vertex accessors would need a byteStride)
-    a_pos = [add_accessor(add_view(per[j], _ARRAY_BUFFER), _FLOAT, V, g.VEC3, 0, lo[j].tolist(), hi[j].tolist())
-             for j in range(1 + J)]
-    times = (np.arange(T, dtype=np.float64) / fps).astype("<f4")
-    v_time = add_view(times, None)
-    a_time = add_accessor(v_time, _FLOAT, T, g.SCALAR, 0, [float(times[0])], [float(times[-1])])
-    v_w = add_view(_Blocks(T * J * 4, lambda: (weights(a, min(block, T - a)) for a in range(0, T, block))),
-                   None)  # (T, J) float32 weights, computed and written block by block
-    a_w = add_accessor(v_w, _FLOAT, T * J, g.SCALAR)
-    n_bin = sum(p.nbytes + (-p.nbytes % 4) for p in pieces)
-
+    buffer = _BinaryBuffer()
+    a_idx, a_pos = buffer.add_mesh(faces, base, targets)
+    a_time, a_w = buffer.add_weights_animation(T, J, fps, weights, block)
     audio = path.with_suffix(AUDIO_SUFFIX) if wave is not None else None
     extras = {"fps": fps, "frames": T, "morph_max_error_m": max_err, "morph_mean_error_m": mean_err,
               "principal_components": K}
@@ -362,9 +324,76 @@ def write_gltf(path: str | os.PathLike, clip, faces: np.ndarray, template: np.nd
         extras["audio"] = {"uri": audio.name, "mimeType": "audio/wav", "sampleRate": int(sample_rate),
                            "startTime": 0.0, "duration": (len(wave) if hasattr(wave, "blocks") else
                                                          np.asarray(wave).size) / sample_rate}
-    gltf = _document(name, extras, names, a_pos, a_idx, a_time, a_w, accessors, views, n_bin)
-    _write_files(path, gltf, pieces, n_bin, audio, wave, sample_rate)
+    gltf = _document(name, extras, names, a_pos, a_idx, a_time, a_w, buffer.accessors, buffer.views, buffer.nbytes)
+    _write_files(path, gltf, buffer.pieces, buffer.nbytes, audio, wave, sample_rate)
     return GltfReport(path, audio, T, K, J, max_err, mean_err, path.stat().st_size, extras)
+
+
+def _checked_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """``faces`` as an (F, 3) array of indices into ``n_vertices`` vertices, or a ValueError saying what is wrong."""
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ValueError(f"faces must be (F, 3) triangles, got shape {faces.shape}")
+    if faces.min() < 0 or faces.max() >= n_vertices:
+        raise ValueError(f"faces index vertices outside 0..{n_vertices - 1}")
+    return faces
+
+
+class _BinaryBuffer:
+    """The .glb's one binary buffer as it is laid out: indices | base | targets | times | weights.
+
+    Each array becomes a buffer view (``views``), starting 4-byte aligned, typed by an accessor (``accessors``);
+    the arrays themselves (``pieces``) are written to the file by :func:`_write_glb`, block by block, never joined
+    in memory. ``nbytes``: the buffer's length, padding included."""
+
+    def __init__(self):
+        self.pieces, self.views, self.accessors = [], [], []
+
+    @property
+    def nbytes(self) -> int:
+        return sum(p.nbytes + (-p.nbytes % 4) for p in self.pieces)
+
+    def add_view(self, data, target: int | None) -> int:
+        import pygltflib as g
+
+        offset = self.nbytes  # each view starts 4-byte aligned
+        self.pieces.append(data)
+        self.views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=data.nbytes, target=target))
+        return len(self.views) - 1
+
+    def add_accessor(self, view: int, ctype: int, count: int, kind: str, lo=None, hi=None) -> int:
+        import pygltflib as g
+
+        self.accessors.append(g.Accessor(bufferView=view, byteOffset=0, componentType=ctype, count=int(count),
+                                         type=kind, min=lo, max=hi))
+        return len(self.accessors) - 1
+
+    def add_mesh(self, faces: np.ndarray, base: np.ndarray, targets: np.ndarray) -> tuple[int, list[int]]:
+        """The triangles (F, 3) and the positions of the rest shape (3V,) and its J targets (J, 3V) -> (the
+        indices' accessor, [the POSITION accessor of the base, then of each target])."""
+        import pygltflib as g
+
+        V = base.size // 3
+        index_type = np.uint16 if V <= 65535 else np.uint32
+        v_idx = self.add_view(faces.astype(index_type).reshape(-1), _ELEMENT_ARRAY_BUFFER)
+        a_idx = self.add_accessor(v_idx, _USHORT if index_type is np.uint16 else _UINT, faces.size, g.SCALAR)
+        per = np.concatenate([base[None], targets]).astype("<f4").reshape(1 + len(targets), V, 3)
+        lo, hi = per.min(1), per.max(1)  # (1 + J, 3): required min/max of POSITION accessors
+        # one buffer view per vertex accessor (views shared by vertex accessors would need a byteStride)
+        return a_idx, [self.add_accessor(self.add_view(p, _ARRAY_BUFFER), _FLOAT, V, g.VEC3, lo[j].tolist(),
+                                         hi[j].tolist()) for j, p in enumerate(per)]
+
+    def add_weights_animation(self, T: int, J: int, fps: float, weights, block: int) -> tuple[int, int]:
+        """Key times (T,) at ``fps`` from 0 and the (T, J) float32 weights, computed and written block by block by
+        ``weights(first, n)`` -> (the times' accessor, the weights' accessor)."""
+        import pygltflib as g
+
+        times = (np.arange(T, dtype=np.float64) / fps).astype("<f4")
+        a_time = self.add_accessor(self.add_view(times, None), _FLOAT, T, g.SCALAR,
+                                   [float(times[0])], [float(times[-1])])
+        v_w = self.add_view(_Blocks(T * J * 4, lambda: (weights(a, min(block, T - a)) for a in range(0, T, block))),
+                            None)
+        return a_time, self.add_accessor(v_w, _FLOAT, T * J, g.SCALAR)
 
 
 def _fit_morph_targets(clip: np.ndarray, base: np.ndarray, tol: float, block: int):

@@ -11,6 +11,8 @@ The page holds everything it needs, so it can be mailed to anyone and opened in 
   the last release whose minified module is one file; later ones import ``three.core.js`` relatively, which a
   ``data:`` URL cannot resolve. The only edit is GLTFLoader's relative import of BufferGeometryUtils, renamed
   to the import map's ``three/addons/...`` name when the page is built (the files on disk are untouched).
+- **the stage** (``page/scene.js``: renderer, lit scene, orbited camera, framing, resizing), the module the live
+  page draws with too, inlined the same way as ``dualtalker-lite/scene.js``.
 - **the .glb of** :func:`~dualtalker_lite.export.gltf.write_gltf` (base64), loaded by three.js's own GLTFLoader:
   the page plays exactly the file that Blender or an engine would import (morph targets + weights animation).
 - **the audio** as a base64 16-bit WAV (lossless, decoded alike by every browser, no encoder delay to shift the
@@ -43,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["THREE_VERSION", "vendor_dir", "viewer_html", "iframe_html", "write_html"]
+__all__ = ["THREE_VERSION", "SCENE_MODULE", "vendor_dir", "page_dir", "viewer_html", "iframe_html", "write_html"]
 
 THREE_VERSION = "0.170.0"
 _MODULES = {  # import-map name -> vendored file
@@ -53,6 +55,7 @@ _MODULES = {  # import-map name -> vendored file
     "three/addons/utils/BufferGeometryUtils.js": "BufferGeometryUtils.js",
 }
 _RELATIVE_IMPORT = ("'../utils/BufferGeometryUtils.js'", "'three/addons/utils/BufferGeometryUtils.js'")
+SCENE_MODULE = "dualtalker-lite/scene.js"  # import-map name of page/scene.js, the stage shared with the live page
 
 
 def vendor_dir() -> Path:
@@ -60,9 +63,16 @@ def vendor_dir() -> Path:
     return Path(__file__).with_name("vendor") / "three"
 
 
+def page_dir() -> Path:
+    """The folder of the project's own page scripts: ``scene.js``, the three.js stage (renderer, lit scene, orbited
+    camera, framing, resizing) that this viewer and the live page (``live/page``) share."""
+    return Path(__file__).with_name("page")
+
+
 @lru_cache(maxsize=1)
 def _import_map() -> str:
-    """The import map's JSON: every vendored module as a base64 ``data:`` URL (about 1.2 MB)."""
+    """The import map's JSON: every vendored module, and :data:`SCENE_MODULE`, as a base64 ``data:`` URL (about
+    1.2 MB)."""
     imports = {}
     for name, file in _MODULES.items():
         path = vendor_dir() / file
@@ -74,6 +84,8 @@ def _import_map() -> str:
                 raise ValueError(f"{path}: expected one import of {_RELATIVE_IMPORT[0]} (another three.js version?)")
             src = src.replace(*_RELATIVE_IMPORT)
         imports[name] = "data:text/javascript;base64," + base64.b64encode(src.encode()).decode()
+    scene = (page_dir() / "scene.js").read_text(encoding="utf-8")
+    imports[SCENE_MODULE] = "data:text/javascript;base64," + base64.b64encode(scene.encode()).decode()
     return json.dumps({"imports": imports})
 
 
@@ -118,7 +130,7 @@ _PAGE = """<!doctype html>
 <script type="module">
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
-import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { fitToView, frameBox, makeStage } from 'dualtalker-lite/scene.js';
 
 const GLB = "%(glb)s";
 const root = document.getElementById("%(id)s");
@@ -129,18 +141,7 @@ const state = { ready: false, error: null, audio };
 (window.dtlViewers = window.dtlViewers || {})["%(id)s"] = state;
 
 try {
-  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-  renderer.setPixelRatio(window.devicePixelRatio);
-  view.appendChild(renderer.domElement);
-  const scene = new THREE.Scene();
-  scene.background = new THREE.Color(0x202124);
-  scene.add(new THREE.HemisphereLight(0xffffff, 0x303030, 1.2));
-  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
-  sun.position.set(0.5, 1, 1.5);
-  scene.add(sun);
-  const camera = new THREE.PerspectiveCamera(30, 1, 0.001, 100);
-  const controls = new OrbitControls(camera, renderer.domElement);
-
+  const { renderer, scene, camera, controls } = makeStage(view);
   const bytes = await (await fetch("data:model/gltf-binary;base64," + GLB)).arrayBuffer();
   const gltf = await new GLTFLoader().parseAsync(bytes, "");
   scene.add(gltf.scene);
@@ -148,11 +149,7 @@ try {
   gltf.scene.traverse((o) => { if (o.isMesh && o.morphTargetInfluences) mesh = o; });
   // the .glb has no normals (GLTFLoader then shades flat): smooth ones from the rest shape look like skin
   mesh.geometry.computeVertexNormals(); mesh.material.flatShading = false; mesh.material.needsUpdate = true;
-  const box = new THREE.Box3().setFromObject(gltf.scene);
-  const center = box.getCenter(new THREE.Vector3()), size = box.getSize(new THREE.Vector3()).length();
-  camera.position.copy(center).add(new THREE.Vector3(0, 0, 1.5 * size));
-  camera.near = size / 100; camera.far = size * 100; camera.updateProjectionMatrix();
-  controls.target.copy(center); controls.update();
+  frameBox(camera, controls, new THREE.Box3().setFromObject(gltf.scene));
 
   const mixer = new THREE.AnimationMixer(gltf.scene);
   const clip = gltf.animations[0];
@@ -178,12 +175,7 @@ try {
   };
   scrub.onchange = () => { scrubbing = false; };
 
-  const resize = () => {
-    const w = view.clientWidth, h = Math.max(view.clientHeight, 200);
-    renderer.setSize(w, h, false); camera.aspect = w / h; camera.updateProjectionMatrix();
-  };
-  new ResizeObserver(resize).observe(view);
-  resize();
+  fitToView(view, renderer, camera);
   renderer.setAnimationLoop(() => { if (!audio.paused) sync(); controls.update(); renderer.render(scene, camera); });
   Object.assign(state, { ready: true, mesh, mixer, action, seek, clip, renderer, extras: gltf.scene.userData });
   msg.textContent = %(caption)s;

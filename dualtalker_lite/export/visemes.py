@@ -1,22 +1,17 @@
 """Standard viseme curves for any avatar (issue 33): the 15 Oculus visemes' weights per frame, as JSON and CSV.
 
-Ready Player Me avatars, and other avatars and lip-sync components made for Oculus/Meta Lipsync's viseme set,
-carry 15 blendshapes named ``viseme_sil viseme_PP viseme_FF viseme_TH
-viseme_DD viseme_kk viseme_CH viseme_SS viseme_nn viseme_RR viseme_aa viseme_E viseme_I viseme_O viseme_U``
-(:data:`NAMES`, in that order). ``animate --format visemes`` writes one weight in [0, 1] per name and mesh frame:
-
-* ``visemes.csv``: a header ``time,viseme_sil,...,viseme_U`` and one row per frame ``f``: ``f / fps`` seconds
-  (6 decimals) and the 15 weights (4 decimals);
-* ``visemes.json``: the same numbers by name (``"weights": {"viseme_PP": [...], ...}``, ``"times"``), plus ``fps``,
-  the viseme segments the curves were made from (``"segments"``: ``[name, start_s, end_s]``) and where they came
-  from (``"source"``).
+Ready Player Me avatars, and other avatars and lip-sync components made for Oculus/Meta Lipsync's viseme set, carry
+15 blendshapes named as :data:`NAMES` (``viseme_sil``, ``viseme_PP``, ... ``viseme_U``, in that order).
+``animate --format visemes`` writes one weight in [0, 1] per name and mesh frame: ``visemes.csv`` (a header
+``time,viseme_sil,...,viseme_U``, then per frame ``f``: ``f / fps`` s and the 15 weights) and ``visemes.json`` (the
+same by name, plus ``fps``, the ``segments`` ``[name, start_s, end_s]`` they came from and their ``source``).
 
 **Where the timing comes from** (:func:`recognised_segments`): the phoneme recogniser's viseme track of the
-recording (:mod:`dualtalker_lite.recogniser`, the "phonetic route"), not the model's output, so the curves are
-the same whatever checkpoint animates the mesh, and need no model at all (:func:`viseme_curves` of a wave or a
-file). Each mesh frame takes the class of the nearest recognised phone (:func:`~dualtalker_lite.recogniser.spike_track`),
-and each run of frames of one class becomes a segment ``(class, (a - 1/2) / fps, (b - 1/2) / fps)`` for frames
-``a .. b-1``. Aligned phones (espeak mnemonics, e.g. a corpus's metadata) give segments too: :func:`phoneme_segments`.
+recording (:mod:`dualtalker_lite.recogniser`, the "phonetic route"), not the model's output: the curves are the
+same whatever checkpoint animates the mesh, and need no model (:func:`viseme_curves` of a wave or a file). Each
+mesh frame takes the class of the nearest recognised phone (:func:`~dualtalker_lite.recogniser.spike_track`), each
+run of frames ``a .. b-1`` of one class becomes a segment ``(class, (a - 1/2) / fps, (b - 1/2) / fps)``. Aligned
+phones (espeak mnemonics, e.g. a corpus's metadata) give segments too: :func:`phoneme_segments`.
 
 **Coarticulated as the rig does** (:func:`viseme_weights`). The rig blends viseme targets with Cohen-Massaro
 dominance (``face/visemes.py``): ``F_k(t) = sum_s D_sk(t) T_sk / (eps + sum_s D_sk(t))``. The weight of a class
@@ -24,27 +19,21 @@ dominance (``face/visemes.py``): ``F_k(t) = sum_s D_sk(t) T_sk / (eps + sum_s D_
 
     w_c(t) = sum_{s of class c} D_s(t) / (eps + sum_s D_s(t)),     plus eps / (eps + sum_s D_s(t)) for sil,
 
-(the weak rest target of ``eps`` has sil's target, the neutral face, so it joins sil). Hence every row sums to 1,
-every weight is in [0, 1], weights ramp in before a phone (anticipation, ``theta_back``) and out after it
-(carry-over, ``theta_fwd``) instead of switching, and the rig's own control track is exactly
-``F_k(t) = sum_c w_c(t) T_ck`` (tests check it to 1e-5, float32 rounding). ``D_sk`` has one magnitude for the lip controls and
-another for ``jaw_open``; ``channel="lips"`` (the default: visemes are mouth shapes, and bilabial closure is the
-lips') uses the lips', ``channel="jaw"`` the jaw's.
+(the weak rest target ``eps`` has sil's target, the neutral face). So rows sum to 1, weights lie in [0, 1] and ramp
+in before a phone (anticipation, ``theta_back``) and out after it (carry-over, ``theta_fwd``) instead of switching,
+and the rig's own control track is exactly ``F_k(t) = sum_c w_c(t) T_ck``. ``channel="lips"`` (the default:
+visemes are mouth shapes) uses the lip controls' dominance magnitude, ``channel="jaw"`` that of ``jaw_open``.
 
-**The project's classes and the Oculus names** (:data:`COLUMN`; table in ``docs/exports.md``). Thirteen map one to
-one. Two differ: the project has ``WW`` (/w/, rounded), which the Oculus set lacks: it goes to ``viseme_U`` (/w/ is
-a short /u/); the Oculus set has ``viseme_nn`` (/n l/), which the project folds into ``DD`` (the lips look alike for
-/t d n l/, so the rig gives them one shape): the recogniser's symbol tells them apart, so /n l/ become the class
-``nn`` with ``DD``'s shape and dominance, and go to ``viseme_nn``. :data:`CLASSES` is the project's 15 plus ``nn``.
+**The project's classes and the Oculus names** (:data:`COLUMN`; both files and this table in ``docs/exports.md``).
+Thirteen map one to one. The project's ``WW`` (/w/), which the Oculus set lacks, goes to ``viseme_U`` (/w/ is a
+short /u/); the Oculus ``viseme_nn`` (/n l/) is folded into the project's ``DD`` by the rig (the lips look alike for
+/t d n l/), but the recogniser's symbol tells them apart: /n l/ become the class ``nn``, with ``DD``'s shape and
+dominance, and go to ``viseme_nn``. :data:`CLASSES` is the project's 15 plus ``nn``.
 
-**Driving another head.** :func:`apply_viseme_weights` poses any mesh from the curves and one offset shape per
-viseme (``base + sum_c w_c offsets_c``, the linear blendshape model every engine uses);
-:func:`rig_viseme_offsets` gives the rig's own 15 shapes, and :func:`retarget_offsets` carries them onto a
-differently shaped head through a deformation of space (``tests/test_viseme_export.py`` drives such a head: its lips
-part 13-14 mm on the vowels and come back to 1-2 mm, as at rest, at /p b m/). A linear blend is not the rig's
-nonlinear jaw arc and lip closure: on the rig's own head it stays within 4 mm of the rig's animation, and a fast /p/
-between open vowels keeps the lips 1-2 mm apart where the rig presses them shut (the /p/ holds about 80 % of the
-weight there, the vowels the rest). Any blendshape avatar driven by these curves behaves the same way.
+**Driving another head.** :func:`apply_viseme_weights` poses any mesh, ``base + sum_c w_c offsets_c`` (the linear
+blendshape model every engine uses), from the rig's own 15 shapes (:func:`rig_viseme_offsets`) or those carried onto
+another head by a deformation of space (:func:`retarget_offsets`). A linear blend is not the rig's jaw arc and lip
+closure: how far it strays is measured in ``docs/exports.md``.
 
 Exercises: (1) plot ``viseme_PP`` and ``viseme_aa`` of a clip against its phones; (2) compare ``channel="jaw"``;
 (3) drive your avatar's blendshapes from ``visemes.json`` in three.js (``mesh.morphTargetDictionary``).

@@ -49,7 +49,7 @@ import numpy as np
 
 from .. import front_ends
 from ..checkpoints import load_checkpoint
-from ..export.html import vendor_dir
+from ..export.html import page_dir, vendor_dir
 from ..export.visemes import NAMES, rig_viseme_targets
 from ..inference import resolve_face
 from .stream import SAMPLE_RATE, IncrementalDecoder, LiveSession, LiveSettings
@@ -62,7 +62,8 @@ PAGE_DIR = Path(__file__).with_name("page")
 HEADER = struct.Struct("<III")          # first frame, frame count, samples received
 _VENDOR = ("three.module.min.js", "OrbitControls.js", "LICENSE")  # what the page imports of export/vendor/three
 MAX_BATCH_S = 5.0                       # at most this much backlog per push (hama reads at most 30 s per call)
-_PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript", "avatar.js": "text/javascript"}
+_PAGES = {"live.js": "text/javascript", "worklet.js": "text/javascript", "avatar.js": "text/javascript",
+          "scene.js": "text/javascript"}     # scene.js: the exported viewer's stage (export/page), shared
 AVATAR_CONTROLS = ("jaw_open", "lip_press", "lip_pucker", "lip_stretch", "smile_left", "smile_right",
                    "upper_lip_raise", "lower_lip_depress")          # the mouth controls the stylised head reads
 GOING_AWAY, UNSUPPORTED_DATA, POLICY_VIOLATION, INTERNAL_ERROR = 1001, 1003, 1008, 1011  # close codes, RFC 6455
@@ -139,12 +140,13 @@ def _mesh_doc(config: LiveConfig) -> str:
 
 def _static_file(path: str) -> tuple[Path, str] | None:
     """A URL path -> (the file, its content type) when it is one the page needs, else None: ``/`` the page,
-    ``/page/<name>`` its scripts (:data:`_PAGES`), ``/vendor/three/<name>`` three.js (:data:`_VENDOR`)."""
+    ``/page/<name>`` its scripts (:data:`_PAGES`; ``scene.js``, the stage it shares with the exported
+    viewer, from export/page), ``/vendor/three/<name>`` three.js (:data:`_VENDOR`)."""
     folder, _, name = path.rpartition("/")
     if path == "/":
         return PAGE_DIR / "index.html", "text/html"
     if folder == "/page" and name in _PAGES:
-        return PAGE_DIR / name, _PAGES[name]
+        return (page_dir() if name == "scene.js" else PAGE_DIR) / name, _PAGES[name]
     if folder == "/vendor/three" and name in _VENDOR:
         return vendor_dir() / name, "text/plain" if name == "LICENSE" else "text/javascript"
     return None

@@ -5,6 +5,7 @@
 // this head's shapes by mouthShape below (the mapping is documented in docs/live.md). Nothing is loaded: no mesh
 // file, no texture, no network.
 import * as THREE from 'three';
+import { litScene } from 'dualtalker-lite/scene.js';
 
 // rig mouth controls {jaw_open, lip_press, ...} -> this head's mouth (head radius = 1):
 //   gap:     lips apart         0.02 + 0.5 x clamp(jaw_open + 0.3 lower_lip_depress + 0.2 upper_lip_raise
@@ -41,12 +42,8 @@ export function controlsOf(weights, spec) {
 }
 
 export function makeAvatar(spec) {
-  const scene = new THREE.Scene();
-  scene.background = new THREE.Color(0x2a2d31);
-  scene.add(new THREE.HemisphereLight(0xffffff, 0x404040, 1.3));
-  const sun = new THREE.DirectionalLight(0xffffff, 1.5);
-  sun.position.set(0.6, 1, 2);
-  scene.add(sun);
+  // lit as the mesh is (export/page/scene.js's litScene), with values of its own: a lighter background and ground
+  const scene = litScene({ background: 0x2a2d31, ground: 0x404040, sky: 1.3, sun: 1.5, sunAt: [0.6, 1, 2] });
   const mat = (color, rough = 0.6) => new THREE.MeshStandardMaterial({ color, roughness: rough });
   const ball = (r, material, x, y, z, sx = 1, sy = 1, sz = 1) => {
     const m = new THREE.Mesh(new THREE.SphereGeometry(r, 40, 24), material);

@@ -6,8 +6,9 @@
 // shownLatencyMs ([frame, ms] per frame drawn while running: from its newest sample's capture to its draw, the
 // page's whole latency but the screen's last refresh; benchmarks/live.py figures page reads it)}.
 // Left: the project's mesh (the model's vertices); right: a stylised head driven by the viseme curves (avatar.js).
+// The stage (renderer, lights, camera, orbit controls, framing) is the exported viewer's: export/page/scene.js.
 import * as THREE from 'three';
-import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { fitToView, frameBox, makeStage } from 'dualtalker-lite/scene.js';
 import { controlsOf, makeAvatar, mouthShape } from './avatar.js';
 
 const root = document.getElementById('live');
@@ -23,15 +24,7 @@ const say = (text) => { statusEl.textContent = text; state.status = text; };
 try {
   const info = await (await fetch('/mesh')).json();
   const fps = info.fps, rate = info.sample_rate;
-  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-  renderer.setPixelRatio(window.devicePixelRatio);
-  view.appendChild(renderer.domElement);
-  const scene = new THREE.Scene();
-  scene.background = new THREE.Color(0x202124);
-  scene.add(new THREE.HemisphereLight(0xffffff, 0x303030, 1.2));
-  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
-  sun.position.set(0.5, 1, 1.5);
-  scene.add(sun);
+  const { renderer, scene, camera, controls } = makeStage(view);
   const geometry = new THREE.BufferGeometry();
   const rest = new Float32Array(info.template);
   const position = new THREE.BufferAttribute(rest.slice(), 3);
@@ -41,14 +34,8 @@ try {
   geometry.computeVertexNormals();
   const mesh = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: 0xd9a88f, roughness: 0.7 }));
   scene.add(mesh);
-  const camera = new THREE.PerspectiveCamera(30, 1, 0.001, 100);
-  const controls = new OrbitControls(camera, renderer.domElement);
   geometry.computeBoundingBox();
-  const box = geometry.boundingBox, center = box.getCenter(new THREE.Vector3());
-  const size = box.getSize(new THREE.Vector3()).length();
-  camera.position.copy(center).add(new THREE.Vector3(0, 0, 1.5 * size));
-  camera.near = size / 100; camera.far = size * 100; camera.updateProjectionMatrix();
-  controls.target.copy(center); controls.update();
+  frameBox(camera, controls, geometry.boundingBox);
   // the second head, in the right 40 % of the canvas (its own scene and camera; the orbit controls move the mesh's)
   const avatar = info.avatar ? makeAvatar(info.avatar) : null;
   const split = avatar ? 0.6 : 1;
@@ -58,13 +45,7 @@ try {
     label.textContent = 'viseme curves (viseme_sil … viseme_U) on a stylised head';
     view.appendChild(label);
   }
-  const resize = () => {
-    const w = view.clientWidth, h = Math.max(view.clientHeight, 200);
-    renderer.setSize(w, h, false); camera.aspect = split * w / h; camera.updateProjectionMatrix();
-    if (avatar) avatar.fit((1 - split) * w / h);
-  };
-  new ResizeObserver(resize).observe(view);
-  resize();
+  fitToView(view, renderer, camera, split, (w, h) => { if (avatar) avatar.fit((1 - split) * w / h); });
 
   // ---- frames in, played in time: frame f is shown when the capture clock reaches f / fps + the latency
   const pending = new Map();              // frame index -> Float32Array (V*3)
