@@ -2,12 +2,13 @@
 
     dualtalker-lite live --checkpoint runs/m.pt            # then open http://127.0.0.1:8765/ and press Start
 
-The page (``page/``: ``index.html``, ``live.js``, ``worklet.js``, ``avatar.js``, and the exported viewer's
-stage ``export/page/scene.js``; three.js is the package's vendored ``export/vendor/three``, served here, nothing is
-fetched from elsewhere) sends the microphone, or a file played through the same path, as 16 kHz mono int16 PCM
-in 100 ms messages, and draws the frames that come back on the speaker's template mesh. This module (aiohttp) serves the page and runs each WebSocket as a :class:`LiveConnection`
-(its state machine is in its docstring): a :class:`~dualtalker_lite.live.stream.LiveSession` (causal viseme track +
-the model's KV-cache step) in a worker thread, fed at once all the audio that arrived while it computed.
+The page (``page/``: ``index.html``, ``live.js``, ``worklet.js``, ``avatar.js``, and the exported viewer's stage
+``export/page/scene.js``; three.js is the package's vendored ``export/vendor/three``, served here, nothing is fetched
+from elsewhere) sends the microphone, or a file played through the same path, as 16 kHz mono int16 PCM in 100 ms
+messages, and draws the frames that come back on the speaker's template mesh. This module (aiohttp) serves the page
+and runs each WebSocket as a :class:`LiveConnection` (its state machine is in its docstring): a
+:class:`~dualtalker_lite.live.stream.LiveSession` (causal viseme track + the model's KV-cache step) in a worker
+thread, fed at once all the audio that arrived while it computed.
 
 The protocol (``/ws``):
 
