@@ -17,7 +17,7 @@ from typing import Any, Iterator, Protocol, runtime_checkable
 
 import torch
 
-__all__ = ["TalkingFaceModel", "Stepper", "HOOKS", "hook", "missing"]
+__all__ = ["TalkingFaceModel", "Stepper", "HOOKS", "hook", "conditions", "missing"]
 
 
 @runtime_checkable
@@ -32,7 +32,7 @@ class TalkingFaceModel(Protocol):
                           autoregressive prediction of absolute vertices -> (B, T, V*3)
     ``generate_chunks(audio, template, speaker, mask=None, chunk=900, **conditions)``
                           the same, yielded in consecutive (B, <= chunk, V*3) blocks with memory O(chunk)
-                          (streaming and ``animate``); ``conditions`` are those named by ``generation_conditions``
+                          (streaming and ``animate``); ``conditions`` are those named by :func:`conditions`
     """
 
     loss_weights_cls: type
@@ -77,6 +77,9 @@ HOOKS: dict[str, tuple[Any, str]] = {
                   "let streaming and checkpoints check a template's vertex count and a speaker index"),
     "generation_conditions": ((), "names of extra batch keys that generate/generate_chunks take as keyword "
                                   "conditions (EmoFace: ('level',)); train.predict passes those the batch has"),
+    "chosen_conditions": ((), "names of further keyword conditions of generate/generate_chunks that only a user "
+                              "chooses (animate --emotion), never the batch: train.predict leaves them to the model "
+                              "(EmoFace: ('emotion',), recognised from the speech when not given)"),
     "init_output_bias": (None, "init_output_bias(mean_motion (V*3,)): start the output head at the training set's "
                                "mean motion (TrainConfig.mean_init)"),
     "init_output_basis": (None, "init_output_basis(basis (k, V*3)): PCA-initialised output head "
@@ -106,6 +109,12 @@ def hook(model: Any, name: str) -> Any:
     default = HOOKS[name][0]
     value = getattr(model, name, default)
     return default if value is None else value
+
+
+def conditions(model: Any) -> tuple[str, ...]:
+    """Every keyword condition ``generate``/``generate_chunks`` of ``model`` take: its ``generation_conditions``
+    then its ``chosen_conditions`` (EmoFace: ``("level", "emotion")``; ``()`` for a model without any)."""
+    return tuple(hook(model, "generation_conditions")) + tuple(hook(model, "chosen_conditions"))
 
 
 def missing(model: Any) -> list[str]:
