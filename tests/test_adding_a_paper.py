@@ -8,6 +8,7 @@
 
 and it trains (``train --model toy``), is saved and loaded, animates (``inference.animate_wave``) and runs on the
 live path (``live.stream.IncrementalDecoder``, through its stepper) -- with no edit to the package or another test.
+Without a stepper the live path refuses it in one line.
 """
 import os
 import subprocess
@@ -97,3 +98,16 @@ def test_it_trains_saves_loads_animates_and_runs_live(toy, tmp_path):
     parts = [dec.push(feats[i:i + 7]) for i in range(0, 30, 7)]
     assert [len(p) for p in parts] == [7, 7, 7, 7, 2] and len(dec.flush()) == 0
     np.testing.assert_allclose(np.concatenate(parts), offline, rtol=1e-5, atol=1e-5)  # float rounding only
+
+
+def test_without_a_stepper_the_live_path_refuses_in_one_line(toy):
+    from dualtalker_lite.live.stream import IncrementalDecoder
+
+    class NoStepper(toy.ToyLinear):
+        stepper = None  # what a model without the hook reads as (contract.hook's default)
+
+    model = NoStepper(toy.ToyConfig(n_vertices=4, audio_dim=3))
+    assert isinstance(model, contract.TalkingFaceModel) and contract.hook(model, "stepper") is None
+    with pytest.raises(ValueError, match=r"^live decoding needs a model that steps one frame at a time \(the "
+                                         r"contract's stepper hook.*not NoStepper$"):
+        IncrementalDecoder(model, np.zeros(12, np.float32))
