@@ -386,14 +386,14 @@ def _frame_progress(blocks, n_frames: int, chunk: int, mode: str):
 
 
 def _conditions_used(model: torch.nn.Module, asked: str | None, conditions: dict, corpus: Corpus | None) -> str:
-    """For an emotion-aware model (one whose ``generate_chunks`` takes ``emotion``, e.g. EmoFace), what the final
-    line says it used: ``", emotion happy, level 2"`` (an index given as ``--emotion 2`` is named from ``corpus``
-    when there is one: ``", emotion sad (index 2), level 1"``), or ``", emotion recognised from the speech, level
-    1"`` when no ``--emotion`` was given (the classifier's probabilities weight the emotions); ``""`` for other
-    models."""
-    import inspect
+    """For an emotion-aware model (one that names an ``emotion`` condition, ``models.contract.conditions``, e.g.
+    EmoFace), what the final line says it used: ``", emotion happy, level 2"`` (an index given as ``--emotion 2`` is
+    named from ``corpus`` when there is one: ``", emotion sad (index 2), level 1"``), or ``", emotion recognised from
+    the speech, level 1"`` when no ``--emotion`` was given (the classifier's probabilities weight the emotions); ``""``
+    for other models."""
+    from .models.contract import conditions as model_conditions
 
-    if "emotion" not in inspect.signature(model.generate_chunks).parameters:
+    if "emotion" not in model_conditions(model):
         return ""
     level = 1 if conditions.get("level") is None else conditions["level"]  # the models' default (EmoFace: normal)
     index = conditions.get("emotion")

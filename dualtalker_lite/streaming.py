@@ -19,12 +19,16 @@ removed on failure, Ctrl-C and SIGTERM, and a non-finite frame stops the run wit
 from __future__ import annotations
 
 import os
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .audio import AudioStream, LogMelExtractor, validate_wave
+from .checks import NonFiniteError, check_finite, resolve_device
 from .files import sigterm_as_exit  # noqa: F401 - its home is files (the mp4 writer in export/ uses it too)
+from .models.contract import conditions as model_conditions, hook
 
 __all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "SpooledFeatures", "predict_chunks",
            "animate_wave_to_npy", "fixed_mmap_threshold"]
@@ -168,7 +172,8 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     (n, V*3) numpy blocks of at most ``chunk`` frames, T = N fps / sample_rate frames in all.
 
     ``conditions``: extra keyword arguments of the model's ``generate_chunks`` (EmoFace: ``emotion``, ``level``);
-    None values are dropped, and a condition the model does not take is refused with one line.
+    None values are dropped, and a condition the model does not name (``models.contract.conditions``) is refused
+    with one line.
 
     The one code path of every inference entry point (``inference.animate_wave`` joins the blocks,
     :func:`animate_wave_to_npy` and the ``animate`` command stream them to disk). All input checks run here,
@@ -182,32 +187,49 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     ``device="cuda"`` runs on the GPU, ``amp=True`` adds float16 autocast there. A block with a NaN/inf raises
     :class:`~dualtalker_lite.checks.NonFiniteError` naming its first bad frame.
     """
-    from contextlib import nullcontext
+    streamed = _check_wave(wave, sample_rate)
+    conditions = _check_conditions(model, conditions)
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk must be a positive number of frames, got {chunk!r}")
+    front_end = front_end or LogMelExtractor()  # a front end of front_ends.FRONT_ENDS (default: log-mel)
+    template = _check_template(model, template, speaker)  # (V*3,)
+    if device is not None:
+        dev = resolve_device(device, option="device")
+    else:
+        dev = next(model.parameters(), torch.empty(0)).device
+    n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
+    audio = _features(front_end, wave, streamed, n_frames, dev)  # (1, T, D_a)
+    model.eval().to(dev)
+    return n_frames, _predicted_blocks(model, audio, template, speaker, dev, chunk, amp, conditions)
 
-    from .audio import AudioStream, LogMelExtractor, validate_wave
-    from .checks import check_finite, NonFiniteError, resolve_device
 
-    streamed = isinstance(wave, AudioStream)  # a file read block by block (checked when it was opened)
+def _check_wave(wave, sample_rate: int) -> bool:
+    """Refuse a bad wave (or an :class:`~dualtalker_lite.audio.AudioStream` read at another rate) with one line
+    -> whether it is such a stream (a file read block by block, checked when it was opened)."""
+    streamed = isinstance(wave, AudioStream)
     if streamed and wave.sample_rate != sample_rate:
         raise ValueError(f"{wave.path}: read at {wave.sample_rate} Hz, but sample_rate is {sample_rate}")
     if not streamed:
         validate_wave(wave, sample_rate)
-    conditions = {k: v for k, v in (conditions or {}).items() if v is not None}
-    if conditions:
-        import inspect
+    return streamed
 
-        accepted = inspect.signature(model.generate_chunks).parameters
-        refused = sorted(k for k in conditions if k not in accepted)
-        if refused:
-            raise ValueError(f"this {type(model).__name__} model takes no {'/'.join(refused)} condition "
-                             f"(only emotion-aware models such as EmoFace do)")
-    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
-        raise ValueError(f"chunk must be a positive number of frames, got {chunk!r}")
-    front_end = front_end or LogMelExtractor()  # a front end of front_ends.FRONT_ENDS (default: log-mel)
+
+def _check_conditions(model: torch.nn.Module, conditions: dict | None) -> dict:
+    """The given conditions without None values; one line for any the model does not name
+    (``models.contract.conditions``: its ``generation_conditions`` and ``chosen_conditions``)."""
+    conditions = {k: v for k, v in (conditions or {}).items() if v is not None}
+    refused = sorted(k for k in conditions if k not in model_conditions(model))
+    if refused:
+        raise ValueError(f"this {type(model).__name__} model takes no {'/'.join(refused)} condition "
+                         f"(only emotion-aware models such as EmoFace do)")
+    return conditions
+
+
+def _check_template(model: torch.nn.Module, template: np.ndarray, speaker: int) -> np.ndarray:
+    """The template as float32 (V*3,), refused with one line when non-finite, of another vertex count than the
+    model's or when ``speaker`` is outside its style table (the ``cfg`` hook's ``n_vertices``, ``n_speakers``)."""
     template = np.asarray(template, dtype=np.float32).reshape(-1)  # (V*3,)
     check_finite(template, "template")
-    from .models.contract import hook
-
     cfg = hook(model, "cfg")
     n_vertices = getattr(cfg, "n_vertices", None)
     if n_vertices is not None and template.size != 3 * n_vertices:
@@ -215,43 +237,45 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     n_speakers = getattr(cfg, "n_speakers", None)
     if n_speakers is not None and not 0 <= speaker < n_speakers:
         raise ValueError(f"speaker index {speaker} is outside the model's {n_speakers} style embeddings")
-    if device is not None:
-        dev = resolve_device(device, option="device")
-    else:
-        dev = next(model.parameters(), torch.empty(0)).device
-    n_frames = max(1, int(round(len(wave) * fps / sample_rate)))
+    return template
+
+
+def _features(front_end, wave, streamed: bool, n_frames: int, dev: torch.device):
+    """The front end's features A (1, T, D_a) of the wave: a :class:`SpooledFeatures` file for a streamed wave
+    and log-mel on the CPU, the recogniser's stream for a streamed wave, else the front end on the whole wave."""
     with torch.no_grad():
         if streamed and hasattr(front_end, "stream_rows") and dev.type == "cpu":  # log-mel: not even A whole
-            audio = SpooledFeatures.write(front_end.stream_rows(wave.blocks, len(wave), n_frames), n_frames,
-                                          front_end.dim)  # (1, T, D_a) on disk, read window by window
-        elif streamed and hasattr(front_end, "stream"):  # the recogniser: never the whole wave in memory
+            return SpooledFeatures.write(front_end.stream_rows(wave.blocks, len(wave), n_frames), n_frames,
+                                         front_end.dim)  # (1, T, D_a) on disk, read window by window
+        if streamed and hasattr(front_end, "stream"):  # the recogniser: never the whole wave in memory
             # the callable, not an iterator: the recogniser reads the file more than once (cache key, then hama)
-            audio = front_end.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)
-        else:  # front-ends without a stream method (wav2vec 2.0) take the whole wave
-            audio = front_end(wave.read() if streamed else wave, n_frames)[None]
-    model.eval().to(dev)
+            return front_end.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)
+        # front-ends without a stream method (wav2vec 2.0) take the whole wave
+        return front_end(wave.read() if streamed else wave, n_frames)[None]
 
-    def blocks():
-        gen = model.generate_chunks(audio.to(dev), torch.from_numpy(template)[None].to(dev),
-                                    torch.tensor([int(speaker)], device=dev), chunk=chunk, **conditions)
-        done = 0
-        while True:
-            # no_grad/autocast around each step only: they must not leak into the caller between blocks
-            autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
-            with torch.no_grad(), autocast:
-                block = next(gen, None)
-                if block is None:
-                    return
-                block = block[0].float().cpu().numpy()  # (n, V*3)
-            bad = ~np.isfinite(block).all(1)  # (n,)
-            if bad.any():
-                raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
-                                     f"{done + int(np.flatnonzero(bad)[0])}): the checkpoint's weights or "
-                                     f"the input produce NaN; nothing was written")
-            done += len(block)
-            yield block
 
-    return n_frames, blocks()
+def _predicted_blocks(model: torch.nn.Module, audio, template: np.ndarray, speaker: int, dev: torch.device,
+                      chunk: int, amp: bool, conditions: dict):
+    """Yield ``model.generate_chunks``' blocks as float32 (n, V*3) numpy arrays; a NaN/inf is a
+    :class:`~dualtalker_lite.checks.NonFiniteError` naming its first frame."""
+    gen = model.generate_chunks(audio.to(dev), torch.from_numpy(template)[None].to(dev),
+                                torch.tensor([int(speaker)], device=dev), chunk=chunk, **conditions)
+    done = 0
+    while True:
+        # no_grad/autocast around each step only: they must not leak into the caller between blocks
+        autocast = torch.autocast("cuda", dtype=torch.float16) if amp and dev.type == "cuda" else nullcontext()
+        with torch.no_grad(), autocast:
+            block = next(gen, None)
+            if block is None:
+                return
+            block = block[0].float().cpu().numpy()  # (n, V*3)
+        bad = ~np.isfinite(block).all(1)  # (n,)
+        if bad.any():
+            raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
+                                 f"{done + int(np.flatnonzero(bad)[0])}): the checkpoint's weights or "
+                                 f"the input produce NaN; nothing was written")
+        done += len(block)
+        yield block
 
 
 def animate_wave_to_npy(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int,

@@ -29,9 +29,17 @@ def test_every_registered_model_satisfies_the_contract():
 
 
 def test_checkpoints_read_the_registry():
+    """Checkpoints read the registry; the package's own models are ``registry.BUILTIN_MODELS``, first, and a model
+    that a plugin or a test registers comes after them without changing that list (docs/architecture.md)."""
     assert model_registry() == registry.classes()
-    assert set(model_registry()) == {"DualTalker", "FaceFormer", "VocaStyle", "CorrTalk", "EmoFace", "StaticTemplate"}
-    assert registry.names(trainable_only=True) == ["voca", "faceformer", "dualtalker", "corrtalk", "emoface"]
+    builtin = registry.BUILTIN_MODELS
+    assert builtin[:6] == ("template", "voca", "faceformer", "dualtalker", "corrtalk", "emoface")  # a new paper: after
+    assert [registry.get(n).model_cls.__name__ for n in builtin[:6]] == \
+        ["StaticTemplate", "VocaStyle", "FaceFormer", "DualTalker", "CorrTalk", "EmoFace"]
+    assert registry.names()[:len(builtin)] == list(builtin)
+    assert [n for n in registry.names(trainable_only=True) if n in builtin] == [n for n in builtin if n != "template"]
+    own = [n for n, e in registry.entries().items() if e.model_cls.__module__.startswith("dualtalker_lite.")]
+    assert own == list(builtin)  # every other registered model comes from outside the package
 
 
 def test_hooks_have_defaults_and_unknown_hooks_are_refused():

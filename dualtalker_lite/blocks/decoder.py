@@ -51,7 +51,7 @@ from .faceformer_layer import FaceFormerLayer
 from .feature_windows import FeatureWindows
 from .positional import PeriodicPositionalEncoding
 
-__all__ = ["TransposedLinear", "MotionDecoder", "OneDecoderHooks", "check_inputs", "training_inputs", "check_window",
+__all__ = ["TransposedLinear", "MotionDecoder", "DecoderStepper", "OneDecoderHooks", "check_inputs", "training_inputs", "check_window",
            "zero_padding", "lookup_style", "autoregressive_chunks", "autoregressive_reference"]
 
 
@@ -354,10 +354,57 @@ class MotionDecoder(nn.Module):
         return self.decode_motion(h)  # (B, 1, V*3)
 
 
+class DecoderStepper:
+    """One :class:`MotionDecoder` run a frame at a time as input features arrive: the ``stepper`` hook of the
+    one-decoder models (``models.contract.Stepper``; the live path, ``live.stream.IncrementalDecoder``, drives it).
+
+        stepper = DecoderStepper(model.decoder, model.encode_audio, speaker, window, period)
+        stepper.encode(audio, first, lo, hi)   # A (B, n, D_a) of frames first..; X of frames [lo, hi) kept
+        m = stepper.step(t)                    # m̂_t (B, 1, V*3); frames in order, each once
+
+    ``encode_audio(A, mask) -> X (B, n, d)`` is the model's audio encoder; ``period`` its positional period (a
+    block must start at a multiple of it to be encoded as in the whole clip). Each step is
+    :meth:`MotionDecoder.cached_step` on the kept features, its output fed back (:meth:`MotionDecoder.feedback`):
+    the loop of :func:`autoregressive_chunks`, with the blocks of features given from outside.
+    """
+
+    def __init__(self, decoder: MotionDecoder, encode_audio: Callable[[Tensor, Tensor | None], Tensor],
+                 speaker: Tensor, window: int | None, period: int):
+        self.decoder, self.encode_audio, self.period = decoder, encode_audio, int(period)
+        self.margins = decoder.feature_margins()                      # frames (before, after) t that t reads
+        with torch.no_grad():
+            self.style = decoder.speaker_style(speaker)               # (B, d) S_n
+        self.states = decoder.new_state(None, window)
+        self.token = self.style[:, None, :]                           # (B, 1, d) S_n, the start token
+        self.features: Tensor | None = None                           # X of frames [offset, offset + n) (B, n, d)
+        self.offset = 0
+
+    @torch.no_grad()
+    def encode(self, audio: Tensor, first: int, lo: int, hi: int) -> None:
+        """Encode A of frames [first, first + n) (B, n, D_a); keep X of frames [lo, hi) and their K/V."""
+        self.features = self.encode_audio(audio, None)[:, lo - first:hi - first]    # (B, hi - lo, d)
+        self.offset = lo
+        self.decoder.load_features(self.states, self.features, lo)
+
+    @torch.no_grad()
+    def step(self, t: int) -> Tensor:
+        """Frame t (its alignment window within the kept features) -> m̂_t (B, 1, V*3), fed back for t + 1."""
+        m = self.decoder.cached_step(self.states, self.token, self.features, self.style, t, None, self.offset)
+        self.token = self.decoder.feedback(m, self.style)
+        return m
+
+
 class OneDecoderHooks:
-    """The training hooks of a model whose motion comes from one :class:`MotionDecoder`, ``self.decoder``
-    (DualTalker, FaceFormer-style): each delegates to the decoder's method of the same name. ``train`` calls them
-    (``models.contract.HOOKS``): the data-dependent initialisations and training in a motion basis."""
+    """The hooks of a model whose motion comes from one :class:`MotionDecoder`, ``self.decoder`` (DualTalker,
+    FaceFormer-style), fed by ``self.encode_audio`` (``models.contract.HOOKS``). The training hooks delegate to the
+    decoder's method of the same name (the data-dependent initialisations and training in a motion basis);
+    :meth:`stepper` is the live path's frame-by-frame decoding."""
+
+    def stepper(self, speaker: Tensor, window: int | None | str = "config") -> DecoderStepper:
+        """The decoder stepped one frame at a time (:class:`DecoderStepper`) for speakers (B,); ``window``: the
+        self-attention cache in frames (``"config"``: ``cfg.decoder_window``; None: unbounded)."""
+        window = check_window(window, self.cfg.decoder_window)
+        return DecoderStepper(self.decoder, self.encode_audio, speaker, window, self.extractor.ppe.period)
 
     def init_output_bias(self, mean_motion: Tensor) -> None:
         """Motion head bias = the training set's mean motion (V*3,), metres (``TrainConfig.mean_init``)."""

@@ -18,14 +18,14 @@ Two pieces, each usable alone (``benchmarks/live.py`` measures them, ``live/serv
   below real time on one core. The past context is what the streamed track gains most from: on the real-voice
   benchmark 0.6 s of it closed the lips (< 1 mm) at 0.78 of /p b m/, 2 s at 0.82, 3 and 4 s no more, against the
   offline track's 0.87 (``results/live.md``, "More recogniser context").
-* :class:`IncrementalDecoder` -- the model's autoregressive step (its KV cache,
-  :meth:`~dualtalker_lite.blocks.decoder.MotionDecoder.cached_step`) for each new frame. The audio encoder of the
-  models is non-causal (its receptive field is hundreds of frames: 454 for the tiny DualTalker), so offline
-  decoding (``generate_chunks``) cannot start before it has seen 15 s of the future. Live, frame t's features are
-  encoded from the features of frames ``[t - past_frames, t + ahead_frames]`` (the earlier frames of a push that
-  decodes several: up to the last one's look-ahead, one encoder call per push): an approximation (an encoder
-  trained on whole clips sees a window edge where it saw more speech), not the offline numbers. How close it comes
-  is measured on a shipped clip (``benchmarks/live.py``, ``tests/test_live.py``: lip-distance correlation).
+* :class:`IncrementalDecoder` -- the model's autoregressive step for each new frame, through the contract's
+  ``stepper`` hook (one-decoder models: :meth:`~dualtalker_lite.blocks.decoder.MotionDecoder.cached_step`, its KV
+  cache). The audio encoder of the models is non-causal (its receptive field is hundreds of frames: 454 for the tiny
+  DualTalker), so offline decoding (``generate_chunks``) cannot start before it has seen 15 s of the future. Live,
+  frame t's features are encoded from the features of frames ``[t - past_frames, t + ahead_frames]`` (the earlier
+  frames of a push that decodes several: up to the last one's look-ahead, one encoder call per push): an
+  approximation (an encoder trained on whole clips sees a window edge where it saw more speech), not the offline
+  numbers. How close it comes is measured on a shipped clip (``benchmarks/live.py``, ``tests/test_live.py``).
 
 The two meet in :class:`LiveSession`: samples -> one-hot visemes -> vertices, what a connection runs. Nothing here
 is asynchronous: the server calls ``push`` in a worker thread.
@@ -46,8 +46,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..checks import NonFiniteError
 from ..export.visemes import NAMES, track_segments, viseme_weights
 from ..face.visemes import VISEMES
+from ..models.contract import hook
 from ..recogniser import FRAME_SAMPLES, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track
 
 __all__ = ["StreamingVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "LiveSession", "LiveSettings"]
@@ -239,41 +241,34 @@ class IncrementalDecoder:
         verts = dec.push(one_hot)        # (n, D_a) features of the next frames -> (k, V*3) vertices, k <= n + ...
         verts = dec.flush()              # end of stream: the frames still waiting for their look-ahead
 
-    For models with one :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (``model.decoder``) fed by
-    ``model.encode_audio`` (DualTalker, FaceFormer); others are refused with one line. Frame t is decoded once the
-    features of frame ``t + ahead_frames`` (plus the decoder's own alignment margin) have arrived; its encoded
-    features come from frames ``[t - past_frames, t + ahead_frames]`` only (module doc), and, for the earlier frames
-    of a push that makes several decodable, from the frames up to the last one's look-ahead (one encoder call per
-    push): so the vertices depend a little on how the features are pushed. ``window``: the decoder's
-    self-attention cache (default: the model's ``decoder_window``), so a long session runs in bounded memory.
+    For models with the contract's ``stepper`` hook (:class:`~dualtalker_lite.models.contract.Stepper`; the models
+    with one motion decoder, DualTalker and FaceFormer, have it); others are refused with one line. Frame t is
+    decoded once the features of frame ``t + ahead_frames`` (plus the decoder's own alignment margin) have arrived;
+    its encoded features come from frames ``[t - past_frames, t + ahead_frames]`` only (module doc), and, for the
+    earlier frames of a push that makes several decodable, from the frames up to the last one's look-ahead (one
+    encoder call per push): so the vertices depend a little on how the features are pushed. ``window``: the
+    decoder's self-attention cache (default: the model's ``decoder_window``), so a long session runs in bounded
+    memory.
     """
 
     def __init__(self, model: torch.nn.Module, template: np.ndarray, speaker: int = 0,
                  past_frames: int = LiveSettings.past_frames, ahead_frames: int = LiveSettings.ahead_frames,
                  window: int | str | None = "config"):
-        from ..blocks.decoder import MotionDecoder, check_window
-
-        if not isinstance(getattr(model, "decoder", None), MotionDecoder) or not hasattr(model, "encode_audio") \
-                or not hasattr(getattr(model, "extractor", None), "ppe"):
-            raise ValueError(f"live decoding supports models with one motion decoder fed by encode_audio "
-                             f"(DualTalker, FaceFormer), not {type(model).__name__}")
+        stepper = hook(model, "stepper")
+        if stepper is None:
+            raise ValueError(f"live decoding needs a model that steps one frame at a time (the contract's stepper "
+                             f"hook: the models with one motion decoder, DualTalker and FaceFormer), not "
+                             f"{type(model).__name__}")
         if past_frames < 0 or ahead_frames < 0:
             raise ValueError(f"past_frames and ahead_frames must be >= 0, got {past_frames}, {ahead_frames}")
         self.model = model.eval()
-        self.dec = model.decoder
         self.template = torch.as_tensor(np.asarray(template, np.float32).reshape(1, -1))   # (1, V*3)
         self.past, self.ahead = int(past_frames), int(ahead_frames)
-        self.left, self.right = self.dec.feature_margins()
-        self.period = model.extractor.ppe.period
-        cfg = getattr(model, "cfg", None)
-        window = check_window(window, getattr(cfg, "decoder_window", None))
-        with torch.no_grad():
-            self.style = self.dec.speaker_style(torch.tensor([int(speaker)]))               # (1, d)
-        self.states = self.dec.new_state(None, window)
-        self.token = self.style[:, None, :]                                               # S_n, the start token
-        keep = self.past + self.left + self.period + 8
+        self.stepper = stepper(torch.tensor([int(speaker)]), window)
+        self.left, self.right = self.stepper.margins
+        self.period = self.stepper.period
         self.feats = np.empty((0, 0), np.float32)                    # input features of frames [f0, f0 + n)
-        self.f0, self._keep = 0, keep
+        self.f0, self._keep = 0, self.past + self.left + self.period + 8
         self.t = 0                                                    # frames decoded so far
         self.model_seconds = 0.0
 
@@ -294,28 +289,17 @@ class IncrementalDecoder:
 
     @torch.no_grad()
     def _decode(self, stop: int) -> np.ndarray:
+        """Frames [t, stop) from one encoder call over their features (with past and look-ahead) -> (n, V*3)."""
         t0, stop = self.t, min(stop, self.received)
         if stop <= t0:
             return np.empty((0, self.template.shape[1]), np.float32)
         start_time = time.perf_counter()
-        lo = max(0, t0 - self.left)                                   # the decoder reads features [lo, hi)
-        hi = min(self.received, stop + self.right)
-        a = max(0, lo - self.past)
-        a -= a % self.period                                          # the encoder's PPE phase of absolute frames
-        assert a >= self.f0, "features dropped too early"           # _keep covers past + period: never binds
-        b = min(self.received, hi + self.ahead)
-        audio = torch.from_numpy(self.feats[a - self.f0:b - self.f0])[None]                  # (1, b - a, D_a)
-        x = self.model.encode_audio(audio, None)[:, lo - a:hi - a]                           # (1, hi - lo, d)
-        self.dec.load_features(self.states, x, lo)
+        self._encode(t0, stop)
         out = np.empty((stop - t0, self.template.shape[1]), np.float32)
         for t in range(t0, stop):
-            m = self.dec.cached_step(self.states, self.token, x, self.style, t, None, lo)     # (1, 1, V*3)
-            out[t - t0] = (self.template + m[:, 0]).numpy()[0]
-            self.token = self.dec.feedback(m, self.style)
+            out[t - t0] = (self.template + self.stepper.step(t)[:, 0]).numpy()[0]         # m̂_t (1, 1, V*3)
         bad = ~np.isfinite(out).all(1)
         if bad.any():
-            from ..checks import NonFiniteError
-
             raise NonFiniteError(f"model output contains NaN/infinite values (first at frame "
                                  f"{t0 + int(np.argmax(bad))})")
         self.t = stop
@@ -324,6 +308,18 @@ class IncrementalDecoder:
             self.feats, self.f0 = self.feats[drop:], self.f0 + drop
         self.model_seconds += time.perf_counter() - start_time
         return out
+
+    def _encode(self, t0: int, stop: int) -> None:
+        """Give the stepper the features frames [t0, stop) read: the decoder reads frames [lo, hi), encoded from
+        frames [a, b) (past_frames before, ahead_frames after, a at the encoder's phase of absolute frames)."""
+        lo = max(0, t0 - self.left)
+        hi = min(self.received, stop + self.right)
+        a = max(0, lo - self.past)
+        a -= a % self.period
+        assert a >= self.f0, "features dropped too early"           # _keep covers past + period: never binds
+        b = min(self.received, hi + self.ahead)
+        audio = torch.from_numpy(self.feats[a - self.f0:b - self.f0])[None]                  # (1, b - a, D_a)
+        self.stepper.encode(audio, a, lo, hi)
 
 
 class LiveSession:

@@ -186,6 +186,7 @@ class EmoFace(nn.Module):
     # batch keys that ``train.predict`` passes to :meth:`generate` as keywords: the level is an input of the paper's
     # model (speech, level, style, template); the emotion type is recognised from the speech (emotion=None)
     generation_conditions = ("level",)
+    chosen_conditions = ("emotion",)  # a user may choose it (animate --emotion); recognised otherwise
 
     def __init__(self, cfg: EmoFaceConfig, faces=None, vertices=None):
         """``faces`` (F, 3) of the mesh (and optionally a template's ``vertices`` (V, 3), for label-free spirals) are

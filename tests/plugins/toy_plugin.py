@@ -1,7 +1,9 @@
 """A test-only plugin: a toy model that implements the model contract (models/contract.py) and registers itself.
 
 ``DUALTALKER_PLUGINS=toy_plugin`` (with this folder on PYTHONPATH) makes ``dualtalker-lite train --model toy`` and
-``animate --checkpoint toy.pt`` see it, without any edit to the package (tests/test_registry.py).
+``animate --checkpoint toy.pt`` see it, without any edit to the package (tests/test_registry.py). Its ``stepper``
+hook (``models.contract.Stepper``) lets the live path run it too (tests/test_adding_a_paper.py walks
+docs/architecture.md's "Adding a paper" with it).
 """
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ class ToyLinear(nn.Module):
         err = ((out["vertices"] - batch["vertices"]) ** 2).mean(-1)  # (B, T)
         mask = batch["mask"].to(err.dtype)
         rec = (err * mask).sum() / mask.sum().clamp(min=1)
-        return w.rec * rec, {"total": float(w.rec * rec), "rec": float(rec)}
+        return w.rec * rec, {"total": float(w.rec * rec.detach()), "rec": float(rec.detach())}
 
     @torch.no_grad()
     def generate(self, audio, template, speaker, use_cache: bool = True, mask=None):
@@ -57,6 +59,28 @@ class ToyLinear(nn.Module):
     def generate_chunks(self, audio, template, speaker, mask=None, chunk: int = 900):
         for start in range(0, audio.shape[1], chunk):
             yield self.generate(audio[:, start:start + chunk], template, speaker)
+
+    def stepper(self, speaker, window="config") -> "ToyStepper":
+        """The contract's optional stepping hook (live use): frame by frame, nothing to cache."""
+        return ToyStepper(self.proj)
+
+
+class ToyStepper:
+    """``models.contract.Stepper`` of :class:`ToyLinear`: frame t reads its own features only (margins (0, 0)) and
+    its encoding has no positional phase (period 1); the motion of the kept frames is W a_t."""
+
+    margins = (0, 0)
+    period = 1
+
+    def __init__(self, proj: nn.Linear):
+        self.proj, self.motion, self.offset = proj, None, 0
+
+    @torch.no_grad()
+    def encode(self, audio, first: int, lo: int, hi: int) -> None:
+        self.motion, self.offset = self.proj(audio[:, lo - first:hi - first]), lo  # (B, hi - lo, V*3)
+
+    def step(self, t: int):
+        return self.motion[:, t - self.offset:t - self.offset + 1]  # (B, 1, V*3)
 
 
 def build(n_vertices, audio_dim, n_speakers, overrides, *, features="logmel", faces=None, vertices=None):
