@@ -182,6 +182,7 @@ assert history.term("primal")[-1] < 0.2 * history.term("primal")[0]
 # the figures the text below the plot quotes (epoch means), within CPU-to-CPU differences
 primal, dual, dr, contact = (history.term(k) for k in ("primal", "dual", "dr", "contact"))
 assert history.steps[-1] == 396 and 0.8 <= primal[0] <= 1.5 and primal[-1] < 0.1 * primal[0]
+assert abs(float(terms["primal"]) - 5.4) <= 0.05   # the untrained model's L_Primal (section 1), for comparison
 assert dual[-1] < 0.6 * dual[0] and max(dr) > dr[0] > dr[-1]          # L_Dual halves; L_DR rises, then falls
 assert abs(contact[0] - 29) <= 2 and abs(contact[-1] - 0.2) <= 0.05
 
