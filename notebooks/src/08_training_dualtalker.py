@@ -165,7 +165,8 @@ print("weighted terms:  ", {k: f"{lam[k] * terms[k].item():.3g}" for k in lam})
 # over the frames $\mathcal{P}$ labelled /p b m/. The vertex MSE alone leaves the lips of a one-frame /p/ about as
 # often 1 mm open as closed in a short budget; this term asks for the closure the rig makes. This cell gives
 # DualTalker 18 epochs of 22 steps (396 steps, about 25 CPU seconds: a notebook's budget); the recipe's own 20
-# epochs (`dualtalker-lite train`) took 28 ± 1 CPU s over 5 seeds (recipe C20 of `results/time_to_quality_2core.md`).
+# epochs (`dualtalker-lite train`) took 28 ± 1 CPU s over 5 seeds (recipe C20 of
+# `results/time_to_quality_2core.md`).
 
 # %%
 tc = TrainConfig.fast("dualtalker", epochs=18, validate_every=0, progress=False)   # the recipe's default: 20
@@ -299,10 +300,10 @@ plot_lip_distance(times, {"ground truth": gt_lips, "DualTalker (tiny)": pred_lip
 # within 2 mm and 0.93 within 1 mm, more often than the ground truth itself (0.89), though a little less deeply (a
 # mean smallest distance of 0.55 mm against 0.30 mm). The contact term asks for closed lips on every frame labelled
 # /p b m/, also the first and last of a closure, where the rig that made the corpus is still closing or opening
-# them. Without it the closures within 1 mm fall: over 5 seeds of the recipe's own length, test-A's bilabials fed
-# the true labels close within 1 mm at 0.93 ± 0.02 with the term (20 epochs) and at 0.57 ± 0.07 without it (23
-# epochs), for about the same LVE (3.74 against 3.68 mm on the recogniser's track; `results/time_to_quality_2core.md`,
-# recipes C20 and B23). Exercise 2 repeats the comparison here.
+# them. Without it the closures within 1 mm fall: over 5 seeds at about the recipe's length, test-A's bilabials
+# fed the true labels close within 1 mm at 0.93 ± 0.02 with the term (20 epochs) and at 0.57 ± 0.07 without it
+# (23 epochs), for about the same LVE (3.74 against 3.68 mm on the recogniser's track;
+# `results/time_to_quality_2core.md`, recipes C20 and B23). Exercise 2 repeats the comparison here.
 #
 # ### Real voices
 #
