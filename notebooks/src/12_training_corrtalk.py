@@ -309,9 +309,8 @@ plot_lip_distance(times, curves, phonemes=corpus.meta(CLIP)["phonemes"],
 # deeply; CorrTalk keeps its mouth too nearly shut (4.5 mm at the open vowels) and so closes easily: its larger
 # decoder has learnt the contact term's closures before the openings. With the recipe's whole budget (all 176
 # clips, 10 epochs, `dualtalker-lite train --model corrtalk`) it opens too: on 255 real prompts it closes < 1 mm at
-# 0.93-0.96 of the /p b m/ with vowel frames shut 0.05 (`results/time_to_quality_2core.md`). Before the short
-# recipe, 8 epochs (48 steps) of the tables' recipe closed no /p b m/ at all. The comparison that counts is the table
-# of section 6 (every model trained with the full recipe, several seeds).
+# 0.93-0.96 of the /p b m/ with vowel frames shut 0.05 (`results/time_to_quality_2core.md`). The comparison that
+# counts is the table of section 6 (every model trained with the full recipe, several seeds).
 #
 # ## 4. Where each branch is wrong (Fig. 9 analogue)
 #
@@ -606,7 +605,7 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 # - The package's `train` trains it with no CorrTalk-specific code: the model supplies its loss, its loss
 #   weights and its data-dependent initialisation (mean motion, FAI mask). With the short recipe (PCA-initialised
 #   heads and the bilabial contact term, a deviation from the paper's loss) 144 steps close its lips at 0.97 of
-#   test-A's /p b m/, where the tables' recipe closed none in 48; it still opens the vowels too little.
+#   test-A's /p b m/; it still opens the vowels too little.
 # - The Fig. 9 analogue shows the division of labour: each branch alone is wrong where the mask gives it little,
 #   the sum is close everywhere.
 # - Whether each component helps on this corpus is answered by the Table III analogue from `results/`, with
