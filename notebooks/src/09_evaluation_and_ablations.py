@@ -262,6 +262,7 @@ g = gt_norm[:, v_star]  # the text below: a blink of about 7 mm, dyn 1.3 mm; squ
 assert (round(float(g.max())), round(float(g.std(correction=0)), 1), round(float(g.square().max())),
         round(float(g.square().std(correction=0)), 1)) == (7, 1.3, 47, 7.7)
 
+# %%
 fig, axes = plt.subplots(1, 2, figsize=(12, 3.4), constrained_layout=True)
 for label, x in (("ground truth", gts[u]), ("FaceFormer-style", preds["FaceFormer-style"][u]),
                  ("DualTalker", preds["DualTalker"][u])):
