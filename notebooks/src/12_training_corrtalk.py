@@ -226,7 +226,8 @@ assert all(h.val_lve[-1] < static_val for h in hists.values()), "both must beat 
 # NBVAL_IGNORE_OUTPUT
 print("training CPU time (one thread):", {k: f"{v:.1f} s" for k, v in cpu_s.items()},
       f"= {1e3 * cpu_s['CorrTalk'] / ct_hist.steps[-1]:.0f} and "
-      f"{1e3 * cpu_s['DualTalker'] / ct_hist.steps[-1]:.0f} ms a step (with validation)")
+      f"{1e3 * cpu_s['DualTalker'] / ct_hist.steps[-1]:.0f} ms a step (with validation); "
+      f"{sum(cpu_s.values()):.0f} CPU s for both")
 print("parameters:", {k: f"{m.num_parameters():,}" for k, m in models.items()})
 assert models["CorrTalk"].num_parameters() > 1.5 * models["DualTalker"].num_parameters()
 
@@ -278,6 +279,12 @@ for key in ("bilabial_closure_2mm", "bilabial_closure_1mm", "bilabial_min_mm", "
 assert all(v < lve_static for v in lve.values()) and all(s["lip_motion_ratio"] < 1 for s in sync.values())
 assert all(s["bilabial_closure_2mm"] >= 0.7 for s in sync.values())  # the lips close at most /p b m/
 assert sync["CorrTalk"]["bilabial_closure_2mm_gt"] == 1.0 and sync["CorrTalk"]["n_bilabials"] > 0
+# the figures the text below quotes: the models' within CPU-to-CPU differences, the ground truth's exactly
+ct, dt = sync["CorrTalk"], sync["DualTalker"]
+assert abs(ct["bilabial_closure_2mm"] - 0.97) <= 0.03 and abs(dt["bilabial_closure_2mm"] - 0.76) <= 0.03
+assert abs(dt["open_vowel_max_mm"] - 9.3) <= 0.3 and abs(ct["open_vowel_max_mm"] - 4.5) <= 0.3
+assert abs(ct["lip_distance_corr"] - 0.68) <= 0.03 and abs(dt["lip_distance_corr"] - 0.63) <= 0.03
+assert round(ct["open_vowel_max_mm_gt"], 1) == 10.5
 
 # %% [markdown]
 # The lip distance (midpoint of the upper lip to midpoint of the lower lip) of one test clip, with its phonemes:
@@ -302,9 +309,8 @@ plot_lip_distance(times, curves, phonemes=corpus.meta(CLIP)["phonemes"],
 # deeply; CorrTalk keeps its mouth too nearly shut (4.5 mm at the open vowels) and so closes easily: its larger
 # decoder has learnt the contact term's closures before the openings. With the recipe's whole budget (all 176
 # clips, 10 epochs, `dualtalker-lite train --model corrtalk`) it opens too: on 255 real prompts it closes < 1 mm at
-# 0.93-0.96 of the /p b m/ with vowel frames shut 0.05 (`results/time_to_quality_2core.md`). Before the short
-# recipe, 8 epochs (48 steps) of the tables' recipe closed no /p b m/ at all. The comparison that counts is the table
-# of section 6 (every model trained with the full recipe, several seeds).
+# 0.93-0.96 of the /p b m/ with vowel frames shut 0.05 (`results/time_to_quality_2core.md`). The comparison that
+# counts is the table of section 6 (every model trained with the full recipe, several seeds).
 #
 # ## 4. Where each branch is wrong (Fig. 9 analogue)
 #
@@ -351,6 +357,7 @@ change = (mask_now - mask0).abs()
 print(f"mask after training: range [{float(mask_now.min()):.3f}, {float(mask_now.max()):.3f}], mean |change| "
       f"{float(change.mean()):.4f}, largest {float(change.max()):.4f}")
 assert float(change.max()) > 0                                           # learnable: it did move
+assert abs(float(change.mean()) - 0.04) <= 0.01 and abs(float(change.max()) - 0.26) <= 0.03  # the text above
 
 # %% [markdown]
 # ## 5. Retrain it yourself: velocity weight and mask initialisation
@@ -512,8 +519,9 @@ display(Markdown(experiments.table_markdown("main", main_specs, main_runs, main_
 # ```
 #
 # The cell prints each row of the Table III analogue at both recipes: LVE (mm), closed < 1 mm at /p b m/, the
-# largest lip distance at open vowels (mm, truth 13.6), and the verdict of the tables' 2-standard-error rule on LVE
-# against CorrTalk (for CorrTalk itself: against DualTalker, the main table's reference).
+# largest lip distance at open vowels (mm, truth 13.6: `results/README.md`), and the verdict of the tables'
+# 2-standard-error rule on LVE against CorrTalk (for CorrTalk itself: against DualTalker, the main table's
+# reference).
 
 # %%
 FAST_COMMAND = ("python -m dualtalker_lite.experiments --table main ablation corrtalk sweep --seeds 0 1 2 3 4 "
@@ -547,11 +555,12 @@ assert all(closed["short", r.row] > closed["tiny", r.row] for r in ct_specs)   #
 # %% [markdown]
 # **What the short recipe changes for CorrTalk.** Its lips close under 1 mm at 0.69 of the bilabials instead of
 # 0.35, more often than DualTalker's at the same recipe, but its mouth opens only 8.4 mm at the open vowels
-# (truth 13.6) and its LVE grows from 2.95 to 3.88 mm, now measurably worse than DualTalker's (tied at the tiny
-# recipe). And the two Table III claims that reproduced at the tiny recipe (without the hierarchical encoder and
-# with a single branch, LVE measurably worse) fall back into the seed noise: CorrTalk's own spread over seeds
-# grows to 0.27 mm. Only the front-end swap stays measurably better. So on this corpus CorrTalk's components help
-# at one recipe and not at the other; a claim that depends on the training recipe is a weak one.
+# (truth 13.6, `results/README.md`) and its LVE grows from 2.95 to 3.88 mm, now measurably worse than
+# DualTalker's (tied at the tiny recipe). And the two Table III claims that reproduced at the tiny recipe (without
+# the hierarchical encoder and with a single branch, LVE measurably worse) fall back into the seed noise:
+# CorrTalk's own spread over seeds grows to 0.27 mm (`results/logmel_fast/corrtalk.md`). Only the front-end swap
+# stays measurably better. So on this corpus CorrTalk's components help at one recipe and not at the other; a
+# claim that depends on the training recipe is a weak one.
 #
 # ## 7. Side by side, with the speech
 #
@@ -596,7 +605,7 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 # - The package's `train` trains it with no CorrTalk-specific code: the model supplies its loss, its loss
 #   weights and its data-dependent initialisation (mean motion, FAI mask). With the short recipe (PCA-initialised
 #   heads and the bilabial contact term, a deviation from the paper's loss) 144 steps close its lips at 0.97 of
-#   test-A's /p b m/, where the tables' recipe closed none in 48; it still opens the vowels too little.
+#   test-A's /p b m/; it still opens the vowels too little.
 # - The Fig. 9 analogue shows the division of labour: each branch alone is wrong where the mask gives it little,
 #   the sum is close everywhere.
 # - Whether each component helps on this corpus is answered by the Table III analogue from `results/`, with
