@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass, field, replace
 
 from .. import front_ends
+from ..deprecation import moved
 
 TABLES = ("main", "ablation", "sweep", "corrtalk", "emotion", "emoface")
 TEST_SPLIT = "test_a"  # the default test split (neutral speech, seen speakers)
@@ -111,7 +112,9 @@ EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9
 
 
 FEATURES = front_ends.CHOICES  # the tables' front ends (--features); the first, the phonetic route, is the default
-FRONT_ENDS = {name: f.description for name, f in front_ends.FRONT_ENDS.items()}  # name -> what the notes say
+FRONT_END_NOTES = {name: f.description for name, f in front_ends.FRONT_ENDS.items()}  # name -> what the notes say
+# the old name of FRONT_END_NOTES, one release (front_ends.FRONT_ENDS is the table of front ends: name -> FrontEnd)
+__getattr__ = moved(__name__, {"FRONT_ENDS": (f"{__name__}.FRONT_END_NOTES", FRONT_END_NOTES)})
 
 
 def table_specs(table: str, bandwidth: float | None = None, features: str = "logmel") -> list[RunSpec]:
