@@ -66,6 +66,7 @@ from .models import registry as _registry
 from .models.contract import hook
 from .models.faceformer import FaceFormerConfig
 from .checks import NonFiniteError
+from .deprecation import warn
 from .files import atomic_torch_save
 
 __all__ = ["FORMAT_VERSION", "is_own_file", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
@@ -99,12 +100,15 @@ def topology_fingerprint(faces: np.ndarray | None) -> str | None:
 
 
 def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
-    """:func:`dualtalker_lite.front_ends.settings` (its home; this name is kept for notebooks and scripts)."""
+    """Deprecated (one release): :func:`dualtalker_lite.front_ends.settings` (``name`` first)."""
+    warn("dualtalker_lite.checkpoints.extractor_settings(front_end, name)",
+         "dualtalker_lite.front_ends.settings(name, front_end)")
     return front_ends.settings(name, extractor)
 
 
 def extractor_from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True):
-    """:func:`dualtalker_lite.front_ends.from_settings` (its home; this name is kept for notebooks and scripts)."""
+    """Deprecated (one release): :func:`dualtalker_lite.front_ends.from_settings`."""
+    warn("dualtalker_lite.checkpoints.extractor_from_settings", "dualtalker_lite.front_ends.from_settings")
     return front_ends.from_settings(features, source, cache)
 
 
@@ -126,7 +130,7 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
     """Atomically write a self-describing checkpoint (0644 under umask 022); refuses non-finite weights.
 
     ``speakers``: training speaker names in style-index order (``corpus.train_speakers``); ``faces``: the
-    topology; ``features``: :func:`extractor_settings` (default: the default log-mel front-end); ``units``: the
+    topology; ``features``: :func:`.front_ends.settings` (default: the default log-mel front-end); ``units``: the
     training corpus's vertex units (``metadata.json``'s ``units``; None, as in older checkpoints, means metres):
     ``animate --template`` checks a mesh against them. ``fallback=True`` (trained weights): if ``path``'s disk is
     full, save to :func:`~dualtalker_lite.files.fallback_dir` and say so in the error (``atomic_torch_save``).
@@ -146,7 +150,7 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
         "speakers": list(speakers) if speakers is not None else None,
         "n_vertices": n_vertices,
         "topology": topology_fingerprint(faces),
-        "features": features if features is not None else extractor_settings(),
+        "features": features if features is not None else front_ends.settings(),
         **({"units": units} if units is not None else {}),
         "state_dict": state,
     }

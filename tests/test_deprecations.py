@@ -52,7 +52,46 @@ def test_the_package_itself_uses_no_old_address():
         import dualtalker_lite.viz  # noqa: F401
 
 
+def test_renamed_keywords_warn_and_forward(tmp_path):
+    from dualtalker_lite import front_ends
+    from dualtalker_lite.audio import LogMelExtractor
+
+    logmel = LogMelExtractor()
+    with pytest.warns(DeprecationWarning, match=r"front_ends\.settings\(extractor=\.\.\.\) is deprecated"):
+        old = front_ends.settings("logmel", extractor=logmel)
+    assert old == front_ends.settings("logmel", front_end=logmel)
+    with pytest.raises(TypeError, match=r"got both extractor= \(deprecated\) and front_end="):
+        front_ends.settings("logmel", logmel, extractor=logmel)
+
+
+def test_the_checkpoint_names_of_the_front_end_functions_warn_and_forward():
+    from dualtalker_lite import checkpoints, front_ends
+
+    with pytest.warns(DeprecationWarning, match=r"use dualtalker_lite\.front_ends\.settings\(name, front_end\)$"):
+        assert checkpoints.extractor_settings() == front_ends.settings()
+    with pytest.warns(DeprecationWarning, match=r"use dualtalker_lite\.front_ends\.from_settings$"):
+        assert checkpoints.extractor_from_settings(None).dim == front_ends.from_settings(None).dim
+
+
+def test_the_dataset_takes_its_front_end_under_the_old_keyword_too():
+    from dualtalker_lite.audio import LogMelExtractor
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.dataset import TalkingFaceDataset
+
+    logmel = LogMelExtractor(fps=30)
+    with pytest.warns(DeprecationWarning, match=r"TalkingFaceDataset\(extractor=\.\.\.\) is deprecated.*"
+                                                r"use TalkingFaceDataset\(front_end=\.\.\.\)$"):
+        data = TalkingFaceDataset(sample_path(), "val", extractor=logmel)
+    assert data.front_end is logmel
+    with pytest.warns(DeprecationWarning, match=r"use TalkingFaceDataset\.front_end$"):
+        assert data.extractor is logmel
+
+
 def test_the_changelog_lists_every_old_address():
     changelog = (Path(__file__).resolve().parents[1] / "CHANGELOG.md").read_text()
     for module, old, _, _ in OLD_ADDRESSES:
         assert module in changelog and re.search(rf"(?<!\w){re.escape(old)}(?!\w)", changelog), (module, old)
+    for old in ("TalkingFaceDataset(extractor=", "PairDataset(extractor=", "front_ends.settings(extractor=",
+                "TalkingFaceDataset.extractor", "PairDataset.extractor", "checkpoints.extractor_settings",
+                "checkpoints.extractor_from_settings"):
+        assert old in changelog, old
