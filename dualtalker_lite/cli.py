@@ -55,7 +55,8 @@ def _model_specs() -> dict:
 
     tables = {s.model: s for s in table_specs("main")}
     tables.update({s.model: s for s in table_specs("emotion") if s.model == "emoface"})
-    return {name: tables.get(name) or RunSpec(row=name, model=name) for name in registry.names(trainable_only=True)}
+    return {name: tables.get(name) or RunSpec(row=name, model=name, features="logmel")
+            for name in registry.names(trainable_only=True)}
 
 
 def _pair_dataset(corpus, seed: int):

@@ -71,8 +71,9 @@ class RunSpec:
                                                         # "faceformer" | "dualtalker" | "corrtalk" | "emoface"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
-    features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids) |
-                                                        # "visemes" (the phonetic route; table_specs sets it)
+    features: str = front_ends.DEFAULT                  # the front end, a name of front_ends.FRONT_ENDS: "visemes"
+                                                        # (the default, the phonetic route) | "logmel" | "phonemes"
+                                                        # | "visemes+logmel" (pairs rows; table_specs sets these)
     data: str = "neutral"                               # training clips: "neutral" (train) | "emotional" (train +
                                                         # train_emo) | "pairs" (the same, each with its pseudo-pair
                                                         # partner: data.pairs.PairDataset, for cross-reconstruction)
@@ -117,21 +118,25 @@ FRONT_END_NOTES = {name: f.description for name, f in front_ends.FRONT_ENDS.item
 __getattr__ = moved(__name__, {"FRONT_ENDS": (f"{__name__}.FRONT_END_NOTES", FRONT_END_NOTES)})
 
 
-def table_specs(table: str, bandwidth: float | None = None, features: str = "logmel") -> list[RunSpec]:
+AS_WRITTEN = "logmel"  # the front end the rows below are written for; table_specs swaps in the table's
+
+
+def table_specs(table: str, bandwidth: float | None = None, features: str = AS_WRITTEN) -> list[RunSpec]:
     """The rows of ``table``. ``bandwidth`` (metres, the typical median-heuristic σ) sets the sweep's fixed σ's.
 
-    ``features``: the front end of every row that does not name its own ("logmel" as written below). With
+    ``features``: the front end of every row written for :data:`AS_WRITTEN` ("logmel"; the other rows name their
+    own, e.g. the one-hot phoneme ablations). With
     "visemes" (the phonetic route, the runner's default since issue 19) EmoFace's pair rows get "visemes+logmel"
     (its content branch reads the visemes, its emotion branch the log-mel: emotion is in the sound, not in the
     phones), and rows that swap in one-hot phonemes as an ablation keep theirs."""
     if features not in FEATURES:
         raise ValueError(f"unknown features {features!r}; choose from {FEATURES}")
     rows = _rows(table, bandwidth)
-    if features == "logmel":
+    if features == AS_WRITTEN:
         return rows
     # the swapped-in rows' notes name the front end they replace
     return [replace(s, features=front_ends.paired(features) if s.data == "pairs" else features)
-            if s.features == "logmel"
+            if s.features == AS_WRITTEN
             else replace(s, note=s.note.replace("log-mel", "the recogniser's viseme classes")) for s in rows]
 
 
@@ -139,22 +144,23 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
     full = dict(model="dualtalker")
     if table == "main":
         return [
-            RunSpec("Static template", "template", note="zero motion: the floor to beat"),
-            RunSpec("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
-            RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
-                    expect="worse"),
-            RunSpec("DualTalker", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
-            RunSpec("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
+            RunSpec("Static template", "template", features=AS_WRITTEN, note="zero motion: the floor to beat"),
+            RunSpec("VOCA-style", "voca", features=AS_WRITTEN, loss=PRIMAL_ONLY,
+                    note="sliding window, no autoregression", expect="worse"),
+            RunSpec("FaceFormer-style", "faceformer", features=AS_WRITTEN, loss=PRIMAL_ONLY,
+                    note="primal task only, no gate, no CCRL", expect="worse"),
+            RunSpec("DualTalker", **full, features=AS_WRITTEN, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+            RunSpec("CorrTalk", "corrtalk", features=AS_WRITTEN, note=CORRTALK_NOTE),
         ]
     if table == "corrtalk":
         ct = dict(model="corrtalk")
         return [
-            RunSpec("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
-            RunSpec("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
+            RunSpec("CorrTalk", **ct, features=AS_WRITTEN, note=CORRTALK_NOTE, reference=True),
+            RunSpec("w/o hierarchical encoder", **ct, features=AS_WRITTEN, model_overrides={"hierarchical": False},
                     note="frame level only (softmax over one level = 1)", expect="worse"),
-            RunSpec("single branch", **ct, model_overrides={"dual_branch": False},
+            RunSpec("single branch", **ct, features=AS_WRITTEN, model_overrides={"dual_branch": False},
                     note="one FaceFormer-style branch decodes the whole face, no mask", expect="worse"),
-            RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
+            RunSpec("mask initialised at random", **ct, features=AS_WRITTEN, model_overrides={"mask_init": "random"},
                     note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
             RunSpec("phoneme one-hot features", **ct, features="phonemes",
                     note="the project's front-end swap, not a paper row (the paper swaps wavLM -> wav2vec 2.0, never "
@@ -162,15 +168,15 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
         ]
     if table == "ablation":
         return [
-            RunSpec("DualTalker (full)", **full, note="λ2=λ3=0.1, λ4=0.01", reference=True),
-            RunSpec("w/o CCRL", **full, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
-            RunSpec("w/o dual training", **full, model_overrides={"dual": False},
+            RunSpec("DualTalker (full)", **full, features=AS_WRITTEN, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+            RunSpec("w/o CCRL", **full, features=AS_WRITTEN, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
+            RunSpec("w/o dual training", **full, features=AS_WRITTEN, model_overrides={"dual": False},
                     loss={"lambda2": 0.0, "lambda3": 0.0},
                     note="no lip reading, λ2=λ3=0; CCRL kept (λ4=0.01 on X, Y)", expect="worse"),
             RunSpec("phoneme one-hot features", **full, features="phonemes",
                     note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
                          "driving signal, so an easier input than in the paper)", expect="worse"),
-            RunSpec("shared enc/dec weights", **full, model_overrides={"share_enc_dec": True},
+            RunSpec("shared enc/dec weights", **full, features=AS_WRITTEN, model_overrides={"share_enc_dec": True},
                     note="decoders = transposed encoders", expect="worse",
                     # the tied head has no weights of its own to start from the PCA basis, nor a basis step
                     fast_changes={"pca_init": 0, "basis_space": False}),
@@ -179,10 +185,11 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
         if bandwidth is None:
             raise ValueError("the sweep needs the typical bandwidth (see typical_bandwidth)")
         rows = [
-            RunSpec("λ4=0", **full, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
-            RunSpec("λ4=0.01, σ=median", **full, note="the default", reference=True),
-            RunSpec("λ4=0.1, σ=median", **full, loss={"lambda4": 0.1}),
-            RunSpec("λ4=0.1, σ=median, InfoNCE reading", **full, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
+            RunSpec("λ4=0", **full, features=AS_WRITTEN, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
+            RunSpec("λ4=0.01, σ=median", **full, features=AS_WRITTEN, note="the default", reference=True),
+            RunSpec("λ4=0.1, σ=median", **full, features=AS_WRITTEN, loss={"lambda4": 0.1}),
+            RunSpec("λ4=0.1, σ=median, InfoNCE reading", **full, features=AS_WRITTEN,
+                    loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
                     note="CCRL with one positive in the denominator (the reading before issue 8)"),
         ]
         for factor in (0.5, 2.0):
@@ -192,7 +199,7 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
                                 note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
         return rows
     if table == "emotion":
-        emo = dict(data="emotional")  # every row trains on the same clips: train + train_emo
+        emo = dict(data="emotional", features=AS_WRITTEN)  # every row trains on the same clips: train + train_emo
         return [
             RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
                     "input (the emotion must come from the audio)", expect="worse"),
@@ -200,10 +207,10 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
                     "Table 2: no paper claim)"),
             RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input (not in EmoFace's "
                     "Table 2: no paper claim)"),
-            RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
+            RunSpec("EmoFace", "emoface", features=AS_WRITTEN, data="pairs", note=EMOFACE_NOTE, reference=True),
         ]
     if table == "emoface":
-        ef = dict(model="emoface", data="pairs")
+        ef = dict(model="emoface", data="pairs", features=AS_WRITTEN)
         return [
             RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
             RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
