@@ -1,11 +1,12 @@
 """Audio front ends, one table: name -> how to build it, how a checkpoint records it, how to rebuild it from that.
 
 A *front end* turns a recording into per-mesh-frame features ``A_{1:T}`` (T, D_a) **outside** the model, with no
-trained weights; the model's own *audio encoder* (``model.extractor``, :class:`~dualtalker_lite.blocks.audio_encoder.
-AudioFeatureExtractor`, the papers' wav2vec 2.0 stand-in) is trained and reads these features. Every part of the
-package that names a front end reads :data:`FRONT_ENDS` and spells it the same way: ``train --features``, the
-experiment runner's ``--features`` and its rows (``RunSpec.features``), the checkpoint's ``features["name"]``,
-``animate``/``evaluate`` and the live server.
+trained weights; the model's own *audio feature extractor* (``model.extractor``, :class:`~dualtalker_lite.blocks.
+audio_encoder.AudioFeatureExtractor`, the papers' wav2vec 2.0 stand-in) is trained and reads these features.
+Every part of the package that names a front end reads :data:`FRONT_ENDS` and spells it the same way: ``train
+--features``, the experiment runner's ``--features`` and its rows (``RunSpec.features``, default :data:`DEFAULT`),
+the checkpoint's ``features["name"]``, ``animate``/``evaluate``, the live server, and the tables' notes (each
+row's ``description``).
 
 =====================  =====  ===================================================  ================================
 name                   D_a    trained on                                           fed at test time (evaluate,

@@ -30,7 +30,7 @@ them (the ``generation_conditions`` hook), a model with a classifier supplies ``
 
 Writes ``<out>/<table>.json`` (every run, every seed, the configs, the exact command) and ``<out>/<table>.md``
 (mean ± sample std over seeds, with a note column comparing each row with the table's reference row); the epoch
-budgets of the committed tables are in docs/design-notes.md ("Experiment runner").
+budgets of the committed tables are in docs/design-notes.md ("The experiment runner").
 
 The package: :mod:`.specs` (tables and rows), :mod:`.evaluation` (features, metrics, collapse check),
 :mod:`.assembly` (a row's training set-up, shared with ``dualtalker-lite train``), :mod:`.runner` (data, ``run_one``,

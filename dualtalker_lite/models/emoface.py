@@ -1,62 +1,42 @@
 """EmoFace: emotion-content disentangled speech-driven 3D talking faces (Figs. 1, 2, 5; section 3.1, 3.3; eqs. 6-18).
 
-Two branches read the same speech through the shared acoustic front-end (the wav2vec 2.0 stand-in of
-:mod:`.audio_encoder`) and each drives the template with its own FaceFormer-style autoregressive decoder; Mesh
-Attention (section 3.2, ``blocks.mesh_attention``) weighs the two offsets per vertex and frame (Fig. 1):
+Two branches read the same speech through the shared audio feature extractor (the wav2vec 2.0 stand-in of
+:mod:`.audio_encoder`), each drives the template with its own FaceFormer-style decoder (``blocks.decoder``), and
+Mesh Attention (section 3.2, ``blocks.mesh_attention``) weighs the two offsets per vertex and frame (Fig. 1):
 
     A -> extractor -> H                                                         (B, T, C)
     content encoder  E_c: F_c = W_c H                          (eq. 12)          (B, T, d)  short-term, per frame
-    emotion encoder  E_e: F_e = TransformerLayer(W_e H + W_z z) (eqs. 13-14)     (B, T, d)  whole-clip context;
-                     z: the standardised per-frame log-mel mean and std (frame_level_stats, see below)
+    emotion encoder  E_e: F_e = TransformerLayer(W_e H + W_z z) (eqs. 13-14)     (B, T, d)  whole-clip context
     classifier: p = softmax(W_cls [mean_t F_e, std_t F_e])     (eq. 10)          (B, N_e)
     conditions: F_e += W_type y_emotion + W_level l (one-hot level l in R^2); speaking style s (one-hot) = the
                 decoders' style embeddings S_n
     decoders D_c, D_e (eqs. 15-16): [S_n, Me(m_1), ...] -> FaceFormer layers (features F) -> ΔM^c, ΔM^e (B, T, V*3)
     fusion ε (eqs. 17-18): ΔM = Mesh Attention(F_e, F_c, ΔM^e, ΔM^c), or the mean of the two ("sum" ablation)
 
-Cross-reconstruction (section 3.3.2, appendix A.2, Fig. 5): for a pseudo-pair (clip 1 = c1,e1; clip 2 = c1,e2:
-same speaker and sentence, another emotion) the decoders also reconstruct clip 2 from *clip 1's content features*
-and *clip 2's emotion features*: M^c_{c1,e2} = D_c(F_c1), M^e_{c1,e2} = D_e(F_e2), M_{c1,e2} = ε(...).
-
-Readings taken (the paper leaves these open):
-
+Cross-reconstruction (section 3.3.2, appendix A.2, Fig. 5): for a pseudo-pair (c1,e1), (c1,e2) (same speaker and
+sentence) clip 2 is also reconstructed: M^c_{c1,e2} = D_c(F_c1), M^e_{c1,e2} = D_e(F_e2), M_{c1,e2} = ε(...).
+Readings taken (the paper leaves these open; all of them, with why: docs/design-notes.md, "EmoFace"):
 - Equal lengths. Eqs. 12-18 treat both clips of a pair as the same length T; spoken with another emotion they are
   not (prosody). We resample clip 2 (its features and vertices) *linearly in time* to clip 1's length before
   anything else (``data.pairs``), so M_{c1,e2} is literally a length-T sequence: start and end are aligned,
   the middle only approximately (no DTW). The cross targets are therefore the time-warped partner frames.
-- The branch decoders are FaceFormer-style ``blocks.decoder.MotionDecoder``s (queries from the motion
-  stream, diagonal alignment, ALiBi, PPE, style added to every token), the block of the baseline: the
-  "audio" they attend to is the branch's features F_c or F_e. Both decoders are fed back the *fused* motion
-  (teacher forcing: the ground truth; generation: the fused prediction), because the paper predicts one mesh
-  sequence M_t "conditioned on ... the prior sequence of face motions M_<=t" (section 3.3.1).
-- Eq. 15 is taken as printed: the content branch's cross output *is* its self output (one D_c pass, reused), so
-  the content branch cannot copy clip 2's emotion from a past it never sees. Eq. 16's D_e(F_e2) is teacher-forced
-  on clip 2's (warped) ground-truth past motion (the target it reconstructs).
-- Emotion type: the paper's inputs are speech, level, style and template; the type is recognised from speech
-  (the classifier). We add the type to the emotion branch as a condition, like the level: in training the label
-  one-hot, in generation the classifier's probabilities p, or a one-hot chosen by the caller (``emotion=``). This
-  is what makes the CLI's ``--emotion`` possible; without it the type follows the audio.
-- Level: the corpus numbers intensities 0 (neutral clips), 1 (normal), 2 (strong); the paper's 2-level one-hot
-  gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
+- Emotion type (a project addition): the paper recognises it from speech (the classifier); we also give it to the
+  emotion branch as a condition, like the level: the label one-hot in training, in generation the classifier's p or
+  a one-hot chosen by the caller (``emotion=``, the CLI's ``--emotion``).
 - The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
   and standard deviation over the valid frames, as emotion is a property of the whole sentence. For long audio
   generation recognises it in a first streaming pass (running sums of F_e and F_e^2), then encodes the features
   block by block (``blocks.feature_windows``): the same numbers as the whole clip's, to rounding.
-- Loudness for the emotion branch: the shared front-end's per-frame LayerNorm divides out each frame's level and
+- Loudness for the emotion branch: the shared extractor's per-frame LayerNorm divides out each frame's level and
   spectral spread, the volume and range of emotional prosody (wav2vec 2.0 normalises per utterance instead). E_e
-  therefore also reads :func:`frame_level_stats`, standardised with the training frames' statistics
+  therefore also reads z = :func:`frame_level_stats`, standardised with the training frames' statistics
   (:meth:`EmoFace.init_from_data`), through its own linear map added to W_e H (measured: docs/design-notes.md).
 - Self-growing training (section 3.3.1, Fig. 2, eq. 6): stage one is the whole model teacher-forced (no gradient;
   the paper does not supervise it), stage two feeds each past frame from the ground truth with probability
-  :func:`self_growing_share` ``(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop
-  tells the model the epoch through :meth:`EmoFace.set_epoch`; θ = ``growing_warmup`` x N epochs (untuned).
-  ``past_motion`` selects the alternatives compared in notebook 14/15: "teacher_forcing", "scheduled_sampling"
-  (constant prediction share ``sampling_p``) and "dropout" (DualTalker's past-motion dropout with ``sampling_p``).
+  :func:`self_growing_share` ``(epoch, N, θ)`` and from stage one's fused prediction otherwise (:meth:`set_epoch`).
 - "sum" fusion (the "w/o Mesh Attention" ablation): both branches are supervised towards the *whole* target
   (eqs. 7-8), so their plain sum would double it; "sum" is therefore the equal-weight mean, i.e. Mesh Attention's
   map held at 0.5 everywhere.
-- Motion enters and leaves the decoders in mm (``motion_scale``), and :meth:`init_output_bias` starts both decoder
-  biases at the training mean motion, as for every model (docs/design-notes.md, "Mean-face collapse").
 """
 from __future__ import annotations
 
