@@ -84,7 +84,7 @@ class CorrTalkConfig:
     dual_branch: bool = True  # False: one branch decodes the whole face (Table III "single branch")
     mask_init: str = "fai"  # "fai" | "random" | "uniform" (Table III "initialised at random"); "fai" is 0.5
     # everywhere until init_from_data (train calls it when TrainConfig.mean_init, the recipe's default)
-    audio_hidden: int = 256  # C: width of the acoustic front-end (1024 for wavLM large)
+    audio_hidden: int = 256  # C: width of the audio feature extractor (1024 for wavLM large)
     audio_heads: int = 4
     audio_conv_layers: int = 2
     audio_kernel: int = 5
@@ -124,7 +124,7 @@ class CorrTalkConfig:
 
 
 class CorrTalk(nn.Module):
-    """Shared audio front-end, weighted hierarchical encoder (one weight generator per branch), strong and weak
+    """Shared audio feature extractor, weighted hierarchical encoder (one weight generator per branch), strong and weak
     FaceFormer-style branches combined by a learnable FAI-initialised mask (eqs. 1-8, reconstructed)."""
 
     loss_weights_cls = CorrTalkWeights  # train.loss_weights builds it
@@ -133,7 +133,7 @@ class CorrTalk(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor.from_config(cfg)  # the wavLM stand-in (shared front-end)
+        self.extractor = AudioFeatureExtractor.from_config(cfg)  # the wavLM stand-in (shared by both branches)
         n_levels = 4 if cfg.hierarchical else 1
         self.hierarchy = HierarchicalFeatureExtractor(c, d, cfg.encoder_heads, cfg.encoder_ff, cfg.radii,
                                                       cfg.dropout, n_levels)
@@ -302,7 +302,7 @@ class CorrTalk(nn.Module):
         return autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)
 
     def receptive_field(self) -> int | None:
-        """Audio frames on each side of t that F̃^s_t, F̃^w_t depend on: the front-end's, then the hierarchy's
+        """Audio frames on each side of t that F̃^s_t, F̃^w_t depend on: the extractor's, then the hierarchy's
         cascade of bands (the weight generators are per frame); None when a level sees the whole clip."""
         parts = [self.extractor.receptive_field(), self.hierarchy.receptive_field()]
         return None if None in parts else sum(parts)

@@ -80,7 +80,7 @@ class EmoFaceConfig:
     n_layers: int = 1  # decoder layers per branch
     emotion_layers: int = 1  # transformer layers of the emotion encoder (long-term context)
     period: int = 30
-    audio_hidden: int = 256  # C of the front-end
+    audio_hidden: int = 256  # C of the audio feature extractor
     audio_heads: int = 4
     audio_conv_layers: int = 2
     audio_kernel: int = 5
@@ -130,7 +130,7 @@ class EmoFaceConfig:
 def frame_level_stats(audio: Tensor) -> Tensor:
     """Per-frame mean and standard deviation of the log-mel over its bins: A (B, T, D_a) -> (B, T, 2).
 
-    These are exactly the two numbers the front-end's per-frame LayerNorm (``AudioFeatureExtractor.input_norm``)
+    These are exactly the two numbers the extractor's per-frame LayerNorm (``AudioFeatureExtractor.input_norm``)
     divides out: loudness and spectral spread, which carry the volume and range of emotional prosody. Padding frames
     (zeroed audio) give (0, 0)."""
     return torch.stack([audio.mean(-1), audio.std(-1, unbiased=False)], dim=-1)  # (B, T, 2)
@@ -176,14 +176,14 @@ class EmoFace(nn.Module):
         d, c = cfg.d_model, cfg.audio_hidden
         k = cfg.content_dims
         self.extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=cfg.audio_dim - k, content_dims=0))
-        # phonetic route: E_c gets its own front-end over the viseme one-hot, so the content branch never hears
-        # the voice; the shared front-end above then reads only the log-mel, for E_e
+        # phonetic route: E_c gets its own extractor over the viseme one-hot, so the content branch never hears
+        # the voice; the shared extractor above then reads only the log-mel, for E_e
         self.content_extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=k, content_dims=0)) if k else None
         self.content_encoder = nn.Linear(c, d)  # E_c: per frame (short-term content)
         self.emotion_projection = nn.Linear(c, d)  # E_e, first part
-        # E_e also reads the per-frame log-mel mean and std (frame_level_stats) that the front-end's per-frame
+        # E_e also reads the per-frame log-mel mean and std (frame_level_stats) that the extractor's per-frame
         # LayerNorm removes, standardised with the training clips' statistics (init_from_data; raw log-mel is
-        # about -14..+2, so unstandardised they would swamp the projected front-end)
+        # about -14..+2, so unstandardised they would swamp the projected extractor output)
         self.register_buffer("level_stats_mean", torch.zeros(2))
         self.register_buffer("level_stats_std", torch.ones(2))
         self.emotion_level_stats = nn.Linear(2, d)
@@ -238,10 +238,10 @@ class EmoFace(nn.Module):
 
     def encode(self, audio: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Eqs. 12-13: A (B, T, D_a) -> content features F_c, emotion features F_e, each (B, T, d). With
-        ``content_dims`` = k the content branch reads A[..., :k] through its own front-end and the emotion branch
-        A[..., k:]; without, both share one front-end over all of A (the paper)."""
+        ``content_dims`` = k the content branch reads A[..., :k] through its own extractor and the emotion branch
+        A[..., k:]; without, both share one extractor over all of A (the paper)."""
         k = self.cfg.content_dims
-        h = self.extractor(self.emotion_audio(audio), mask)  # (B, T, C) shared front-end (log-mel only if k)
+        h = self.extractor(self.emotion_audio(audio), mask)  # (B, T, C) shared extractor (log-mel only if k)
         h_c = h if self.content_extractor is None else self.content_extractor(audio[..., :k], mask)  # (B, T, C)
         stats = (frame_level_stats(self.emotion_audio(audio)) - self.level_stats_mean) / self.level_stats_std
         if mask is not None:
@@ -409,8 +409,8 @@ class EmoFace(nn.Module):
         return self.classify(self.encode(audio, mask)[1], mask)
 
     def receptive_field(self) -> int | None:
-        """Audio frames on each side of t that F_c and F_e at t depend on: the shared front-end's plus one band
-        (``audio_radius``) per emotion layer for F_e, the content front-end's for F_c (phonetic route); None when any
+        """Audio frames on each side of t that F_c and F_e at t depend on: the shared extractor's plus one band
+        (``audio_radius``) per emotion layer for F_e, the content extractor's for F_c (phonetic route); None when any
         of them sees the whole clip. (The frame-level statistics are per frame; the classifier's pooling is not
         local, hence the separate pass of :meth:`streamed_emotion_logits`.)"""
         fe, radius = self.extractor.receptive_field(), self.cfg.audio_radius
