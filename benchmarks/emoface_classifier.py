@@ -85,7 +85,8 @@ def oracle_errors(model: EmoFace, dataset, regions) -> dict:
 
 def trained(paths: list[str]) -> None:
     """The --checkpoints mode: confusion matrix, accuracy and the F_e probe of each trained model."""
-    from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+    from dualtalker_lite.checkpoints import load_checkpoint
+    from dualtalker_lite.front_ends import from_settings
     from dualtalker_lite.data.corpus import Corpus
 
     corpus = Corpus(sample_path())
@@ -93,7 +94,7 @@ def trained(paths: list[str]) -> None:
     accs, probes, errors = [], [], []
     for path in paths:
         model, ckpt = load_checkpoint(path)
-        extractor = extractor_from_settings(ckpt["features"], source=str(path))
+        extractor = from_settings(ckpt["features"], source=str(path))
         test = TalkingFaceDataset(corpus, "test_emo_a", extractor)
         m = confusion(model, test, n)
         accs.append(np.trace(m) / m.sum())
@@ -128,7 +129,7 @@ def main() -> None:
     for seed in args.seeds:
         pairs = PairDataset(sample_path(), seed=seed)
         corpus = pairs.corpus
-        test = TalkingFaceDataset(corpus, "test_emo_a", pairs.extractor)
+        test = TalkingFaceDataset(corpus, "test_emo_a", pairs.front_end)
         n = len(corpus.emotions)
         set_seed(seed, threads=1)
         cfg = EmoFaceConfig.tiny(n_vertices=corpus.metadata["n_vertices"], n_speakers=len(corpus.train_speakers),

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+from dualtalker_lite.checkpoints import load_checkpoint
+from dualtalker_lite.front_ends import from_settings
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
@@ -105,7 +106,7 @@ def main() -> None:
         model, ckpt = load_checkpoint(path)
         if type(model).__name__ != "EmoFace":
             raise SystemExit(f"{path}: expected an EmoFace checkpoint, got {type(model).__name__}")
-        extractor = extractor_from_settings(ckpt["features"], source=str(path))
+        extractor = from_settings(ckpt["features"], source=str(path))
         neutral = TalkingFaceDataset(corpus, "test_a", extractor)
         emotional = TalkingFaceDataset(corpus, "test_emo_a", extractor)
         c0 = time.process_time()

@@ -128,14 +128,15 @@ def main(argv=None) -> None:
         print(f"{ahead * 1000:8.0f} {past:6.1f} {hop:5.1f} {latency:10.0f} {same / total:6.3f} {cpu / seconds:6.2f} "
               f"{wall / seconds:6.2f}")
     if args.checkpoint:
-        from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+        from dualtalker_lite.checkpoints import load_checkpoint
+        from dualtalker_lite.front_ends import from_settings
         from dualtalker_lite.data import sample_path
         from dualtalker_lite.data.corpus import Corpus
         from dualtalker_lite.inference import animate_wave, resolve_speaker
         from dualtalker_lite.metrics import lip_distance
 
         model, ckpt = load_checkpoint(args.checkpoint)
-        extractor = extractor_from_settings(ckpt.get("features"), args.checkpoint)
+        extractor = from_settings(ckpt.get("features"), args.checkpoint)
         corpus = Corpus(sample_path())
         speaker, _ = resolve_speaker(ckpt, args.speaker, corpus)
         template = corpus.template(args.speaker)
@@ -264,7 +265,8 @@ def _real_prompts(every: int = 1, references: bool = True):
 
 def fig_quality(args) -> dict:
     """Live (look-ahead 100, 200 ms) and offline (animate) on the real prompts, real_voices' metrics."""
-    from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+    from dualtalker_lite.checkpoints import load_checkpoint
+    from dualtalker_lite.front_ends import from_settings
     from dualtalker_lite.inference import animate_wave
     from dualtalker_lite.live.server import load_config
     from dualtalker_lite.live.stream import LiveSession, LiveSettings
@@ -275,7 +277,7 @@ def fig_quality(args) -> dict:
 
     config = load_config(args.checkpoint, subject)
     _, ckpt = load_checkpoint(args.checkpoint)
-    offline_ex = extractor_from_settings(ckpt.get("features"), args.checkpoint, cache=False)
+    offline_ex = from_settings(ckpt.get("features"), args.checkpoint, cache=False)
     rows = {"reference rig (aligned phones)": [], "offline (animate)": []}
     aheads = args.ahead_frames or [LiveSettings.ahead_frames]
 
@@ -590,7 +592,8 @@ def fig_diagnose(args) -> dict:
     track (look-ahead 200 ms) through the offline decoder (``animate_wave`` fed that track); the live path."""
     import torch
 
-    from dualtalker_lite.checkpoints import extractor_from_settings, load_checkpoint
+    from dualtalker_lite.checkpoints import load_checkpoint
+    from dualtalker_lite.front_ends import from_settings
     from dualtalker_lite.inference import animate_wave
     from dualtalker_lite.live.server import load_config
     from dualtalker_lite.live.stream import IncrementalDecoder, LiveSession, LiveSettings, StreamingVisemes
@@ -601,7 +604,7 @@ def fig_diagnose(args) -> dict:
 
     config = load_config(args.checkpoint, subject)
     _, ckpt = load_checkpoint(args.checkpoint)
-    offline_ex = extractor_from_settings(ckpt.get("features"), args.checkpoint, cache=False)
+    offline_ex = from_settings(ckpt.get("features"), args.checkpoint, cache=False)
     eye = np.eye(config.front_end.dim, dtype=np.float32)
     names = ["offline (animate)", "offline track -> incremental decoder (encoder 60 back / 3 ahead)",
              "live track (200 ms) -> offline decoder", "live, look-ahead 200 ms"]

@@ -311,12 +311,12 @@ def prepare(limit: int | None = None) -> dict:
     data = {"corpus": corpus, "subject": subject, "speaker": speaker, "rig": rig, "template": template, "real": real,
             "silence": silence, "extractors": ex,
             "failed": failed, "train": {"logmel": train, "labels": VisemeLabels(train, pad_silence=SILENCE_PAD),
-                                        "e2e": TalkingFaceDataset(corpus, "train", extractor=ex["e2e"])},
+                                        "e2e": TalkingFaceDataset(corpus, "train", front_end=ex["e2e"])},
             "test": {"logmel": test, "labels": VisemeLabels(test),
                      "labels+logmel": VisemeLabels(test, keep_audio=True),
-                     "visemes": TalkingFaceDataset(corpus, "test_a", extractor=ex["visemes"]),
-                     "visemes+logmel": TalkingFaceDataset(corpus, "test_a", extractor=ex["visemes+logmel"]),
-                     "e2e": TalkingFaceDataset(corpus, "test_a", extractor=ex["e2e"])}}
+                     "visemes": TalkingFaceDataset(corpus, "test_a", front_end=ex["visemes"]),
+                     "visemes+logmel": TalkingFaceDataset(corpus, "test_a", front_end=ex["visemes+logmel"]),
+                     "e2e": TalkingFaceDataset(corpus, "test_a", front_end=ex["e2e"])}}
     return data
 
 

@@ -66,7 +66,7 @@ def label(cfg: tuple) -> str:
 
 def spec(cfg: tuple) -> RunSpec:
     d, k, t = cfg
-    return RunSpec(label(cfg), "emoface", data="pairs", reference=cfg == ADOPTED,
+    return RunSpec(label(cfg), "emoface", data="pairs", features="logmel", reference=cfg == ADOPTED,
                    model_overrides={"spiral_dilation": d, "spiral_length": k, "spiral_delta": t})
 
 

@@ -6,7 +6,7 @@ Layers, lowest first (docs/architecture.md; ``tests/test_architecture.py`` keeps
   ``export`` (glTF, HTML), ``seeding``, ``checks``, ``files``, ``processes``, ``console``,
   ``provenance`` (command, commit and machine of a results file)
 - data and blocks: ``data`` (speech, corpus, datasets); ``blocks`` (attention, positional biases, the shared
-  FaceFormer-style ``decoder``, the audio front-end, each paper's building blocks)
+  FaceFormer-style ``decoder``, the audio feature extractor, each paper's building blocks)
 - models and losses: ``models`` (one module per paper, plus the baselines), ``losses`` (one module per paper)
 - training and evaluation: ``train``, ``checkpoints``, ``metrics``
 - applications: ``experiments``, ``inference``, ``streaming``, ``viz``

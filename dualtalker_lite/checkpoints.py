@@ -17,33 +17,19 @@ A checkpoint (format 2) is a plain dict, loadable with ``torch.load(weights_only
                       ``recogniser.RecogniserExtractor.settings``; ``"hama"`` before issue 30, read as
                       ``front_ends.canonical`` maps it) or ``{"name": "phonemes", ...}``
 ``state_dict``        the weights
-====================  ==========================================================================================
 
-Inference (:mod:`dualtalker_lite.inference`) maps ``--speaker NAME`` to the style index stored here, never
-to whatever corpus happens to be passed, and refuses a template or corpus whose vertex count or topology
-differs. Format-1 checkpoints still load: :func:`load_checkpoint` fills ``speakers``/``topology`` with None
-and inference then takes speaker names from the corpus, saying so.
+Inference (:mod:`dualtalker_lite.inference`) maps ``--speaker NAME`` to the style index stored here, never to whatever
+corpus is passed, and refuses a template or corpus whose vertex count or topology differs. Older formats load:
+:func:`upgrade_checkpoint` fills format 1's missing ``speakers``/``topology`` with None (names then come from the
+corpus, said once) and renames format 2-3 weights to today's layout (format 3, issue 18: the decoders became
+``blocks.decoder.MotionDecoder``, ``decoder.*``; format 4, issue 30: FaceFormer's own layer in the FaceFormer-style
+decoders and DualTalker's gates out of the shared layer; :func:`upgrade_state_dict`, the same tensors; the renames
+in full: docs/design-notes.md, "Checkpoint formats"; ``tests/test_legacy_checkpoints.py`` loads old files).
 
-Format 3 (issue 18) moved the decoder of DualTalker and of the FaceFormer-style baseline into
-``blocks.decoder.MotionDecoder``: their weights ``motion_encoder.*``, ``style.*``, ``layers.*``, ``motion_decoder.*``
-are now ``decoder.*``, and a FaceFormer-style baseline, saved before as a ``DualTalker`` with FaceFormer's switches, is
-a ``FaceFormer``. :func:`upgrade_checkpoint` renames both on load (one note on stderr); the numbers are unchanged.
-
-Format 4 (issue 30) gave the decoders FaceFormer's own layer (``blocks.faceformer_layer``) in place of DualTalker's
-fusion layer with ``direction="primal"``. In the FaceFormer-style decoders (FaceFormer, CorrTalk's branches,
-EmoFace's branches) ``layers.N.primal.*`` is now ``layers.N.*`` and the integration's ``proj_motion`` /
-``proj_audio`` / ``value_primal`` / ``out_primal`` are the cross-attention's ``q_proj`` / ``k_proj`` / ``v_proj`` /
-``out_proj``; in DualTalker the speaker-aware gates left the shared layer: ``layers.N.primal.gate.*`` is
-``layers.N.primal_gate.*`` (``dual`` likewise). :func:`upgrade_state_dict` renames them; the weights are the same
-tensors (``tests/test_legacy_checkpoints.py`` loads checkpoints written before the change and checks their outputs).
-
-Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are
-refused both when saving and when loading. :func:`load_checkpoint` also checks the file's integrity (the zip CRC of
-every record of the torch archive: one flipped byte is refused, never loaded) and validates hand-edited fields
-against a small schema (:func:`validate_fields`): ``features`` (a known name, settings of the right types, hop > 0;
-the phoneme recogniser's lag, window, blank bias and fps within the bounds of ``recogniser.check_settings``),
-``speakers`` (a list of distinct names, never a string), ``n_vertices``, ``topology`` and the type of every
-``model_config`` field (``d_model: '64'`` is one clear line, not a formatting error deep in a model).
+Every malformed file gets one ``ValueError`` line naming the file and the problem; non-finite weights are refused
+when saving and loading. :func:`load_checkpoint` checks the file's integrity (the zip CRC of every record: one
+flipped byte is refused) and validates hand-edited fields against a small schema (:func:`validate_fields`: the
+front end's name and settings, ``speakers``, ``n_vertices``, ``topology``, the type of every ``model_config`` field).
 """
 from __future__ import annotations
 
@@ -66,6 +52,7 @@ from .models import registry as _registry
 from .models.contract import hook
 from .models.faceformer import FaceFormerConfig
 from .checks import NonFiniteError
+from .deprecation import warn
 from .files import atomic_torch_save
 
 __all__ = ["FORMAT_VERSION", "is_own_file", "save_checkpoint", "load_checkpoint", "topology_fingerprint", "model_registry",
@@ -99,12 +86,15 @@ def topology_fingerprint(faces: np.ndarray | None) -> str | None:
 
 
 def extractor_settings(extractor: Any = None, name: str = "logmel") -> dict:
-    """:func:`dualtalker_lite.front_ends.settings` (its home; this name is kept for notebooks and scripts)."""
+    """Deprecated (one release): :func:`dualtalker_lite.front_ends.settings` (``name`` first)."""
+    warn("dualtalker_lite.checkpoints.extractor_settings(front_end, name)",
+         "dualtalker_lite.front_ends.settings(name, front_end)")
     return front_ends.settings(name, extractor)
 
 
 def extractor_from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True):
-    """:func:`dualtalker_lite.front_ends.from_settings` (its home; this name is kept for notebooks and scripts)."""
+    """Deprecated (one release): :func:`dualtalker_lite.front_ends.from_settings`."""
+    warn("dualtalker_lite.checkpoints.extractor_from_settings", "dualtalker_lite.front_ends.from_settings")
     return front_ends.from_settings(features, source, cache)
 
 
@@ -126,7 +116,7 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
     """Atomically write a self-describing checkpoint (0644 under umask 022); refuses non-finite weights.
 
     ``speakers``: training speaker names in style-index order (``corpus.train_speakers``); ``faces``: the
-    topology; ``features``: :func:`extractor_settings` (default: the default log-mel front-end); ``units``: the
+    topology; ``features``: :func:`.front_ends.settings` (default: the default log-mel front-end); ``units``: the
     training corpus's vertex units (``metadata.json``'s ``units``; None, as in older checkpoints, means metres):
     ``animate --template`` checks a mesh against them. ``fallback=True`` (trained weights): if ``path``'s disk is
     full, save to :func:`~dualtalker_lite.files.fallback_dir` and say so in the error (``atomic_torch_save``).
@@ -146,7 +136,7 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
         "speakers": list(speakers) if speakers is not None else None,
         "n_vertices": n_vertices,
         "topology": topology_fingerprint(faces),
-        "features": features if features is not None else extractor_settings(),
+        "features": features if features is not None else front_ends.settings(),
         **({"units": units} if units is not None else {}),
         "state_dict": state,
     }

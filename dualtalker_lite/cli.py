@@ -55,7 +55,8 @@ def _model_specs() -> dict:
 
     tables = {s.model: s for s in table_specs("main")}
     tables.update({s.model: s for s in table_specs("emotion") if s.model == "emoface"})
-    return {name: tables.get(name) or RunSpec(row=name, model=name) for name in registry.names(trainable_only=True)}
+    return {name: tables.get(name) or RunSpec(row=name, model=name, features="logmel")
+            for name in registry.names(trainable_only=True)}
 
 
 def _pair_dataset(corpus, seed: int):
@@ -380,14 +381,14 @@ def _training_clips(corpus, spec, args: argparse.Namespace) -> dict:
         print(f"note: {corpus.root}: no viseme labels in metadata.json; training on the recogniser's viseme tracks "
               f"of the training audio", file=sys.stderr)
         record = front_ends.build(spec.features, corpus.fps)  # what evaluate/animate feed it (checks hama)
-        dataset = TalkingFaceDataset(corpus, "train", extractor=record)
+        dataset = TalkingFaceDataset(corpus, "train", front_end=record)
         spec = dataclasses.replace(spec, features="logmel")  # the dataset already holds the viseme tracks
     else:
         dataset = _pair_dataset(corpus, args.seed) if paired else TalkingFaceDataset(corpus, "train")
     clips = dataset
     if args.clips is not None and args.clips < len(dataset):
         clips = Subset(dataset, np.linspace(0, len(dataset) - 1, args.clips).round().astype(int).tolist())
-    return dict(spec=spec, clips=clips, paired=paired, logmel=dataset.extractor if record is None else None,
+    return dict(spec=spec, clips=clips, paired=paired, logmel=dataset.front_end if record is None else None,
                 record=record)
 
 
@@ -510,7 +511,7 @@ def _evaluate(argv: list[str]) -> dict:
     features = ckpt.get("features") or {"name": "logmel"}
     computed = front_ends.get(features["name"]).from_audio  # from the audio (visemes: the recogniser's tracks)
     front_end = front_ends.from_settings(features, args.checkpoint, cache=not args.no_cache) if computed else None
-    dataset, _ = feature_view(TalkingFaceDataset(corpus, args.split, extractor=front_end),
+    dataset, _ = feature_view(TalkingFaceDataset(corpus, args.split, front_end=front_end),
                            "logmel" if computed else features["name"],  # "logmel": the features as computed
                            len(corpus.phoneme_inventory))
     out = _predict_with_progress(predict_split, model, dataset, progress_mode(args.quiet))

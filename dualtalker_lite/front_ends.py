@@ -1,11 +1,12 @@
 """Audio front ends, one table: name -> how to build it, how a checkpoint records it, how to rebuild it from that.
 
 A *front end* turns a recording into per-mesh-frame features ``A_{1:T}`` (T, D_a) **outside** the model, with no
-trained weights; the model's own *audio encoder* (``model.extractor``, :class:`~dualtalker_lite.blocks.audio_encoder.
-AudioFeatureExtractor`, the papers' wav2vec 2.0 stand-in) is trained and reads these features. Every part of the
-package that names a front end reads :data:`FRONT_ENDS` and spells it the same way: ``train --features``, the
-experiment runner's ``--features`` and its rows (``RunSpec.features``), the checkpoint's ``features["name"]``,
-``animate``/``evaluate`` and the live server.
+trained weights; the model's own *audio feature extractor* (``model.extractor``, :class:`~dualtalker_lite.blocks.
+audio_encoder.AudioFeatureExtractor`, the papers' wav2vec 2.0 stand-in) is trained and reads these features.
+Every part of the package that names a front end reads :data:`FRONT_ENDS` and spells it the same way: ``train
+--features``, the experiment runner's ``--features`` and its rows (``RunSpec.features``, default :data:`DEFAULT`),
+the checkpoint's ``features["name"]``, ``animate``/``evaluate``, the live server, and the tables' notes (each
+row's ``description``).
 
 =====================  =====  ===================================================  ================================
 name                   D_a    trained on                                           fed at test time (evaluate,
@@ -40,6 +41,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .audio import LogMelExtractor
+from .deprecation import renamed_keyword
 from .recogniser import NAME as RECOGNISER, OUTPUTS, RecogniserExtractor
 
 __all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "get", "build", "settings",
@@ -106,21 +108,23 @@ _LOGMEL_KEYS = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft"
                 "f_min", "f_max")
 
 
-def settings(name: str = "logmel", extractor: Any = None) -> dict:
+def settings(name: str = "logmel", front_end: Any = None, *, extractor: Any = None) -> dict:
     """Front end ``name`` as a checkpoint's ``features`` entry, ``{"name": name, "settings": {...}}`` of plain values.
 
-    ``extractor``: the one the model was trained with (a log-mel one with the corpus's band statistics); None: what
-    :func:`build` gives. An extractor that describes itself (``settings()``: the recogniser) is recorded as it says.
-    A front end that cannot be computed from audio records no settings."""
+    ``front_end``: the one the model was trained with (a log-mel one with the corpus's band statistics); None: what
+    :func:`build` gives (``extractor``: its old name, deprecated). A front end that describes itself (``settings()``:
+    the recogniser) is recorded as it says. A front end that cannot be computed from audio records no settings."""
+    if extractor is not None:
+        front_end = renamed_keyword("front_ends.settings", "extractor", "front_end", extractor, front_end)
     get(name)
-    extractor = extractor if extractor is not None else build(name)
-    if extractor is not None and callable(getattr(extractor, "settings", None)):
-        return extractor.settings()
-    if extractor is None:
+    front_end = front_end if front_end is not None else build(name)
+    if front_end is not None and callable(getattr(front_end, "settings", None)):
+        return front_end.settings()
+    if front_end is None:
         return {"name": name, "settings": {}}
-    out = {k: getattr(extractor, k) for k in _LOGMEL_KEYS}
+    out = {k: getattr(front_end, k) for k in _LOGMEL_KEYS}
     for k in ("mean", "std"):
-        v = getattr(extractor, k, None)
+        v = getattr(front_end, k, None)
         out[k] = None if v is None else [float(x) for x in v]
     return {"name": "logmel", "settings": out}
 

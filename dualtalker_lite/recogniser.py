@@ -1,43 +1,27 @@
-"""A pretrained phoneme recogniser as an audio front-end: voice-independent viseme tracks (issue 19).
+"""A pretrained phoneme recogniser as an audio front end: voice-independent viseme tracks (issue 19).
 
-Why. Every model here learns from one synthetic voice family (espeak-ng). Log-mel features of that family say
-little about a real person's speech (a linear viseme probe: 72% on espeak, 13% on real voices), so models fed
-log-mel barely articulate on real recordings. A phoneme recogniser trained on many real voices maps any voice to
-the same symbols; mapped to the project's 15 visemes (``face/visemes.py``) they are a representation on which a
-model trained with the corpus's *labels* can run on anyone's speech (the "phonetic route").
+Why. Every model here learns from one synthetic voice family (espeak-ng), whose log-mel features say little about a
+real person's speech. A phoneme recogniser trained on many real voices maps any voice to the same symbols; mapped to
+the project's 15 visemes (``face/visemes.py``) they let a model trained on the corpus's *labels* run on anyone's
+speech (the "phonetic route"). What it cannot do: it hears phones, not faces (no speaker style, emotion, loudness or
+upper face), misses some phones and may spike on non-speech. Measurements and costs: ``docs/front-ends.md``.
 
-The recogniser: ``hama`` 1.7.0 (PyPI, Apache-2.0), a 4.7 MB CTC model that ships inside the wheel and runs on
-its own small CPU engine; nothing is downloaded at run time. It maps 16 kHz mono speech to log-probabilities over
-191 symbols (IPA phones of many languages, tone and diacritic marks, ``<wb>`` word boundaries and the CTC
-``<blank>``) at **50 frames per second**: frame j covers samples around ``320 j`` (t = 20 ms x j), and a wave of
-N samples gives ``1 + N // 320`` frames.
+The recogniser: ``hama`` 1.7.0 (PyPI, Apache-2.0), a small CTC model inside the wheel, run by its own CPU engine
+(nothing downloaded). It maps 16 kHz mono speech to log-probabilities over 191 symbols (IPA phones of many languages,
+tone and diacritic marks, ``<wb>`` word boundaries, the CTC ``<blank>``) at **50 frames per second**: frame j covers
+samples around ``320 j`` (t = 20 ms x j), and N samples give ``1 + N // 320`` frames. Pieces, bottom up:
 
-Pieces, bottom up (each usable alone):
-
-* :class:`PhonemeRecogniser` -- ``log_probs(wave) -> (1 + N // 320, 191)``. hama silently stops at 1500 frames
-  (30 s) per call, so the wave is cut into 24 s *cores* with 2 s of context on each side (28 s per call); each
-  call keeps only its core's frames, so the stitched output covers the whole recording, frame for frame. Outputs
-  are rounded to float16 (0.01 nat resolution; always, so cached and fresh results are identical) and cached on
-  disk under a content hash (sha256 of the wave's float32 bytes + the recogniser settings):
-  :func:`default_cache_dir`. Each entry carries its key and a checksum, checked on every read (issue 32); an
-  unusable cache folder falls back to computing in memory with one warning, and ``cache=False`` (the commands'
-  ``--no-cache``) never touches the disk. :meth:`PhonemeRecogniser.iter_log_probs` yields the stitched blocks one
-  call at a time (``threads`` calls at once, two by default), so an hour of audio never holds more than those 28 s
-  calls in the model.
-  :meth:`PhonemeRecogniser.stream_log_probs` does the same for a wave given as blocks (``AudioStream.blocks``),
-  never holding it whole: each call's samples come from a rolling buffer of blocks, the cache key is hashed block
-  by block, the cache entry is written and read block by block.
-* :data:`SYMBOL_TO_VISEME` -- every one of hama's 191 output symbols mapped to a viseme of
-  :data:`~dualtalker_lite.face.visemes.VISEMES`, or to ``None`` for symbols that are not phones (tones, length
-  and diacritic marks, punctuation, ``<wb>``, ``<blank>``; :data:`NON_PHONES`). Diphthongs map to their first
-  part, as ``face/visemes.py`` does for espeak's.
-* :func:`spike_track` -- CTC output is mostly blanks: each phone shows up as a *spike* of one or two frames.
-  Mesh frame f (t = f / 30 s) takes the viseme of the nearest spike within ``window_s`` (else ``sil``), after
-  moving every spike ``lag_s`` earlier: hama's spikes come late against the phone timing (measured on the
-  shipped corpus: ``docs/front-ends.md``).
-* :class:`RecogniserExtractor` -- the :class:`~dualtalker_lite.audio.FeatureExtractor`: ``(wave, T) -> (T, dim)``
-  at the mesh rate, with ``output`` (each output is also the front end's name in
-  :data:`dualtalker_lite.front_ends.FRONT_ENDS`, the one table of front ends):
+* :class:`PhonemeRecogniser` -- ``log_probs(wave) -> (1 + N // 320, 191)`` for any length (hama stops at 30 s per
+  call: 24 s *cores* with 2 s of context each side, stitched frame for frame), float16, cached under a content hash
+  and verified on every read (:func:`default_cache_dir`; ``cache=False`` never touches the disk);
+  ``iter_log_probs``/``stream_log_probs`` (a wave given as blocks) never hold more than one call's samples.
+* :data:`SYMBOL_TO_VISEME` -- each symbol -> a viseme of :data:`~dualtalker_lite.face.visemes.VISEMES`, or ``None``
+  for non-phones (:data:`NON_PHONES`); diphthongs map to their first part, as ``face/visemes.py`` does for espeak's.
+* :func:`spike_track` -- CTC output is mostly blanks: each phone is a *spike* of one or two frames. Mesh frame f
+  (t = f / 30 s) takes the viseme of the nearest spike within ``window_s`` (else ``sil``), after moving every spike
+  ``lag_s`` earlier (hama's spikes come late against the phone timing).
+* :class:`RecogniserExtractor` -- the front end, ``(wave, T) -> (T, dim)`` at the mesh rate; its ``output`` is also
+  the front end's name in :data:`dualtalker_lite.front_ends.FRONT_ENDS`:
 
   =====================  =====  ================================================================================
   ``output``             dim    features per mesh frame
@@ -50,15 +34,8 @@ Pieces, bottom up (each usable alone):
                                 visemes drop, e.g. EmoFace's emotion; train on ``VisemeLabels(base, keep_audio=True)``)
   =====================  =====  ================================================================================
 
-  :meth:`RecogniserExtractor.stream` gives the same features, exactly, from blocks (what ``animate`` uses: an
-  hour of audio is never in memory whole; the ``"visemes"`` outputs keep only the spikes).
-  :meth:`RecogniserExtractor.settings` describes it for checkpoints (``{"name": "visemes", "settings": {...}}``:
-  the output is the name; checkpoints before issue 30 say ``"hama"`` and are read too) and
-  :meth:`RecogniserExtractor.from_settings` rebuilds it, refusing another hama version with one line.
-
-What it cannot do: it hears phones, not faces. Speaker style, emotion, loudness and everything above the mouth
-are gone from the viseme track; the recogniser misses some phones (more of espeak's than of real voices'), and
-non-speech (music, noise) may produce spurious spikes. See ``docs/front-ends.md`` for the measurements.
+  ``stream`` gives the same features, exactly, from blocks (``animate``); ``settings``/``from_settings`` record and
+  rebuild it for checkpoints (``"hama"`` before issue 30 is read too; another hama version is refused in one line).
 """
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
 
 LAYERS = [  # lowest first
     ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "recogniser",
-                     "front_ends", "export", "provenance")),
+                     "front_ends", "export", "provenance", "deprecation")),
     ("data and blocks", ("data", "blocks")),
     ("models and losses", ("models", "losses")),
     ("training and evaluation", ("train", "checkpoints", "metrics")),

@@ -87,9 +87,9 @@ def test_the_demo_budget_is_cpu_seconds_by_default():
     args = parse_args([])
     assert (args.cpu_budget, args.time_budget) == (150.0, 0.0)
     # a CPU budget spent at the first step: training stops in the first of 3 epochs (the step budget's rule)
-    run = runner.run_one(RunSpec(row="VOCA-style", model="voca"), 0, 3, quick=True, cpu_budget_s=1e-6)
+    run = runner.run_one(RunSpec(row="VOCA-style", model="voca", features="logmel"), 0, 3, quick=True, cpu_budget_s=1e-6)
     assert run["epochs"] == 1 and run["train_config"]["cpu_budget_s"] == 1e-6 and run["train_config"]["epochs"] == 3
-    assert runner.run_one(RunSpec(row="VOCA-style", model="voca"), 0, 2, quick=True)["epochs"] == 2
+    assert runner.run_one(RunSpec(row="VOCA-style", model="voca", features="logmel"), 0, 2, quick=True)["epochs"] == 2
 
 
 def test_demo_trains_each_model_with_the_short_recipe_by_default():

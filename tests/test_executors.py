@@ -73,7 +73,8 @@ def test_a_worker_that_dies_fails_its_run_alone(tmp_path, monkeypatch):
     monkeypatch.setenv("DUALTALKER_PLUGINS", "dies_plugin")
     monkeypatch.syspath_prepend(str(tmp_path))
     failures = []
-    jobs = [(RunSpec(row="dies", model="dies"), 0), (RunSpec(row="VOCA-style", model="voca"), 0)]
+    jobs = [(RunSpec(row="dies", model="dies", features="logmel"), 0),
+            (RunSpec(row="VOCA-style", model="voca", features="logmel"), 0)]
     results = runner.run_specs(jobs, 1, processes=2, quick=True, progress=False, executor="dask", failures=failures)
     assert results[1] is not None, failures
     assert results[0] is None and results[1]["row"] == "VOCA-style" and results[1]["epochs"] == 1

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from dualtalker_lite import experiments as ex
+from dualtalker_lite.experiments import command, report
 from dualtalker_lite.losses import rbf_kernel_weights
 
 
@@ -74,9 +75,9 @@ def test_typical_bandwidth_hand_computed():
 def test_compare_note():
     row = {"lve_euclidean": {"mean": 5.0, "std": 0.1, "n": 3}}
     ref = {"lve_euclidean": {"mean": 4.0, "std": 0.1, "n": 3}}
-    assert ex._compare(row, ref, "ref", "worse").endswith("worse")
-    assert "not reproduced" in ex._compare(ref, row, "ref", "worse")
-    assert "within seed noise" in ex._compare(row, {"lve_euclidean": {"mean": 5.05, "std": 0.1, "n": 3}}, "ref")
+    assert report._compare(row, ref, "ref", "worse").endswith("worse")
+    assert "not reproduced" in report._compare(ref, row, "ref", "worse")
+    assert "within seed noise" in report._compare(row, {"lve_euclidean": {"mean": 5.05, "std": 0.1, "n": 3}}, "ref")
 
 
 def test_compare_note_judges_bilabial_closure_too():
@@ -86,14 +87,14 @@ def test_compare_note_judges_bilabial_closure_too():
            "bilabial_closure_1mm": {"mean": 0.30, "std": 0.05, "n": 3}}
     ref = {"lve_euclidean": {"mean": 4.0, "std": 0.1, "n": 3},
            "bilabial_closure_1mm": {"mean": 0.50, "std": 0.10, "n": 3}}
-    assert ex._compare(row, ref, "ref") == "LVE +1.000 mm vs ref: worse; closed <1 mm -0.200: worse"
+    assert report._compare(row, ref, "ref") == "LVE +1.000 mm vs ref: worse; closed <1 mm -0.200: worse"
     # the reverse: LVE better, closure better; the paper's claim is judged on LVE only
-    assert ex._compare(ref, row, "ref", "better") == "LVE -1.000 mm vs ref: better; closed <1 mm +0.200: better"
+    assert report._compare(ref, row, "ref", "better") == "LVE -1.000 mm vs ref: better; closed <1 mm +0.200: better"
     # 0.40 vs 0.50: |diff| 0.10 <= 2 se = 0.129 -> within seed noise
     near = {**row, "bilabial_closure_1mm": {"mean": 0.40, "std": 0.05, "n": 3}}
-    assert ex._compare(near, ref, "ref").endswith("closed <1 mm -0.100: within seed noise")
+    assert report._compare(near, ref, "ref").endswith("closed <1 mm -0.100: within seed noise")
     # a table without the lip-sync metric keeps the LVE-only note
-    assert ex._compare({"lve_euclidean": row["lve_euclidean"]}, ref, "ref") == "LVE +1.000 mm vs ref: worse"
+    assert report._compare({"lve_euclidean": row["lve_euclidean"]}, ref, "ref") == "LVE +1.000 mm vs ref: worse"
 
 
 # ------------------------------------------------------------------------------ the runner
@@ -407,8 +408,8 @@ def test_results_carry_no_machine_paths(quick_tables, tmp_path):
 
     data = json.loads((quick_tables / "main.json").read_text())
     assert data["corpus"] == "data_samples"
-    assert ex._display_path(tmp_path / "my_corpus") == "my_corpus"  # outside the repository: the name only
-    assert ex._display_path(Path(repo_root()) / "data_samples") == "data_samples"
+    assert command._display_path(tmp_path / "my_corpus") == "my_corpus"  # outside the repository: the name only
+    assert command._display_path(Path(repo_root()) / "data_samples") == "data_samples"
 
 
 def test_markdown_names_the_stored_corpus_whatever_the_working_directory(quick_tables, monkeypatch):

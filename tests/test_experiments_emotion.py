@@ -21,9 +21,9 @@ def test_committed_main_table_keys_unchanged():
 
 
 def test_key_adds_new_fields_only_when_not_default():
-    plain = ex.RunSpec("x", "dualtalker")
-    assert plain.key() == '{"features": "logmel", "loss": {}, "model": "dualtalker", "model_overrides": {}}'
-    assert json.loads(ex.RunSpec("x", "dualtalker", data="emotional").key()) == {
+    plain = ex.RunSpec("x", "dualtalker")  # the default front end is the project's, the phonetic route (issue 46)
+    assert plain.key() == '{"features": "visemes", "loss": {}, "model": "dualtalker", "model_overrides": {}}'
+    assert json.loads(ex.RunSpec("x", "dualtalker", features="logmel", data="emotional").key()) == {
         "data": "emotional", "features": "logmel", "loss": {}, "model": "dualtalker", "model_overrides": {}}
     assert json.loads(plain.key("test_emo_a"))["test_split"] == "test_emo_a"  # same row, other split: another run
     assert plain.key("test_emo_a") != plain.key()

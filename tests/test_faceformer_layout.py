@@ -147,7 +147,7 @@ def test_vocaset_layout(tmp_path):
     assert c.regions["lips"].tolist() == list(range(100, 140))
     assert c.regions["eyes_forehead"].tolist() == list(range(0, 30))
     np.testing.assert_allclose(c.template(tr), templates[tr].reshape(-1).astype(np.float32))
-    item = TalkingFaceDataset(c, "train", extractor=LogMelExtractor(fps=30))[0]
+    item = TalkingFaceDataset(c, "train", front_end=LogMelExtractor(fps=30))[0]
     assert tuple(item["audio"].shape) == (6, 160) and tuple(item["vertices"].shape) == (6, 5023 * 3)
 
 
@@ -167,7 +167,7 @@ def test_biwi_layout(tmp_path):
     assert c.regions["lips"].tolist() == list(range(40, 80))          # regions/lve.txt
     assert c.regions["upper_face"].tolist() == list(range(100, 140))  # regions/fdd.txt
     assert c.train_speakers == ["F2", "M3"]
-    item = TalkingFaceDataset(c, "test_a", extractor=LogMelExtractor(fps=25))[0]
+    item = TalkingFaceDataset(c, "test_a", front_end=LogMelExtractor(fps=25))[0]
     assert tuple(item["audio"].shape) == (5, 160)
 
 

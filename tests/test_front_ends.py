@@ -16,7 +16,8 @@ def test_one_vocabulary_and_one_default_everywhere():
     assert front_ends.DEFAULT == "visemes" == front_ends.CHOICES[0]
     assert set(front_ends.CHOICES) == {"visemes", "logmel"}
     assert specs.FEATURES == front_ends.CHOICES  # the runner's --features and table_specs
-    assert set(specs.FRONT_ENDS) == set(front_ends.FRONT_ENDS)  # the tables' notes
+    assert set(specs.FRONT_END_NOTES) == set(front_ends.FRONT_ENDS)  # the tables' notes
+    assert specs.RunSpec("r", "voca").features == front_ends.DEFAULT  # a row that names no front end (issue 46)
     assert set(checkpoints.FEATURE_NAMES) == set(front_ends.FRONT_ENDS) | {"hama"}  # today's names + the old one
     action = next(a for a in cli.train_parser(["voca"])._actions if a.dest == "features")
     assert tuple(action.choices) == front_ends.CHOICES  # train: None means the default, set after parsing

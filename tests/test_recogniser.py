@@ -275,22 +275,22 @@ class _FixedLogProbs:
 
 # ---- the front-end recorded in a checkpoint, and the phonetic route through the command line -------------------
 def test_a_checkpoint_records_the_recogniser_and_refuses_another_version(tmp_path):
-    from dualtalker_lite.checkpoints import extractor_from_settings, extractor_settings, load_checkpoint, \
-        save_checkpoint
+    from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint
+    from dualtalker_lite.front_ends import from_settings, settings
     from dualtalker_lite.models.faceformer import FaceFormer, FaceFormerConfig
 
     front = RecogniserExtractor("visemes")
-    features = extractor_settings(front)
+    features = settings("visemes", front)
     assert features == front.settings() and features["name"] == "visemes" and features["settings"]["dim"] == 15
     cfg = FaceFormerConfig.tiny(n_vertices=4, audio_dim=15, n_speakers=2, d_model=8, d_ff=16, audio_hidden=8)
     save_checkpoint(tmp_path / "m.pt", FaceFormer(cfg), cfg, features=features)
     _, ckpt = load_checkpoint(tmp_path / "m.pt")
-    again = extractor_from_settings(ckpt["features"], "m.pt")
+    again = from_settings(ckpt["features"], "m.pt")
     assert isinstance(again, RecogniserExtractor) and (again.output, again.dim) == ("visemes", 15)
     old = {"name": "visemes", "settings": {**features["settings"], "version": "0.9.0"}}
     with pytest.raises(ValueError, match=r"^m\.pt: trained with hama version '0\.9\.0', this installation has .*"
                                          r"\(pip install hama==0\.9\.0\)$"):
-        extractor_from_settings(old, "m.pt")
+        from_settings(old, "m.pt")
 
 
 def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_path):

@@ -294,7 +294,7 @@ def test_runner_pool_workers_exit_when_the_runner_is_killed(tmp_path):
         import os, time
         from concurrent.futures import ProcessPoolExecutor
         from multiprocessing import get_context
-        from dualtalker_lite.experiments import _worker_init
+        from dualtalker_lite.experiments.runner import _worker_init
         if __name__ == "__main__":
             pool = ProcessPoolExecutor(2, mp_context=get_context("spawn"), initializer=_worker_init,
                                        initargs=(os.getpid(),))

@@ -3,7 +3,7 @@ speaker-aware gate (eq. 5), FaceFormer's decoder layer (``faceformer_layer``: se
 the alignment bias, feed-forward, and its one-frame step), DualTalker's cross-modal fusion composed around it with
 its dual form (eqs. 6-7, Figs. 2-3), windowed
 attention for long audio (banded encoder attention, sliding-window decoder cache, the encoder run
-block by block in overlapping windows: ``feature_windows``), the audio front-end
+block by block in overlapping windows: ``feature_windows``), the audio feature extractor
 (``audio_encoder``, a small wav2vec 2.0 stand-in) and the FaceFormer-style autoregressive ``decoder`` that every
 model composes, CorrTalk's facial activity intensity (``fai``) and hierarchical speech encoder (SpeechFormer blocks
 at four levels, the weight generator), and EmoFace's spirals and SpiralConv3D (eqs. 1-3) and Mesh Attention

@@ -93,7 +93,7 @@ class AudioFeatureExtractor(nn.Module):
 
     @classmethod
     def from_config(cls, cfg) -> "AudioFeatureExtractor":
-        """The front-end of a model config with the usual fields: ``audio_dim`` -> ``audio_hidden`` channels,
+        """The extractor of a model config with the usual fields: ``audio_dim`` -> ``audio_hidden`` channels,
         ``audio_heads``, ``audio_conv_layers`` of ``audio_kernel``, ``audio_layers``, ``period``, ``dropout``,
         ``audio_radius``."""
         return cls(cfg.audio_dim, cfg.audio_hidden, cfg.audio_heads, cfg.audio_conv_layers, cfg.audio_kernel,

@@ -1,17 +1,11 @@
 r"""CorrTalk's facial activity intensity (FAI): an STFT of per-vertex displacements (section III-B, Fig. 1, eq. 3).
 
 CorrTalk (Chu et al.) splits the face into *strong* activity (lips, jaw) and *weak* activity (brows, forehead,
-cheeks). The split is measured, not drawn by hand: each vertex's distance from the neutral template is treated as
-a signal over time, decomposed with a short-time Fourier transform (STFT), and "the amplitude value of the
-fundamental frequency" is that vertex's FAI (section III-B). Fig. 1 shows (a, c) the displacement and the
-spectrogram of a mouth vertex and a forehead vertex, and (b) the FAI painted on the whole face. The normalised FAI
-initialises the learnable mask of the dual-branch decoder (section III-D, eq. 7): strong branch x mask, weak
-branch x (1 - mask). ``models/corrtalk.py`` builds that mask from :func:`normalised_fai`.
-
-**Eq. 3 is a reconstruction.** Every symbol and the numbered equation were lost in the text extraction; the prose
-around it says: displacements are "the distance between facial vertices in the reference sequence and the
-neutral face geometry", an STFT "decompose[s] [them] into [their] constituent frequency components over time",
-and the result "represents the changes in amplitude across frequency bands". Read literally, with
+cheeks) by measurement: each vertex's distance from the neutral template is a signal over time, decomposed with a
+short-time Fourier transform (STFT), and "the amplitude value of the fundamental frequency" is that vertex's FAI
+(Fig. 1); normalised, it initialises the dual-branch decoder's learnable mask (section III-D, eq. 7). **Eq. 3 is a
+reconstruction** from the prose (the symbols and the numbered equation were lost in the text extraction; the prose
+quoted: docs/design-notes.md, "CorrTalk's FAI"). With
 :math:`y_{t,v} \in \mathbb{R}^3` vertex v of frame t, :math:`h_v` its template position, w a Hann window of N
 frames and hop H:
 
@@ -28,14 +22,9 @@ frames and hop H:
 with bin k at frequency :math:`k f_s / N` (f_s the mesh frame rate), :math:`\mathcal{C}` the training clips and
 :math:`M_c` the STFT frames of clip c. Readings that were possible, and the one taken:
 
-- *Displacement*: the Euclidean distance (a scalar per vertex and frame), as the prose says "distance", not the
-  3-D offset vector.
-- *Amplitude*: magnitude :math:`|X|`, not power :math:`|X|^2` (the text says "amplitude") -- taken: magnitude.
-  Normalisation :math:`c_k` (one-sided amplitude spectrum): a constant c reads c in bin 0 and a cosine of
-  amplitude a centred on bin k reads a in bin k, so FAI is in metres, like the displacement. Any positive
-  normalisation gives the same mask after min-max scaling, so this choice only affects the units shown.
-- *Window*: the paper does not say; a periodic Hann window, ``center=False`` (frames start at 0, no padding), the
-  tail that does not fill a last hop dropped (:func:`displacement_stft`).
+- *Displacement*: the Euclidean distance (a scalar per vertex and frame), not the 3-D offset vector.
+- *Amplitude*: magnitude :math:`|X|`, not power, one-sided (:math:`c_k`: FAI in metres); *window*: a periodic Hann
+  window, ``center=False``, the tail that does not fill a last hop dropped.
 - *"Fundamental frequency band"* (:math:`k^\star`), three readings, all exposed via ``band``:
 
   ``"dc"`` (default)  bin 0, the lowest row of the spectrogram: the window-weighted mean displacement;
@@ -45,15 +34,9 @@ with bin k at frequency :math:`k f_s / N` (f_s the mesh frame rate), :math:`\mat
   ``"dc"`` is taken: the text contrasts "the fundamental frequency band" with "the higher frequency bands", which
   reads most plainly as the spectrogram's lowest row; why, and how the other readings compare on the corpus, is in
   docs/design-notes.md ("CorrTalk: which band is the fundamental") and notebook 10.
-- *Averaging*: over each clip's STFT frames, then over clips with equal weight per clip (a long clip does not
-  count more). Mean over frames commutes with band selection, so :func:`mean_amplitude_spectrum` averages the
-  whole spectrum once and :func:`select_band` picks the band.
-- *Normalisation of the FAI*: min-max over the vertices, to [0, 1] ("initialised with a normalized" FAI; values
-  "close to 1 indicate strong facial movements"); a constant FAI is refused rather than mapped to an arbitrary mask.
-
-Shapes: T mesh frames, V vertices, F = N // 2 + 1 frequency bins, M STFT frames. Displacements and spectra are
-float64 (analysis precision); :func:`facial_activity_intensity` and :func:`normalised_fai` return float32, the
-dtype of the mask they initialise.
+- *Averaging*: over each clip's STFT frames, then over clips with equal weight per clip; *normalisation*: min-max
+  over the vertices, to [0, 1] (a constant FAI is refused).
+Shapes: T mesh frames, V vertices, F = N // 2 + 1 frequency bins, M STFT frames; analysis in float64, FAI float32.
 """
 from __future__ import annotations
 

@@ -12,27 +12,13 @@ Hierarchical feature extractor (Fig. 4). From the acoustic features A' (B, T, C)
     F^{w} = \mathrm{Linear}_w(\mathrm{SFB}_{w_w}(F^{p}))                 && \text{word level}\\
     F^{u} = \mathrm{Linear}_u(\mathrm{SFB}_{w_u}(F^{w}))                 && \text{utterance level}
 
-where :math:`\mathrm{SFB}_w` is a SpeechFormer block (multi-head self-attention restricted to a window of ``w``
-frames around each token, stride one, then a feed-forward layer; residuals and layer norms as in a post-norm
-transformer encoder layer). The text says the phoneme block works on the frame-level features and "the process
-extends" to the word and utterance levels; we read that as a *cascade* (each level's block reads the level
-below, as in SpeechFormer). The other reading, every block reading F^f in parallel, is not implemented.
-
-Window sizes. The text gives ranges: phoneme 50-200 ms, word 250-1000 ms, utterance = the whole input. A token
-must see the whole unit it sits in wherever it sits in it, so we take the **upper end** of each range (200 ms,
-1000 ms), and the band radius r is the smallest with (2r + 1) frames >= that duration:
-r = ceil((duration * fps - 1) / 2): at 30 fps the phoneme band is +-3 frames (7 frames, 233 ms) and the word
-band +-15 frames (31 frames, 1.03 s); at 25 fps +-2 (200 ms) and +-12 (1 s). (:func:`window_radius`.)
-The utterance level attends to the whole clip; for hour-long audio its band is capped (``utterance_radius``,
-450 frames = 15 s each side by default, like the audio encoder), exact for clips of at most radius + 1 frames.
-With every band finite the extractor is local: the level features at t depend on frames t +- (sum of the three
-radii) only (:meth:`HierarchicalFeatureExtractor.receptive_field`, 3 + 15 + 450 = 468 at 30 fps), which is what
-lets generation encode long audio in overlapping windows (``blocks.feature_windows``).
-
-Causal or not: **not causal** (centred windows). The encoder sees the whole clip in the paper: the acoustic
-feature extractor (wavLM) is a bidirectional transformer, and "utterance duration is set to its input sequence
-time", which a causal window cannot honour. Only the decoder is autoregressive (section III-D). Every level keeps
-T tokens (stride one, overlapping windows, :func:`~dualtalker_lite.blocks.windowed.banded_attention`).
+where :math:`\mathrm{SFB}_w` is a SpeechFormer block (self-attention within ``w`` frames of each token, stride one,
+then a feed-forward layer; post-norm residuals). Readings taken (in full, with why: docs/design-notes.md,
+"CorrTalk's hierarchical encoder"): a *cascade*, each level's block reading the level below, as in SpeechFormer;
+windows at the **upper end** of the text's ranges (phoneme 200 ms, word 1000 ms: the band radius
+r = ceil((duration * fps - 1) / 2), :func:`window_radius`; the utterance band capped at ``utterance_radius``, 450
+frames, for long audio, so the encoder is local: :meth:`HierarchicalFeatureExtractor.receptive_field`);
+**not causal** (centred windows, as wavLM's bidirectional encoder); every level keeps T tokens.
 
 Weight generator (one per decoding branch), reconstruction of eqs. 4-6:
 
@@ -47,10 +33,8 @@ The text under eq. 4 lists three symbols (lost in the extraction) as "linear pro
 hidden size of 32; which three is not recoverable. We read eq. 4 as an additive (Bahdanau-style) scoring network,
 which has **two** linear projections around a tanh: W_l, b_l (to 32) and w_l, c_l (to one score per frame); a
 third symbol may be a bias or a query vector. Other readings: one scorer shared by the four levels or one per
-level; tanh or another non-linearity. We take **one scorer per level** ("similarly, the importance weights of
-phoneme-, word- and utterance-level features are obtained" with their own statistics) and tanh. The softmax of eq. 5 runs over the
-four levels at each frame (the weights sum to 1 per frame), and eq. 6 is the per-frame weighted sum. The weights
-are returned for the Fig. 7 analogue (mean weight per level and branch).
+level; tanh or another non-linearity. We take **one scorer per level** and tanh. The softmax of eq. 5 runs over the
+four levels at each frame, and eq. 6 is the per-frame weighted sum; the weights are returned for the Fig. 7 analogue.
 """
 from __future__ import annotations
 

@@ -29,23 +29,13 @@ where the previous one ended. ``spiral_indices`` builds one per vertex, of one l
   reaches one ring further. The package's template head is closed (the mouth bag seals the lip slit); remove
   the bag faces to see an open slit (notebook 13).
 
-**Time (eq. 2).** The temporal neighbourhood of vertex i at frame t is the same vertex over the last delta
-frames, {V_{t-delta+1,i}, ..., V_{t,i}}, causal; before the first frame ``Pad(delta - t)`` supplies the missing
-frames: zeros (``time_pad="zeros"``, default, as a zero-padded causal convolution) or the first frame repeated
-(``"replicate"``).
+**Time (eq. 2).** Vertex i at frame t sees the same vertex over the last delta frames, {V_{t-delta+1,i}, ...,
+V_{t,i}}, causal; before the first frame ``Pad(delta - t)`` is zeros (``time_pad="zeros"``) or the first frame.
 
-**Eq. 3.** SpiralConv3D(v) = W f(cnt_delta(k-disk(v))) + b: the features f of the delta x L neighbours,
-concatenated (oldest frame first, then spiral order, then channels), one linear map W of shape
-(C_out, delta L C_in) and a bias b. It is computed as a spatial gather (``index_select`` of whole vertex rows,
-no loop over single vertices), one matmul to delta x C_out channels, and a shifted sum over the delta frames:
-the same linear map, without materialising the (B, T, V, delta L C_in) neighbourhood tensor. ``SpiralLinear``
-(a custom autograd function) runs the gather + matmul over blocks of vertices and recomputes the gathered block
-in backward, so memory stays near the size of the output (the gathered tensor is L = 18 times the input).
-``SpiralConv3D.gather`` is the plain one-line gather, for reading and for the notebook.
-
-Layout: (B, T, V, C) throughout (frames before vertices, like the (B, T, V*3) motion tensors of the package);
-the paper's Mesh Attention writes the same tensor as (B, V, T, C).
-Defaults of the paper (Table 4, the row it adopts): spiral length 18, dilation 2, delta = 3 frames.
+**Eq. 3.** SpiralConv3D(v) = W f(cnt_delta(k-disk(v))) + b: the features of the delta x L neighbours concatenated
+(oldest frame first, then spiral order, then channels), W of shape (C_out, delta L C_in), computed as a gather, one
+matmul and a shifted sum over frames (never the whole neighbourhood tensor; docs/design-notes.md, "SpiralConv3D").
+Layout (B, T, V, C); the paper's defaults (Table 4): spiral length 18, dilation 2, delta = 3 frames.
 """
 from __future__ import annotations
 

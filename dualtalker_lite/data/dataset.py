@@ -6,7 +6,7 @@ Every item is a dict with exactly the keys of design.md ("Dataset item"):
 key             item shape        meaning
 ==============  ================  =====================================================
 ``name``        str               clip name
-``audio``       (T, 160) float32  A_{1:T}: log-mel stacked per mesh frame
+``audio``       (T, D_a) float32  A_{1:T}: the front end's features (log-mel: D_a = 160)
 ``vertices``    (T, V*3) float32  M_{1:T} + template, metres
 ``template``    (V*3,) float32    neutral template h
 ``speaker``     int               index into ``corpus.train_speakers``, -1 if unseen
@@ -16,8 +16,11 @@ key             item shape        meaning
 ``visemes``     (T,) long         viseme id per mesh frame (0 = silence)
 ==============  ================  =====================================================
 
-Features are computed once at construction, so an epoch only slices tensors. ``collate`` pads a
-batch to its longest clip (zeros) and adds ``mask`` (B, T) bool and ``lengths`` (B,) long.
+``audio`` comes from the dataset's *front end* (``front_end=``: untrained, outside the model; default the log-mel,
+:class:`~dualtalker_lite.audio.LogMelExtractor`; the table of front ends is :mod:`dualtalker_lite.front_ends`), not
+from the model's trained audio encoder (``model.extractor``). Features are computed once at construction, so an
+epoch only slices tensors. ``collate`` pads a batch to its longest clip (zeros) and adds ``mask`` (B, T) bool and
+``lengths`` (B,) long.
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from ..audio import FeatureExtractor, LogMelExtractor, resample
+from ..deprecation import renamed_keyword, warn
 from .corpus import Corpus
 
 __all__ = ["ITEM_KEYS", "SILENCE_PAD", "TalkingFaceDataset", "VisemeLabels", "collate", "make_loader",
@@ -64,7 +68,8 @@ def _as_tensor(a: np.ndarray) -> torch.Tensor:
 
 
 class TalkingFaceDataset(Dataset):
-    """Clips of one split with precomputed audio features; optional random crop to ``max_frames``.
+    """Clips of one split with the features of a front end (``front_end``, default log-mel) precomputed; optional
+    random crop to ``max_frames``.
 
     Crops draw their start frame from ``generator`` (seeded 0 by default), so a run is reproducible
     with ``num_workers=0``; worker processes would each get a copy of the same generator state.
@@ -72,14 +77,19 @@ class TalkingFaceDataset(Dataset):
     """
 
     def __init__(self, corpus: Corpus | str | os.PathLike, split: str = "train",
-                 extractor: FeatureExtractor | None = None, max_frames: int | None = None,
-                 generator: torch.Generator | None = None, threads: int | None = 1):
-        """``threads``: torch CPU threads while precomputing features (restored afterwards). Default 1:
-        hundreds of small STFTs gain nothing from intra-op threads and slow down a lot on busy cores;
-        use ``None`` (keep the current setting) for heavy extractors such as wav2vec 2.0."""
+                 front_end: FeatureExtractor | None = None, max_frames: int | None = None,
+                 generator: torch.Generator | None = None, threads: int | None = 1, *,
+                 extractor: FeatureExtractor | None = None):
+        """``front_end``: wave -> (T, D_a) features (e.g. :func:`dualtalker_lite.front_ends.build`); None: the log-mel
+        at the corpus's frame rate. ``extractor``: its old name (deprecated, one release). ``threads``: torch CPU
+        threads while precomputing features (restored afterwards). Default 1: hundreds of small STFTs gain nothing
+        from intra-op threads and slow down a lot on busy cores; use ``None`` (keep the current setting) for heavy
+        front ends such as wav2vec 2.0."""
+        if extractor is not None:
+            front_end = renamed_keyword("TalkingFaceDataset", "extractor", "front_end", extractor, front_end)
         self.corpus = corpus if isinstance(corpus, Corpus) else Corpus(corpus)
         self.split = split
-        self.extractor = LogMelExtractor(fps=self.corpus.fps) if extractor is None else extractor
+        self.front_end = LogMelExtractor(fps=self.corpus.fps) if front_end is None else front_end
         if max_frames is not None and max_frames < 1:
             raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
         self.max_frames = max_frames
@@ -99,12 +109,12 @@ class TalkingFaceDataset(Dataset):
         wave = c.wave(name)                                               # (N,)
         n_frames = verts.shape[0]
         c.check_alignment(name, n_frames, wave.shape[0])
-        if self.extractor.sample_rate != c.sample_rate:
-            wave = resample(wave, c.sample_rate, self.extractor.sample_rate)
-        audio = self.extractor(wave, n_frames)                            # (T, dim)
-        if tuple(audio.shape) != (n_frames, self.extractor.dim):
-            raise ValueError(f"extractor returned {tuple(audio.shape)} for clip {name!r}, "
-                             f"expected {(n_frames, self.extractor.dim)}")
+        if self.front_end.sample_rate != c.sample_rate:
+            wave = resample(wave, c.sample_rate, self.front_end.sample_rate)
+        audio = self.front_end(wave, n_frames)                            # (T, dim)
+        if tuple(audio.shape) != (n_frames, self.front_end.dim):
+            raise ValueError(f"front end returned {tuple(audio.shape)} for clip {name!r}, "
+                             f"expected {(n_frames, self.front_end.dim)}")
         emotion = meta.get("emotion", "neutral")
         if emotion not in c.emotions:
             raise ValueError(f"clip {name!r}: emotion {emotion!r} not in metadata emotions {c.emotions}")
@@ -120,6 +130,12 @@ class TalkingFaceDataset(Dataset):
             "visemes": segments_to_frames(meta.get("visemes"), c.viseme_inventory, n_frames, c.fps, name),
         }
 
+    @property
+    def extractor(self) -> FeatureExtractor:
+        """The old name of :attr:`front_end` (deprecated, one release)."""
+        warn("TalkingFaceDataset.extractor", "TalkingFaceDataset.front_end")
+        return self.front_end
+
     def __len__(self) -> int:
         return len(self.items)
 
@@ -134,7 +150,7 @@ class TalkingFaceDataset(Dataset):
 
     def __repr__(self) -> str:
         return (f"TalkingFaceDataset(split={self.split!r}, clips={len(self)}, "
-                f"extractor={type(self.extractor).__name__}, max_frames={self.max_frames})")
+                f"front_end={type(self.front_end).__name__}, max_frames={self.max_frames})")
 
 
 class VisemeLabels(Dataset):
@@ -144,7 +160,7 @@ class VisemeLabels(Dataset):
     :data:`~dualtalker_lite.face.visemes.VISEMES` (the corpus's ``viseme_inventory``; 0 = sil): the metadata's
     phoneme timing mapped by ``phoneme_to_viseme`` (diphthongs -> their first part). At test time the same model
     is fed the recogniser's tracks, ``TalkingFaceDataset(corpus, split,
-    extractor=dualtalker_lite.recogniser.RecogniserExtractor("visemes"))``, which have the same shape and ids, so
+    front_end=dualtalker_lite.recogniser.RecogniserExtractor("visemes"))``, which have the same shape and ids, so
     the decoder never sees the voice itself: a model trained on one synthetic voice runs on anyone's speech
     (issue 19; ``docs/front-ends.md``). ``dim`` = 15 is the model's ``audio_dim``. ``keep_audio=True`` appends the
     base's own features after the one-hot, ``(T, 15 + base dim)``: with log-mel that is what
@@ -170,7 +186,7 @@ class VisemeLabels(Dataset):
             raise ValueError(f"pad_silence must be >= 0 frames, got {pad_silence}")
         self.base, self.keep_audio, self.pad_silence = base, keep_audio, int(pad_silence)
         self.n_visemes = len(VISEMES) if n_visemes is None else int(n_visemes)
-        extra = getattr(getattr(base, "extractor", None), "dim", None) if keep_audio else 0
+        extra = getattr(getattr(base, "front_end", None), "dim", None) if keep_audio else 0
         if extra is None:
             extra = int(base[0]["audio"].shape[1]) if len(base) else 0
         self.dim = self.n_visemes + extra

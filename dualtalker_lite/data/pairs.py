@@ -35,6 +35,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader, Dataset
 
+from ..deprecation import renamed_keyword, warn
 from .corpus import Corpus
 from .dataset import TalkingFaceDataset, collate
 
@@ -85,11 +86,14 @@ class PairDataset(Dataset):
     """Clips of ``splits`` (default the neutral ``train`` and emotional ``train_emo``), each with a partner."""
 
     def __init__(self, corpus: Corpus | str | os.PathLike, splits: tuple[str, ...] = ("train", "train_emo"),
-                 extractor=None, seed: int = 0, threads: int | None = 1):
+                 front_end=None, seed: int = 0, threads: int | None = 1, *, extractor=None):
+        """``front_end``: as :class:`TalkingFaceDataset`'s (``extractor``: its old name, deprecated)."""
+        if extractor is not None:
+            front_end = renamed_keyword("PairDataset", "extractor", "front_end", extractor, front_end)
         self.corpus = corpus if isinstance(corpus, Corpus) else Corpus(corpus)
         self.splits = tuple(splits)
-        parts = [TalkingFaceDataset(self.corpus, s, extractor, threads=threads) for s in self.splits]
-        self.extractor = parts[0].extractor
+        parts = [TalkingFaceDataset(self.corpus, s, front_end, threads=threads) for s in self.splits]
+        self.front_end = parts[0].front_end
         self.items = [it for p in parts for it in p.items]
         self.names = [it["name"] for it in self.items]
         if len(set(self.names)) != len(self.names):
@@ -97,6 +101,12 @@ class PairDataset(Dataset):
         self._index = {n: i for i, n in enumerate(self.names)}
         self.partners = pair_groups(self.corpus, self.names)
         self.generator = torch.Generator().manual_seed(seed)
+
+    @property
+    def extractor(self):
+        """The old name of :attr:`front_end` (deprecated, one release)."""
+        warn("PairDataset.extractor", "PairDataset.front_end")
+        return self.front_end
 
     def __len__(self) -> int:
         return len(self.items)

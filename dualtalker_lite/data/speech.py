@@ -21,17 +21,13 @@ variants with ``breath`` noise (``+f2 +f3 +f5`` ...) differ from run to run even
 (the output changes with address-space randomisation, so espeak 1.52 reads memory it did not set);
 :data:`SPEAKER_VOICES` avoids them and :func:`synthesize` warns.
 
-Phoneme symbols. espeak's ASCII phoneme mnemonics for ``en-us`` with stress marks (``' , % =``)
-removed (the stress itself is kept in ``Utterance.stress``: 2 for primary ``'``, 1 for secondary ``,``; the
-upper-face motion of :mod:`dualtalker_lite.face.upper` uses it); length marks that are part of the name are kept (``u:``, ``3:``). Every pause espeak emits
-(``_``, ``_:``, ``_!`` ...) and the leading silence become ``"_"``. :data:`ENGLISH_PHONEMES` lists the
-inventory observed on ~22k distinct English words and a few hundred sentences. A few that look odd:
-``@2 @- I2 I# a#`` reduced vowels, ``t#`` flapped t (*better*), ``?`` glottal stop (*button*), ``;``
-linking [j] between vowels (*the apple*), ``r-`` linking r, ``n-`` syllabic n, ``@L`` syllabic l,
-``t2`` unaspirated t (*tower*), ``3`` r-coloured schwa, ``i@3 aI3`` vowel + r, ``aI@`` (*quiet*),
-``0`` the *lot* vowel, ``aa`` the *bath* vowel; ``x C l# O u`` are rare (loanwords, odd spellings).
-Other texts may produce symbols outside this list; they are passed through unchanged. :data:`ESPEAK_IPA`
-(:func:`to_ipa`) gives each symbol's IPA, for figures.
+Phoneme symbols. espeak's ASCII phoneme mnemonics for ``en-us`` with stress marks (``' , % =``) removed (the
+stress itself is kept in ``Utterance.stress``: 2 for primary ``'``, 1 for secondary ``,``; the upper-face motion of
+:mod:`dualtalker_lite.face.upper` uses it); length marks that are part of the name are kept (``u:``, ``3:``). Every
+pause espeak emits (``_``, ``_:``, ``_!`` ...) and the leading silence become ``"_"``. :data:`ENGLISH_PHONEMES`
+lists the inventory observed on ~22k distinct English words and a few hundred sentences (the odd-looking ones:
+docs/design-notes.md, "espeak-ng's phoneme symbols"); other texts may produce symbols outside this list, passed
+through unchanged. :data:`ESPEAK_IPA` (:func:`to_ipa`) gives each symbol's IPA, for figures.
 
 Summary: :func:`synthesize` turns ``(text, VoiceSpec)`` into an :class:`Utterance`;
 :func:`synthesize_many` does it for a corpus on several cores. Voices, speakers and emotions live in

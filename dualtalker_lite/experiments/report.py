@@ -14,7 +14,7 @@ import numpy as np
 
 from .evaluation import COLLAPSE_AUDIO_SENSITIVITY, COLLAPSE_MOTION_RATIO, collapse_reasons, is_collapsed
 from ..provenance import machine_line
-from .specs import EMOTION_METRICS, FRONT_ENDS, METRICS, TABLE_SPLITS, TEST_SPLIT, TITLES, RunSpec, table_metrics
+from .specs import EMOTION_METRICS, FRONT_END_NOTES, METRICS, TABLE_SPLITS, TEST_SPLIT, TITLES, RunSpec, table_metrics
 
 # ------------------------------------------------------------------------------------------- tables
 def summarize(runs: list[dict]) -> dict:
@@ -87,7 +87,8 @@ def _front_end_line(specs: list[RunSpec], meta: dict) -> str:
     for s in specs:
         if s.model != "template":
             used.setdefault(s.features, []).append(s.row)
-    parts = [FRONT_ENDS.get(f, f) + ("" if len(used) == 1 else f" ({', '.join(rows)})") for f, rows in used.items()]
+    parts = [FRONT_END_NOTES.get(f, f) + ("" if len(used) == 1 else f" ({', '.join(rows)})")
+             for f, rows in used.items()]
     line = "Front end: " + "; ".join(parts) + "."
     if "features" not in meta and "logmel" in used:
         line += " (Made before `--features` existed: today's command for these rows adds `--features logmel`.)"

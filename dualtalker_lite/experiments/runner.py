@@ -71,7 +71,7 @@ def data_split(data: dict, split: str) -> Dataset:
     from ..data.dataset import TalkingFaceDataset
 
     if split not in data["splits"]:
-        data["splits"][split] = TalkingFaceDataset(data["view"], split, data["train"].extractor)
+        data["splits"][split] = TalkingFaceDataset(data["view"], split, data["train"].front_end)
     return data["splits"][split]
 
 
@@ -100,7 +100,7 @@ def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
         return ConcatDataset([data_split(data, s) for s in EMOTIONAL_TRAIN]), False
     from ..data.pairs import PairDataset
 
-    return PairDataset(data["view"], EMOTIONAL_TRAIN, extractor=data["train"].extractor, seed=seed), True
+    return PairDataset(data["view"], EMOTIONAL_TRAIN, front_end=data["train"].front_end, seed=seed), True
 
 
 def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: str | None = None, quick: bool = False,
@@ -133,7 +133,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
         test_set = test_features(data, test_split, spec.features)
         run = assemble_training(spec, base_train, data["view"], paired=paired, seed=seed, epochs=epochs, threads=1,
                                 time_budget_s=time_budget_s, cpu_budget_s=cpu_budget_s,
-                                logmel=data["train"].extractor, recipe=recipe)
+                                logmel=data["train"].front_end, recipe=recipe)
         model, model_cfg, train_cfg = run.model, run.model_config, run.train_config
         t0 = time.perf_counter()
         history = None if run.loader is None else train(model, run.loader, train_cfg)

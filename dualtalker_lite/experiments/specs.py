@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass, field, replace
 
 from .. import front_ends
+from ..deprecation import moved
 
 TABLES = ("main", "ablation", "sweep", "corrtalk", "emotion", "emoface")
 TEST_SPLIT = "test_a"  # the default test split (neutral speech, seen speakers)
@@ -70,8 +71,9 @@ class RunSpec:
                                                         # "faceformer" | "dualtalker" | "corrtalk" | "emoface"
     model_overrides: dict = field(default_factory=dict)  # passed to DualTalkerConfig.tiny / VocaConfig.tiny
     loss: dict = field(default_factory=dict)            # LossWeights overrides (λ1..λ4, bandwidth, ...)
-    features: str = "logmel"                            # "logmel" (A of design.md) | "phonemes" (one-hot ids) |
-                                                        # "visemes" (the phonetic route; table_specs sets it)
+    features: str = front_ends.DEFAULT                  # the front end, a name of front_ends.FRONT_ENDS: "visemes"
+                                                        # (the default, the phonetic route) | "logmel" | "phonemes"
+                                                        # | "visemes+logmel" (pairs rows; table_specs sets these)
     data: str = "neutral"                               # training clips: "neutral" (train) | "emotional" (train +
                                                         # train_emo) | "pairs" (the same, each with its pseudo-pair
                                                         # partner: data.pairs.PairDataset, for cross-reconstruction)
@@ -111,24 +113,30 @@ EMOFACE_NOTE = ("eq. 11 (λ 1/1/0.5 on mm L1s, λ_cls 0.01), Mesh Attention (L=9
 
 
 FEATURES = front_ends.CHOICES  # the tables' front ends (--features); the first, the phonetic route, is the default
-FRONT_ENDS = {name: f.description for name, f in front_ends.FRONT_ENDS.items()}  # name -> what the notes say
+FRONT_END_NOTES = {name: f.description for name, f in front_ends.FRONT_ENDS.items()}  # name -> what the notes say
+# the old name of FRONT_END_NOTES, one release (front_ends.FRONT_ENDS is the table of front ends: name -> FrontEnd)
+__getattr__ = moved(__name__, {"FRONT_ENDS": (f"{__name__}.FRONT_END_NOTES", FRONT_END_NOTES)})
 
 
-def table_specs(table: str, bandwidth: float | None = None, features: str = "logmel") -> list[RunSpec]:
+AS_WRITTEN = "logmel"  # the front end the rows below are written for; table_specs swaps in the table's
+
+
+def table_specs(table: str, bandwidth: float | None = None, features: str = AS_WRITTEN) -> list[RunSpec]:
     """The rows of ``table``. ``bandwidth`` (metres, the typical median-heuristic σ) sets the sweep's fixed σ's.
 
-    ``features``: the front end of every row that does not name its own ("logmel" as written below). With
+    ``features``: the front end of every row written for :data:`AS_WRITTEN` ("logmel"; the other rows name their
+    own, e.g. the one-hot phoneme ablations). With
     "visemes" (the phonetic route, the runner's default since issue 19) EmoFace's pair rows get "visemes+logmel"
     (its content branch reads the visemes, its emotion branch the log-mel: emotion is in the sound, not in the
     phones), and rows that swap in one-hot phonemes as an ablation keep theirs."""
     if features not in FEATURES:
         raise ValueError(f"unknown features {features!r}; choose from {FEATURES}")
     rows = _rows(table, bandwidth)
-    if features == "logmel":
+    if features == AS_WRITTEN:
         return rows
     # the swapped-in rows' notes name the front end they replace
     return [replace(s, features=front_ends.paired(features) if s.data == "pairs" else features)
-            if s.features == "logmel"
+            if s.features == AS_WRITTEN
             else replace(s, note=s.note.replace("log-mel", "the recogniser's viseme classes")) for s in rows]
 
 
@@ -143,19 +151,24 @@ def _rows(table: str, bandwidth: float | None) -> list[RunSpec]:
     return builders[table]()
 
 
-_FULL = dict(model="dualtalker")  # DualTalker rows: RunSpec(label, **_FULL, ...)
+def _row(*args, features: str = AS_WRITTEN, **kwargs) -> RunSpec:
+    """A table row: a :class:`RunSpec` whose front end is :data:`AS_WRITTEN` unless the row names another."""
+    return RunSpec(*args, features=features, **kwargs)
+
+
+_FULL = dict(model="dualtalker")  # DualTalker rows: _row(label, **_FULL, ...)
 
 
 def _main_rows() -> list[RunSpec]:
     """Table I analogue: the baselines (static template, VOCA-style, FaceFormer-style), DualTalker (the
     reference) and CorrTalk, each on the neutral clips."""
     return [
-        RunSpec("Static template", "template", note="zero motion: the floor to beat"),
-        RunSpec("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
-        RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
+        _row("Static template", "template", note="zero motion: the floor to beat"),
+        _row("VOCA-style", "voca", loss=PRIMAL_ONLY, note="sliding window, no autoregression", expect="worse"),
+        _row("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, note="primal task only, no gate, no CCRL",
                 expect="worse"),
-        RunSpec("DualTalker", **_FULL, note="λ2=λ3=0.1, λ4=0.01", reference=True),
-        RunSpec("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
+        _row("DualTalker", **_FULL, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+        _row("CorrTalk", "corrtalk", note=CORRTALK_NOTE),
     ]
 
 
@@ -164,14 +177,14 @@ def _corrtalk_rows() -> list[RunSpec]:
     random mask, with phoneme features."""
     ct = dict(model="corrtalk")
     return [
-        RunSpec("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
-        RunSpec("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
+        _row("CorrTalk", **ct, note=CORRTALK_NOTE, reference=True),
+        _row("w/o hierarchical encoder", **ct, model_overrides={"hierarchical": False},
                 note="frame level only (softmax over one level = 1)", expect="worse"),
-        RunSpec("single branch", **ct, model_overrides={"dual_branch": False},
+        _row("single branch", **ct, model_overrides={"dual_branch": False},
                 note="one FaceFormer-style branch decodes the whole face, no mask", expect="worse"),
-        RunSpec("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
+        _row("mask initialised at random", **ct, model_overrides={"mask_init": "random"},
                 note="mask ~ U(0, 1) instead of the normalised FAI", expect="worse"),
-        RunSpec("phoneme one-hot features", **ct, features="phonemes",
+        _row("phoneme one-hot features", **ct, features="phonemes",
                 note="the project's front-end swap, not a paper row (the paper swaps wavLM -> wav2vec 2.0, never "
                      "phoneme ids): log-mel -> one-hot phoneme ids, the rig's own driving signal (an easier input)"),
     ]
@@ -181,15 +194,15 @@ def _ablation_rows() -> list[RunSpec]:
     """Table IV analogue: DualTalker (the reference) without CCRL, without the dual task, with phoneme
     features, with tied encoder/decoder weights."""
     return [
-        RunSpec("DualTalker (full)", **_FULL, note="λ2=λ3=0.1, λ4=0.01", reference=True),
-        RunSpec("w/o CCRL", **_FULL, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
-        RunSpec("w/o dual training", **_FULL, model_overrides={"dual": False},
+        _row("DualTalker (full)", **_FULL, note="λ2=λ3=0.1, λ4=0.01", reference=True),
+        _row("w/o CCRL", **_FULL, loss={"lambda4": 0.0}, note="λ4=0", expect="worse"),
+        _row("w/o dual training", **_FULL, model_overrides={"dual": False},
                 loss={"lambda2": 0.0, "lambda3": 0.0},
                 note="no lip reading, λ2=λ3=0; CCRL kept (λ4=0.01 on X, Y)", expect="worse"),
-        RunSpec("phoneme one-hot features", **_FULL, features="phonemes",
+        _row("phoneme one-hot features", **_FULL, features="phonemes",
                 note="DeepSpeech analogue: one-hot phoneme ids instead of log-mel (here the rig's own "
                      "driving signal, so an easier input than in the paper)", expect="worse"),
-        RunSpec("shared enc/dec weights", **_FULL, model_overrides={"share_enc_dec": True},
+        _row("shared enc/dec weights", **_FULL, model_overrides={"share_enc_dec": True},
                 note="decoders = transposed encoders", expect="worse",
                 # the tied head has no weights of its own to start from the PCA basis, nor a basis step
                 fast_changes={"pca_init": 0, "basis_space": False}),
@@ -202,15 +215,15 @@ def _sweep_rows(bandwidth: float | None) -> list[RunSpec]:
     if bandwidth is None:
         raise ValueError("the sweep needs the typical bandwidth (see typical_bandwidth)")
     rows = [
-        RunSpec("λ4=0", **_FULL, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
-        RunSpec("λ4=0.01, σ=median", **_FULL, note="the default", reference=True),
-        RunSpec("λ4=0.1, σ=median", **_FULL, loss={"lambda4": 0.1}),
-        RunSpec("λ4=0.1, σ=median, InfoNCE reading", **_FULL, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
+        _row("λ4=0", **_FULL, loss={"lambda4": 0.0}, note="no CCRL", expect="worse"),
+        _row("λ4=0.01, σ=median", **_FULL, note="the default", reference=True),
+        _row("λ4=0.1, σ=median", **_FULL, loss={"lambda4": 0.1}),
+        _row("λ4=0.1, σ=median, InfoNCE reading", **_FULL, loss={"lambda4": 0.1, "ccrl_reading": "infonce"},
                 note="CCRL with one positive in the denominator (the reading before issue 8)"),
     ]
     for factor in (0.5, 2.0):
         sigma = factor * bandwidth
-        rows.append(RunSpec(f"λ4=0.1, σ={factor:g}×typ = {sigma * 1e3:.3g} mm", **_FULL,
+        rows.append(_row(f"λ4=0.1, σ={factor:g}×typ = {sigma * 1e3:.3g} mm", **_FULL,
                             loss={"lambda4": 0.1, "bandwidth": sigma},
                             note=f"fixed σ for every clip ({factor:g}× the median of the per-clip medians)"))
     return rows
@@ -221,13 +234,13 @@ def _emotion_rows() -> list[RunSpec]:
     against EmoFace (the reference) on its pseudo-pairs."""
     emo = dict(data="emotional")  # every row trains on the same clips: train + train_emo
     return [
-        RunSpec("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
+        _row("FaceFormer-style", "faceformer", loss=PRIMAL_ONLY, **emo, note="primal task only, no emotion "
                 "input (the emotion must come from the audio)", expect="worse"),
-        RunSpec("DualTalker", **_FULL, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input (not in EmoFace's "
+        _row("DualTalker", **_FULL, **emo, note="λ2=λ3=0.1, λ4=0.01; no emotion input (not in EmoFace's "
                 "Table 2: no paper claim)"),
-        RunSpec("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input (not in EmoFace's "
+        _row("CorrTalk", "corrtalk", **emo, note=CORRTALK_NOTE + "; no emotion input (not in EmoFace's "
                 "Table 2: no paper claim)"),
-        RunSpec("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
+        _row("EmoFace", "emoface", data="pairs", note=EMOFACE_NOTE, reference=True),
     ]
 
 
@@ -236,15 +249,15 @@ def _emoface_rows() -> list[RunSpec]:
     cross-reconstruction, all on the pseudo-pairs."""
     ef = dict(model="emoface", data="pairs")
     return [
-        RunSpec("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
-        RunSpec("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
+        _row("EmoFace (full)", **ef, note=EMOFACE_NOTE, reference=True),
+        _row("w/o Mesh Attention", **ef, model_overrides={"fusion": "sum"},
                 note="the mean of the two branches (the map held at 0.5); the paper's 'Add' adds them",
                 expect="worse"),
-        RunSpec("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
+        _row("w/o SpiralConv3D", **ef, model_overrides={"spiral_length": 1, "spiral_delta": 1},
                 note="MLP in its place: spirals of length 1, δ=1 (one linear map per vertex and frame); not a "
                      "row of the paper's Table 3 (its Table 4 varies SpiralConv3D's settings instead)"),
-        RunSpec("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
+        _row("w/o self-growing", **ef, model_overrides={"past_motion": "teacher_forcing"},
                 note="plain teacher forcing (ground-truth past motion at every epoch)", expect="worse"),
-        RunSpec("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
+        _row("w/o cross-reconstruction", **ef, model_overrides={"cross_reconstruction": False},
                 note="same pair loader, no cross pass (λ_cross term 0); not a row of the paper's Table 3"),
     ]

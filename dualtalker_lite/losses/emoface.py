@@ -69,8 +69,8 @@ class EmoFaceWeights:
     encoder read the log-mel level statistics (``models.emoface``, "Loudness for the emotion branch"): with λ4 = 0.01
     the classifier stayed at the class prior after 280 steps (two-clip CE 3.05 against 3.15 for the class prior;
     accuracy on test_emo_a 0.06, almost every clip called neutral), with λ4 = 1 accuracy 0.19 after 140 steps. The
-    main cause was the front-end's per-frame normalisation, not λ4: encoder + classifier trained with the
-    cross-entropy alone reached 0.19 on that front-end, 0.52 with the statistics. Jointly at λ4 = 0.01, 140 steps
+    main cause was the extractor's per-frame normalisation, not λ4: encoder + classifier trained with the
+    cross-entropy alone reached 0.19 on that extractor, 0.52 with the statistics. Jointly at λ4 = 0.01, 140 steps
     (``benchmarks/emoface_classifier.py``, seeds 0/1/2): 0.31 / 0.25 / 0.21 with the statistics (sad and angry
     mostly right; happy and surprised still called neutral, the most frequent training label), against
     0.00 / 0.00 / 0.04 without (same script on the code before). λ4 and class balance remain open tuning questions.

@@ -4,20 +4,10 @@ lip-sync metrics (bilabial closures, vowel opening, lip-distance correlation, li
 DualTalker sec. IV-C (LVE; FDD, eq. 12; lip distance, Fig. 5), CorrTalk Fig. 5 (per-vertex mean error map),
 EmoFace sec. 4.2 (EVE = the lip error on eye and forehead vertices).
 
-Two readings of each metric
----------------------------
-The papers' *text* says LVE is "the maximal L2 error of all lip vertices for each frame, averaged over all frames" and
-that dyn(.) in eq. 12 is "the standard deviation of the element-wise L2 norm along the temporal axis". The numbers in
-their *tables* come from the public evaluation code of MeshTalk/FaceFormer/CodeTalker, which never takes a square root:
-
-    LVE_pub = mean_{all test frames t, pooled} max_{v in lips} ||p_tv - g_tv||^2                      (squared length)
-    FDD_pub = mean_seq [ mean_{v in S_U} std_t ||g_tv - h_v||^2  -  mean_{v in S_U} std_t ||p_tv - h_v||^2 ]
-
-with std over time (ddof=0), h the template, g the ground truth, p the prediction. Both are *squared lengths*.
-VOCASET stores metres, so EmoFace's VOCASET LVE "2.8669 x 10^-5 mm" is really 2.8669e-5 m^2 = 28.669 mm^2: its root,
-5.35 mm, is the RMS over frames of the worst lip-vertex error (read as a plain length it would be an implausible
-0.03 mm). The "10^-4 mm" / "10^-5 mm" column labels of DualTalker and CorrTalk name a scale factor, not a unit; the
-number is in the square of the unit the dataset's meshes are stored in.
+Two readings of each metric: the papers' *text* (LVE: "the maximal L2 error of all lip vertices for each frame,
+averaged over all frames"; FDD's dyn(.): "the standard deviation of the element-wise L2 norm along the temporal
+axis") and their *tables* (the public MeshTalk/FaceFormer/CodeTalker code, no square root: *squared lengths* in the
+meshes' unit; docs/design-notes.md, "Metrics"). p prediction, g ground truth, h template, std over time (ddof=0):
 
 | function          | formula                                             | unit="mm" | unit="m" |
 |-------------------|-----------------------------------------------------|-----------|----------|
@@ -27,32 +17,26 @@ number is in the square of the unit the dataset's meshes are stored in.
 | `fdd_paper`       | mean_seq mean_v [std_t ||g-h||   - std_t ||p-h||]   | mm        | m        |
 | `eve`             | either LVE on eye + forehead vertices               |           |          |
 
-Inputs are vertices in **metres** (docs/design.md); ``unit`` only picks the output length unit (x1000 for "mm").
-Use ``unit="m"`` with the ``*_published`` functions to compare with the papers' VOCASET tables.
-Pooling: LVE/EVE average over all frames of the test set (long clips weigh more); FDD averages per sequence.
-FDD is signed: positive = ground truth moves more than the prediction (over-smoothing).
+Inputs are vertices in **metres**; ``unit`` only picks the output unit (``unit="m"`` with the ``*_published``
+functions compares with the papers' VOCASET tables). LVE/EVE pool all frames of the test set (long clips weigh
+more); FDD averages per sequence and is signed: positive = the ground truth moves more (over-smoothing).
 
-Lip sync (the papers' Fig. 5 lip-distance plots made quantitative; :func:`lip_sync_metrics` returns them all)
-----------------------------------------------------------------------------------------------------------------
-From the phoneme segments of the corpus metadata (``corpus.meta(clip)["phonemes"]`` = [[phoneme, start_s, end_s]],
-espeak-ng mnemonics) and the lip distance (upper to lower lip midpoint, the ``lip_midpoints`` region), in mm:
+Lip sync (:func:`lip_sync_metrics`; the papers' Fig. 5 lip-distance plots made quantitative), from the phoneme
+segments of the metadata (``[[phoneme, start_s, end_s]]``, espeak-ng mnemonics) and the lip distance (upper to lower
+lip midpoint, the ``lip_midpoints`` region), in mm:
 
 | key                        | meaning                                                                      |
 |----------------------------|------------------------------------------------------------------------------|
 | `bilabial_closure_2mm/1mm` | fraction of /p b m/ segments whose minimum predicted lip distance is < 2 / 1 mm |
-| `bilabial_min_mm`          | mean over /p b m/ segments of that minimum (ground truth of the sample: 0.3) |
+| `bilabial_min_mm`          | mean over /p b m/ segments of that minimum                                   |
 | `open_vowel_max_mm`        | mean over open-vowel segments of the maximum lip distance                    |
 | `lip_distance_corr`        | mean over clips of the Pearson correlation of the predicted and true curves  |
 | `lip_motion_ratio`         | temporal std of the lip vertices, prediction / ground truth (1 = as lively)   |
 
-Read the closure rates with the other columns: the rig's rest gap is about 2 mm, so a face that never moves
-(the static template) already "closes" under 2 mm for speakers whose rest gap is just below it (0.5 on the
-sample's test-A); it never opens (``open_vowel_max_mm`` ~2 against ~13.6) and never passes 1 mm.
-
-Accepted inputs (numpy or torch, any float dtype; computed in float64 numpy, returned as Python floats):
-a list of (T_i, V, 3) or (T_i, V*3) sequences, or a padded (B, T, V*3) / (B, T, V, 3) array with a (B, T) bool ``mask``.
-Predictions and ground truth must have the same length: the published code silently truncates to the shorter one;
-here a mismatch is an error (truncate explicitly if that is what you want).
+Read the closure rates with the other columns: the rig's rest gap is about 2 mm (docs/design-notes.md, "Metrics").
+Inputs: numpy or torch, any float dtype (computed in float64, returned as Python floats); a list of (T_i, V, 3) or
+(T_i, V*3) sequences, or a padded (B, T, V*3) / (B, T, V, 3) array with a (B, T) bool ``mask``. Prediction and
+ground truth must have the same length (the published code truncates silently; here a mismatch is an error).
 """
 from __future__ import annotations
 

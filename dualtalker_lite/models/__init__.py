@@ -1,8 +1,8 @@
 """One module per paper, plus the baselines. Each model composes ``blocks/`` (the shared FaceFormer-style
-``blocks.decoder.MotionDecoder``, the audio front-end ``blocks.audio_encoder``, the paper's own blocks) and its
+``blocks.decoder.MotionDecoder``, the audio feature extractor ``blocks.audio_encoder``, the paper's own blocks) and its
 paper's ``losses`` module; no model imports another model.
 
-- ``faceformer``  the FaceFormer-style baseline: audio front-end + one MotionDecoder
+- ``faceformer``  the FaceFormer-style baseline: audio feature extractor + one MotionDecoder
 - ``dualtalker``  DualTalker: primal task (a MotionDecoder with DualTalker's fusion) + dual task (lip reading)
 - ``corrtalk``    CorrTalk: hierarchical speech features, strong and weak MotionDecoders joined by an FAI mask
 - ``emoface``     EmoFace: emotion and content branches (two MotionDecoders), Mesh Attention, self-growing training

@@ -6,7 +6,7 @@ reconstructions from the surrounding prose, not the printed ones; the readings t
 
 Pipeline (Fig. 3), shapes for a batch of B clips of T mesh frames, V vertices::
 
-    A (B, T, D_a) -> shared audio front-end (wavLM stand-in) -> A' (B, T, C)
+    A (B, T, D_a) -> shared audio feature extractor (wavLM stand-in) -> A' (B, T, C)
     A' -> hierarchical extractor (Fig. 4) -> F^f, F^p, F^w, F^u       (B, T, 4, d)   blocks.hierarchical
        -> weight generator s -> F̃^s (B, T, d), α^s (B, T, 4);  weight generator w -> F̃^w, α^w   (eqs. 4-6)
     strong branch: FaceFormer-style decoder on (S_n, past motion, F̃^s) -> M^s (B, T, V*3)
@@ -14,8 +14,7 @@ Pipeline (Fig. 3), shapes for a batch of B clips of T mesh frames, V vertices::
     (F^w without a tilde is the word level; F̃^s, F̃^w are the two branches' weighted features)
     M̂ = mask ⊙ M^s + (1 - mask) ⊙ M^w,  vertices = template + M̂                                   (eqs. 7-8)
 
-Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.blocks.fai`,
-:mod:`dualtalker_lite.blocks.hierarchical` and :mod:`dualtalker_lite.losses.corrtalk`):
+Reconstructed equations (eqs. 3-6 and 9-11: ``blocks.fai``, ``blocks.hierarchical``, ``losses.corrtalk``):
 
 .. math::
 
@@ -28,33 +27,16 @@ Reconstructed equations (eqs. 3-6 and 9-11 are in :mod:`dualtalker_lite.blocks.f
         \mathrm{MotionDec}_w\big(\mathrm{TransDec}_w(E_w(\hat M_{<t}) + S_n, \tilde F^w)\big)\\
     \hat M_t = \hat M^{s}_t + \hat M^{w}_t                                                            && (8)
 
-Readings taken:
-
+Readings taken (each with why, and the ones not repeated here: docs/design-notes.md, "CorrTalk"):
 - Eq. 2's combination is eq. 8's sum, and the mask sits *inside* each branch's output (eq. 7: "we replace M
   with 1 - M" for the weak branch), so ``out["motion_strong"] + out["motion_weak"] = out["motion"]`` exactly.
-  The mask is per vertex (V,), repeated over x, y, z. It is a plain learnable parameter (the text: "a learnable
-  mask initialised with a normalised FAI"), not squashed into [0, 1]: after training it may leave [0, 1]; the
-  two branch masks always sum to 1 (a sigmoid-parameterised mask is the other possible reading).
-- "The newly predicted motion is employed to update the past motions": both branches are fed the *summed*
-  prediction M̂_{<t} (ground truth in teacher forcing), each through its own embedding layer.
-- Each branch is FaceFormer's decoder as in the project's FaceFormer-style baseline: past-motion embedding + the
-  talking-style vector S_n (start token S_n), periodic positional encoding, a transformer decoder layer with the
-  ALiBi-biased causal self-attention and cross-attention to the branch's features under the diagonal alignment,
-  and a linear motion decoder (zero-initialised: an untrained model outputs the template). These pieces *are*
-  :class:`~dualtalker_lite.blocks.decoder.MotionDecoder` (FaceFormer's layers: no gate, queries from the motion
-  stream), the block the FaceFormer-style baseline is made of; CorrTalk composes two of them.
-- One style embedding shared by both branches (one "talking style vector" per speaker in the text).
-- Past-motion dropout (``motion_dropout``, the project's exposure-bias remedy, 0.5 in ``tiny()`` as for every
-  autoregressive model of the recipe): a fed-back frame is hidden (zero motion) for both branches at once.
-- Ablations (Table III): ``hierarchical=False`` keeps the frame level only (the weight generator's softmax over
-  one level is 1); ``dual_branch=False`` decodes the whole face with the strong branch alone (no mask);
-  ``mask_init="random"`` draws the mask from U(0, 1) instead of the FAI; ``"uniform"`` is 0.5 everywhere.
-
-Mask initialisation from data: :meth:`CorrTalk.init_from_data` (called by ``train`` beside ``init_output_bias``
-when the recipe's ``mean_init`` is on) sets the mask to the normalised FAI of the training set
-(:func:`dualtalker_lite.blocks.fai.fai_from_dataset`, :func:`dualtalker_lite.blocks.fai.normalised_fai`);
-:meth:`init_mask`
-takes any (V,) vector.
+  The mask is a plain learnable parameter per vertex (V,), not squashed into [0, 1].
+- Both branches are fed the *summed* prediction M̂_{<t} through their own embeddings; each is a ``MotionDecoder`` of
+  FaceFormer's layers (the FaceFormer-style baseline's block, ``blocks.decoder``), sharing one style embedding S_n.
+- Ablations (Table III): ``hierarchical=False`` (frame level only), ``dual_branch=False`` (the strong branch alone,
+  no mask), ``mask_init="random"`` (U(0, 1) instead of the FAI; ``"uniform"``: 0.5 everywhere).
+- :meth:`CorrTalk.init_from_data` (``train``, with the recipe's ``mean_init``) sets the mask to the normalised FAI of
+  the training set (``blocks.fai.fai_from_dataset``, ``blocks.fai.normalised_fai``).
 """
 from __future__ import annotations
 
@@ -102,7 +84,7 @@ class CorrTalkConfig:
     dual_branch: bool = True  # False: one branch decodes the whole face (Table III "single branch")
     mask_init: str = "fai"  # "fai" | "random" | "uniform" (Table III "initialised at random"); "fai" is 0.5
     # everywhere until init_from_data (train calls it when TrainConfig.mean_init, the recipe's default)
-    audio_hidden: int = 256  # C: width of the acoustic front-end (1024 for wavLM large)
+    audio_hidden: int = 256  # C: width of the audio feature extractor (1024 for wavLM large)
     audio_heads: int = 4
     audio_conv_layers: int = 2
     audio_kernel: int = 5
@@ -142,7 +124,7 @@ class CorrTalkConfig:
 
 
 class CorrTalk(nn.Module):
-    """Shared audio front-end, weighted hierarchical encoder (one weight generator per branch), strong and weak
+    """Shared audio feature extractor, weighted hierarchical encoder (one weight generator per branch), strong and weak
     FaceFormer-style branches combined by a learnable FAI-initialised mask (eqs. 1-8, reconstructed)."""
 
     loss_weights_cls = CorrTalkWeights  # train.loss_weights builds it
@@ -151,7 +133,7 @@ class CorrTalk(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, c = cfg.d_model, cfg.audio_hidden
-        self.extractor = AudioFeatureExtractor.from_config(cfg)  # the wavLM stand-in (shared front-end)
+        self.extractor = AudioFeatureExtractor.from_config(cfg)  # the wavLM stand-in (shared by both branches)
         n_levels = 4 if cfg.hierarchical else 1
         self.hierarchy = HierarchicalFeatureExtractor(c, d, cfg.encoder_heads, cfg.encoder_ff, cfg.radii,
                                                       cfg.dropout, n_levels)
@@ -320,7 +302,7 @@ class CorrTalk(nn.Module):
         return autoregressive_chunks(decoders, feats, styles, template, combine, mask, window, chunk)
 
     def receptive_field(self) -> int | None:
-        """Audio frames on each side of t that F̃^s_t, F̃^w_t depend on: the front-end's, then the hierarchy's
+        """Audio frames on each side of t that F̃^s_t, F̃^w_t depend on: the extractor's, then the hierarchy's
         cascade of bands (the weight generators are per frame); None when a level sees the whole clip."""
         parts = [self.extractor.receptive_field(), self.hierarchy.receptive_field()]
         return None if None in parts else sum(parts)

@@ -11,12 +11,10 @@ Two tasks share the audio encoder, the motion encoder and the style embeddings (
         [S_n, Ae(a_1), ..., Ae(a_{T-1})] + PPE -> dual fusion (eq. 7) -> X̆         (B, T, d)  ``x_fused``
         X̆ -> audio decoder -> Ã                                                  (B, T, D_a)
 
-Composition: the audio path is ``blocks.audio_encoder`` (a small wav2vec 2.0 stand-in) plus a linear audio encoder;
-the primal task is a ``blocks.decoder.MotionDecoder`` whose layers are DualTalker's fusion layers
-(``blocks.fusion.DualFusionLayer``: FaceFormer's decoder layer with the speaker-aware gate, the integration with
-queries from the audio and shared W_Q/W_K, and both directions composed around it); the dual task reuses that
-decoder's style table, PPE and layers (``direction="dual"``) and adds the audio decoder. The losses are
-``losses.dualtalker`` (eqs. 8-11).
+Composition: the audio path is ``blocks.audio_encoder`` (the audio feature extractor, a small wav2vec 2.0 stand-in)
+plus a linear audio encoder; the primal task is a ``blocks.decoder.MotionDecoder`` of DualTalker's fusion layers
+(``blocks.fusion.DualFusionLayer``); the dual task reuses that decoder's style table, PPE and layers
+(``direction="dual"``) and adds the audio decoder. The losses are ``losses.dualtalker`` (eqs. 8-11).
 
 Readings taken (the paper leaves these open; ``blocks.fusion`` has the reading of eq. 6):
 

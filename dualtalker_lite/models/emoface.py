@@ -1,62 +1,42 @@
 """EmoFace: emotion-content disentangled speech-driven 3D talking faces (Figs. 1, 2, 5; section 3.1, 3.3; eqs. 6-18).
 
-Two branches read the same speech through the shared acoustic front-end (the wav2vec 2.0 stand-in of
-:mod:`.audio_encoder`) and each drives the template with its own FaceFormer-style autoregressive decoder; Mesh
-Attention (section 3.2, ``blocks.mesh_attention``) weighs the two offsets per vertex and frame (Fig. 1):
+Two branches read the same speech through the shared audio feature extractor (the wav2vec 2.0 stand-in of
+:mod:`.audio_encoder`), each drives the template with its own FaceFormer-style decoder (``blocks.decoder``), and
+Mesh Attention (section 3.2, ``blocks.mesh_attention``) weighs the two offsets per vertex and frame (Fig. 1):
 
     A -> extractor -> H                                                         (B, T, C)
     content encoder  E_c: F_c = W_c H                          (eq. 12)          (B, T, d)  short-term, per frame
-    emotion encoder  E_e: F_e = TransformerLayer(W_e H + W_z z) (eqs. 13-14)     (B, T, d)  whole-clip context;
-                     z: the standardised per-frame log-mel mean and std (frame_level_stats, see below)
+    emotion encoder  E_e: F_e = TransformerLayer(W_e H + W_z z) (eqs. 13-14)     (B, T, d)  whole-clip context
     classifier: p = softmax(W_cls [mean_t F_e, std_t F_e])     (eq. 10)          (B, N_e)
     conditions: F_e += W_type y_emotion + W_level l (one-hot level l in R^2); speaking style s (one-hot) = the
                 decoders' style embeddings S_n
     decoders D_c, D_e (eqs. 15-16): [S_n, Me(m_1), ...] -> FaceFormer layers (features F) -> ΔM^c, ΔM^e (B, T, V*3)
     fusion ε (eqs. 17-18): ΔM = Mesh Attention(F_e, F_c, ΔM^e, ΔM^c), or the mean of the two ("sum" ablation)
 
-Cross-reconstruction (section 3.3.2, appendix A.2, Fig. 5): for a pseudo-pair (clip 1 = c1,e1; clip 2 = c1,e2:
-same speaker and sentence, another emotion) the decoders also reconstruct clip 2 from *clip 1's content features*
-and *clip 2's emotion features*: M^c_{c1,e2} = D_c(F_c1), M^e_{c1,e2} = D_e(F_e2), M_{c1,e2} = ε(...).
-
-Readings taken (the paper leaves these open):
-
+Cross-reconstruction (section 3.3.2, appendix A.2, Fig. 5): for a pseudo-pair (c1,e1), (c1,e2) (same speaker and
+sentence) clip 2 is also reconstructed: M^c_{c1,e2} = D_c(F_c1), M^e_{c1,e2} = D_e(F_e2), M_{c1,e2} = ε(...).
+Readings taken (the paper leaves these open; all of them, with why: docs/design-notes.md, "EmoFace"):
 - Equal lengths. Eqs. 12-18 treat both clips of a pair as the same length T; spoken with another emotion they are
   not (prosody). We resample clip 2 (its features and vertices) *linearly in time* to clip 1's length before
   anything else (``data.pairs``), so M_{c1,e2} is literally a length-T sequence: start and end are aligned,
   the middle only approximately (no DTW). The cross targets are therefore the time-warped partner frames.
-- The branch decoders are FaceFormer-style ``blocks.decoder.MotionDecoder``s (queries from the motion
-  stream, diagonal alignment, ALiBi, PPE, style added to every token), the block of the baseline: the
-  "audio" they attend to is the branch's features F_c or F_e. Both decoders are fed back the *fused* motion
-  (teacher forcing: the ground truth; generation: the fused prediction), because the paper predicts one mesh
-  sequence M_t "conditioned on ... the prior sequence of face motions M_<=t" (section 3.3.1).
-- Eq. 15 is taken as printed: the content branch's cross output *is* its self output (one D_c pass, reused), so
-  the content branch cannot copy clip 2's emotion from a past it never sees. Eq. 16's D_e(F_e2) is teacher-forced
-  on clip 2's (warped) ground-truth past motion (the target it reconstructs).
-- Emotion type: the paper's inputs are speech, level, style and template; the type is recognised from speech
-  (the classifier). We add the type to the emotion branch as a condition, like the level: in training the label
-  one-hot, in generation the classifier's probabilities p, or a one-hot chosen by the caller (``emotion=``). This
-  is what makes the CLI's ``--emotion`` possible; without it the type follows the audio.
-- Level: the corpus numbers intensities 0 (neutral clips), 1 (normal), 2 (strong); the paper's 2-level one-hot
-  gets 1 -> [1, 0], 2 -> [0, 1], and neutral clips count as normal (RAVDESS records neutral at normal intensity only).
+- Emotion type (a project addition): the paper recognises it from speech (the classifier); we also give it to the
+  emotion branch as a condition, like the level: the label one-hot in training, in generation the classifier's p or
+  a one-hot chosen by the caller (``emotion=``, the CLI's ``--emotion``).
 - The classifier (eq. 10 gives only its output p) reads utterance statistics of the emotion features, their mean
   and standard deviation over the valid frames, as emotion is a property of the whole sentence. For long audio
   generation recognises it in a first streaming pass (running sums of F_e and F_e^2), then encodes the features
   block by block (``blocks.feature_windows``): the same numbers as the whole clip's, to rounding.
-- Loudness for the emotion branch: the shared front-end's per-frame LayerNorm divides out each frame's level and
+- Loudness for the emotion branch: the shared extractor's per-frame LayerNorm divides out each frame's level and
   spectral spread, the volume and range of emotional prosody (wav2vec 2.0 normalises per utterance instead). E_e
-  therefore also reads :func:`frame_level_stats`, standardised with the training frames' statistics
+  therefore also reads z = :func:`frame_level_stats`, standardised with the training frames' statistics
   (:meth:`EmoFace.init_from_data`), through its own linear map added to W_e H (measured: docs/design-notes.md).
 - Self-growing training (section 3.3.1, Fig. 2, eq. 6): stage one is the whole model teacher-forced (no gradient;
   the paper does not supervise it), stage two feeds each past frame from the ground truth with probability
-  :func:`self_growing_share` ``(epoch, N, θ)`` and from stage one's fused prediction otherwise. The training loop
-  tells the model the epoch through :meth:`EmoFace.set_epoch`; θ = ``growing_warmup`` x N epochs (untuned).
-  ``past_motion`` selects the alternatives compared in notebook 14/15: "teacher_forcing", "scheduled_sampling"
-  (constant prediction share ``sampling_p``) and "dropout" (DualTalker's past-motion dropout with ``sampling_p``).
+  :func:`self_growing_share` ``(epoch, N, θ)`` and from stage one's fused prediction otherwise (:meth:`set_epoch`).
 - "sum" fusion (the "w/o Mesh Attention" ablation): both branches are supervised towards the *whole* target
   (eqs. 7-8), so their plain sum would double it; "sum" is therefore the equal-weight mean, i.e. Mesh Attention's
   map held at 0.5 everywhere.
-- Motion enters and leaves the decoders in mm (``motion_scale``), and :meth:`init_output_bias` starts both decoder
-  biases at the training mean motion, as for every model (docs/design-notes.md, "Mean-face collapse").
 """
 from __future__ import annotations
 
@@ -100,7 +80,7 @@ class EmoFaceConfig:
     n_layers: int = 1  # decoder layers per branch
     emotion_layers: int = 1  # transformer layers of the emotion encoder (long-term context)
     period: int = 30
-    audio_hidden: int = 256  # C of the front-end
+    audio_hidden: int = 256  # C of the audio feature extractor
     audio_heads: int = 4
     audio_conv_layers: int = 2
     audio_kernel: int = 5
@@ -150,7 +130,7 @@ class EmoFaceConfig:
 def frame_level_stats(audio: Tensor) -> Tensor:
     """Per-frame mean and standard deviation of the log-mel over its bins: A (B, T, D_a) -> (B, T, 2).
 
-    These are exactly the two numbers the front-end's per-frame LayerNorm (``AudioFeatureExtractor.input_norm``)
+    These are exactly the two numbers the extractor's per-frame LayerNorm (``AudioFeatureExtractor.input_norm``)
     divides out: loudness and spectral spread, which carry the volume and range of emotional prosody. Padding frames
     (zeroed audio) give (0, 0)."""
     return torch.stack([audio.mean(-1), audio.std(-1, unbiased=False)], dim=-1)  # (B, T, 2)
@@ -197,14 +177,14 @@ class EmoFace(nn.Module):
         d, c = cfg.d_model, cfg.audio_hidden
         k = cfg.content_dims
         self.extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=cfg.audio_dim - k, content_dims=0))
-        # phonetic route: E_c gets its own front-end over the viseme one-hot, so the content branch never hears
-        # the voice; the shared front-end above then reads only the log-mel, for E_e
+        # phonetic route: E_c gets its own extractor over the viseme one-hot, so the content branch never hears
+        # the voice; the shared extractor above then reads only the log-mel, for E_e
         self.content_extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=k, content_dims=0)) if k else None
         self.content_encoder = nn.Linear(c, d)  # E_c: per frame (short-term content)
         self.emotion_projection = nn.Linear(c, d)  # E_e, first part
-        # E_e also reads the per-frame log-mel mean and std (frame_level_stats) that the front-end's per-frame
+        # E_e also reads the per-frame log-mel mean and std (frame_level_stats) that the extractor's per-frame
         # LayerNorm removes, standardised with the training clips' statistics (init_from_data; raw log-mel is
-        # about -14..+2, so unstandardised they would swamp the projected front-end)
+        # about -14..+2, so unstandardised they would swamp the projected extractor output)
         self.register_buffer("level_stats_mean", torch.zeros(2))
         self.register_buffer("level_stats_std", torch.ones(2))
         self.emotion_level_stats = nn.Linear(2, d)
@@ -259,10 +239,10 @@ class EmoFace(nn.Module):
 
     def encode(self, audio: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Eqs. 12-13: A (B, T, D_a) -> content features F_c, emotion features F_e, each (B, T, d). With
-        ``content_dims`` = k the content branch reads A[..., :k] through its own front-end and the emotion branch
-        A[..., k:]; without, both share one front-end over all of A (the paper)."""
+        ``content_dims`` = k the content branch reads A[..., :k] through its own extractor and the emotion branch
+        A[..., k:]; without, both share one extractor over all of A (the paper)."""
         k = self.cfg.content_dims
-        h = self.extractor(self.emotion_audio(audio), mask)  # (B, T, C) shared front-end (log-mel only if k)
+        h = self.extractor(self.emotion_audio(audio), mask)  # (B, T, C) shared extractor (log-mel only if k)
         h_c = h if self.content_extractor is None else self.content_extractor(audio[..., :k], mask)  # (B, T, C)
         stats = (frame_level_stats(self.emotion_audio(audio)) - self.level_stats_mean) / self.level_stats_std
         if mask is not None:
@@ -430,8 +410,8 @@ class EmoFace(nn.Module):
         return self.classify(self.encode(audio, mask)[1], mask)
 
     def receptive_field(self) -> int | None:
-        """Audio frames on each side of t that F_c and F_e at t depend on: the shared front-end's plus one band
-        (``audio_radius``) per emotion layer for F_e, the content front-end's for F_c (phonetic route); None when any
+        """Audio frames on each side of t that F_c and F_e at t depend on: the shared extractor's plus one band
+        (``audio_radius``) per emotion layer for F_e, the content extractor's for F_c (phonetic route); None when any
         of them sees the whole clip. (The frame-level statistics are per frame; the classifier's pooling is not
         local, hence the separate pass of :meth:`streamed_emotion_logits`.)"""
         fe, radius = self.extractor.receptive_field(), self.cfg.audio_radius

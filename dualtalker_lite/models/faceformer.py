@@ -82,7 +82,7 @@ class FaceFormerConfig:
 
 
 class FaceFormer(OneDecoderHooks, nn.Module):
-    """Audio front-end + one FaceFormer-style :class:`~dualtalker_lite.blocks.decoder.MotionDecoder`."""
+    """Audio feature extractor + one FaceFormer-style :class:`~dualtalker_lite.blocks.decoder.MotionDecoder`."""
 
     loss_weights_cls = ReconstructionWeights  # trained with the vertex MSE λ1 L_rec
 

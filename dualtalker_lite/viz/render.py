@@ -1,5 +1,8 @@
-"""The mesh renderer's old address: it lives in :mod:`dualtalker_lite.export.render` (the mp4 writer,
-:mod:`dualtalker_lite.export.video`, draws with it below the visualisation layer). Kept because notebook 01
-imports ``draw_mesh`` from here."""
-from ..export.render import *  # noqa: F401,F403
-from ..export.render import __all__  # noqa: F401
+"""The mesh renderer's old address. Deprecated: it lives in :mod:`dualtalker_lite.export.render` (the mp4 writer,
+:mod:`dualtalker_lite.export.video`, draws with it below the visualisation layer); every name still works here for
+one release, with a DeprecationWarning naming its new address (``CHANGELOG.md``)."""
+from ..deprecation import moved
+from ..export import render as _render
+
+__all__ = list(_render.__all__)
+__getattr__ = moved(__name__, {name: (f"{_render.__name__}.{name}", getattr(_render, name)) for name in __all__})
