@@ -69,7 +69,7 @@ from dualtalker_lite.metrics import lip_distance
 from dualtalker_lite.checks import check_shape
 from dualtalker_lite.seeding import set_seed
 from dualtalker_lite.viz import MeshViewer, animate_clip, plot_frames, plot_lip_distance, plot_waveform_and_phonemes
-from dualtalker_lite.viz.render import draw_mesh
+from dualtalker_lite.export.render import draw_mesh
 
 torch.set_num_threads(2)
 gen = set_seed(0)

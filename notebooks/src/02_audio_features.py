@@ -274,7 +274,7 @@ plt.show()
 # from dualtalker_lite.audio import Wav2Vec2Extractor
 #
 # w2v = Wav2Vec2Extractor("/data/models/wav2vec2-base-960h", fps=30, frames_per_mesh_frame=1, layer=-1)
-# train_set = TalkingFaceDataset(corpus, "train", extractor=w2v, threads=None)   # item["audio"]: (T, 768)
+# train_set = TalkingFaceDataset(corpus, "train", front_end=w2v, threads=None)   # item["audio"]: (T, 768)
 # # and the model's audio input width: DualTalkerConfig(audio_dim=w2v.dim, ...)
 # ```
 #
@@ -294,7 +294,7 @@ class LoudnessExtractor:
 
 loudness = LoudnessExtractor()
 assert isinstance(loudness, FeatureExtractor) and isinstance(extractor, FeatureExtractor)
-small_set = TalkingFaceDataset(corpus, "val", extractor=loudness)
+small_set = TalkingFaceDataset(corpus, "val", front_end=loudness)
 check_shape(small_set[0]["audio"], (small_set[0]["vertices"].shape[0], 2), "loudness features")
 try:
     Wav2Vec2Extractor(corpus.root / "no-such-model")

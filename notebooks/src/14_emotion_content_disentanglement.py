@@ -366,7 +366,7 @@ assert lip_hist.steps[-1] == 100 and lip_hist.term("contact")[-1] < 0.5 * lip_hi
 # %%
 # trained-model figures: nbval does not compare them (their last digit differs between CPU instruction sets);
 # the assert is the check
-emo_test = TalkingFaceDataset(corpus, "test_emo_a", pairs.extractor)
+emo_test = TalkingFaceDataset(corpus, "test_emo_a", pairs.front_end)
 labelled = VisemeLabels(emo_test, keep_audio=True)
 own, other = (labelled[emo_test.names.index(n)] for n in ("SPK03_s02-happy2", "SPK03_s02-angry2"))
 k = len(VISEMES)

@@ -159,7 +159,7 @@ assert sources[4][0] == 1.0 and sources[30][0] == 0.0 and float(sources[30][1].s
 
 # %%
 train_idx = emo_idx[::2][:8]  # 8 emotional training clips of SPK01/SPK02
-test_set = TalkingFaceDataset(corpus, "test_emo_a", pairs.extractor)
+test_set = TalkingFaceDataset(corpus, "test_emo_a", pairs.front_end)
 test_batch = collate([test_set[i] for i in (1, 3, 5, 7)])  # SPK01, one per emotion, level 2
 lips = regions["lips"]
 
@@ -430,7 +430,7 @@ plot_lip_distance(np.arange(n_k) / corpus.fps,
 # condition changes, and the lips still close at its /p b m/.
 
 # %%
-neutral = VisemeLabels(TalkingFaceDataset(corpus, "test_a", pairs.extractor), keep_audio=True)
+neutral = VisemeLabels(TalkingFaceDataset(corpus, "test_a", pairs.front_end), keep_audio=True)
 src = neutral[neutral.base.names.index("SPK01_s02")]  # the sentence of test_emo_a, read neutrally
 n_show = min(60, src["audio"].shape[0])  # 2 s
 b = collate([src])
