@@ -362,7 +362,7 @@ fig_p
 #   the frames labelled /p b m/.
 #
 # "sum" fusion keeps a step short, as in section 3: 100 steps of 8 clips drawn from all 560 training clips (under
-# two passes, about 25 CPU seconds), then the test sentences of `test_emo_a`, fed their viseme labels:
+# two passes, about 20 CPU seconds), then the test sentences of `test_emo_a`, fed their viseme labels:
 
 # %%
 phonetic_pairs = VisemeLabels(pairs, pad_silence=SILENCE_PAD, keep_audio=True)  # audio: (T, 15 visemes + log-mel)
@@ -725,7 +725,7 @@ print(f"notebook run time: {time.perf_counter() - t_start:.1f} s wall, {time.pro
 #   away from 0.5 by about the same amount everywhere (no regional structure yet), which this notebook states
 #   rather than reads into.
 # - On the phonetic route, with the short recipe's PCA-initialised heads, doubled learning rate and contact term,
-#   100 steps (about 25 CPU s) close the lips at the /p b m/ of unseen emotional sentences; the vowels open less far
+#   100 steps (about 20 CPU s) close the lips at the /p b m/ of unseen emotional sentences; the vowels open less far
 #   than the ground truth's (the term's trade on EmoFace at every budget measured).
 # - The emotion condition steers the emotion branch: one audio, five faces. Trained for the tables' budget, it
 #   reproduces each emotion's brow raise and smile from neutral speech within a few tenths of a millimetre.
