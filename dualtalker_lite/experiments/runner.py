@@ -123,7 +123,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
     barely changes.
     ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
     """
-    from ..train import save_checkpoint, train
+    from ..checkpoints import save_checkpoint
+    from ..train import train
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
     threads = torch.get_num_threads()
