@@ -10,7 +10,9 @@ called before the first step when ``mean_init`` is on, and ``set_epoch(epoch, n_
 start; EmoFace's self-growing schedule, ``models.emoface.self_growing_share``). Training stops after ``epochs``
 epochs or when a budget (optimiser steps, process CPU seconds, wall seconds) is used up; validation LVE
 (autoregressive, as at test time) is measured only when a validation loader is given. Checkpoints hold only tensors
-and plain Python values, so they load with ``torch.load(weights_only=True)``; they are written atomically.
+and plain Python values, so they load with ``torch.load(weights_only=True)``; they are written atomically. The
+resumable state of ``dualtalker-lite train`` (:func:`training_state`, in the resume file :data:`RESUME_FORMAT`) is
+defined here too.
 
 The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``): Adam, warm-up and cosine decay over the budget, gradient
 clipping at 1, batch 8 of whole clips, one torch thread, output-bias initialisation at the training set's mean
@@ -36,6 +38,7 @@ import sys
 import time
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -48,7 +51,8 @@ from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "FAST_MODEL", "History", "lr_factor", "mean_motion",
            "loss_weights", "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state",
-           "predict", "validation_lve"]
+           "predict", "validation_lve", "RESUME_FORMAT", "resume_path", "resume_file", "load_resume_state",
+           "check_resume_args"]
 
 
 @dataclass
@@ -529,6 +533,56 @@ def training_state(model, opt, epoch: int, step: int, used: float, hist: History
     return {"epoch": epoch, "step": step, "used": float(used), "wall": float(wall), "cpu": float(cpu),
             "model": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
             "optimizer": opt.state_dict(), "history": dict(vars(hist)), "rng": rng}
+
+
+# ------------------------------------------------------------------------ the resume file (``<out>.resume``)
+# ``dualtalker-lite train --checkpoint-every N`` saves {"format": RESUME_FORMAT, "args": what the run was started
+# with (model, corpus and its metadata's hash, epochs, clips, features, seed, ...), "train": training_state(...)}
+# atomically beside the checkpoint; ``--resume`` reads it back with load_resume_state and refuses other arguments.
+RESUME_FORMAT = "dualtalker-lite train state 1"
+
+
+def resume_path(out: str | Path) -> Path:
+    """Where a run writing checkpoint ``out`` keeps its resumable state: ``<out>.resume`` beside it."""
+    out = Path(out)
+    return out.with_name(out.name + ".resume")
+
+
+def resume_file(args: dict, state: dict) -> dict:
+    """The resume file's contents: the run's arguments ``args`` (plain values) and its :func:`training_state`."""
+    return {"format": RESUME_FORMAT, "args": args, "train": state}
+
+
+def load_resume_state(path: Path) -> dict:
+    """The resume file at ``path`` (:func:`resume_file`); one line (FileNotFoundError, ValueError) if absent or
+    corrupt: it must be a CRC-checked archive that ``torch.load(weights_only=True)`` reads, with the expected fields."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no saved training state to resume (none was saved yet: a run saves one "
+                                f"every --checkpoint-every epochs; or the run completed)")
+    try:
+        checkpoints.verify_integrity(path)
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except ValueError as e:
+        raise ValueError(str(e).replace("corrupt checkpoint", "corrupt training state")) from e
+    except Exception as e:  # noqa: BLE001 - a damaged file can fail in many ways inside torch.load
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:120]
+        raise ValueError(f"{path}: corrupt training state, unreadable ({first}); start over with --overwrite") from e
+    if not (isinstance(state, dict) and state.get("format") == RESUME_FORMAT and isinstance(state.get("args"), dict)
+            and isinstance(state.get("train"), dict)):
+        raise ValueError(f"{path}: not a training state of this version ({RESUME_FORMAT!r}); start over with "
+                         f"--overwrite")
+    return state
+
+
+def check_resume_args(path: Path, saved: dict, now: dict) -> None:
+    """Refuse (one line) to continue a run with other arguments or another corpus than it was started with:
+    ``saved`` is the resume file's ``args``, ``now`` this run's."""
+    diff = [k for k in now if saved.get(k) != now[k]]
+    if diff:
+        was = ", ".join(f"{k}={saved.get(k)!r}" for k in diff)
+        asked = ", ".join(f"{k}={now[k]!r}" for k in diff)
+        raise ValueError(f"{path}: saved by a run with {was}, but this run has {asked}; resume with the same "
+                         f"arguments and corpus, or start over with --overwrite")
 
 
 def _restore(state: dict, model, opt, crop_gen: torch.Generator, train_loader) -> None:
