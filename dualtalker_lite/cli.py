@@ -290,17 +290,29 @@ def animate_main(argv: Sequence[str] | None = None) -> list[Path]:
         return run_main(_animate, argv)
 
 
+def _live(argv: list[str]):
+    return live(live_parser().parse_args(argv))
+
+
+def _generate(argv: list[str]):
+    return generate_main(argv, prog="dualtalker-lite generate")
+
+
+def _convert(argv: list[str]):
+    return convert_templates_command(convert_templates_parser().parse_args(argv))
+
+
+def _prepare(argv: list[str]):
+    return prepare_command(prepare_parser().parse_args(argv))
+
+
 COMMANDS = {"animate": (_animate, "animate a face from your own speech recording"),
-            "live": (lambda argv: live(live_parser().parse_args(argv)),
-                     "animate a face from your microphone, live, in a local web page"),
+            "live": (_live, "animate a face from your microphone, live, in a local web page"),
             "train": (_train, "train a model on a corpus, save a self-describing checkpoint"),
             "evaluate": (_evaluate, "metrics of a checkpoint on a corpus split"),
-            "generate": (lambda argv: generate_main(argv, prog="dualtalker-lite generate"),
-                         "synthesize a talking-face corpus (needs the [speech] extra)"),
-            "convert-templates": (lambda argv: convert_templates_command(convert_templates_parser().parse_args(argv)),
-                                  "FaceFormer's templates.pkl -> templates.npz, safely"),
-            "prepare-dataset": (lambda argv: prepare_command(prepare_parser().parse_args(argv)),
-                                "make a VOCASET/BIWI folder in FaceFormer's layout loadable")}
+            "generate": (_generate, "synthesize a talking-face corpus (needs the [speech] extra)"),
+            "convert-templates": (_convert, "FaceFormer's templates.pkl -> templates.npz, safely"),
+            "prepare-dataset": (_prepare, "make a VOCASET/BIWI folder in FaceFormer's layout loadable")}
 
 
 def _dispatch(argv: list[str]):

@@ -2,16 +2,17 @@
 checked their arguments (the other commands' work lives in ``inference``, ``live.server``, ``data.faceformer`` and
 ``data.generate``).
 
-``train`` (:func:`run_train`, on a :class:`TrainRequest`; its outputs claimed first by
-:func:`claim_train_outputs`): the training clips of the ``--model``'s row
+``train``: :func:`claim_train_outputs` (the checkpoint and its resume file, before any work), then
+:func:`run_train` on the checked arguments (a :class:`TrainRequest`): the clips of the ``--model``'s row
 (:func:`training_clips`: which front end, and whether the model trains on the corpus's labels or on that front end's
 output computed from the audio), the training assembled as the experiment runner assembles a table row
 (:func:`~dualtalker_lite.experiments.assembly.assemble_training`), :func:`~dualtalker_lite.train.train` with progress
 and a periodic resume file (:data:`~dualtalker_lite.train.RESUME_FORMAT`), then a self-describing checkpoint.
 
-``evaluate`` (:func:`run_evaluate`; ``--json`` claimed first by :func:`claim_metrics_file`): a checkpoint's autoregressive predictions on a corpus split, fed by its own
-front end, and the experiment tables' metrics (``experiments.specs.METRICS``, plus ``EMOTION_METRICS`` on a split
-with several emotions), printed and optionally written to a JSON file.
+``evaluate``: :func:`claim_metrics_file` (``--json``), then :func:`run_evaluate`: a checkpoint's autoregressive
+predictions on a corpus split, fed by its own front end, and the experiment tables' metrics
+(``experiments.specs.METRICS``, plus ``EMOTION_METRICS`` on a split with several emotions), printed and optionally
+written to a JSON file.
 """
 from __future__ import annotations
 
@@ -132,7 +133,8 @@ def _check_checkpoint_path(out: Path, corpus: str | None, overwrite: bool, resum
     """``--out``: a file name with room for ``<name>.resume``, not a file of the corpus, replaced only with
     ``--overwrite`` and only if a checkpoint; claimed, its folder created and writable."""
     if out.is_dir() or out.name in ("", ".", ".."):
-        raise IsADirectoryError(f"--out {out}: is a folder; name the checkpoint file to write (e.g. {out / 'model.pt'})")
+        raise IsADirectoryError(f"--out {out}: is a folder; name the checkpoint file to write "
+                                f"(e.g. {out / 'model.pt'})")
     if len(out.name.encode()) > NAME_MAX - len(".resume") and checkpoint_every:
         raise ValueError(f"--out {out}: a name of {len(out.name.encode())} bytes leaves no room for its periodic "
                          f"state <name>.resume ({NAME_MAX} bytes at most in a name); shorten it or pass "
