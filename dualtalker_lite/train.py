@@ -768,7 +768,6 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     return hist
 
 
-
 # The old address of the checkpoint functions (before they moved to :mod:`dualtalker_lite.checkpoints`): kept one
 # release, with a DeprecationWarning naming the new one (CHANGELOG.md, "Deprecated").
 _MOVED = {"save_checkpoint": "dualtalker_lite.checkpoints", "load_checkpoint": "dualtalker_lite.checkpoints"}
