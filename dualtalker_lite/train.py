@@ -46,6 +46,10 @@ import torch
 from tqdm.auto import tqdm
 
 from . import checkpoints
+from .checks import NonFiniteError
+from .face.visemes import VISEMES
+from .losses.contact import bilabial_contact
+from .metrics import lve_euclidean
 from .models.contract import hook, missing
 from .seeding import set_seed
 
@@ -195,8 +199,6 @@ def predict(model: torch.nn.Module, batch: dict, use_cache: bool = True) -> torc
 @torch.no_grad()
 def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
     """Lip vertex error (mm, per-frame max Euclidean error over lip vertices, pooled mean) on a loader."""
-    from .metrics import lve_euclidean
-
     preds, gts = [], []
     for batch in loader:
         pred = predict(model, batch)
@@ -209,8 +211,6 @@ def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
 def _guard_finite(value: torch.Tensor, what: str, epoch: int, step: int, batch: dict) -> None:
     """Stop training with one clear line (step, epoch, the batch's clips) on a NaN/inf loss or gradient."""
     if not bool(torch.isfinite(value).all()):
-        from .checks import NonFiniteError
-
         names = list(batch.get("name", []))
         raise NonFiniteError(f"training stopped: non-finite {what} ({float(value.detach())}) at epoch {epoch + 1}, "
                              f"step {step + 1}; batch clips: {names}. Check these clips for NaN/huge values; "
@@ -341,8 +341,6 @@ def mean_motion(data) -> torch.Tensor:
         if b.get("mask") is not None:
             motion = motion[b["mask"]]  # (N valid frames, V*3)
         if not bool(torch.isfinite(motion).all()):
-            from .checks import NonFiniteError
-
             raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
                                  "nothing was trained")
         motion = motion.reshape(-1, motion.shape[-1])
@@ -378,8 +376,6 @@ def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.T
             motion = motion[b["mask"]]
         motion = motion.reshape(-1, motion.shape[-1])
         if not bool(torch.isfinite(motion).all()):
-            from .checks import NonFiniteError
-
             raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
                                  "nothing was trained")
         first = (-seen) % stride  # the first row of this block whose overall index is a multiple of stride
@@ -418,8 +414,6 @@ class _LipContact:
     set_motion_basis``'s b_rest), so the midpoints are z @ rows + offset, rows = P[:, cols] / a (k, 6)."""
 
     def __init__(self, lips: tuple[int, int], basis: torch.Tensor | None, mean: torch.Tensor | None):
-        from .face.visemes import VISEMES
-
         self.pp = VISEMES.index("PP")
         self.cols = torch.tensor([3 * lips[0] + i for i in range(3)] + [3 * lips[1] + i for i in range(3)])
         self.rows = self.rest = None
@@ -448,8 +442,6 @@ class _LipContact:
         return lips
 
     def __call__(self, vertices: torch.Tensor, batch: dict, template: torch.Tensor) -> torch.Tensor:
-        from .losses.contact import bilabial_contact
-
         if "visemes" not in batch:
             raise ValueError(_NO_VISEMES)
         cols = self.cols.to(vertices.device)
