@@ -80,7 +80,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def training_setup(name: str, sizes: str, seed: int = 0):
     """(model, loader, weights) of ``--model name`` on the shipped corpus at ``sizes``: the clips and loss weights
     of ``dualtalker-lite train --features logmel``, the model rebuilt with its config's ``paper()`` preset."""
-    from dualtalker_lite.cli import _model_specs, _pair_dataset
+    from dualtalker_lite.commands import model_specs, pair_dataset
     from dualtalker_lite.data import sample_path
     from dualtalker_lite.data.corpus import Corpus
     from dualtalker_lite.data.dataset import TalkingFaceDataset
@@ -89,9 +89,9 @@ def training_setup(name: str, sizes: str, seed: int = 0):
     from dualtalker_lite.seeding import set_seed
 
     corpus = Corpus(sample_path())
-    spec = dataclasses.replace(_model_specs()[name], features="logmel")
+    spec = dataclasses.replace(model_specs()[name], features="logmel")
     paired = spec.data == "pairs"
-    clips = _pair_dataset(corpus, seed) if paired else TalkingFaceDataset(corpus, "train")
+    clips = pair_dataset(corpus, seed) if paired else TalkingFaceDataset(corpus, "train")
     a = assemble_training(spec, clips, corpus, paired=paired, seed=seed, recipe="fast" if name != "emoface" else "tiny")
     model = a.model
     if sizes == "paper":

@@ -20,7 +20,7 @@
                        models, with the clip's phones in IPA (``data.speech.to_ipa``; a caption says so)
    ``error_map.png``   per-vertex mean Euclidean error of DualTalker over test-A on the mesh (mm)
    ``side_by_side.mp4`` ground truth | FaceFormer-style | DualTalker, with the speech audio
-   ``dualtalker.pt``, ``faceformer.pt``  checkpoints (``train.load_checkpoint``)
+   ``dualtalker.pt``, ``faceformer.pt``  checkpoints (``checkpoints.load_checkpoint``)
    ==================  ================================================================================
 
 Both models train with the short recipe (``--recipe fast``, ``train.TrainConfig.fast``: the PCA-initialised motion
@@ -200,7 +200,7 @@ def _train_and_evaluate(args, out: Path, epochs: int | None, processes: int, bud
 def _reloaded_predictions(out: Path, results: dict, test_set, regions) -> dict:
     """Step 3a: each saved checkpoint's predictions on test-A -> {label: predict_split output}; a warning line if the
     reloaded weights do not reproduce the training process's LVE (same weights, deterministic generation)."""
-    from .train import load_checkpoint
+    from .checkpoints import load_checkpoint
 
     pred = {}
     for label, (_, ckpt) in MODELS.items():

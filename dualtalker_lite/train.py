@@ -10,7 +10,9 @@ called before the first step when ``mean_init`` is on, and ``set_epoch(epoch, n_
 start; EmoFace's self-growing schedule, ``models.emoface.self_growing_share``). Training stops after ``epochs``
 epochs or when a budget (optimiser steps, process CPU seconds, wall seconds) is used up; validation LVE
 (autoregressive, as at test time) is measured only when a validation loader is given. Checkpoints hold only tensors
-and plain Python values, so they load with ``torch.load(weights_only=True)``; they are written atomically.
+and plain Python values, so they load with ``torch.load(weights_only=True)``; they are written atomically. The
+resumable state of ``dualtalker-lite train`` (:func:`training_state`, in the resume file :data:`RESUME_FORMAT`) is
+defined here too.
 
 The CPU recipe (``TrainConfig.tiny()``, ``RECIPE``): Adam, warm-up and cosine decay over the budget, gradient
 clipping at 1, batch 8 of whole clips, one torch thread, output-bias initialisation at the training set's mean
@@ -34,19 +36,27 @@ import math
 import random
 import sys
 import time
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .models.contract import hook
+from . import checkpoints
+from .checks import NonFiniteError
+from .face.visemes import VISEMES
+from .losses.contact import bilabial_contact
+from .metrics import lve_euclidean
+from .models.contract import hook, missing
 from .seeding import set_seed
 
 __all__ = ["TrainConfig", "RECIPE", "FAST", "FAST_EPOCHS", "FAST_MODEL", "History", "lr_factor", "mean_motion",
            "loss_weights", "model_loss", "motion_basis", "basis_batch", "reuse_freed_memory", "train", "training_state",
-           "predict", "validation_lve", "save_checkpoint", "load_checkpoint"]
+           "predict", "validation_lve", "RESUME_FORMAT", "resume_path", "resume_file", "load_resume_state",
+           "check_resume_args"]
 
 
 @dataclass
@@ -110,25 +120,11 @@ class TrainConfig:
         return cls(**{**RECIPE, **FAST, **FAST_MODEL.get(model, {}), "epochs": FAST_EPOCHS.get(model), **kw})
 
 
-# The recipe of the tiny models (module docstring: what changed and why, with the measurements). ``epochs`` is the
-# 120 s budget as a step count: 37 epochs x 22 steps (176 training clips, batches of 8) = 814 steps, what the tiny
-# DualTalker made in 120 s of one-thread CPU time in benchmarks/time_to_quality.py when the recipe was set (795-820
-# steps; today's step is faster: 1206-1293 steps in results/cpu_budget_120s.md, 93 ms in results/profile_step.md).
+# The tables' CPU recipe (TrainConfig.tiny) and the short one (TrainConfig.fast: VOCA's PCA head, the step in its
+# coordinates, the contact term). The measurements behind every number, with their commands: docs/design-notes.md,
+# "Training recipes".
 RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
               min_lr_ratio=0.0, threads=1, mean_init=True)
-# The short recipe (``TrainConfig.fast``): VOCA's PCA-initialised output layer (64 components) at lr 6e-3, the step in
-# those 64 basis coordinates (``basis_space``: the same loss up to a constant; 41 against 61 CPU s for DualTalker's
-# 30 epochs at the same closures within seed noise, results/time_to_quality_2core.md), and the bilabial contact term
-# at λ_c = 1e-3 (``lip_contact``, losses.contact; chosen on the synthetic splits: docs/design-notes.md, "The bilabial
-# contact term"). Epochs: DualTalker 20, 27-29 CPU s, where every one of 5 seeds met every target of issue 31 (real
-# voices < 2 / < 1 mm 0.96 / 0.94-0.96, vowel frames shut <= 0.044, r 0.77, training-clip fit < 1 mm 0.92-0.94,
-# test-A with the true labels 0.90-0.95; without the term 30 epochs left one or two seeds in five at 0.75-0.79 < 1 mm
-# and the fit at 0.68); FaceFormer-style 30, 29-31 CPU s, every seed at 0.95 < 1 mm (60 before the term).
-# CorrTalk 10 epochs without the basis step (its two decoders are combined per vertex by the mask, so it has none):
-# PCA-initialised heads, lr 6e-3 and the contact term close its lips where nothing did in 10 epochs before (0.00 < 1
-# mm without the term). EmoFace has no measured budget (its Mesh Attention mixes the branches per vertex: no basis
-# step); its PCA heads, lr 6e-3 and the term close its lips in notebook 15's 100 steps (docs/design-notes.md), and the
-# emotional tables give it their one budget (``epochs=``).
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
 FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
 # per-model changes to FAST; VOCA-style (a sliding window, no autoregressive decoder) and EmoFace (Mesh Attention
@@ -203,8 +199,6 @@ def predict(model: torch.nn.Module, batch: dict, use_cache: bool = True) -> torc
 @torch.no_grad()
 def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
     """Lip vertex error (mm, per-frame max Euclidean error over lip vertices, pooled mean) on a loader."""
-    from .metrics import lve_euclidean
-
     preds, gts = [], []
     for batch in loader:
         pred = predict(model, batch)
@@ -217,18 +211,22 @@ def validation_lve(model: torch.nn.Module, loader, lip_idx) -> float:
 def _guard_finite(value: torch.Tensor, what: str, epoch: int, step: int, batch: dict) -> None:
     """Stop training with one clear line (step, epoch, the batch's clips) on a NaN/inf loss or gradient."""
     if not bool(torch.isfinite(value).all()):
-        from .checks import NonFiniteError
-
         names = list(batch.get("name", []))
         raise NonFiniteError(f"training stopped: non-finite {what} ({float(value.detach())}) at epoch {epoch + 1}, "
                              f"step {step + 1}; batch clips: {names}. Check these clips for NaN/huge values; "
                              f"no checkpoint was written")
 
 
+def _loss_weights_cls(model: torch.nn.Module) -> type | None:
+    """The contract's ``loss_weights_cls`` of ``model`` (:mod:`dualtalker_lite.models.contract`), None if it has
+    none (its loss then takes no weights)."""
+    return None if "loss_weights_cls" in missing(model) else model.loss_weights_cls
+
+
 def loss_weights(model: torch.nn.Module, overrides: dict | None = None) -> Any:
     """The model's loss-weight dataclass (``model.loss_weights_cls``: ``LossWeights`` for DualTalker and the
     baselines, each new paper its own) built with ``overrides``, e.g. ``{"lambda4": 0.1}``."""
-    cls = getattr(model, "loss_weights_cls", None)
+    cls = _loss_weights_cls(model)
     if cls is None:
         raise TypeError(f"{type(model).__name__} has no loss_weights_cls: every model trained by "
                         "dualtalker_lite.train names the dataclass of its loss weights")
@@ -238,7 +236,7 @@ def loss_weights(model: torch.nn.Module, overrides: dict | None = None) -> Any:
 def _check_weights(model: torch.nn.Module, weights: Any) -> Any:
     """``weights`` if it is of the model's kind, the model's defaults if None (or None for a model without
     ``loss_weights_cls``: its loss takes no weights); one clear TypeError otherwise."""
-    cls = getattr(model, "loss_weights_cls", None)
+    cls = _loss_weights_cls(model)
     if weights is None:
         return None if cls is None else cls()
     if cls is not None and not isinstance(weights, cls):
@@ -253,11 +251,10 @@ def model_loss(model: torch.nn.Module, out: dict, batch: dict, weights: Any) -> 
     Every trainable model supplies it (DualTalker: the joint loss of section III-F; the baselines: the same
     joint loss, whose DualTalker-only terms are 0 for them), so this loop has no per-model branches.
     """
-    loss = getattr(model, "loss", None)
-    if not callable(loss):
+    if "loss" in missing(model) or not callable(model.loss):
         raise TypeError(f"{type(model).__name__} has no loss(out, batch, weights) method: every model trained "
                         "by dualtalker_lite.train must supply its own loss")
-    return loss(out, batch, weights)
+    return model.loss(out, batch, weights)
 
 
 def train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader=None, lip_idx=None, *,
@@ -344,8 +341,6 @@ def mean_motion(data) -> torch.Tensor:
         if b.get("mask") is not None:
             motion = motion[b["mask"]]  # (N valid frames, V*3)
         if not bool(torch.isfinite(motion).all()):
-            from .checks import NonFiniteError
-
             raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
                                  "nothing was trained")
         motion = motion.reshape(-1, motion.shape[-1])
@@ -381,8 +376,6 @@ def motion_basis(data, k: int, max_frames: int = 4096, seed: int = 0) -> torch.T
             motion = motion[b["mask"]]
         motion = motion.reshape(-1, motion.shape[-1])
         if not bool(torch.isfinite(motion).all()):
-            from .checks import NonFiniteError
-
             raise NonFiniteError(f"training data: non-finite vertices or template in clip(s) {b.get('name')}; "
                                  "nothing was trained")
         first = (-seen) % stride  # the first row of this block whose overall index is a multiple of stride
@@ -421,8 +414,6 @@ class _LipContact:
     set_motion_basis``'s b_rest), so the midpoints are z @ rows + offset, rows = P[:, cols] / a (k, 6)."""
 
     def __init__(self, lips: tuple[int, int], basis: torch.Tensor | None, mean: torch.Tensor | None):
-        from .face.visemes import VISEMES
-
         self.pp = VISEMES.index("PP")
         self.cols = torch.tensor([3 * lips[0] + i for i in range(3)] + [3 * lips[1] + i for i in range(3)])
         self.rows = self.rest = None
@@ -451,8 +442,6 @@ class _LipContact:
         return lips
 
     def __call__(self, vertices: torch.Tensor, batch: dict, template: torch.Tensor) -> torch.Tensor:
-        from .losses.contact import bilabial_contact
-
         if "visemes" not in batch:
             raise ValueError(_NO_VISEMES)
         cols = self.cols.to(vertices.device)
@@ -538,6 +527,56 @@ def training_state(model, opt, epoch: int, step: int, used: float, hist: History
             "optimizer": opt.state_dict(), "history": dict(vars(hist)), "rng": rng}
 
 
+# ------------------------------------------------------------------------ the resume file (``<out>.resume``)
+# ``dualtalker-lite train --checkpoint-every N`` saves {"format": RESUME_FORMAT, "args": what the run was started
+# with (model, corpus and its metadata's hash, epochs, clips, features, seed, ...), "train": training_state(...)}
+# atomically beside the checkpoint; ``--resume`` reads it back with load_resume_state and refuses other arguments.
+RESUME_FORMAT = "dualtalker-lite train state 1"
+
+
+def resume_path(out: str | Path) -> Path:
+    """Where a run writing checkpoint ``out`` keeps its resumable state: ``<out>.resume`` beside it."""
+    out = Path(out)
+    return out.with_name(out.name + ".resume")
+
+
+def resume_file(args: dict, state: dict) -> dict:
+    """The resume file's contents: the run's arguments ``args`` (plain values) and its :func:`training_state`."""
+    return {"format": RESUME_FORMAT, "args": args, "train": state}
+
+
+def load_resume_state(path: Path) -> dict:
+    """The resume file at ``path`` (:func:`resume_file`); one line (FileNotFoundError, ValueError) if absent or
+    corrupt: it must be a CRC-checked archive that ``torch.load(weights_only=True)`` reads, with the expected fields."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no saved training state to resume (none was saved yet: a run saves one "
+                                f"every --checkpoint-every epochs; or the run completed)")
+    try:
+        checkpoints.verify_integrity(path)
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except ValueError as e:
+        raise ValueError(str(e).replace("corrupt checkpoint", "corrupt training state")) from e
+    except Exception as e:  # noqa: BLE001 - a damaged file can fail in many ways inside torch.load
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:120]
+        raise ValueError(f"{path}: corrupt training state, unreadable ({first}); start over with --overwrite") from e
+    if not (isinstance(state, dict) and state.get("format") == RESUME_FORMAT and isinstance(state.get("args"), dict)
+            and isinstance(state.get("train"), dict)):
+        raise ValueError(f"{path}: not a training state of this version ({RESUME_FORMAT!r}); start over with "
+                         f"--overwrite")
+    return state
+
+
+def check_resume_args(path: Path, saved: dict, now: dict) -> None:
+    """Refuse (one line) to continue a run with other arguments or another corpus than it was started with:
+    ``saved`` is the resume file's ``args``, ``now`` this run's."""
+    diff = [k for k in now if saved.get(k) != now[k]]
+    if diff:
+        was = ", ".join(f"{k}={saved.get(k)!r}" for k in diff)
+        asked = ", ".join(f"{k}={now[k]!r}" for k in diff)
+        raise ValueError(f"{path}: saved by a run with {was}, but this run has {asked}; resume with the same "
+                         f"arguments and corpus, or start over with --overwrite")
+
+
 def _restore(state: dict, model, opt, crop_gen: torch.Generator, train_loader) -> None:
     model.load_state_dict(state["model"])
     opt.load_state_dict(state["optimizer"])
@@ -558,8 +597,42 @@ def _restore(state: dict, model, opt, crop_gen: torch.Generator, train_loader) -
         torch.cuda.set_rng_state_all(rng["cuda"])
 
 
-def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx, on_epoch,
-           checkpoint_every: int = 0, on_checkpoint=None, resume: dict | None = None) -> History:
+@dataclass
+class _Run:
+    """One training run between :func:`_set_up` and the end of :func:`_train`: the model with its optimiser and
+    loss weights, the step's extras (basis, contact term, the crop generator) and the counters and clocks."""
+
+    model: torch.nn.Module
+    loader: Any
+    cfg: TrainConfig
+    opt: torch.optim.Optimizer
+    weights: Any                       # the model's loss weights (None: its loss takes none)
+    gen: torch.Generator               # crops (seeded by set_seed)
+    basis: torch.Tensor | None         # (k, V*3) orthonormal rows with basis_space, else None
+    project: Callable | None           # the model's project_motion_basis (used with basis)
+    contact: "_LipContact | None"      # the bilabial contact term, None when lip_contact is off
+    total_steps: int                   # the step budget (epochs x batches, capped by max_steps)
+    hist: History = field(default_factory=History)
+    first: int = 0                     # the first epoch to run (a resumed run's next)
+    step: int = 0                      # optimiser steps done
+    used: float = 0.0                  # fraction of the budget used (_budget_used)
+    t0: float = 0.0                    # wall and CPU clocks' start, moved on by paused callbacks
+    c0: float = 0.0
+
+    def pause(self, callback: Callable[[float, float], Any]) -> None:
+        """``callback(wall, cpu)`` (the training's seconds so far) on paused clocks: its own time is neither
+        training time nor budget."""
+        w, c = time.perf_counter(), time.process_time()
+        callback(w - self.t0, c - self.c0)
+        self.t0, self.c0 = self.t0 + time.perf_counter() - w, self.c0 + time.process_time() - c
+
+
+def _set_up(model: torch.nn.Module, train_loader, cfg: TrainConfig, resume: dict | None) -> _Run:
+    """Everything before the first step, in this order: refuse what cannot train (a basis step without the hooks,
+    a contact term without labels) before the model changes; seed (weights' RNG, the crops, the loader's shuffle);
+    the data-dependent initialisations (mean motion ``mean_init``, principal directions ``pca_init``,
+    ``init_from_data``); the loss weights, device and Adam; the basis step and contact term; last a resumed state,
+    whose weights, optimiser, counters, history and RNG states replace what was set up."""
     set_basis, project = hook(model, "set_motion_basis"), hook(model, "project_motion_basis")
     if cfg.basis_space and not (callable(set_basis) and callable(project)):  # before anything changes the model
         raise TypeError(f"TrainConfig.basis_space: {type(model).__name__} has no set_motion_basis(basis) and "
@@ -568,19 +641,20 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     gen = set_seed(cfg.seed)
     if hasattr(train_loader, "generator") and train_loader.generator is not None:
         train_loader.generator.manual_seed(cfg.seed)
+    data = getattr(train_loader, "dataset", train_loader)
     init, mean = hook(model, "init_output_bias"), None
     if cfg.mean_init and callable(init):  # models without it train from their own initialisation
-        mean = mean_motion(getattr(train_loader, "dataset", train_loader))
+        mean = mean_motion(data)
         init(mean)
     init_basis, basis = hook(model, "init_output_basis"), None
     if cfg.pca_init:
         if not callable(init_basis):
             raise TypeError(f"TrainConfig.pca_init: {type(model).__name__} has no init_output_basis(basis)")
-        basis = motion_basis(getattr(train_loader, "dataset", train_loader), cfg.pca_init, seed=cfg.seed)
+        basis = motion_basis(data, cfg.pca_init, seed=cfg.seed)
         init_basis(basis)
     init_data = hook(model, "init_from_data")  # e.g. CorrTalk's FAI-initialised mask
     if cfg.mean_init and callable(init_data):
-        init_data(getattr(train_loader, "dataset", train_loader))
+        init_data(data)
     weights = _check_weights(model, cfg.weights)
     model.to(cfg.device)
     # foreach: one fused update over all ~90 parameter tensors instead of a Python loop (about 3 ms of a ~100 ms
@@ -589,89 +663,111 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
     total_steps = cfg.epochs * len(train_loader)
     if cfg.max_steps is not None:
         total_steps = min(total_steps, cfg.max_steps)
-    hist, t0, c0, step, used, done = History(), time.perf_counter(), time.process_time(), 0, 0.0, False
-    first = 0
+    t0, c0 = time.perf_counter(), time.process_time()
     if cfg.basis_space:  # before a resumed state, whose weights and basis buffers then replace these exactly
         set_basis(basis.to(cfg.device))  # train() clears it when training ends, however it ends
         basis = (basis / basis.norm(dim=1, keepdim=True)).to(cfg.device)  # (k, V*3) orthonormal, for basis_batch
     else:
         basis = None
     contact = None if lips is None else _LipContact(lips, basis, mean)  # None: lip_contact off
+    run = _Run(model, train_loader, cfg, opt, weights, gen, basis, project, contact, total_steps, t0=t0, c0=c0)
     if resume is not None:  # after the initialisation above, which the saved weights then replace
         _restore(resume, model, opt, gen, train_loader)
-        hist = History(**{k: list(v) for k, v in resume["history"].items()})
-        first, step, used = int(resume["epoch"]), int(resume["step"]), float(resume["used"])
-        t0, c0 = t0 - float(resume["wall"]), c0 - float(resume["cpu"])
-    validate = val_loader is not None and lip_idx is not None and cfg.validate_every != 0
-    bar = tqdm(range(first, cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
+        run.hist = History(**{k: list(v) for k, v in resume["history"].items()})
+        run.first, run.step, run.used = int(resume["epoch"]), int(resume["step"]), float(resume["used"])
+        run.t0, run.c0 = t0 - float(resume["wall"]), c0 - float(resume["cpu"])
+    return run
+
+
+def _one_epoch(run: _Run, epoch: int) -> bool:
+    """One pass over the training clips -> whether the budget is used up (the epoch may end early). Each step:
+    the learning rate of the schedule, a random crop, the batch in basis coordinates (``basis_space``), the model's
+    own loss plus λ_c x the contact term (eq. C1), a clipped Adam step, the projection back into the basis's span.
+    The epoch's mean of every loss term goes to ``run.hist.terms``."""
+    cfg, model, sums, n_steps = run.cfg, run.model, {}, 0
+    for batch in run.loader:
+        for group in run.opt.param_groups:
+            group["lr"] = cfg.lr * lr_factor(run.step, cfg.warmup_steps, cfg.decay, run.used, cfg.min_lr_ratio)
+        batch = _to_device(_crop(batch, cfg.max_frames, run.gen), torch.device(cfg.device))
+        template = batch.get("template")  # (B, V*3), before basis_batch zeroes it
+        if run.basis is not None:
+            batch = basis_batch(batch, run.basis)  # (B, T, k) coordinates
+        out = model(batch)
+        total, terms = model_loss(model, out, batch, run.weights)
+        if run.contact is not None:  # eq. C1, the short recipe's deviation from the model's own loss
+            c = run.contact(out["vertices"], batch, template)  # mm², unweighted
+            total = total + cfg.lip_contact * c
+            terms = {**terms, "contact": c.detach(), "total": total.detach()}
+        _guard_finite(total, "loss", epoch, n_steps, batch)
+        run.opt.zero_grad(set_to_none=True)
+        total.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip or math.inf, foreach=True)
+        _guard_finite(grad_norm, "gradient norm", epoch, n_steps, batch)
+        run.opt.step()
+        if run.basis is not None:
+            run.project()
+        for k, v in terms.items():
+            sums[k] = sums.get(k, 0.0) + float(v)
+        n_steps += 1
+        run.step += 1
+        run.used = _budget_used(cfg, run.step, run.total_steps, time.perf_counter() - run.t0,
+                                time.process_time() - run.c0)
+        if run.used >= 1.0:
+            break
+    run.hist.terms.append({k: v / n_steps for k, v in sums.items()})
+    if run.contact is not None:
+        run.contact.end_epoch()
+    return run.used >= 1.0
+
+
+def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, lip_idx, on_epoch,
+           checkpoint_every: int = 0, on_checkpoint=None, resume: dict | None = None) -> History:
+    """:func:`train`'s loop: set up (:func:`_set_up`), then epochs (:func:`_one_epoch`) until ``cfg.epochs`` or the
+    budget; after each, the validation LVE when due, the clocks and steps in the history, the progress bar, then
+    ``on_epoch`` and every ``checkpoint_every`` epochs ``on_checkpoint`` (not after the last), both on paused
+    clocks. Leaves the model in eval mode."""
+    run = _set_up(model, train_loader, cfg, resume)
+    hist, every = run.hist, cfg.validate_every
+    validate = val_loader is not None and lip_idx is not None and every != 0
+    bar = tqdm(range(run.first, cfg.epochs), desc="epochs", disable=not cfg.progress, leave=False)
     set_epoch = hook(model, "set_epoch")  # epoch-dependent models (EmoFace's self-growing schedule)
     for epoch in bar:
         model.train()
         if callable(set_epoch):
             set_epoch(epoch, cfg.epochs)
-        sums: dict[str, float] = {}
-        n_steps = 0
-        for batch in train_loader:
-            for group in opt.param_groups:
-                group["lr"] = cfg.lr * lr_factor(step, cfg.warmup_steps, cfg.decay, used, cfg.min_lr_ratio)
-            batch = _to_device(_crop(batch, cfg.max_frames, gen), torch.device(cfg.device))
-            template = batch.get("template")  # (B, V*3), before basis_batch zeroes it
-            if basis is not None:
-                batch = basis_batch(batch, basis)  # (B, T, k) coordinates
-            out = model(batch)
-            total, terms = model_loss(model, out, batch, weights)
-            if contact is not None:  # eq. C1, the short recipe's deviation from the model's own loss
-                c = contact(out["vertices"], batch, template)  # mm², unweighted
-                total = total + cfg.lip_contact * c
-                terms = {**terms, "contact": c.detach(), "total": total.detach()}
-            _guard_finite(total, "loss", epoch, n_steps, batch)
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip or math.inf, foreach=True)
-            _guard_finite(grad_norm, "gradient norm", epoch, n_steps, batch)
-            opt.step()
-            if basis is not None:
-                project()
-            for k, v in terms.items():
-                sums[k] = sums.get(k, 0.0) + float(v)
-            n_steps += 1
-            step += 1
-            used = _budget_used(cfg, step, total_steps, time.perf_counter() - t0, time.process_time() - c0)
-            if used >= 1.0:
-                done = True
-                break
-        hist.terms.append({k: v / n_steps for k, v in sums.items()})
-        if contact is not None:
-            contact.end_epoch()
+        done = _one_epoch(run, epoch)
         last = done or epoch == cfg.epochs - 1
-        every = cfg.validate_every
         if validate and ((every is None and last) or (every and (epoch + 1) % every == 0)):
             hist.val_lve.append(validation_lve(model, val_loader, lip_idx))
             model.train()
-        hist.seconds.append(time.perf_counter() - t0)
-        hist.cpu_seconds.append(time.process_time() - c0)
-        hist.steps.append(step)
+        hist.seconds.append(time.perf_counter() - run.t0)
+        hist.cpu_seconds.append(time.process_time() - run.c0)
+        hist.steps.append(run.step)
         postfix = {"loss": f"{hist.terms[-1].get('total', math.nan):.4g}"}
         if hist.val_lve:
             postfix["val_lve_mm"] = f"{hist.val_lve[-1]:.2f}"
         bar.set_postfix(postfix)
         if on_epoch is not None:  # paused clocks: the callback's time is not training time
-            w, c = time.perf_counter(), time.process_time()
-            on_epoch(model, hist)
+            run.pause(lambda wall, cpu: on_epoch(model, hist))
             model.train()
-            t0, c0 = t0 + time.perf_counter() - w, c0 + time.process_time() - c
         if done:
             break
         if on_checkpoint is not None and checkpoint_every and (epoch + 1) % checkpoint_every == 0 \
                 and epoch + 1 < cfg.epochs:  # paused clocks, as for on_epoch
-            w, c = time.perf_counter(), time.process_time()
-            on_checkpoint(training_state(model, opt, epoch + 1, step, used, hist, gen, train_loader,
-                                         w - t0, c - c0))
-            t0, c0 = t0 + time.perf_counter() - w, c0 + time.process_time() - c
+            run.pause(lambda wall, cpu: on_checkpoint(training_state(model, run.opt, epoch + 1, run.step, run.used,
+                                                                     hist, run.gen, train_loader, wall, cpu)))
     model.eval()
     return hist
 
 
-# Checkpoints live in :mod:`dualtalker_lite.checkpoints` (self-describing: speakers, topology, features);
-# re-exported here so ``from dualtalker_lite.train import save_checkpoint, load_checkpoint`` keeps working.
-from .checkpoints import load_checkpoint, save_checkpoint  # noqa: E402
+# The old address of the checkpoint functions (before they moved to :mod:`dualtalker_lite.checkpoints`): kept one
+# release, with a DeprecationWarning naming the new one (CHANGELOG.md, "Deprecated").
+_MOVED = {"save_checkpoint": "dualtalker_lite.checkpoints", "load_checkpoint": "dualtalker_lite.checkpoints"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MOVED:
+        warnings.warn(f"dualtalker_lite.train.{name} is deprecated and goes in the next release: import it from "
+                      f"{_MOVED[name]}", DeprecationWarning, stacklevel=2)
+        return getattr(checkpoints, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -21,7 +21,7 @@ LAYERS = [  # lowest first
     ("data and blocks", ("data", "blocks")),
     ("models and losses", ("models", "losses")),
     ("training and evaluation", ("train", "checkpoints", "metrics")),
-    ("applications", ("experiments", "inference", "streaming", "live")),
+    ("applications", ("experiments", "inference", "streaming", "live", "commands")),
     ("visualisation", ("viz",)),
     ("front ends", ("cli", "demo", "viz.widgets", "experiments.__main__")),
 ]

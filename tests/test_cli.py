@@ -96,3 +96,34 @@ def test_train_help_describes_the_default_recipe(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "by default with the short recipe where one was measured" in text
     assert "(the recipe of TrainConfig.tiny)" not in text
+
+
+@pytest.mark.parametrize("model, recipe, epochs", [("voca", "tiny", 45), ("dualtalker", "fast", 20)])
+def test_train_checks_return_the_resolved_values_and_leave_the_arguments_alone(tmp_path, model, recipe, epochs):
+    """The defaults written out: the short recipe where measured (dualtalker 20 epochs), else the tables' (45), and
+    the phonetic front end; the parsed arguments stay as parsed (None: "the default")."""
+    from dualtalker_lite.cli import _check_train_args, train_parser
+    from dualtalker_lite.files import claims_released
+
+    args = train_parser([model]).parse_args(["--model", model, "--out", str(tmp_path / "m.pt")])
+    parsed = dict(vars(args))
+    with claims_released():
+        request = _check_train_args(args)
+    assert vars(args) == parsed and (args.recipe, args.epochs, args.features) == (None, None, None)
+    assert (request.recipe, request.epochs, request.features, request.resume) == (recipe, epochs, "visemes", None)
+    assert request.out == tmp_path / "m.pt"
+
+
+def test_evaluate_on_an_emotional_split_prints_the_tables_emotion_columns(tmp_path, capsys):
+    """On a split with several emotions evaluate adds the emotional tables' columns, under their headers and digits
+    (experiments.specs.EMOTION_METRICS, written out here); a model without an emotion classifier has no accuracy."""
+    ckpt = tmp_path / "m.pt"
+    main(["train", "--model", "voca", "--epochs", "1", "--clips", "8", "--quiet", "--out", str(ckpt)])
+    capsys.readouterr()
+    main(["evaluate", "--checkpoint", str(ckpt), "--split", "test_emo_a", "--quiet", "--json",
+          str(tmp_path / "m.json")])
+    lines = capsys.readouterr().out.splitlines()
+    written = json.loads((tmp_path / "m.json").read_text())["metrics"]
+    assert f"  {'brow-raise error (mm) ↓':38s} {written['brow_raise_error_mm']:.2f}" in lines
+    assert f"  {'smile error (mm) ↓':38s} {written['smile_error_mm']:.2f}" in lines
+    assert "emotion_accuracy" not in written and not any("emotion acc" in line for line in lines)

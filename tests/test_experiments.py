@@ -270,7 +270,7 @@ def test_fast_recipe_tables_record_it_and_train_each_row_with_it(tmp_path):
 # ------------------------------------------------------------------------------ the demo
 def test_demo_quick_writes_every_file(tmp_path):
     from dualtalker_lite import demo
-    from dualtalker_lite.train import load_checkpoint
+    from dualtalker_lite.checkpoints import load_checkpoint
     from dualtalker_lite.export.video import stream_info
 
     res = demo.main(["--out", str(tmp_path), "--quick", "--no-progress"])

@@ -179,7 +179,8 @@ def test_training_stops_on_non_finite_loss_naming_the_clips(tmp_path):
     from dualtalker_lite.data import sample_path
     from dualtalker_lite.data.dataset import TalkingFaceDataset, collate
     from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-    from dualtalker_lite.train import TrainConfig, save_checkpoint, train
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.train import TrainConfig, train
 
     corpus = Corpus(sample_path())
     ds = TalkingFaceDataset(corpus, "train")

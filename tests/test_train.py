@@ -6,14 +6,14 @@ import pytest
 import torch
 from torch.utils.data import Subset
 
+from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.data.dataset import TalkingFaceDataset, make_loader
 from dualtalker_lite.losses import LossWeights
 from dualtalker_lite.models.baselines import VocaConfig, VocaStyle
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-from dualtalker_lite.train import (TrainConfig, load_checkpoint, motion_basis, predict, reuse_freed_memory,
-                                   save_checkpoint, train, validation_lve)
+from dualtalker_lite.train import TrainConfig, motion_basis, predict, reuse_freed_memory, train, validation_lve
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # conftest.py
 
@@ -598,3 +598,17 @@ def test_basis_space_needs_pca_init_and_a_model_with_one_motion_decoder(data):
         train(model, make_loader(train_set, 8, shuffle=True, seed=0),
               TrainConfig.tiny(epochs=1, pca_init=8, basis_space=True, progress=False))
     assert all(torch.equal(before[n], q) for n, q in model.state_dict().items())  # nothing was trained
+
+
+@pytest.mark.parametrize("name", ["save_checkpoint", "load_checkpoint"])
+def test_the_old_address_of_the_checkpoint_functions_warns_and_still_works(name):
+    """``dualtalker_lite.train.save_checkpoint``/``load_checkpoint`` moved to ``checkpoints``: kept one release."""
+    from dualtalker_lite import checkpoints
+    from dualtalker_lite import train as train_module
+
+    with pytest.warns(DeprecationWarning, match=rf"dualtalker_lite\.train\.{name} is deprecated.*"
+                                                rf"dualtalker_lite\.checkpoints"):
+        moved = getattr(train_module, name)
+    assert moved is getattr(checkpoints, name)
+    with pytest.raises(AttributeError):
+        train_module.no_such_name  # noqa: B018

@@ -1,6 +1,6 @@
 """Training assembly: from a row (:class:`~.specs.RunSpec`) and its clips to a model, a recipe and a loader.
 
-The one application function that ``dualtalker-lite train`` (:mod:`dualtalker_lite.cli`) and the experiment runner
+The one application function that ``dualtalker-lite train`` (:mod:`dualtalker_lite.commands`) and the experiment runner
 (:func:`~.runner.run_one`) both call, so a checkpoint trained by the command and a table row trained by the runner
 are assembled the same way, step by step:
 
@@ -87,17 +87,17 @@ class Assembly:
 def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = False, seed: int = 0,
                       epochs: int | None = 1, device: str = "cpu", progress: bool = False, threads: int | None = None,
                       time_budget_s: float | None = None, cpu_budget_s: float | None = None, logmel: Any = None,
-                      record: Any = None,
-                      recipe: str = "tiny", lip_contact: float | None = None) -> Assembly:
+                      computed: Any = None, recipe: str = "tiny", lip_contact: float | None = None) -> Assembly:
     """Assemble the training of row ``spec`` on ``clips`` (log-mel clips of ``corpus``, or pairs of them when
     ``paired``) -> :class:`Assembly` (the steps are in the module docstring).
 
     ``logmel``: the log-mel extractor the clips were computed with (recorded for a log-mel row, with its band
     statistics; None: the default one). ``threads``: also fix torch's CPU threads when seeding (the runner: 1).
 
-    ``record``: the front end to record in the checkpoint instead of the row's own (the command trains a phonetic
-    model on the recogniser's tracks of a corpus without viseme labels: its clips hold those tracks, its row reads
-    them as they are, and the checkpoint names the recogniser). ``device``, ``progress``, ``time_budget_s`` (wall
+    ``computed``: the row's front end, already run on the clips' audio, when the clips hold its output instead of
+    the log-mel (the command trains a phonetic row on a corpus without viseme labels on the recogniser's tracks of
+    the audio): the model trains on those features as they are, not on the corpus's labels, and the checkpoint
+    records this front end. ``device``, ``progress``, ``time_budget_s`` (wall
     seconds) and ``cpu_budget_s`` (this process's CPU seconds in ``train``) go to the training recipe: ``recipe`` "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``: the
     PCA-initialised head at lr 6e-3, for the models it was measured on); ``epochs`` sets the budget, None: the
     recipe's own (``tiny``'s for every model, ``fast``'s per model, ``train.FAST_EPOCHS``); with ``fast`` the row's
@@ -109,8 +109,11 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     from ..train import TrainConfig, loss_weights
 
     front = front_ends.get(spec.features)
-    front_end = record if record is not None else front_ends.build(spec.features, corpus.fps)
-    train_set, audio_dim = feature_view(clips, spec.features, len(corpus.phoneme_inventory), training=True)
+    front_end = computed if computed is not None else front_ends.build(spec.features, corpus.fps)
+    if computed is not None:  # the clips already hold the front end's output: trained on as they are
+        train_set, audio_dim = clips, int(clips[0]["audio"].shape[-1])
+    else:
+        train_set, audio_dim = feature_view(clips, spec.features, len(corpus.phoneme_inventory), training=True)
     config_cls = registry.get(spec.model).config_cls
     if config_cls is not None and "n_emotions" in {f.name for f in dataclasses.fields(config_cls)}:
         spec = dataclasses.replace(spec, model_overrides={**spec.model_overrides, "n_emotions": len(corpus.emotions)})
@@ -134,11 +137,9 @@ def assemble_training(spec: RunSpec, clips: Dataset, corpus, *, paired: bool = F
     if trains:
         loader = (make_pair_loader if paired else make_loader)(train_set, train_config.batch_size, shuffle=True,
                                                                seed=seed)
-    if record is not None:
-        features = front_ends.settings(record.front_end, record)
-    elif front.recogniser:
+    if front.recogniser:
         features = front_ends.settings(spec.features, front_end)
     else:  # log-mel: the extractor the clips were computed with (its band statistics); labels: no settings
         features = front_ends.settings(spec.features, (logmel or front_end) if front.from_audio else None)
     return Assembly(spec, model, model_config, train_config, train_set, loader, features,
-                    front_end if front.from_audio or record is not None else None)
+                    front_end if front.from_audio or computed is not None else None)
