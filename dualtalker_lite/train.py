@@ -36,7 +36,6 @@ import math
 import random
 import sys
 import time
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -47,6 +46,7 @@ from tqdm.auto import tqdm
 
 from . import checkpoints
 from .checks import NonFiniteError
+from .deprecation import moved
 from .face.visemes import VISEMES
 from .losses.contact import bilabial_contact
 from .metrics import lve_euclidean
@@ -762,12 +762,5 @@ def _train(model: torch.nn.Module, train_loader, cfg: TrainConfig, val_loader, l
 
 # The old address of the checkpoint functions (before they moved to :mod:`dualtalker_lite.checkpoints`): kept one
 # release, with a DeprecationWarning naming the new one (CHANGELOG.md, "Deprecated").
-_MOVED = {"save_checkpoint": "dualtalker_lite.checkpoints", "load_checkpoint": "dualtalker_lite.checkpoints"}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED:
-        warnings.warn(f"dualtalker_lite.train.{name} is deprecated and goes in the next release: import it from "
-                      f"{_MOVED[name]}", DeprecationWarning, stacklevel=2)
-        return getattr(checkpoints, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved(__name__, {name: (f"dualtalker_lite.checkpoints.{name}", getattr(checkpoints, name))
+                               for name in ("save_checkpoint", "load_checkpoint")})
