@@ -125,16 +125,16 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, model_config: Any,
 
     state = model.state_dict()
     _check_weights(state, f"refusing to save {path}")
-    n_vertices = getattr(model_config, "n_vertices", None) if model_config is not None else None
+    config = _plain(model_config)  # a dict, or None for a model built without a config
     ckpt = {
         "format_version": FORMAT_VERSION,
         "package_version": __version__,
         "model_class": type(model).__name__,
-        "model_config": _plain(model_config),
+        "model_config": config,
         "train_config": _plain(train_config),
         "history": _plain(history),
         "speakers": list(speakers) if speakers is not None else None,
-        "n_vertices": n_vertices,
+        "n_vertices": config.get("n_vertices") if isinstance(config, dict) else None,
         "topology": topology_fingerprint(faces),
         "features": features if features is not None else front_ends.settings(),
         **({"units": units} if units is not None else {}),

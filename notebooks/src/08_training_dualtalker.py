@@ -50,7 +50,8 @@ from dualtalker_lite.metrics import (BILABIALS, closure_rate, lip_distance, lip_
                                     segment_extrema)
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
 from dualtalker_lite.seeding import set_seed
-from dualtalker_lite.train import TrainConfig, load_checkpoint, predict, save_checkpoint, train
+from dualtalker_lite.checkpoints import load_checkpoint, save_checkpoint
+from dualtalker_lite.train import TrainConfig, predict, train
 from dualtalker_lite.viz import animate_clip, plot_frames, plot_lip_distance
 from dualtalker_lite.viz.widgets import RetrainPanel, progress_loader
 
