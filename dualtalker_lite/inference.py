@@ -347,8 +347,11 @@ def run(args: argparse.Namespace) -> list[Path]:
 def _formats(spec: str, no_video: bool) -> tuple[str, ...]:
     """``--format`` (comma-separated names, any case, aliases such as ``glb``) less the mp4 with ``--no-video`` ->
     the formats to write, each once, in the order given; one line for an unknown name or nothing left to write."""
-    formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in
-                                  (f.strip().lower() for f in spec.split(",")) if f))
+    names = [f for f in (f.strip().lower() for f in spec.split(",")) if f]
+    for old in sorted(set(names) & set(FORMAT_ALIASES)):  # an old name: kept one release (CHANGELOG.md)
+        print(f"note: --format {old} is the old name of {FORMAT_ALIASES[old]} and goes in the next release; "
+              f"write --format {FORMAT_ALIASES[old]}", file=sys.stderr)
+    formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in names))
     unknown = sorted(set(formats) - set(FORMATS))
     if unknown or not formats:
         raise ValueError(f"--format {spec!r}: unknown format(s) {unknown}; choose from {', '.join(FORMATS)}")

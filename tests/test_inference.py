@@ -379,6 +379,16 @@ def test_unknown_format_and_missing_cuda(ckpt, wav, tmp_path, capsys):
     _nothing_written(tmp_path, tmp_path / "o")
 
 
+def test_the_old_format_name_glb_means_gltf_with_a_note(capsys):
+    """``--format glb`` (the old name, CHANGELOG.md) is read as ``gltf``, once, with one note on stderr."""
+    from dualtalker_lite.inference import _formats
+
+    assert _formats("NPY, glb,gltf", no_video=False) == ("npy", "gltf")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["note: --format glb is the old name of gltf and goes in the next release; write --format gltf"]
+    assert _formats("npy,gltf", no_video=False) == ("npy", "gltf") and capsys.readouterr().err == ""
+
+
 def test_debug_shows_the_traceback(ckpt, tmp_path):
     with pytest.raises(FileNotFoundError, match="audio file not found"):
         main(["--checkpoint", str(ckpt), "--wav", str(tmp_path / "none.wav"), "--out", str(tmp_path / "o"),
