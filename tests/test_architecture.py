@@ -187,3 +187,49 @@ def test_the_check_catches_inference_importing_the_visualisation(tmp_path):
 def test_papers_come_from_the_registry():
     assert {"models.dualtalker", "models.corrtalk", "models.emoface", "models.faceformer",
             "models.baselines"} == set(PAPERS)
+
+
+# ------------------------------------------------------------------ one idea per screen (issue 46, "Done when")
+MAX_FUNCTION, MAX_CLI_FUNCTION, MAX_CLI_LINES, MAX_MODULE_DOCSTRING = 60, 40, 350, 40
+
+
+def _sizes(path: Path) -> tuple[list[tuple[str, int]], int]:
+    """(function name, lines from ``def`` to its last line) for every function of ``path``, and its module
+    docstring's lines (0 without one)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    functions = [(f"{path.relative_to(path.parents[1])}:{n.lineno} {n.name}", n.end_lineno - n.lineno + 1)
+                 for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]
+    doc = ast.get_docstring(tree, clean=False)
+    return functions, 0 if doc is None else doc.count("\n") + 1
+
+
+def test_one_idea_per_screen():
+    """No function over 60 lines (40 in cli.py), cli.py at most 350 lines, no module docstring over 40 lines:
+    measurement logs belong in docs/ or results/ (docs/design-notes.md), command logic below the command line."""
+    long_functions, long_docstrings = [], []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        functions, doc_lines = _sizes(path)
+        limit = MAX_CLI_FUNCTION if path.name == "cli.py" and path.parent == PACKAGE else MAX_FUNCTION
+        long_functions += [f"{name} ({n} lines > {limit})" for name, n in functions if n > limit]
+        if doc_lines > MAX_MODULE_DOCSTRING:
+            long_docstrings.append(f"{path.relative_to(PACKAGE.parent)} ({doc_lines} lines)")
+    assert long_functions == [] and long_docstrings == []
+    assert len((PACKAGE / "cli.py").read_text(encoding="utf-8").splitlines()) <= MAX_CLI_LINES
+
+
+def test_the_contract_is_the_only_door():
+    """Outside models/, nothing probes a model with getattr/hasattr or reads a method's signature: optional
+    abilities are read through ``models.contract.hook`` (and ``contract.conditions``)."""
+    probes = ("getattr(model", "hasattr(model", "inspect.signature")
+    found = [f"{p.relative_to(PACKAGE.parent)}:{i}" for p in sorted(PACKAGE.rglob("*.py"))
+             if "models" not in p.relative_to(PACKAGE).parts[:1]
+             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if any(s in line for s in probes)]
+    assert found == []
+
+
+def test_the_size_check_counts_a_long_function(tmp_path):
+    """The size check itself: a 61-line function and a 41-line module docstring are counted as such."""
+    path = tmp_path / "probe.py"
+    path.write_text('"""' + "\n" * 40 + '"""\n\n\ndef f():\n' + "    x = 1\n" * 60, encoding="utf-8")
+    functions, doc_lines = _sizes(path)
+    assert [n for _, n in functions] == [61] and doc_lines == 41
