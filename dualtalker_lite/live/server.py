@@ -294,6 +294,7 @@ class LiveConnection:
         # Catching up (catch_up): ``consumed`` samples of the stream have left the backlog (pushed or dropped);
         # the session computing now began at frame ``offset`` of the stream (0 unless audio was dropped).
         self.consumed, self.offset, self.dropped = 0, 0, 0
+        self.audio_from = None                              # when the first audio since the start arrived
 
     @classmethod
     async def handle(cls, request, config: LiveConfig, executor: ThreadPoolExecutor, sockets: set):
@@ -381,6 +382,8 @@ class LiveConnection:
         2 s allowance (else 1008). Queued in ``backlog`` as float32 in [-1, 1); a worker is started if none runs."""
         if len(data) % 2:
             raise _Refused(UNSUPPORTED_DATA, f"binary message of odd length {len(data)} (expected int16 PCM)")
+        if self.audio_from is None and len(data):
+            self.audio_from = now
         self.samples += len(data) // 2
         self.state = "streaming" if self.samples else "ready"
         if self.samples / SAMPLE_RATE > self.limits.max_speed * (now - self.started) + 2.0:
@@ -412,7 +415,7 @@ class LiveConnection:
         self.visemes = visemes
         self.session = await self._in_thread(self._new_session, visemes)
         self.started, self.samples, self.state = time.monotonic(), 0, "ready"
-        self.consumed, self.offset, self.dropped = 0, 0, 0
+        self.consumed, self.offset, self.dropped, self.audio_from = 0, 0, 0, None
 
     async def stop(self) -> None:
         """``{"type": "stop"}``: flush the session (the frames it held back for look-ahead; the frame count is the
@@ -448,10 +451,10 @@ class LiveConnection:
         """Before each push: if the server fell behind, drop the oldest queued audio so the backlog never grows.
 
         Behind means both: the queued audio ``q`` (arrived while the session computed) is more than
-        ``max_behind_s`` (B), and the audio computed so far lags the wall clock since ``start`` by ``late > B``
-        (``late = now - started - consumed / 16000``). The second condition spares a client that sends faster than
-        real time (a file, the tests): its queue is long but it is not late; a real-time client on a busy machine
-        has ``q ~ late``. Then the stream jumps to the sample ``P`` (the first of at most B of the newest audio,
+        ``max_behind_s`` (B), and the audio computed so far lags the wall clock by ``late > B``, counted from the
+        first audio since ``start``: ``late = now - t_first - consumed / 16000``. The second condition spares a
+        client that sends faster than real time (a file, the tests): its queue is long but it is not late; a
+        real-time client on a busy machine has ``q <= late + one message``. Then the stream jumps to the sample ``P`` (the first of at most B of the newest audio,
         rounded up to a whole mesh frame: a multiple of 1600 samples at 30 fps), the audio before ``P`` is dropped,
         and the session **restarts** there: a fresh :class:`~dualtalker_lite.live.stream.LiveSession` whose frame 0
         is frame ``offset = P fps / 16000`` of the stream. Restarting, not feeding silence: silence costs the
@@ -462,7 +465,7 @@ class LiveConnection:
         ``{"type": "behind", "behind_ms": late, "dropped_ms": ..., "frame": offset}``."""
         bound = self.config.max_behind_s
         queued = sum(piece.size for piece in self.backlog)
-        late = time.monotonic() - self.started - self.consumed / SAMPLE_RATE
+        late = time.monotonic() - (self.audio_from or time.monotonic()) - self.consumed / SAMPLE_RATE
         if bound is None or queued <= bound * SAMPLE_RATE or late <= bound:
             return
         fps = self.config.front_end.fps
