@@ -144,3 +144,59 @@ def test_max_behind_none_queues_everything(slow):
     _, texts, frames = _stream(_config(None), seconds=1.0, real_time=True)
     assert [m for m in texts if m["type"] == "behind"] == []
     assert sum(SlowSession.pushes) == 10 * 1600 and sorted(frames) == list(range(FPS))
+
+
+@pytest.mark.tools  # needs chromium (tools/test_tools.sh): make test runs it, make unit leaves it out
+def test_the_page_says_it_is_behind_then_returns_to_normal(monkeypatch, tmp_path):
+    """Headless Chromium, a fake microphone playing 8 s of noise, a server 3x slower than real time until it first
+    drops audio (then 5x faster than real time): the status line says "behind by N ms — catching up", then, once
+    the server keeps up, returns to "listening: speak"; stopped, it says so."""
+    import os
+    import shutil
+    import threading
+
+    import soundfile as sf
+    from aiohttp import web
+
+    exe = os.environ.get("DTL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("no chromium: `apt-get install chromium` (Debian) or set DTL_CHROMIUM")
+    from playwright.sync_api import sync_playwright
+
+    monkeypatch.setattr(LiveConnection, "_new_session",
+                        lambda self, visemes=False: SlowSession(3.0 if self.dropped == 0 else 0.2))
+    wav = tmp_path / "noise.wav"
+    sf.write(wav, 0.1 * np.random.default_rng(0).standard_normal(8 * RATE), RATE, subtype="PCM_16")
+    loop, runner = asyncio.new_event_loop(), web.AppRunner(make_app(_config(1.0)), handler_cancellation=True)
+    loop.run_until_complete(runner.setup())
+    loop.run_until_complete(web.TCPSite(runner, "127.0.0.1", 0).start())
+    port = runner.addresses[0][1]
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=exe, args=[
+                "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+                f"--use-file-for-fake-audio-capture={wav}%noloop", "--autoplay-policy=no-user-gesture-required"])
+            try:
+                page = browser.new_page(viewport={"width": 640, "height": 480})
+                page.goto(f"http://127.0.0.1:{port}/")
+                page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)", timeout=60000)
+                page.click("button.start")
+                page.wait_for_function("() => dtlLive.status.startsWith('behind by')", timeout=60000)
+                behind = page.evaluate("() => [dtlLive.status, dtlLive.phase, dtlLive.behind]")
+                page.wait_for_function("() => dtlLive.status === 'listening: speak'", timeout=60000)
+                phase = page.evaluate("() => dtlLive.phase")
+                page.click("button.start")                                          # stop
+                page.wait_for_function("() => dtlLive.status.startsWith('stopped: ')", timeout=60000)
+            finally:
+                browser.close()
+    finally:
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(30)
+        loop.run_until_complete(runner.cleanup())
+    status, phase_behind, messages = behind
+    m = messages[0]
+    assert status == f"behind by {m['behind_ms']} ms — catching up (dropped {m['dropped_ms']} ms of audio)"
+    assert phase_behind == "behind" and phase == "running" and m["behind_ms"] > 1000
