@@ -71,6 +71,7 @@ try {
   const sent = [];                        // [samples sent so far, performance.now()] per message
   let latest = -1, clockAt = 0, delay = info.latency_s, snap = false;
   let sound = null;                       // the sound heard this run (hear, below)
+  let drawLag = 0.5 / 60;                 // s: a due frame's wait for its draw (smoothed; half a 60 Hz refresh)
   const lips = info.lip_midpoints;
   const lipOf = (v) => {
     if (!lips) return null;
@@ -136,8 +137,11 @@ try {
     if (avatar && w) state.avatarShown.push(avatar.update(w).gap);
     const captured = state.running ? capturedAt(Math.ceil((f + 1) / fps * rate)) : null;
     if (captured !== null) state.shownLatencyMs.push([f, performance.now() - captured]);
-    const own = state.running && sound ? capturedAt(Math.round(f / fps * rate)) : null;   // the frame's own sample
-    if (own !== null && syncedBox.checked) state.syncOffsetMs.push([f, performance.now() - own - soundLatencyMs()]);
+    const own = state.running ? capturedAt(Math.round(f / fps * rate)) : null;   // the frame's own sample
+    if (own !== null) drawLag = 0.9 * drawLag + 0.1 * Math.max(0, (performance.now() - own) / 1000 - delay);
+    if (own !== null && sound && syncedBox.checked) {
+      state.syncOffsetMs.push([f, performance.now() - own - soundLatencyMs()]);
+    }
     if (state.shown >= 0 && f > state.shown + 1) state.droppedFrames += f - state.shown - 1;
     state.shown = f;
     for (const k of pending.keys()) if (k < f) pending.delete(k);
@@ -165,14 +169,15 @@ try {
   // ---- audio out: a WebSocket per run
   let ctx = null, ws = null, stopAudio = null;
   // ---- the sound heard: a file directly, the microphone not at all; synced, either through a DelayNode set to the
-  // measured latency. Frame f is drawn when the capture clock reaches f / fps + delay (+ half a 60 Hz refresh on
-  // average), so the sound of f / fps is heard with it when the line delays it by that, less the output's latency.
+  // measured latency. Frame f is due when the capture clock reaches f / fps + delay and drawn drawLag later (the
+  // next animation callback: half a refresh at 60 Hz, more on a slow machine; measured), so the sound of f / fps
+  // is heard with it when the line delays it by delay + drawLag, less the output's own latency.
   const MAX_SYNC_S = 4;
   const outputLatency = () => ctx ? (ctx.outputLatency || 0) + (ctx.baseLatency || 0) : 0;
   const soundLatencyMs = () => sound ? 1000 * (sound.line.delayTime.value + outputLatency()) : 0;
   const syncSound = () => {
     if (!sound || !ctx) return;
-    const target = Math.min(MAX_SYNC_S, Math.max(0, delay + 0.5 / 60 - outputLatency()));
+    const target = Math.min(MAX_SYNC_S, Math.max(0, delay + drawLag - outputLatency()));
     sound.line.delayTime.setTargetAtTime(target, ctx.currentTime, 0.3);    // glides (a jump would click)
   };
   const route = () => {                   // the checkbox, at any time: which path is heard
@@ -216,7 +221,7 @@ try {
   const begin = async (makeSource, native = false) => {
     pending.clear(); pendingW.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = [];
     state.frames = 0; state.visemes = []; state.avatarGap = []; state.avatarShown = []; state.shownLatencyMs = [];
-    state.samplesSent = 0; delay = info.latency_s; snap = false; sound = null;
+    state.samplesSent = 0; delay = info.latency_s; snap = false; sound = null; drawLag = 0.5 / 60;
     state.behind = []; state.droppedFrames = 0; state.syncOffsetMs = []; latencyEl.textContent = 'latency –';
     ctx = audioContext(native);
     state.contextRate = ctx.sampleRate;
