@@ -150,7 +150,9 @@ def test_max_behind_none_queues_everything(slow):
 def test_the_page_says_it_is_behind_then_returns_to_normal(monkeypatch, tmp_path):
     """Headless Chromium, a fake microphone playing 8 s of noise, a server 3x slower than real time until it first
     drops audio (then 5x faster than real time): the status line says "behind by N ms — catching up", then, once
-    the server keeps up, returns to "listening: speak"; stopped, it says so."""
+    the server keeps up, returns to "listening: speak"; stopped, it says so. The synced box is ticked: the page
+    runs its delayed sound path and takes the audio/face offset of the frames it draws (measured, not asserted:
+    benchmarks/live.py figures page --synced)."""
     import os
     import shutil
     import threading
@@ -183,11 +185,12 @@ def test_the_page_says_it_is_behind_then_returns_to_normal(monkeypatch, tmp_path
                 page = browser.new_page(viewport={"width": 640, "height": 480})
                 page.goto(f"http://127.0.0.1:{port}/")
                 page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)", timeout=60000)
+                page.check("input.synced")                                          # the sound delayed too
                 page.click("button.start")
                 page.wait_for_function("() => dtlLive.status.startsWith('behind by')", timeout=60000)
                 behind = page.evaluate("() => [dtlLive.status, dtlLive.phase, dtlLive.behind]")
                 page.wait_for_function("() => dtlLive.status === 'listening: speak'", timeout=60000)
-                phase = page.evaluate("() => dtlLive.phase")
+                phase, synced = page.evaluate("() => [dtlLive.phase, [dtlLive.synced, dtlLive.syncOffsetMs.length]]")
                 page.click("button.start")                                          # stop
                 page.wait_for_function("() => dtlLive.status.startsWith('stopped: ')", timeout=60000)
             finally:
@@ -200,3 +203,4 @@ def test_the_page_says_it_is_behind_then_returns_to_normal(monkeypatch, tmp_path
     m = messages[0]
     assert status == f"behind by {m['behind_ms']} ms — catching up (dropped {m['dropped_ms']} ms of audio)"
     assert phase_behind == "behind" and phase == "running" and m["behind_ms"] > 1000
+    assert synced[0] is True and synced[1] > 0                  # synced mode: frames drawn with their offset taken
