@@ -454,9 +454,11 @@ class LiveConnection:
         ``max_behind_s`` (B), and the audio computed so far lags the wall clock by ``late > B``, counted from the
         first audio since ``start``: ``late = now - t_first - consumed / 16000``. The second condition spares a
         client that sends faster than real time (a file, the tests): its queue is long but it is not late; a
-        real-time client on a busy machine has ``q <= late + one message``. Then the stream jumps to the sample ``P`` (the first of at most B of the newest audio,
-        rounded up to a whole mesh frame: a multiple of 1600 samples at 30 fps), the audio before ``P`` is dropped,
-        and the session **restarts** there: a fresh :class:`~dualtalker_lite.live.stream.LiveSession` whose frame 0
+        real-time client on a busy machine has ``q <= late + one message``.
+
+        Then the stream jumps to the sample ``P`` (the first of at most B of the newest audio, rounded up to a whole
+        mesh frame: a multiple of 1600 samples at 30 fps), the audio before ``P`` is dropped, and the session
+        **restarts** there: a fresh :class:`~dualtalker_lite.live.stream.LiveSession` whose frame 0
         is frame ``offset = P fps / 16000`` of the stream. Restarting, not feeding silence: silence costs the
         recogniser as much as speech (no catching up), and the streaming state (the recogniser's past audio, the
         decoder's KV cache and features) is only consistent with contiguous audio. The cost: the frames the old
@@ -465,24 +467,19 @@ class LiveConnection:
         ``{"type": "behind", "behind_ms": late, "dropped_ms": ..., "frame": offset}``."""
         bound = self.config.max_behind_s
         queued = sum(piece.size for piece in self.backlog)
-        late = time.monotonic() - (self.audio_from or time.monotonic()) - self.consumed / SAMPLE_RATE
-        if bound is None or queued <= bound * SAMPLE_RATE or late <= bound:
+        if bound is None or self.audio_from is None or queued <= bound * SAMPLE_RATE:
+            return
+        late = time.monotonic() - self.audio_from - self.consumed / SAMPLE_RATE
+        if late <= bound:
             return
         fps = self.config.front_end.fps
         step = SAMPLE_RATE // int(np.gcd(SAMPLE_RATE, int(fps))) if float(fps).is_integer() else 1   # whole frames
         end = self.consumed + queued                                       # = the samples received
-        position = min(-(-(end - int(bound * SAMPLE_RATE)) // step) * step, end // step * step)
+        position = min(-(-(end - int(bound * SAMPLE_RATE)) // step) * step, end // step * step)   # P
         drop = position - self.consumed
         if drop <= 0:
             return
-        left = drop
-        while left:                                                        # the oldest pieces, the last one cut
-            piece = self.backlog[0]
-            if piece.size <= left:
-                self.backlog.pop(0)
-                left -= piece.size
-            else:
-                self.backlog[0], left = piece[left:], 0
+        self._drop_oldest(drop)
         self.consumed, self.dropped = position, self.dropped + drop
         self.session = await self._in_thread(self._new_session, self.visemes)
         self.offset = int(round(position * fps / SAMPLE_RATE))
@@ -492,6 +489,16 @@ class LiveConnection:
             await self.ws.send_str(json.dumps({"type": "behind", "behind_ms": round(1000 * late),
                                                "dropped_ms": round(1000 * drop / SAMPLE_RATE),
                                                "frame": self.offset}))
+
+    def _drop_oldest(self, n: int) -> None:
+        """Remove the oldest ``n`` samples of the backlog (whole pieces, the last one cut)."""
+        while n:
+            piece = self.backlog[0]
+            if piece.size <= n:
+                self.backlog.pop(0)
+                n -= piece.size
+            else:
+                self.backlog[0], n = piece[n:], 0
 
     def gone(self) -> None:
         """The client closed the connection: one log line if it did so mid-stream (audio sent, no ``stop``)."""

@@ -247,7 +247,10 @@ try {
     state.running = false; button.textContent = 'Start'; header(false);
     if (stopAudio) { stopAudio(); stopAudio = null; }
     if (ctx) { ctx.close(); ctx = null; }
-    if (ws && ws.readyState === WebSocket.OPEN && flush) { ws.send(JSON.stringify({ type: 'stop' })); enter('stopping'); }
+    if (ws && ws.readyState === WebSocket.OPEN && flush) {
+      ws.send(JSON.stringify({ type: 'stop' }));
+      enter('stopping');
+    }
     meter.value = 0;
   };
   const microphone = (native) => begin(async (c) => {
