@@ -55,7 +55,13 @@ Issue 33 item 4, the live path against its targets (``figures``; each step write
   it); frames of the first 3 s (the page's playout delay adapting) are left out. Software WebGL draws only a few
   frames a second on a busy 2-core machine (``draws_per_s``): each drawn frame is timed, the others are skipped
   by the page as they would be on a slow screen. Needs chromium and playwright, as the
-  page's test does.
+  page's test does. Also counted: the server's ``behind`` messages and the audio they dropped (catching up,
+  ``LiveConnection.catch_up``). With ``--synced`` the page's synced box is ticked (the sound played back through a
+  DelayNode set to the measured latency, ``docs/live.md``) and per frame drawn the audio/face offset is taken
+  (``dtlLive.syncOffsetMs``: the draw minus the time the frame's sound (sample ``f 16000 / 30``) left the delay
+  line and the context's reported output latency, by the page's clocks; + = the face after the sound): median,
+  p95 of its size, and the share within the +-45 ms target. The screen's refresh and audio device latency the
+  browser does not report are not in it.
 * ``diagnose``: where the live path loses closures (:func:`fig_diagnose`): the offline track through the
   incremental decoder, and the live track through the offline decoder, on every ``--every``-th prompt.
 """
@@ -413,16 +419,67 @@ def fig_keepup(args) -> dict:
             "decoder_window": getattr(config.model.cfg, "decoder_window", None)}
 
 
-def fig_page(args) -> dict:
-    """The page's own latency in headless Chromium with a fake microphone (module docstring, ``page``)."""
+def _live_server(checkpoint, lookahead_ms: int, ahead: int):
+    """``dualtalker-lite live`` in its own process on a free port, once it listens -> (the process, the port)."""
     import os
-    import shutil
     import socket
     import subprocess
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.cli", "live", "--checkpoint",
+                               str(checkpoint), "--port", str(port), "--lookahead-ms", str(lookahead_ms),
+                               "--encoder-ahead-frames", str(ahead)],
+                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"})
+    for _ in range(600):                       # up to 60 s for the model to load
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
+            return server, port
+        except OSError:
+            if server.poll() is not None:
+                raise SystemExit(f"figures page: the live server exited: {server.stderr.read()[-500:]}")
+            time.sleep(0.1)
+    server.terminate()
+    raise SystemExit("figures page: the live server did not listen within 60 s")
+
+
+def _page_run(exe: str, wav: Path, port: int, seconds: float, synced: bool) -> dict:
+    """The page in headless Chromium, its fake microphone playing ``wav`` (``seconds`` long), Start pressed (and
+    the synced box ticked first, if ``synced``) -> the page's ``shownLatencyMs``, ``syncOffsetMs``, ``behind``
+    and ``droppedFrames`` once all but the last second's frames are drawn."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=exe, args=[
+            "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+            "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+            f"--use-file-for-fake-audio-capture={wav}%noloop", "--autoplay-policy=no-user-gesture-required"])
+        try:
+            page = browser.new_page(viewport={"width": 800, "height": 600})
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)", timeout=60000)
+            if synced:
+                page.check("input.synced")
+            page.click("button.start")
+            page.wait_for_function("() => dtlLive.running", timeout=60000)
+            n = int(seconds * 30) - 30                 # all but the last second's frames
+            page.wait_for_function(f"() => dtlLive.shown >= {n}", timeout=int(1000 * (2 * seconds + 60)))
+            return page.evaluate("() => ({shown: dtlLive.shownLatencyMs, sync: dtlLive.syncOffsetMs, "
+                                 "behind: dtlLive.behind, dropped: dtlLive.droppedFrames})")
+        finally:
+            browser.close()
+
+
+def fig_page(args) -> dict:
+    """The page's own latency in headless Chromium with a fake microphone (module docstring, ``page``); with
+    ``--synced``, also the synced mode's audio/face offset per frame drawn."""
+    import os
+    import shutil
     import tempfile
 
     import soundfile as sf
-    from playwright.sync_api import sync_playwright
 
     from dualtalker_lite.live.stream import LiveSettings
 
@@ -431,60 +488,44 @@ def fig_page(args) -> dict:
         raise SystemExit("figures page: no chromium (apt-get install chromium, or set DTL_CHROMIUM)")
     wave, _ = _speech(args.page_seconds / 60)
     warm = 3 * 30                                          # frames: the playout delay adapts over the first 3 s
-    out = {"audio_s": len(wave) / 16000, "warm_up_frames_left_out": warm, "lookaheads": {}}
+    out = {"audio_s": len(wave) / 16000, "warm_up_frames_left_out": warm, "synced": bool(args.synced),
+           "lookaheads": {}}
     with tempfile.TemporaryDirectory() as tmp:
         wav = Path(tmp) / "speech.wav"
         sf.write(wav, wave, 16000, subtype="PCM_16")
         aheads = args.ahead_frames or [LiveSettings.ahead_frames]
         for la, ahead in [(la, ahead) for la in args.lookaheads for ahead in aheads]:
             key = str(la) if aheads == [LiveSettings.ahead_frames] else f"{la} ms, encoder look-ahead {ahead} frames"
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", 0))
-                port = s.getsockname()[1]
-            server = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.cli", "live", "--checkpoint",
-                                       str(args.checkpoint), "--port", str(port), "--lookahead-ms", str(la),
-                                       "--encoder-ahead-frames", str(ahead)],
-                                      cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                      env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"})
+            server, port = _live_server(args.checkpoint, la, ahead)
             try:
-                for _ in range(600):                       # up to 60 s for the model to load
-                    try:
-                        socket.create_connection(("127.0.0.1", port), timeout=0.1).close()
-                        break
-                    except OSError:
-                        if server.poll() is not None:
-                            raise SystemExit(f"figures page: the live server exited: {server.stderr.read()[-500:]}")
-                        time.sleep(0.1)
-                with sync_playwright() as p:
-                    browser = p.chromium.launch(executable_path=exe, args=[
-                        "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                        "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
-                        f"--use-file-for-fake-audio-capture={wav}%noloop",
-                        "--autoplay-policy=no-user-gesture-required"])
-                    try:
-                        page = browser.new_page(viewport={"width": 800, "height": 600})
-                        page.goto(f"http://127.0.0.1:{port}/")
-                        page.wait_for_function("() => window.dtlLive && (dtlLive.ready || dtlLive.error)",
-                                               timeout=60000)
-                        page.click("button.start")
-                        page.wait_for_function("() => dtlLive.running", timeout=60000)
-                        n = int(len(wave) / 16000 * 30) - 30       # all but the last second's frames
-                        page.wait_for_function(f"() => dtlLive.shown >= {n}",
-                                               timeout=int(1000 * (2 * len(wave) / 16000 + 60)))
-                        lat = page.evaluate("() => dtlLive.shownLatencyMs")
-                    finally:
-                        browser.close()
+                got = _page_run(exe, wav, port, len(wave) / 16000, args.synced)
             finally:
                 server.terminate()
                 server.wait(timeout=30)
-            drawn = np.asarray(lat, float).reshape(-1, 2)                 # (frame, ms) per frame drawn
+            drawn = np.asarray(got["shown"], float).reshape(-1, 2)        # (frame, ms) per frame drawn
             kept = drawn[drawn[:, 0] >= warm]
             if len(kept) < 10:
                 raise SystemExit(f"figures page: only {len(kept)} frames drawn after the warm-up at look-ahead {key}")
-            out["lookaheads"][key] = {"page": _lat(kept[:, 1] / 1000), "frames_drawn": len(drawn),
-                                      "draws_per_s": len(drawn) / (len(wave) / 16000)}
-            print(f"  look-ahead {key}: {out['lookaheads'][key]}", flush=True)
+            row = {"page": _lat(kept[:, 1] / 1000), "frames_drawn": len(drawn),
+                   "draws_per_s": len(drawn) / (len(wave) / 16000), "behind_messages": len(got["behind"]),
+                   "dropped_ms": sum(m["dropped_ms"] for m in got["behind"]), "frames_not_drawn": got["dropped"]}
+            if args.synced:
+                row["sync_offset"] = _sync_offset(np.asarray(got["sync"], float).reshape(-1, 2), warm)
+            out["lookaheads"][key] = row
+            print(f"  look-ahead {key}: {row}", flush=True)
     return out
+
+
+def _sync_offset(offsets: np.ndarray, warm: int) -> dict:
+    """Synced mode's (frame, ms) offsets (the frame's draw minus the time its sound was heard, by the page's
+    clocks; + = the face after the sound), warm-up frames left out -> median, p95 of |offset|, and the share
+    within the +-45 ms target (ITU-R BT.1359)."""
+    x = offsets[offsets[:, 0] >= warm, 1]
+    if not len(x):
+        raise SystemExit("figures page --synced: no synced frames drawn after the warm-up")
+    return {"frames": int(len(x)), "median_ms": float(np.median(x)), "mean_ms": float(x.mean()),
+            "p5_ms": float(np.percentile(x, 5)), "p95_ms": float(np.percentile(x, 95)),
+            "p95_abs_ms": float(np.percentile(np.abs(x), 95)), "within_45ms": float(np.mean(np.abs(x) <= 45))}
 
 
 def fig_latency(args) -> dict:
@@ -647,6 +688,8 @@ def figures(argv) -> None:
     ap.add_argument("--latency-minutes", type=float, default=2.0)
     ap.add_argument("--page-seconds", type=float, default=60.0,
                     help="page: seconds of speech the fake microphone plays")
+    ap.add_argument("--synced", action="store_true",
+                    help="page: tick the page's synced box and measure the audio/face offset (target +-45 ms)")
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall")
     ap.add_argument("--hop", type=float, default=None, help="quality: the recogniser hop (LiveSettings' default)")
     ap.add_argument("--past", type=float, default=None,

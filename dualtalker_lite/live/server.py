@@ -8,7 +8,9 @@ from elsewhere) sends the microphone, or a file played through the same path, as
 messages, and draws the frames that come back on the speaker's template mesh. This module (aiohttp) serves the page
 and runs each WebSocket as a :class:`LiveConnection` (its state machine is in its docstring): a
 :class:`~dualtalker_lite.live.stream.LiveSession` (causal viseme track + the model's KV-cache step) in a worker
-thread, fed at once all the audio that arrived while it computed.
+thread, fed at once all the audio that arrived while it computed; when that audio is more than
+``LiveConfig.max_behind_s`` (1 s) and late, the oldest of it is dropped and the session restarts where the kept
+audio begins (:meth:`LiveConnection.catch_up`), so a busy machine never queues without bound.
 
 The protocol (``/ws``):
 
@@ -19,7 +21,10 @@ client -> server, text      JSON ``{"type": "start"}`` (a new session), ``{"type
 server -> client, text      JSON ``{"type": "hello", ...}`` (settings, ``viseme_names``), ``{"type": "done",
                             "frames": n}``, ``{"type": "error", "message": ...}`` (then the server closes the
                             connection); when asked, before each binary message, ``{"type": "visemes", "first":
-                            first, "weights": [[15 numbers] x n]}``: the standard viseme weights of the same frames
+                            first, "weights": [[15 numbers] x n]}``: the standard viseme weights of the same frames;
+                            ``{"type": "behind", "behind_ms": b, "dropped_ms": d, "frame": f}`` when the server fell
+                            behind and dropped audio to catch up (:meth:`LiveConnection.catch_up`): frames from
+                            ``f`` on follow, the ones before it that were not sent never will be
 server -> client, binary    uint32 LE ``first``, ``n``, ``samples`` (audio received when computed), then
                             float32 LE (n, V, 3) vertices of frames ``first .. first + n - 1``
 ==========================  =====================================================================================
@@ -103,6 +108,8 @@ class LiveConfig:
     settings: LiveSettings = field(default_factory=LiveSettings)
     limits: Limits = field(default_factory=Limits)
     checkpoint: str = ""
+    max_behind_s: float | None = 1.0                  # queued audio, late by more than this: dropped (catch_up);
+                                                      # None: never drop (queue it all, the old behaviour)
 
 
 def _allowed_hosts(request) -> set[str]:
@@ -251,6 +258,8 @@ class LiveConnection:
                                                         else ``hello`` and a fresh session (:meth:`open`)
     any        binary: int16 PCM (:meth:`audio`)        queue it; the worker (:meth:`work`) pushes the      streaming
                                                         whole backlog, sends the frames now final
+    streaming  the backlog is over ``max_behind_s`` and  drop its oldest audio, restart the session where   streaming
+               late by as much (:meth:`catch_up`)       the rest begins, send ``behind``
     any        ``start`` (:meth:`start`)                after the queued audio: a fresh session; the        ready
                                                         speed limit's clock and sample count restart
     any        ``stop`` (:meth:`stop`)                  after the queued audio: flush, the last frames,     stopped
@@ -278,9 +287,14 @@ class LiveConnection:
         self.window = (self.started, 0)                     # the current second's start and message count
         # Audio waits in ``backlog`` while the session computes; the worker takes all of it at once (at most
         # MAX_BATCH_S), so a server that fell behind runs hama once on the whole backlog instead of once per
-        # message: its cost per second of audio drops and it catches up instead of falling further behind.
+        # message: its cost per second of audio drops and it catches up instead of falling further behind; where
+        # even that is not enough (a busy machine), catch_up drops the oldest of it.
         self.backlog: list[np.ndarray] = []
         self.worker: asyncio.Task | None = None
+        # Catching up (catch_up): ``consumed`` samples of the stream have left the backlog (pushed or dropped);
+        # the session computing now began at frame ``offset`` of the stream (0 unless audio was dropped).
+        self.consumed, self.offset, self.dropped = 0, 0, 0
+        self.audio_from = None                              # when the first audio since the start arrived
 
     @classmethod
     async def handle(cls, request, config: LiveConfig, executor: ThreadPoolExecutor, sockets: set):
@@ -350,6 +364,8 @@ class LiveConnection:
         await self.ws.send_str(json.dumps({"type": "hello", "fps": self.config.front_end.fps,
                                            "sample_rate": SAMPLE_RATE,
                                            "max_message_bytes": self.limits.max_message_bytes,
+                                           "max_behind_ms": (None if self.config.max_behind_s is None
+                                                             else round(1000 * self.config.max_behind_s)),
                                            "viseme_names": list(NAMES)}))
 
     def count(self, now: float) -> None:
@@ -366,6 +382,8 @@ class LiveConnection:
         2 s allowance (else 1008). Queued in ``backlog`` as float32 in [-1, 1); a worker is started if none runs."""
         if len(data) % 2:
             raise _Refused(UNSUPPORTED_DATA, f"binary message of odd length {len(data)} (expected int16 PCM)")
+        if self.audio_from is None and len(data):
+            self.audio_from = now
         self.samples += len(data) // 2
         self.state = "streaming" if self.samples else "ready"
         if self.samples / SAMPLE_RATE > self.limits.max_speed * (now - self.started) + 2.0:
@@ -397,31 +415,90 @@ class LiveConnection:
         self.visemes = visemes
         self.session = await self._in_thread(self._new_session, visemes)
         self.started, self.samples, self.state = time.monotonic(), 0, "ready"
+        self.consumed, self.offset, self.dropped, self.audio_from = 0, 0, 0, None
 
     async def stop(self) -> None:
         """``{"type": "stop"}``: flush the session (the frames it held back for look-ahead; the frame count is the
         offline one), send them, then ``{"type": "done", "frames": n, "samples": N}``."""
         self.state = "stopped"
         first, verts, weights = await self._in_thread(_flush, self.session)
-        await self.send(first, verts, weights)
-        await self.ws.send_str(json.dumps({"type": "done", "frames": first + len(verts), "samples": self.samples}))
+        await self.send(self.offset + first, verts, weights)
+        await self.ws.send_str(json.dumps({"type": "done", "frames": self.offset + first + len(verts),
+                                           "samples": self.samples}))
 
     async def work(self) -> None:
         """The worker task: push the backlog into the session, at most ``MAX_BATCH_S`` at once, until it is empty,
-        and send each push's frames back. A client gone meanwhile ends it; a failing session closes with 1011."""
+        and send each push's frames back (first catching up if it fell behind: :meth:`catch_up`). A client gone
+        meanwhile ends it; a failing session closes with 1011."""
         try:
             while self.backlog:
+                await self.catch_up()
                 take, n = [], 0
                 while self.backlog and n < MAX_BATCH_S * SAMPLE_RATE:
                     take.append(self.backlog.pop(0))
                     n += take[-1].size
-                await self.send(*await self._in_thread(_push, self.session, np.concatenate(take)))
+                self.consumed += n
+                first, verts, weights = await self._in_thread(_push, self.session, np.concatenate(take))
+                await self.send(self.offset + first, verts, weights)
         except ConnectionResetError as e:                           # the client went away while computing
             log.warning("closed %s: %s", self.peer, e or "the client went away mid-stream")
             self.backlog.clear()
         except Exception as e:                                     # a bug: say so, end this session only
             self.backlog.clear()
             await self.fail(e)
+
+    async def catch_up(self) -> None:
+        """Before each push: if the server fell behind, drop the oldest queued audio so the backlog never grows.
+
+        Behind means both: the queued audio ``q`` (arrived while the session computed) is more than
+        ``max_behind_s`` (B), and the audio computed so far lags the wall clock by ``late > B``, counted from the
+        first audio since ``start``: ``late = now - t_first - consumed / 16000``. The second condition spares a
+        client that sends faster than real time (a file, the tests): its queue is long but it is not late; a
+        real-time client on a busy machine has ``q <= late + one message``.
+
+        Then the stream jumps to the sample ``P`` (the first of at most B of the newest audio, rounded up to a whole
+        mesh frame: a multiple of 1600 samples at 30 fps), the audio before ``P`` is dropped, and the session
+        **restarts** there: a fresh :class:`~dualtalker_lite.live.stream.LiveSession` whose frame 0
+        is frame ``offset = P fps / 16000`` of the stream. Restarting, not feeding silence: silence costs the
+        recogniser as much as speech (no catching up), and the streaming state (the recogniser's past audio, the
+        decoder's KV cache and features) is only consistent with contiguous audio. The cost: the frames the old
+        session still held back for look-ahead are never sent, and the new one starts without past context (the
+        face starts from the template; the recogniser from no past, as at a ``start``). The client gets
+        ``{"type": "behind", "behind_ms": late, "dropped_ms": ..., "frame": offset}``."""
+        bound = self.config.max_behind_s
+        queued = sum(piece.size for piece in self.backlog)
+        if bound is None or self.audio_from is None or queued <= bound * SAMPLE_RATE:
+            return
+        late = time.monotonic() - self.audio_from - self.consumed / SAMPLE_RATE
+        if late <= bound:
+            return
+        fps = self.config.front_end.fps
+        step = SAMPLE_RATE // int(np.gcd(SAMPLE_RATE, int(fps))) if float(fps).is_integer() else 1   # whole frames
+        end = self.consumed + queued                                       # = the samples received
+        position = min(-(-(end - int(bound * SAMPLE_RATE)) // step) * step, end // step * step)   # P
+        drop = position - self.consumed
+        if drop <= 0:
+            return
+        self._drop_oldest(drop)
+        self.consumed, self.dropped = position, self.dropped + drop
+        self.session = await self._in_thread(self._new_session, self.visemes)
+        self.offset = int(round(position * fps / SAMPLE_RATE))
+        log.warning("%s: behind by %.0f ms, dropped %.0f ms of audio (%.1f s in all); restarting at frame %d",
+                    self.peer, 1000 * late, 1000 * drop / SAMPLE_RATE, self.dropped / SAMPLE_RATE, self.offset)
+        if not self.ws.closed:
+            await self.ws.send_str(json.dumps({"type": "behind", "behind_ms": round(1000 * late),
+                                               "dropped_ms": round(1000 * drop / SAMPLE_RATE),
+                                               "frame": self.offset}))
+
+    def _drop_oldest(self, n: int) -> None:
+        """Remove the oldest ``n`` samples of the backlog (whole pieces, the last one cut)."""
+        while n:
+            piece = self.backlog[0]
+            if piece.size <= n:
+                self.backlog.pop(0)
+                n -= piece.size
+            else:
+                self.backlog[0], n = piece[n:], 0
 
     def gone(self) -> None:
         """The client closed the connection: one log line if it did so mid-stream (audio sent, no ``stop``)."""

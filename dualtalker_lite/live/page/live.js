@@ -4,7 +4,16 @@
 // visemes (per frame: the 15 standard viseme weights), avatarGap (per frame: the second head's lip gap, as the
 // lip distance is per frame received), avatarShown (the gaps the second head was drawn with, in order),
 // shownLatencyMs ([frame, ms] per frame drawn while running: from its newest sample's capture to its draw, the
-// page's whole latency but the screen's last refresh; benchmarks/live.py figures page reads it)}.
+// page's whole latency but the screen's last refresh; benchmarks/live.py figures page reads it), phase ('idle',
+// 'connecting', 'running', 'behind', 'stopping', 'stopped': what the status line says), behind (the server's
+// ``behind`` messages), droppedFrames (frames never drawn: dropped by the server's catch-up or skipped here when
+// drawing fell behind), synced (the sound is played back delayed), syncOffsetMs ([frame, ms] per frame drawn in
+// synced mode: its draw minus when its sound was heard, + = the face after the sound; benchmarks/live.py --synced)}.
+// Falling behind: the server drops audio and says so (``behind``); the page says so in the status line, snaps its
+// playout delay to the next measured latency, and always draws the newest frame that is due, dropping the others
+// (and holds at most 2 s of frames not drawn yet).
+// Synced mode (the checkbox): the captured sound is played back through a DelayNode set to the measured latency,
+// so a remote viewer or a recording sees the face and hears the sound together (docs/live.md, "Synced mode").
 // Left: the project's mesh (the model's vertices); right: a stylised head driven by the viseme curves (avatar.js).
 // The stage (renderer, lights, camera, orbit controls, framing) is the exported viewer's: export/page/scene.js.
 import * as THREE from 'three';
@@ -15,11 +24,20 @@ const root = document.getElementById('live');
 const view = root.querySelector('.view'), msg = root.querySelector('.msg');
 const button = root.querySelector('.start'), meter = root.querySelector('.level');
 const latencyEl = root.querySelector('.latency'), statusEl = root.querySelector('.status');
-const fileInput = root.querySelector('.file');
+const fileInput = root.querySelector('.file'), syncedBox = root.querySelector('.synced');
 const state = window.dtlLive = { ready: false, error: null, running: false, frames: 0, lip: [], latencyMs: null,
                                  shown: -1, samplesSent: 0, status: '', visemes: [], avatarGap: [],
-                                 avatarShown: [], shownLatencyMs: [] };
+                                 avatarShown: [], shownLatencyMs: [], phase: 'idle', behind: [], droppedFrames: 0,
+                                 synced: false, syncOffsetMs: [] };
 const say = (text) => { statusEl.textContent = text; state.status = text; };
+// the status line follows the state: each phase has its text (running: what is playing; behind: by how much)
+let runningText = 'listening: speak', behindTimer = null;
+const enter = (phase, text) => {
+  state.phase = phase;
+  if (behindTimer && phase !== 'behind') { clearTimeout(behindTimer); behindTimer = null; }
+  say(text !== undefined ? text : { idle: '', connecting: 'connecting to the live server…', running: runningText,
+                                    stopping: 'stopping: the last frames…' }[phase] || '');
+};
 
 try {
   const info = await (await fetch('/mesh')).json();
@@ -51,7 +69,9 @@ try {
   const pending = new Map();              // frame index -> Float32Array (V*3)
   const pendingW = new Map();             // frame index -> its 15 viseme weights
   const sent = [];                        // [samples sent so far, performance.now()] per message
-  let latest = -1, clockAt = 0, delay = info.latency_s;
+  let latest = -1, clockAt = 0, delay = info.latency_s, snap = false;
+  let sound = null;                       // the sound heard this run (hear, below)
+  let drawLag = 0.5 / 60;                 // s: a due frame's wait for its draw (smoothed; half a 60 Hz refresh)
   const lips = info.lip_midpoints;
   const lipOf = (v) => {
     if (!lips) return null;
@@ -82,13 +102,26 @@ try {
     }
     latest = Math.max(latest, first + n - 1);
     state.frames = latest + 1;
+    for (const k of pending.keys()) {           // drawing stalled (a hidden tab): keep the newest 2 s, drop the rest
+      if (pending.size <= 2 * fps) break;
+      pending.delete(k); pendingW.delete(k);
+    }
     const t = sentTime(Math.ceil((first + n) / fps * rate));
     if (t !== null && state.running) {
       const ms = performance.now() - t;
       state.latencyMs = ms;
-      delay = 0.9 * delay + 0.1 * (ms / 1000 + 0.03);
+      delay = snap ? ms / 1000 + 0.03 : 0.9 * delay + 0.1 * (ms / 1000 + 0.03);   // after a catch-up: at once
+      snap = false;
       latencyEl.textContent = `latency ${ms.toFixed(0)} ms`;
+      syncSound();
     }
+  };
+  // the server fell behind and dropped audio: say so until it has kept up for 2 s
+  const onBehind = (m) => {
+    state.behind.push(m);
+    snap = true;
+    enter('behind', `behind by ${m.behind_ms} ms — catching up (dropped ${m.dropped_ms} ms of audio)`);
+    behindTimer = setTimeout(() => { behindTimer = null; if (state.running) enter('running'); }, 2000);
   };
   const onVisemes = (m) => {
     m.weights.forEach((w, i) => {
@@ -104,6 +137,12 @@ try {
     if (avatar && w) state.avatarShown.push(avatar.update(w).gap);
     const captured = state.running ? capturedAt(Math.ceil((f + 1) / fps * rate)) : null;
     if (captured !== null) state.shownLatencyMs.push([f, performance.now() - captured]);
+    const own = state.running ? capturedAt(Math.round(f / fps * rate)) : null;   // the frame's own sample
+    if (own !== null) drawLag = 0.9 * drawLag + 0.1 * Math.max(0, (performance.now() - own) / 1000 - delay);
+    if (own !== null && sound && syncedBox.checked) {
+      state.syncOffsetMs.push([f, performance.now() - own - soundLatencyMs()]);
+    }
+    if (state.shown >= 0 && f > state.shown + 1) state.droppedFrames += f - state.shown - 1;
     state.shown = f;
     for (const k of pending.keys()) if (k < f) pending.delete(k);
     for (const k of pendingW.keys()) if (k < f) pendingW.delete(k);
@@ -129,6 +168,33 @@ try {
 
   // ---- audio out: a WebSocket per run
   let ctx = null, ws = null, stopAudio = null;
+  // ---- the sound heard: a file directly, the microphone not at all; synced, either through a DelayNode set to the
+  // measured latency. Frame f is due when the capture clock reaches f / fps + delay and drawn drawLag later (the
+  // next animation callback: half a refresh at 60 Hz, more on a slow machine; measured), so the sound of f / fps
+  // is heard with it when the line delays it by delay + drawLag, less the output's own latency.
+  const MAX_SYNC_S = 4;
+  const outputLatency = () => ctx ? (ctx.outputLatency || 0) + (ctx.baseLatency || 0) : 0;
+  const soundLatencyMs = () => sound ? 1000 * (sound.line.delayTime.value + outputLatency()) : 0;
+  const syncSound = () => {
+    if (!sound || !ctx) return;
+    const target = Math.min(MAX_SYNC_S, Math.max(0, delay + drawLag - outputLatency()));
+    sound.line.delayTime.setTargetAtTime(target, ctx.currentTime, 0.3);    // glides (a jump would click)
+  };
+  const route = () => {                   // the checkbox, at any time: which path is heard
+    state.synced = syncedBox.checked;
+    if (!sound) return;
+    sound.direct.gain.value = !syncedBox.checked && sound.file ? 1 : 0;
+    sound.delayed.gain.value = syncedBox.checked ? 1 : 0;
+  };
+  const hear = (c, source, file) => {
+    const line = new DelayNode(c, { maxDelayTime: MAX_SYNC_S, delayTime: Math.max(0, delay - outputLatency()) });
+    const direct = c.createGain(), delayed = c.createGain();
+    source.connect(direct).connect(c.destination);
+    source.connect(line).connect(delayed).connect(c.destination);
+    sound = { direct, delayed, line, file };
+    route();
+  };
+  syncedBox.onchange = route;
   const connect = () => new Promise((ok, no) => {
     const sock = new WebSocket(`ws://${location.host}/ws`);
     sock.binaryType = 'arraybuffer';
@@ -138,10 +204,11 @@ try {
       if (typeof e.data !== 'string') { onFrames(e.data); return; }
       const m = JSON.parse(e.data);
       if (m.type === 'visemes') onVisemes(m);
-      else if (m.type === 'done') { say(`stopped: ${m.frames} frames`); sock.close(); }
-      else if (m.type === 'error') say(`server closed the connection: ${m.message}`);
+      else if (m.type === 'behind') onBehind(m);
+      else if (m.type === 'done') { enter('stopped', `stopped: ${m.frames} frames`); sock.close(); }
+      else if (m.type === 'error') enter('stopped', `server closed the connection: ${m.message}`);
     };
-    sock.onclose = () => { if (state.running) { say('connection closed by the server'); stop(false); } };
+    sock.onclose = () => { if (state.running) { stop(false); enter('stopped', 'connection closed by the server'); } };
   });
   // a 16 kHz context where the browser allows it (Chrome resamples the microphone for us); else its own rate, and
   // the worklet resamples
@@ -154,11 +221,13 @@ try {
   const begin = async (makeSource, native = false) => {
     pending.clear(); pendingW.clear(); sent.length = 0; latest = -1; state.shown = -1; state.lip = [];
     state.frames = 0; state.visemes = []; state.avatarGap = []; state.avatarShown = []; state.shownLatencyMs = [];
-    state.samplesSent = 0; delay = info.latency_s;
+    state.samplesSent = 0; delay = info.latency_s; snap = false; sound = null; drawLag = 0.5 / 60;
+    state.behind = []; state.droppedFrames = 0; state.syncOffsetMs = []; latencyEl.textContent = 'latency –';
     ctx = audioContext(native);
     state.contextRate = ctx.sampleRate;
     await ctx.audioWorklet.addModule('/page/worklet.js');
     const source = await makeSource(ctx);      // may throw (no microphone permission)
+    enter('connecting');
     ws = await connect();
     const node = new AudioWorkletNode(ctx, 'pcm-sender');
     const mute = ctx.createGain(); mute.gain.value = 0;
@@ -171,22 +240,27 @@ try {
       sent.push([state.samplesSent, clockAt]);
     };
     source.connect(node);
-    state.running = true; button.textContent = 'Stop'; button.disabled = false; header(true);
+    state.running = true; button.textContent = 'Stop'; button.disabled = false; header(true); enter('running');
     if (ctx.state === 'suspended') await ctx.resume();
   };
   const stop = (flush = true) => {
     state.running = false; button.textContent = 'Start'; header(false);
     if (stopAudio) { stopAudio(); stopAudio = null; }
     if (ctx) { ctx.close(); ctx = null; }
-    if (ws && ws.readyState === WebSocket.OPEN && flush) ws.send(JSON.stringify({ type: 'stop' }));
+    if (ws && ws.readyState === WebSocket.OPEN && flush) {
+      ws.send(JSON.stringify({ type: 'stop' }));
+      enter('stopping');
+    }
     meter.value = 0;
   };
   const microphone = (native) => begin(async (c) => {
     const stream = await navigator.mediaDevices.getUserMedia(
       { audio: { channelCount: 1, echoCancellation: false, noiseSuppression: false, autoGainControl: false } });
     stopAudio = () => stream.getTracks().forEach((t) => t.stop());
-    say('listening: speak');
-    return c.createMediaStreamSource(stream);
+    runningText = 'listening: speak';
+    const source = c.createMediaStreamSource(stream);
+    hear(c, source, false);                                   // heard only when synced
+    return source;
   }, native);
   // Firefox refuses a microphone in a context of another rate (NotSupportedError): then the context's own rate
   const startMicrophone = () => microphone(false).catch((e) => {
@@ -196,19 +270,19 @@ try {
   const startFile = (file) => begin(async (c) => {
     const audio = await c.decodeAudioData(await file.arrayBuffer());
     const src = c.createBufferSource();
-    src.buffer = audio; src.connect(c.destination);           // heard, and sent through the live path
+    src.buffer = audio; hear(c, src, true);                   // heard (delayed when synced), and sent
     src.onended = () => { if (state.running) stop(); };
     stopAudio = () => { try { src.stop(); } catch (e) { /* already ended */ } };
     src.start();
-    say(`playing ${file.name} through the live path`);
+    runningText = `playing ${file.name} through the live path`;
     return src;
   });
   const failed = (e) => {
     stop(false);
     if (ws) ws.close();
     const denied = e && (e.name === 'NotAllowedError' || e.name === 'SecurityError');
-    say(denied ? 'No microphone permission: allow the microphone for this page (or play a file).'
-               : `cannot start: ${e && e.message || e}`);
+    enter('idle', denied ? 'No microphone permission: allow the microphone for this page (or play a file).'
+                         : `cannot start: ${e && e.message || e}`);
     console.error(e);
   };
   // the header follows the state: the instruction only while stopped (the status line says what is going on)
