@@ -154,8 +154,8 @@ def band_limit(wave: np.ndarray, low_hz: float, high_hz: float, sample_rate: int
     spec = np.fft.rfft(wave)
     f = np.fft.rfftfreq(n, 1 / sample_rate)
     gain = ((f >= low_hz) & (f <= high_hz)).astype(float)
-    rise = (f > low_hz) & (f < low_hz + edge_hz) if low_hz > 0 else np.zeros_like(f, bool)
-    fall = (f > high_hz - edge_hz) & (f < high_hz)
+    rise = (f >= low_hz) & (f < low_hz + edge_hz) if low_hz > 0 else np.zeros_like(f, bool)
+    fall = (f > high_hz - edge_hz) & (f <= high_hz)                      # gain 0 at low and high themselves
     gain[rise] = 0.5 - 0.5 * np.cos(np.pi * (f[rise] - low_hz) / edge_hz)
     gain[fall] = 0.5 - 0.5 * np.cos(np.pi * (high_hz - f[fall]) / edge_hz)
     return np.fft.irfft(spec * gain, n)

@@ -26,6 +26,7 @@ import hashlib
 import io
 import json
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -74,16 +75,26 @@ def example(wave: np.ndarray, track, aug: augment.Augmentation, rng: np.random.G
     return {"features": feats, "posteriors": post, "hard": hard, "time_scale": time_scale}
 
 
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An ``.npz`` archive (what ``np.load`` reads) whose bytes depend only on the arrays: ``np.savez`` stamps each
+    member with the current time, so two builds of the same set would differ; here every member is dated
+    1980-01-01 and stored uncompressed."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        for name, array in arrays.items():
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.ascontiguousarray(array), allow_pickle=False)
+            archive.writestr(zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)), member.getvalue())
+    return buffer.getvalue()
+
+
 def _write_shard(folder: Path, index: int, parts: list[dict]) -> dict:
     name = f"shard-{index:05d}.npz"
     lengths = [p["features"].shape[0] for p in parts]
-    buffer = io.BytesIO()
-    np.savez(buffer,
-             features=np.concatenate([p["features"] for p in parts]).astype(np.float16),
-             posteriors=np.concatenate([p["posteriors"] for p in parts]).astype(np.float16),
-             hard=np.concatenate([p["hard"] for p in parts]).astype(np.int8),
-             offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64))
-    data = buffer.getvalue()
+    data = npz_bytes({"features": np.concatenate([p["features"] for p in parts]).astype(np.float16),
+                      "posteriors": np.concatenate([p["posteriors"] for p in parts]).astype(np.float16),
+                      "hard": np.concatenate([p["hard"] for p in parts]).astype(np.int8),
+                      "offsets": np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)})
     atomic_write_bytes(folder / name, data)
     return {"name": name, "copies": len(parts), "frames": int(sum(lengths)),
             "sha256": hashlib.sha256(data).hexdigest()}
