@@ -1,0 +1,1 @@
+"""Our own ears: a causal viseme recogniser distilled from the offline track (issue 47)."""
