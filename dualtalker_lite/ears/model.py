@@ -1,22 +1,24 @@
 """The student: a small causal conv net that hears visemes with a fixed look-ahead (issue 47, docs/ears.md).
 
-Input: log-mel frames ``X`` (B, T, 80) at a **10 ms hop** (:func:`student_features`: ``audio.log_mel_spectrogram``
-as it is, Hann 25 ms, 80 HTK mels, ``1 + N // 160`` frames, frame t centred on sample ``160 t``). Output: logits
-over the 15 visemes of :data:`~dualtalker_lite.face.visemes.VISEMES` per frame, (B, T, 15).
+Input: log-mel frames ``X`` (B, T, 80) at a **20 ms hop**, the teacher's (``ears.teacher``: hama's own frame
+rate, so its posteriors need no resampling and the student runs half the frames of a 10 ms hop):
+:func:`student_features` is ``audio.log_mel_spectrogram`` with ``hop_length`` 320 (Hann 25 ms, n_fft 512, 80 HTK
+mels, ``1 + N // 320`` frames, frame t centred on sample ``320 t`` as hama's frame t). Output: logits over the 15
+visemes of :data:`~dualtalker_lite.face.visemes.VISEMES` per frame, (B, T, 15).
 
 The net is *causal*: every convolution is padded on the left only, so its raw output ``h_u`` depends on
 ``X_{<=u}``. The look-ahead is a delay: the prediction for frame t is the raw output at ``u = t + L``
 
     y_t = head(h_{t+L}),   h_u = f(X_{u-R+1 .. u}),   R = 1 + (k - 1) * sum(dilations)
 
-so y_t reads the input frames ``<= t + L`` only (L = ``lookahead`` frames, 6 = 60 ms by default; the STFT window
+so y_t reads the input frames ``<= t + L`` only (L = ``lookahead`` frames, 3 = 60 ms by default; the STFT window
 adds 16 ms, ``n_fft / 2`` samples, before a frame can be computed from audio). After the last frame the input is
 padded with L frames of digital silence, ``log(1e-6)`` (:data:`SILENCE`), whole or streamed alike.
 
 Architecture (nanoGPT-sized, :class:`StudentConfig`): per-mel normalisation (buffers set from the training data)
 -> pointwise projection 80 -> C -> ``n_blocks`` residual :class:`Block` s (causal depthwise conv with dilation d,
 layer norm per frame, pointwise MLP C -> 2C -> C) -> layer norm -> linear head C -> 15. The default (C 128, 4
-blocks, dilations 1 2 4 8, kernel 5) has ~0.28 M parameters (1.1 MB in float32), R = 61 frames (0.6 s of past).
+blocks, dilations 1 2 4 8, kernel 5) has ~0.28 M parameters (1.1 MB in float32), R = 61 frames (1.2 s of past).
 
 :class:`StudentStream` runs the same net on chunks of any size (audio or feature frames): each conv keeps its last
 ``(k - 1) d`` inputs, every frame goes through the net exactly once, and the outputs equal :meth:`Student.forward`
@@ -25,9 +27,11 @@ of the whole utterance (``tests/test_ears_model.py``).
 Weights: :func:`save_student` writes config, normalisation, weights and provenance (command, commit) in one small
 torch file that :func:`load_student` reads with ``weights_only=True``; a missing or corrupt file is one
 :class:`StudentWeightsError` line. The package's own weights live at :func:`default_weights_path`.
+:class:`StudentExtractor` is the ``student`` front end: posteriors resampled to the mesh rate (:func:`to_mesh_rate`).
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from dataclasses import asdict, dataclass, fields
@@ -38,15 +42,16 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..audio import HOP_LENGTH, LOG_EPS, N_FFT, N_MELS, SAMPLE_RATE, log_mel_spectrogram, mel_filterbank
+from ..audio import LOG_EPS, N_FFT, N_MELS, SAMPLE_RATE, log_mel_spectrogram, mel_filterbank
 from ..face.visemes import VISEMES
 from ..provenance import provenance
 
-__all__ = ["StudentConfig", "Block", "Student", "StudentStream", "student_features", "SILENCE", "HOP_S",
+__all__ = ["StudentConfig", "Block", "Student", "StudentStream", "student_features", "SILENCE", "HOP", "HOP_S",
            "WEIGHTS_ENV", "WEIGHTS_FORMAT", "TRAIN_HINT", "StudentWeightsError", "default_weights_path",
-           "save_student", "load_student"]
+           "save_student", "load_student", "to_mesh_rate", "StudentExtractor"]
 
-HOP_S = HOP_LENGTH / SAMPLE_RATE    # 0.01 s: one student frame
+HOP = 320                           # samples per student frame: 20 ms at 16 kHz, hama's (the teacher's) hop
+HOP_S = HOP / SAMPLE_RATE           # 0.02 s
 SILENCE = math.log(LOG_EPS)         # -13.8: the log-mel of digital silence, the padding after the last frame
 WEIGHTS_ENV = "DUALTALKER_STUDENT_WEIGHTS"   # overrides the shipped weights' path (tests, experiments)
 WEIGHTS_FORMAT = 1
@@ -54,8 +59,8 @@ TRAIN_HINT = "train them with `python -m dualtalker_lite.ears.distil` (docs/ears
 
 
 def student_features(wave: np.ndarray | torch.Tensor) -> torch.Tensor:
-    """The student's input: log-mel (1 + N // 160, 80) of a 16 kHz wave, 10 ms hop (``audio.log_mel_spectrogram``)."""
-    return log_mel_spectrogram(wave)
+    """The student's input: log-mel (1 + N // 320, 80) of a 16 kHz wave, 20 ms hop (``audio.log_mel_spectrogram``)."""
+    return log_mel_spectrogram(wave, hop_length=HOP)
 
 
 @dataclass
@@ -65,13 +70,13 @@ class StudentConfig:
     channels: int = 128             # C
     kernel: int = 5                 # k of every depthwise conv
     dilations: tuple = (1, 2, 4, 8) # one block per dilation
-    lookahead: int = 6              # L frames of future input (6 x 10 ms = 60 ms)
+    lookahead: int = 3              # L frames of future input (3 x 20 ms = 60 ms)
     dropout: float = 0.1
 
     @classmethod
     def tiny(cls, **overrides) -> "StudentConfig":
         """A few thousand parameters: for tests and notebooks."""
-        return cls(**{"channels": 16, "kernel": 3, "dilations": (1, 2), "lookahead": 2, **overrides})
+        return cls(**{"channels": 16, "kernel": 3, "dilations": (1, 2), "lookahead": 1, **overrides})
 
     @property
     def receptive_field(self) -> int:
@@ -132,7 +137,7 @@ class Student(nn.Module):
 
     @torch.no_grad()
     def posteriors(self, wave: np.ndarray | torch.Tensor) -> torch.Tensor:
-        """Viseme posteriors (1 + N // 160, 15) of one 16 kHz wave, whole (eval mode)."""
+        """Viseme posteriors (1 + N // 320, 15) of one 16 kHz wave, whole (eval mode)."""
         was = self.training
         self.eval()
         p = self(student_features(wave)[None]).softmax(-1)[0]
@@ -141,7 +146,7 @@ class Student(nn.Module):
 
 
 class _LogMelStream:
-    """``student_features`` from audio chunks: frame t is computed once samples ``<= 160 t + 255`` have arrived."""
+    """``student_features`` from audio chunks: frame t is computed once samples ``<= 320 t + 255`` have arrived."""
 
     def __init__(self):
         self.buf = torch.zeros(N_FFT // 2)          # center=True: the wave is zero-padded by n_fft / 2 on the left
@@ -156,15 +161,15 @@ class _LogMelStream:
         self.n_samples += wave.shape[0]
         if final:
             self.buf = torch.cat([self.buf, torch.zeros(N_FFT // 2)])
-        total = 1 + self.n_samples // HOP_LENGTH if final else None
-        m = (self.buf.shape[0] - N_FFT) // HOP_LENGTH + 1 if self.buf.shape[0] >= N_FFT else 0
+        total = 1 + self.n_samples // HOP if final else None
+        m = (self.buf.shape[0] - N_FFT) // HOP + 1 if self.buf.shape[0] >= N_FFT else 0
         m = m if total is None else min(m, total - self.n_frames)
         if m <= 0:
             return torch.zeros(0, N_MELS)
-        frames = self.buf[:(m - 1) * HOP_LENGTH + N_FFT].unfold(0, N_FFT, HOP_LENGTH) * self.window  # (m, n_fft)
+        frames = self.buf[:(m - 1) * HOP + N_FFT].unfold(0, N_FFT, HOP) * self.window  # (m, n_fft)
         spec = torch.fft.rfft(frames, dim=1)                                       # (m, 257)
         out = torch.log((spec.real ** 2 + spec.imag ** 2) @ self.fb.T + LOG_EPS)   # (m, 80)
-        self.buf, self.n_frames = self.buf[m * HOP_LENGTH:], self.n_frames + m
+        self.buf, self.n_frames = self.buf[m * HOP:], self.n_frames + m
         return out
 
 
@@ -249,3 +254,60 @@ def load_student(path: str | os.PathLike | None = None) -> tuple[Student, dict]:
         raise StudentWeightsError(f"student weights at {path} are corrupt or not a student's ({reason}); "
                                   f"{TRAIN_HINT}") from None
     return student.eval(), dict(record.get("provenance", {}))
+
+
+def to_mesh_rate(posteriors: torch.Tensor, n_frames: int, fps: float) -> torch.Tensor:
+    """(L, 15) posteriors at the 20 ms hop -> (n_frames, 15) at mesh frame times f / fps, linearly interpolated
+    (rows still sum to 1), held at the last frame past the end."""
+    pos = (torch.arange(n_frames, dtype=torch.float64) / fps / HOP_S).clamp(0, posteriors.shape[0] - 1)  # (T,)
+    i0 = pos.floor().long()
+    i1 = (i0 + 1).clamp(max=posteriors.shape[0] - 1)
+    w = (pos - i0).float()[:, None]                                                # (T, 1)
+    return (1 - w) * posteriors[i0] + w * posteriors[i1]                            # (T, 15)
+
+
+class StudentExtractor:
+    """The ``student`` front end (``front_ends.FRONT_ENDS``): ``(wave, n_frames) -> (n_frames, 15)`` viseme
+    posteriors at ``fps`` mesh frames per second, from the weights at ``weights`` (default:
+    :func:`default_weights_path`); ``stream`` gives the same from blocks through :class:`StudentStream`."""
+
+    front_end = "student"
+
+    def __init__(self, fps: int = 30, weights: str | os.PathLike | None = None):
+        self.path = Path(weights) if weights is not None else default_weights_path()
+        self.student, self.provenance = load_student(self.path)
+        self.fps, self.sample_rate, self.dim = fps, SAMPLE_RATE, self.student.cfg.n_visemes
+
+    def weights_hash(self) -> str:
+        """The first 16 hex digits of the weights file's sha256 (a checkpoint records which student fed it)."""
+        return hashlib.sha256(self.path.read_bytes()).hexdigest()[:16]
+
+    def settings(self) -> dict:
+        """``{"name": "student", "settings": {...}}``, a checkpoint's ``features`` entry."""
+        return {"name": "student", "settings": {"fps": self.fps, "sample_rate": self.sample_rate, "dim": self.dim,
+                                                "lookahead": self.student.cfg.lookahead, "visemes": list(VISEMES),
+                                                "weights": self.weights_hash()}}
+
+    @classmethod
+    def from_settings(cls, features: dict, source: str = "checkpoint",
+                      weights: str | os.PathLike | None = None) -> "StudentExtractor":
+        """Rebuild from :meth:`settings`; one ValueError line when these weights are not the ones recorded."""
+        s = dict(features.get("settings", {}))
+        ex = cls(fps=s.get("fps", 30), weights=weights)
+        mine = ex.settings()["settings"]
+        for key in ("weights", "visemes", "dim", "lookahead"):
+            if key in s and s[key] != mine[key]:
+                raise ValueError(f"{source}: trained with the student's {key} {s[key]!r}, {ex.path} has {mine[key]!r}")
+        return ex
+
+    def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
+        """(n_frames, 15) float32 posteriors at the mesh frame times."""
+        if n_frames < 1:
+            raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+        return to_mesh_rate(self.student.posteriors(wave), n_frames, self.fps)
+
+    def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
+        """:meth:`__call__` of a wave given as blocks (an iterable, or a callable returning one), never whole."""
+        stream = StudentStream(self.student)
+        parts = [stream.push_audio(b) for b in (blocks() if callable(blocks) else blocks)]
+        return to_mesh_rate(torch.cat(parts + [stream.finish()]), n_frames, self.fps)
