@@ -281,3 +281,16 @@ def test_to_mesh_rate_interpolates_between_student_frames():
     out = to_mesh_rate(p, 3, fps=100)  # mesh frames at 0, 10, 20 ms = student frames 0, 0.5, 1
     torch.testing.assert_close(out[:, 0], torch.tensor([1.0, 0.5, 0.0]))
     assert to_mesh_rate(p, 40, fps=30)[-1, 0] == 1.0  # past the end: the last frame held
+
+
+def test_the_distil_command_trains_and_saves_a_loadable_student(tmp_path, capsys):
+    for i, (x, q) in enumerate(_pairs(2, T=40)):
+        np.savez(tmp_path / f"shard{i}.npz", features=x, teacher=q)
+    out = tmp_path / "student.pt"
+    assert D.main(["--data", str(tmp_path), "--out", str(out), "--tiny", "--epochs", "1", "--steps-per-epoch", "2",
+                   "--batch-size", "2", "--crop", "20", "--lookahead", "2"]) == 0
+    student, prov = load_student(out)
+    assert student.cfg.lookahead == 2 and student.cfg == StudentConfig.tiny(lookahead=2)
+    assert prov["command"].startswith("python -m dualtalker_lite.ears.distil --data") and "last_epoch" in prov
+    assert not torch.equal(student.mean, torch.zeros(80))  # the normalisation travels with the weights
+    assert "epoch 0:" in capsys.readouterr().out
