@@ -16,7 +16,7 @@ adds 16 ms, ``n_fft / 2`` samples, before a frame can be computed from audio). A
 padded with L frames of digital silence, ``log(1e-6)`` (:data:`SILENCE`), whole or streamed alike.
 
 Architecture (nanoGPT-sized, :class:`StudentConfig`): per-mel normalisation (buffers set from the training data)
--> pointwise projection 80 -> C -> ``n_blocks`` residual :class:`Block` s (causal depthwise conv with dilation d,
+-> pointwise projection 80 -> C -> one residual :class:`Block` per dilation d (causal depthwise conv,
 layer norm per frame, pointwise MLP C -> 2C -> C) -> layer norm -> linear head C -> 15. The default (C 128, 4
 blocks, dilations 1 2 4 8, kernel 5) has ~0.28 M parameters (1.1 MB in float32), R = 61 frames (1.2 s of past).
 
@@ -55,7 +55,8 @@ HOP_S = HOP / SAMPLE_RATE           # 0.02 s
 SILENCE = math.log(LOG_EPS)         # -13.8: the log-mel of digital silence, the padding after the last frame
 WEIGHTS_ENV = "DUALTALKER_STUDENT_WEIGHTS"   # overrides the shipped weights' path (tests, experiments)
 WEIGHTS_FORMAT = 1
-TRAIN_HINT = "train them with `python -m dualtalker_lite.ears.distil` (docs/ears.md, 'Distillation')"
+TRAIN_HINT = ("train them with `python -m dualtalker_lite.ears.distil --data SHARDS --out PATH` "
+              "(docs/ears.md, 'Distillation')")
 
 
 def student_features(wave: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -65,6 +66,8 @@ def student_features(wave: np.ndarray | torch.Tensor) -> torch.Tensor:
 
 @dataclass
 class StudentConfig:
+    """The student's sizes and look-ahead; the default is the shipped one's, :meth:`tiny` for tests."""
+
     n_mels: int = N_MELS            # input features per frame
     n_visemes: int = len(VISEMES)   # 15 output classes
     channels: int = 128             # C
