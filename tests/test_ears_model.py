@@ -193,7 +193,7 @@ def test_the_loss_falls_when_overfitting_one_batch():
     history = D.distil(s, _pairs(2), cfg, log=lambda _: None)
     assert history[-1]["loss"] < 0.5 * history[0]["loss"]
     assert history[-1]["agreement"] > history[0]["agreement"] - 1e-9
-    assert set(history[0]) >= {"epoch", "loss", "agreement", "pp_recall", "pp_runs", "seconds"}
+    assert set(history[0]) >= {"epoch", "loss", "agreement", "pp_recall", "pp_runs", "seconds", "cpu_seconds"}
 
 
 def test_same_seed_same_result():
@@ -294,3 +294,10 @@ def test_the_distil_command_trains_and_saves_a_loadable_student(tmp_path, capsys
     assert prov["command"].startswith("python -m dualtalker_lite.ears.distil --data") and "last_epoch" in prov
     assert not torch.equal(student.mean, torch.zeros(80))  # the normalisation travels with the weights
     assert "epoch 0:" in capsys.readouterr().out
+
+
+def test_the_cpu_budget_stops_training():
+    torch.manual_seed(0)
+    cfg = D.DistilConfig(epochs=50, steps_per_epoch=3, batch_size=2, crop=20, cpu_budget_s=0.0)
+    history = D.distil(Student(StudentConfig.tiny()), _pairs(2), cfg, log=lambda _: None)
+    assert len(history) == 1 and history[0]["step"] == 1  # a budget of 0: one step, then it stops
