@@ -209,14 +209,29 @@ def test_same_seed_same_result():
         assert torch.equal(v, runs[1][1][k]), k
 
 
+def _shard(path, clips) -> None:
+    """A shard in ears.dataset's format (i47-b's docs/ears.md, 'Training audio'): clips concatenated, float16."""
+    np.savez(path, features=np.concatenate([x for x, _ in clips]).astype(np.float16),
+             posteriors=np.concatenate([q for _, q in clips]).astype(np.float16),
+             hard=np.concatenate([q.argmax(1) for _, q in clips]).astype(np.int8),
+             offsets=np.cumsum([0] + [len(q) for _, q in clips]).astype(np.int64))
+
+
 def test_load_pairs_reads_shards(tmp_path):
     (x, q), (x2, q2) = _pairs(2, T=9)
-    np.savez(tmp_path / "a.npz", features=x, teacher=q)
-    np.savez(tmp_path / "b.npz", features_0=x2, teacher_0=q2, features_1=x, teacher_1=q)
+    q2 = np.full_like(q2, 1 / 15)  # soft rows: float16 rounds them, load_pairs renormalises
+    _shard(tmp_path / "shard-00000.npz", [(x, q)])
+    _shard(tmp_path / "shard-00001.npz", [(x2, q2), (x[:4], q[:4])])
     got = D.load_pairs(tmp_path)
-    assert len(got) == 3 and np.array_equal(got[0][0], x) and np.array_equal(got[1][1], q2)
-    with pytest.raises(ValueError, match="no training pairs"):
+    assert [len(p[0]) for p in got] == [9, 9, 4]
+    np.testing.assert_allclose(got[0][0], x, atol=0.01)  # float16 of values around -6
+    np.testing.assert_array_equal(got[0][1], q)
+    np.testing.assert_allclose(got[1][1].sum(1), 1, atol=1e-6)
+    with pytest.raises(ValueError, match="no training clips under"):
         D.load_pairs(tmp_path / "empty")
+    np.savez(tmp_path / "other.npz", features=x)
+    with pytest.raises(ValueError, match=r"other\.npz: not an ears shard \(no posteriors, offsets\)"):
+        D.load_pairs(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------------- weights
@@ -284,8 +299,7 @@ def test_to_mesh_rate_interpolates_between_student_frames():
 
 
 def test_the_distil_command_trains_and_saves_a_loadable_student(tmp_path, capsys):
-    for i, (x, q) in enumerate(_pairs(2, T=40)):
-        np.savez(tmp_path / f"shard{i}.npz", features=x, teacher=q)
+    _shard(tmp_path / "shard-00000.npz", _pairs(2, T=40))
     out = tmp_path / "student.pt"
     assert D.main(["--data", str(tmp_path), "--out", str(out), "--tiny", "--epochs", "1", "--steps-per-epoch", "2",
                    "--batch-size", "2", "--crop", "20", "--lookahead", "2"]) == 0

@@ -37,14 +37,16 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..checks import load_npz
 from ..face.visemes import VISEMES
 from ..seeding import set_seed
 from .model import Student, StudentConfig, save_student
 
 __all__ = ["DistilConfig", "PP", "distillation_loss", "frame_agreement", "runs_of", "pp_recall", "evaluate",
-           "set_normalisation", "sample_batch", "distil", "load_pairs", "main"]
+           "set_normalisation", "sample_batch", "distil", "SHARD_KEYS", "load_pairs", "main"]
 
 PP = VISEMES.index("PP")   # the bilabial viseme: /p b m/ (face.visemes.PHONEME_TO_VISEME)
+SHARD_KEYS = ("features", "posteriors", "offsets")   # what load_pairs reads of an ears.dataset shard
 
 
 @dataclass
@@ -184,23 +186,29 @@ def distil(student: Student, train_pairs: list, cfg: DistilConfig, val_pairs: li
     return history
 
 
-def load_pairs(folder: str | Path, features_key: str = "features", teacher_key: str = "teacher") -> list:
-    """Every ``*.npz`` under ``folder`` (sorted): arrays ``features_key`` (T, 80) and ``teacher_key`` (T, 15) per
-    clip; a shard holding several clips stores them as ``<key>_<i>``. One ValueError line when there are none."""
+def load_pairs(folder: str | Path) -> list:
+    """The clips of every shard ``*.npz`` under ``folder`` (sorted), in ``ears.dataset``'s format: ``features``
+    (F, 80) and ``posteriors`` (F, 15) concatenated in time, ``offsets`` (n + 1,) (clip i is frames
+    ``offsets[i]:offsets[i+1]``) -> [(features (T, 80), posteriors (T, 15))] float32, rows renormalised (the shards
+    store float16). One ValueError line for a damaged shard, a missing array, or no shard at all."""
     pairs = []
     for path in sorted(Path(folder).rglob("*.npz")):
-        with np.load(path) as z:
-            names = sorted(k[len(features_key):] for k in z.files if k.startswith(features_key))
-            pairs += [(z[features_key + s].astype(np.float32), z[teacher_key + s].astype(np.float32)) for s in names]
+        z = load_npz(path, SHARD_KEYS)
+        missing = [k for k in SHARD_KEYS if k not in z]
+        if missing:
+            raise ValueError(f"{path}: not an ears shard (no {', '.join(missing)})")
+        x, q, cuts = z["features"].astype(np.float32), z["posteriors"].astype(np.float32), z["offsets"]
+        q = q / q.sum(1, keepdims=True)
+        pairs += [(x[a:b], q[a:b]) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
     if not pairs:
-        raise ValueError(f"no training pairs (*.npz with {features_key!r}, {teacher_key!r}) under {folder}")
+        raise ValueError(f"no training clips under {folder} (shards *.npz with {', '.join(SHARD_KEYS)})")
     return pairs
 
 
 def main(argv: list[str] | None = None) -> int:
     """Train a student from dataset shards and save it (``--out``) with the command and commit."""
     p = argparse.ArgumentParser(prog="python -m dualtalker_lite.ears.distil", description=main.__doc__)
-    p.add_argument("--data", required=True, help="folder of training shards (*.npz)")
+    p.add_argument("--data", required=True, help="folder of training shards (*.npz, ears.dataset's)")
     p.add_argument("--val", help="folder of held-out shards (default: report on the training pairs)")
     p.add_argument("--out", required=True, help="the weights file to write")
     p.add_argument("--lookahead", type=int, default=StudentConfig.lookahead, help="L, frames of 20 ms")
