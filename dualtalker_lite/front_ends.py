@@ -29,9 +29,9 @@ name                   D_a    trained on                                        
 The **default is** :data:`DEFAULT` = ``"visemes"``, *the phonetic route*: the recogniser was trained on many real
 voices, so a model trained on viseme labels animates anyone's speech, where a log-mel model learns only the corpus's
 synthetic voices (``docs/front-ends.md``). :data:`CHOICES` are the names the commands offer (``--features``), the
-default first (``student`` is not offered until its weights ship at
-``dualtalker_lite/ears/weights/student.pt``; until then :func:`build` says so in one line); a row that trains on emotional pseudo-pairs reads :func:`paired` of its front end (``visemes`` ->
-``visemes+logmel``).
+default first (``student`` is not offered until its weights ship at ``dualtalker_lite/ears/weights/student.pt``;
+until then :func:`build` says so in one line); a row that trains on emotional pseudo-pairs reads :func:`paired` of
+its front end (``visemes`` -> ``visemes+logmel``).
 
 Checkpoints record ``{"name": <a name above>, "settings": {...}}`` (:func:`settings`) and :func:`from_settings`
 rebuilds the front end from that. Old spellings still load: before issue 30 a recogniser front end was recorded as

@@ -18,8 +18,8 @@ Reported per epoch on the held-out pairs (the training pairs when there are none
 * ``agreement``: the fraction of frames where the student's argmax equals the teacher's;
 * ``pp_recall``: the fraction of the teacher's PP runs (maximal runs of frames whose argmax is PP, the viseme of
   /p b m/) in which the student's argmax is PP at least once within ``tolerance`` frames of the run (2 frames,
-  40 ms: the benchmark's ± 33 ms rounded to this hop); a student that never says PP scores 0, one that always does scores 1 (which
-  ``agreement`` then shows up).
+  40 ms: the benchmark's ± 33 ms rounded to this hop); a student that never says PP scores 0, one that always
+  does scores 1 (which ``agreement`` then shows up).
 
 ``python -m dualtalker_lite.ears.distil --data DIR --out student.pt`` trains from the shards in DIR and saves the
 weights with the command and commit (``model.save_student``).
@@ -84,7 +84,8 @@ def frame_agreement(student: torch.Tensor, teacher: torch.Tensor) -> float:
 
 
 def runs_of(labels: np.ndarray, value: int) -> list[tuple[int, int]]:
-    """Maximal runs ``[start, end)`` of frames where ``labels == value``: ``runs_of([0,1,1,0,1], 1)`` -> [(1,3), (4,5)]."""
+    """Maximal runs ``[start, end)`` of frames where ``labels == value``:
+    ``runs_of([0, 1, 1, 0, 1], 1)`` -> ``[(1, 3), (4, 5)]``."""
     hit = np.concatenate([[0], (np.asarray(labels) == value).astype(np.int8), [0]])
     edges = np.flatnonzero(np.diff(hit))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
@@ -149,7 +150,8 @@ def _lr_factor(step: int, warmup: int, total: int) -> float:
 def distil(student: Student, train_pairs: list, cfg: DistilConfig, val_pairs: list | None = None,
            log=print) -> list[dict]:
     """Train ``student`` in place on ``train_pairs``; one dict per epoch: ``epoch``, ``loss`` (mean over its steps),
-    ``seconds`` (wall), ``cpu_seconds``, and :func:`evaluate`'s measures on ``val_pairs`` (the training pairs when None)."""
+    ``seconds`` (wall), ``cpu_seconds``, and :func:`evaluate`'s measures on ``val_pairs`` (the training pairs when
+    None)."""
     gen = set_seed(cfg.seed, cfg.threads)
     set_normalisation(student, train_pairs)
     opt = torch.optim.AdamW(student.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)

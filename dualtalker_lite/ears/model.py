@@ -158,7 +158,7 @@ class _LogMelStream:
         self.fb = mel_filterbank(N_FFT, N_MELS, SAMPLE_RATE)
 
     def push(self, wave: torch.Tensor, final: bool = False) -> torch.Tensor:
-        """New samples (n,) -> the log-mel frames (m, 80) that became complete; ``final``: pad the end, emit the rest."""
+        """New samples (n,) -> the log-mel frames (m, 80) now complete; ``final``: pad the end, emit the rest."""
         wave = torch.as_tensor(wave, dtype=torch.float32).reshape(-1)              # (n,)
         self.buf = torch.cat([self.buf, wave])
         self.n_samples += wave.shape[0]
