@@ -22,13 +22,16 @@ name                   D_a    trained on                                        
 ``logprobs``           191    the recogniser's log-probabilities (experiments      the same
                               only: ``benchmarks/real_voices.py``)
 ``logprobs+logmel``    351    the same, then the log-mel                           the same
+``student``            15     the corpus's viseme labels, as ``visemes``           the student's viseme posteriors
+                                                                                   (``ears``), at the mesh rate
 =====================  =====  ===================================================  ================================
 
 The **default is** :data:`DEFAULT` = ``"visemes"``, *the phonetic route*: the recogniser was trained on many real
 voices, so a model trained on viseme labels animates anyone's speech, where a log-mel model learns only the corpus's
 synthetic voices (``docs/front-ends.md``). :data:`CHOICES` are the names the commands offer (``--features``), the
-default first; a row that trains on emotional pseudo-pairs reads :func:`paired` of its front end (``visemes`` ->
-``visemes+logmel``).
+default first (``student`` is not offered until its weights ship at ``dualtalker_lite/ears/weights/student.pt``;
+until then :func:`build` says so in one line); a row that trains on emotional pseudo-pairs reads :func:`paired` of
+its front end (``visemes`` -> ``visemes+logmel``).
 
 Checkpoints record ``{"name": <a name above>, "settings": {...}}`` (:func:`settings`) and :func:`from_settings`
 rebuilds the front end from that. Old spellings still load: before issue 30 a recogniser front end was recorded as
@@ -42,6 +45,7 @@ from typing import Any
 
 from .audio import LogMelExtractor
 from .deprecation import renamed_keyword
+from .ears.model import StudentExtractor
 from .recogniser import NAME as RECOGNISER, OUTPUTS, RecogniserExtractor
 
 __all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "get", "build", "settings",
@@ -72,6 +76,8 @@ FRONT_ENDS: dict[str, FrontEnd] = {f.name: f for f in (
     FrontEnd("phonemes", "one-hot phoneme labels", labels=True, from_audio=False),
     FrontEnd("logprobs", "the recogniser's log-probabilities (end to end)", recogniser=True),
     FrontEnd("logprobs+logmel", "the recogniser's log-probabilities and the log-mel", recogniser=True),
+    FrontEnd("student", "trained on the corpus's viseme labels, tested on the student's causal viseme posteriors "
+                        "(ears, issue 47)", labels=True),
 )}
 DEFAULT = "visemes"  # the phonetic route: the only front end that animates real voices (docs/front-ends.md)
 CHOICES = tuple(sorted((n for n, f in FRONT_ENDS.items() if f.offered), key=lambda n: n != DEFAULT))
@@ -94,11 +100,15 @@ def paired(name: str) -> str:
 def build(name: str, fps: int = 30, cache: bool = True) -> Any:
     """A fresh front end ``name`` at ``fps`` mesh frames per second: a
     :class:`~dualtalker_lite.audio.LogMelExtractor` (unnormalised), a
-    :class:`~dualtalker_lite.recogniser.RecogniserExtractor` (``cache=False``: never touches its disk cache), or
-    None for a front end that cannot be computed from audio (``phonemes``)."""
+    :class:`~dualtalker_lite.recogniser.RecogniserExtractor` (``cache=False``: never touches its disk cache), a
+    :class:`~dualtalker_lite.ears.model.StudentExtractor` (its weights: ``ears.model.default_weights_path``; one
+    ValueError line when they are missing), or None for a front end that cannot be computed from audio
+    (``phonemes``)."""
     front = get(name)
     if front.recogniser:
         return RecogniserExtractor(name, fps=fps, cache=cache)
+    if name == "student":
+        return StudentExtractor(fps=fps)
     if name == "logmel":
         return LogMelExtractor(fps=fps)
     return None
@@ -156,4 +166,6 @@ def from_settings(features: dict | None, source: str = "checkpoint", cache: bool
                          f"animate audio")
     if front.recogniser:  # refuses another hama version or symbol table
         return RecogniserExtractor.from_settings(features, source, cache=cache)
+    if name == "student":  # refuses other weights than the ones recorded
+        return StudentExtractor.from_settings(features, source)
     return LogMelExtractor(**features.get("settings", {}))

@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
 
 LAYERS = [  # lowest first
     ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "recogniser",
-                     "front_ends", "export", "provenance", "deprecation")),
+                     "front_ends", "export", "provenance", "deprecation", "ears.model")),
     ("data and blocks", ("data", "blocks", "ears")),  # ears: the student's data (reads audio, recogniser, data)
     ("models and losses", ("models", "losses")),
     ("training and evaluation", ("train", "checkpoints", "metrics")),

@@ -1,1 +1,2 @@
-"""Our own ears: a causal viseme recogniser distilled from the offline track (issue 47)."""
+"""Our own ears (issue 47): a causal viseme recogniser (the *student*, ``model``) distilled from the offline
+recogniser's track (the *teacher*) by ``distil``, on training audio from registry packages. docs/ears.md."""

@@ -33,16 +33,17 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from ..audio import SAMPLE_RATE, log_mel_spectrogram
+from ..audio import SAMPLE_RATE
 from ..checks import load_npz
 from ..files import atomic_write_bytes, atomic_write_text
-from . import augment
+from . import augment, model
 from .sources import Fetched, default_cache_dir, fetch, read_audio
 from .teacher import HOP_S, Teacher
 
 DATASET_FORMAT = 1
-HOP_LENGTH = int(round(HOP_S * SAMPLE_RATE))       # 320 samples = 20 ms: the teacher's hop
-N_MELS = 80
+HOP_LENGTH = model.HOP                             # 320 samples = 20 ms: the teacher's and the student's hop
+N_MELS = model.N_MELS                              # 80
+assert abs(HOP_S - model.HOP_S) < 1e-12, "the teacher's hop and the student's must be the same"
 SHARD_FRAMES = 100_000                             # about 33 minutes of frames per shard (16 MB as float16)
 
 
@@ -58,7 +59,7 @@ class Recording:
 
 def student_features(wave: np.ndarray) -> np.ndarray:
     """(1 + N // 320, 80) float32 log-mel at the 20 ms hop (module doc, step 2)."""
-    return log_mel_spectrogram(np.asarray(wave, dtype=np.float32), hop_length=HOP_LENGTH, n_mels=N_MELS).numpy()
+    return model.student_features(np.asarray(wave, dtype=np.float32)).numpy()
 
 
 def copy_rng(seed: int, item: int, copy: int) -> np.random.Generator:

@@ -29,9 +29,8 @@ server -> client, binary    uint32 LE ``first``, ``n``, ``samples`` (audio recei
                             float32 LE (n, V, 3) vertices of frames ``first .. first + n - 1``
 ==========================  =====================================================================================
 
-The viseme curves (``viseme_sil`` ... ``viseme_U``, :mod:`dualtalker_lite.export.visemes`) drive avatars other than
-this project's mesh, such as the page's stylised second head (``page/avatar.js``); ``/mesh`` carries what it needs
-(``avatar``: the rig's mouth controls of each viseme, :func:`avatar_controls`).
+The viseme curves (:mod:`dualtalker_lite.export.visemes`) drive other avatars, such as the page's stylised second
+head (``page/avatar.js``); ``/mesh`` carries what it needs (``avatar``: :func:`avatar_controls`).
 
 Safety (``docs/live.md``, "Safety rules"; each rule tested in ``tests/test_live.py``): the server binds to
 127.0.0.1 unless ``--host`` says otherwise; a Host header that does not name the address the request came in on
