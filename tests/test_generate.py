@@ -20,6 +20,15 @@ def sample():
     return Corpus(SAMPLE)
 
 
+def test_no_emotion_speakers_means_no_emotional_clips():
+    """``--emotion-speakers 0``: no train_emo, test_emo_a nor test_emo_b (the unseen speakers' emotional clips were
+    written before, with nothing trained on emotion to test)."""
+    spec = CorpusSpec(speakers=4, unseen_speakers=1, sentences=12, val_sentences=2, test_sentences=3,
+                      emotion_speakers=0, emotion_sentences=2, emotion_test_sentences=1, long_clips=(3,))
+    splits = {p.split for p in plan_corpus(spec, [f"S{i}" for i in range(4)])}
+    assert splits == {"train", "val", "test_a", "test_b", "long"}
+
+
 def test_plan_splits_mirror_the_papers():
     spec = CorpusSpec(speakers=5, unseen_speakers=1, sentences=12, val_sentences=2, test_sentences=3,
                       emotion_speakers=2, emotion_sentences=2, emotion_test_sentences=1, long_clips=(3, 4))

@@ -14,12 +14,12 @@ loader rebuilds exactly the same vertices). See ``docs/design.md`` for the forma
 
 Splits. The neutral ones mirror the papers: ``train``; ``val``; ``test_a`` = seen speakers, unseen sentences
 (quantitative); ``test_b`` = unseen speakers (qualitative). The emotional ones are separate, so ``train`` stays
-neutral like VOCASET: ``train_emo`` = the first ``emotion_speakers`` speakers say the ``emotion_sentences``
-shortest training sentences with every emotion and level (EmoFace's pseudo-pairs: the neutral twin, same
-speaker and sentence, is in ``train``); ``test_emo_a`` = the same speakers on the ``emotion_test_sentences``
-shortest test sentences, every emotion and level (neutral twins in ``test_a``); ``test_emo_b`` = the unseen
-speakers likewise (neutral twins in ``test_b``); ``long`` = a few multi-sentence neutral clips of 10-30 s
-(sentences outside ``train``), for length generalisation and speed. Sentences per split: ``--val-sentences`` and
+neutral like VOCASET: ``train_emo`` = the first ``emotion_speakers`` speakers say the ``emotion_sentences`` shortest
+training sentences with every emotion and level (EmoFace's pseudo-pairs: the neutral twin, same speaker and sentence,
+is in ``train``); ``test_emo_a`` = the same speakers on the ``emotion_test_sentences`` shortest test sentences, every
+emotion and level (neutral twins in ``test_a``); ``test_emo_b`` = the unseen speakers likewise (neutral twins in
+``test_b``; none when ``emotion_speakers`` is 0); ``long`` = a few multi-sentence neutral clips of 10-30 s (sentences
+outside ``train``), for length generalisation and speed. Sentences per split: ``--val-sentences`` and
 ``--test-sentences`` (4 and 10 of the default 48; on the command line, fewer for a smaller corpus, in proportion:
 :func:`held_out_sentences`, leaving at least one for training: :func:`fitting_held_out`), the rest for ``train``.
 
@@ -154,7 +154,7 @@ def plan_corpus(spec: CorpusSpec, subjects: list[str], texts=SENTENCES) -> list[
     emo_test = _shortest(test, spec.emotion_test_sentences, texts)
     for split, speakers, ids in (("train_emo", seen[: spec.emotion_speakers], emo_train),
                                  ("test_emo_a", seen[: spec.emotion_speakers], emo_test),
-                                 ("test_emo_b", unseen, emo_test)):
+                                 ("test_emo_b", unseen if spec.emotion_speakers else [], emo_test)):
         for subject in speakers:
             for s in ids:
                 for emotion in spec.emotions:
@@ -464,7 +464,8 @@ SPEC_HELP = {"speakers": "speakers in all, seen and unseen",
              "test_sentences": "of those, sentences of the test splits (with fewer than 48 sentences, scaled down: "
                                "held_out_sentences)",
              "emotion_speakers": "seen speakers who also speak the emotional pseudo-pairs (train_emo, test_emo_a); "
-                                 "never more than the seen speakers unless given",
+                                 "never more than the seen speakers unless given; 0: no emotional clips at all "
+                                 "(test_emo_b neither)",
              "emotion_sentences": "shortest training sentences spoken with every emotion and level",
              "emotion_test_sentences": "shortest test sentences spoken with every emotion and level",
              "vertices": "approximate vertex count of the template mesh",
