@@ -174,3 +174,58 @@ def load_shard(path: str | os.PathLike) -> dict:
     if missing:
         raise ValueError(f"{path}: not an ears shard (no {', '.join(missing)})")
     return arrays
+
+
+# ---------------------------------------------------------------------------------------------- held-out split
+HELD_OUT_SOURCES = ("flite-awb", "espeak-en-029-f1", "espeak-nl-m6")
+HELD_OUT_EVERY = 20
+
+
+def is_held_out(source: dict, index: int) -> bool:
+    """Whether file ``index`` (in the fetched order) of a manifest ``source`` is held out of training.
+
+    Two kinds of held-out audio, so the per-epoch measures say how the student does on speech it never heard:
+
+    * *unseen voices*: every file of :data:`HELD_OUT_SOURCES`: two English TTS voices speaking the project's
+      sentences (flite's ``awb``, a Scottish male voice, and espeak-ng's Caribbean English ``en-029+f1``; English
+      is the target language, and no other source speaks English in these voices) and one language/voice no
+      training source has (espeak-ng Dutch ``nl+m6``);
+    * *unseen recordings of seen voices*: every :data:`HELD_OUT_EVERY`-th file (index 0, 20, 40, ...) of each
+      recorded prompt set (``kind: "deb"``), about 5 % of the recorded speech.
+
+    The real-voice benchmark's voice (Allison) is never a source at all: it is the English evaluation set."""
+    if source["name"] in HELD_OUT_SOURCES:
+        return True
+    return source["kind"] == "deb" and index % HELD_OUT_EVERY == 0
+
+
+def split_fetched(fetched: Iterable[Fetched]) -> tuple[list[Fetched], list[Fetched]]:
+    """(train, held_out): the fetched sources with their files split by :func:`is_held_out` (a source with no
+    file on one side is left out of that side)."""
+    train, held = [], []
+    for got in fetched:
+        flags = [is_held_out(got.source, i) for i in range(len(got.files))]
+        for side, keep in ((train, False), (held, True)):
+            files = [f for f, flag in zip(got.files, flags) if flag == keep]
+            if files:
+                side.append(Fetched(got.source, files, got.version))
+    return train, held
+
+
+def build_split(out: str | os.PathLike, cache: str | os.PathLike | None = None, manifest: dict | None = None,
+                names=None, copies: int = 2, held_out_copies: int = 1, seed: int = 0,
+                teacher: Teacher | None = None) -> tuple[Path, Path]:
+    """End to end with the held-out split: fetch and verify the used sources, then write the training set into
+    ``<out>/train`` (``copies`` per recording, copy 0 clean) and the held-out set into ``<out>/val``
+    (``held_out_copies`` per recording, copy 0 clean: by default the clean recordings only, the teacher's own
+    conditions). Returns the two ``dataset.json`` paths."""
+    cache = Path(cache) if cache is not None else default_cache_dir()
+    fetched = fetch(manifest, cache, names)
+    train, held = split_fetched(fetched)
+    teacher = teacher or Teacher(cache_dir=cache / "teacher")
+    split = {"held_out_sources": list(HELD_OUT_SOURCES), "held_out_every": HELD_OUT_EVERY}
+    paths = []
+    for side, folder, n in ((train, "train", copies), (held, "val", held_out_copies)):
+        paths.append(build_dataset(source_recordings(side), Path(out) / folder, teacher, copies=n, seed=seed,
+                                   extra={"sources": [f.source for f in side], "split": dict(split, side=folder)}))
+    return paths[0], paths[1]

@@ -1,0 +1,150 @@
+"""``python -m dualtalker_lite.ears`` (issue 47, item 2): argument handling and the held-out split, no network.
+
+Bad arguments exit 2 with one ``error:`` line and write nothing; ``train`` on a small shard folder made here runs
+end to end (tiny student, a few steps) and writes a weights file that loads."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dualtalker_lite.ears import __main__ as cli
+from dualtalker_lite.ears import dataset, sources
+from dualtalker_lite.ears.model import load_student
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _error_lines(capsys) -> list[str]:
+    return [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
+
+
+def _write_shard(folder: Path, clips: int = 3, frames: int = 60, seed: int = 0) -> None:
+    """A small shard in ears.dataset's format: random features, one-hot teacher posteriors (PP runs in them)."""
+    rng = np.random.default_rng(seed)
+    feats = rng.normal(size=(clips * frames, 80)).astype(np.float16)
+    hard = rng.integers(0, 15, size=clips * frames)
+    post = np.eye(15, dtype=np.float16)[hard]
+    offsets = np.arange(clips + 1, dtype=np.int64) * frames
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "shard-00000.npz").write_bytes(dataset.npz_bytes(
+        {"features": feats, "posteriors": post, "hard": hard.astype(np.int8), "offsets": offsets}))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["build", "--out", "OUT", "--copies", "0"], "--copies must be >= 1"),
+    (["build", "--out", "OUT", "--held-out-copies", "0"], "--held-out-copies must be >= 1"),
+    (["build", "--out", "OUT", "--threads", "0"], "--threads must be >= 1"),
+    (["build", "--out", "OUT", "--sources", "no-such-source"], "no-such-source is not in the manifest"),
+    (["build", "--out", "OUT", "--sources", "asterisk-fr-g722"], "asterisk-fr-g722 is not used"),
+    (["train", "--data", "MISSING", "--out", "OUT/w.pt"], "--data MISSING: no such folder"),
+    (["train", "--data", "DATA", "--val", "MISSING", "--out", "OUT/w.pt"], "--val MISSING: no such folder"),
+    (["train", "--data", "DATA", "--out", "OUT/w.pt", "--lookahead", "-1"], "--lookahead must be >= 0"),
+    (["train", "--data", "DATA", "--out", "OUT/w.pt", "--epochs", "0"], "--epochs must be >= 1"),
+    (["train", "--data", "DATA", "--out", "DATA"], "is a folder"),
+    (["all", "--out", "OUT", "--weights", "OUT/w.pt", "--copies", "0"], "--copies must be >= 1"),
+    (["all", "--out", "OUT", "--weights", "OUT/w.pt", "--batch-size", "0"], "--batch-size must be >= 1"),
+    (["all", "--out", "OUT"], "--weights"),                                      # required
+    (["build"], "--out"),                                                        # required
+    (["teach"], "invalid choice"),
+    ([], "command"),
+])
+def test_bad_arguments_exit_2_with_one_line_and_write_nothing(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "DATA").mkdir()
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    lines = _error_lines(capsys)
+    assert len(lines) == 1 and message in lines[0], lines
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before                  # nothing written
+
+
+def test_out_that_is_a_file_is_refused(tmp_path, capsys):
+    out = tmp_path / "data"
+    out.write_text("not a folder")
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["build", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "is a file" in _error_lines(capsys)[0]
+    assert out.read_text() == "not a folder"
+
+
+def test_damaged_shard_is_one_line_exit_1(tmp_path, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "shard-00000.npz").write_bytes(b"not a zip")
+    assert cli.main(["train", "--data", str(data), "--out", str(tmp_path / "w.pt"), "--tiny"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("python -m dualtalker_lite.ears train: error:"), err
+    assert not (tmp_path / "w.pt").exists()
+
+
+def test_source_error_is_one_line_exit_1(tmp_path, monkeypatch, capsys):
+    """A fetch that fails (here: apt cannot be reached) is one line and exit 1, no traceback."""
+    def fail(*args, **kwargs):
+        raise sources.SourceError("apt-get download x=1 failed (no network); is the apt archive reachable?")
+
+    monkeypatch.setattr(dataset, "fetch", fail)
+    assert cli.main(["build", "--out", str(tmp_path / "data")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["python -m dualtalker_lite.ears build: error: apt-get download x=1 failed (no network); "
+                   "is the apt archive reachable?"]
+
+
+def test_train_end_to_end_on_small_shards(tmp_path, capsys):
+    _write_shard(tmp_path / "train", seed=0)
+    _write_shard(tmp_path / "val", clips=2, seed=1)
+    out = tmp_path / "sub" / "w.pt"
+    argv = ["train", "--data", str(tmp_path / "train"), "--val", str(tmp_path / "val"), "--out", str(out),
+            "--tiny", "--epochs", "2", "--steps-per-epoch", "2", "--batch-size", "2", "--crop", "20",
+            "--threads", "1", "--lookahead", "2"]
+    assert cli.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("PP recall") == 2 and f"wrote {out}" in printed
+    student, info = load_student(out)
+    assert student.cfg.lookahead == 2 and student.cfg.channels == 16             # --lookahead on the tiny net
+    assert info["command"].startswith("python -m dualtalker_lite.ears train --data")
+    assert [row["epoch"] for row in info["history"]] == [0, 1]
+
+
+def test_module_runs_as_a_script(tmp_path):
+    """``python -m dualtalker_lite.ears`` itself (the entry point): a bad argument exits 2."""
+    proc = subprocess.run([sys.executable, "-m", "dualtalker_lite.ears", "build", "--out", str(tmp_path / "d"),
+                           "--copies", "-1"], cwd=ROOT, capture_output=True, text=True,
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].endswith("error: --copies must be >= 1, got -1")
+    assert not (tmp_path / "d").exists()
+
+
+# ---------------------------------------------------------------------------------------------- the split
+def test_held_out_split():
+    deb = {"name": "asterisk-fr-wav", "kind": "deb"}
+    tts = {"name": "espeak-de-m4", "kind": "espeak"}
+    # every 20th file of a recorded prompt set, starting with the first
+    assert [i for i in range(45) if dataset.is_held_out(deb, i)] == [0, 20, 40]
+    # a seen TTS voice: nothing held out; an unseen one: everything
+    assert not any(dataset.is_held_out(tts, i) for i in range(48))
+    for name in ("flite-awb", "espeak-en-029-f1", "espeak-nl-m6"):
+        assert all(dataset.is_held_out({"name": name, "kind": "flite"}, i) for i in range(48))
+    got = [sources.Fetched(deb, [Path(f"f{i}.wav") for i in range(41)], "1"),
+           sources.Fetched({"name": "flite-awb", "kind": "flite"}, [Path("a.wav"), Path("b.wav")], "2"),
+           sources.Fetched(tts, [Path("x.wav")], "3")]
+    train, held = dataset.split_fetched(got)
+    assert [(f.source["name"], len(f.files)) for f in train] == [("asterisk-fr-wav", 38), ("espeak-de-m4", 1)]
+    assert [(f.source["name"], [p.name for p in f.files]) for f in held] == [
+        ("asterisk-fr-wav", ["f0.wav", "f20.wav", "f40.wav"]), ("flite-awb", ["a.wav", "b.wav"])]
+
+
+def test_held_out_sources_are_used_manifest_sources():
+    by_name = {s["name"]: s for s in sources.load_manifest()["sources"]}
+    for name in dataset.HELD_OUT_SOURCES:
+        assert by_name[name]["use"], name
+    # the held-out voices leave English TTS to train on (the target language)
+    english = [s["name"] for s in by_name.values() if s["use"] and s["language"].startswith("en")]
+    assert set(english) - set(dataset.HELD_OUT_SOURCES)
