@@ -148,3 +148,56 @@ def test_held_out_sources_are_used_manifest_sources():
     # the held-out voices leave English TTS to train on (the target language)
     english = [s["name"] for s in by_name.values() if s["use"] and s["language"].startswith("en")]
     assert set(english) - set(dataset.HELD_OUT_SOURCES)
+
+
+# ---------------------------------------------------------------------------------------------- evaluate
+def test_evaluate_bad_arguments(tmp_path, capsys):
+    wav = tmp_path / "a.wav"
+    import soundfile as sf
+
+    sf.write(wav, np.zeros(1600, np.float32), 16000)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["evaluate", "--weights", str(tmp_path / "missing.pt"), "--audio", str(wav)])
+    assert exc.value.code == 2 and "missing.pt: no such file" in _error_lines(capsys)[0]
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a torch file")
+    assert cli.main(["evaluate", "--weights", str(bad), "--audio", str(wav)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("python -m dualtalker_lite.ears evaluate: error:"), err
+
+
+class _Fixed:
+    """A stand-in for the teacher or the student: fixed argmax tracks (one-hot posteriors), one per call."""
+
+    def __init__(self, tracks):
+        self.tracks = list(tracks)
+
+    def _next(self):
+        import torch
+
+        return torch.eye(15)[torch.as_tensor(self.tracks.pop(0))]
+
+    def frames(self, wave):
+        return self._next().numpy(), None
+
+    def posteriors(self, wave):
+        return self._next()
+
+
+def test_against_teacher_counts_by_hand():
+    from dualtalker_lite.ears import compare
+    from dualtalker_lite.ears.distil import PP
+
+    # recording 1 (11 frames): teacher PP runs [2, 4) and [8, 9); the student says PP at frame 5 (1 frame after
+    # the first run ends: found within 2) and nowhere near the second (frames 6..10 otherwise sil).
+    teacher_1 = [0, 0, PP, PP, 0, 0, 0, 0, PP, 0, 0]
+    student_1 = [0, 0, 0, 0, 0, PP, 0, 0, 0, 0, 0]
+    # recording 2 (6 frames): one teacher PP run [3, 4), the student's PP 3 frames early (frame 0): missed
+    teacher_2 = [0, 0, 0, PP, 0, 0]
+    student_2 = [PP, 0, 0, 0, 0, 0]
+    waves = [np.zeros(320 * 10, np.float32), np.zeros(320 * 5, np.float32)]   # 1 + N // 320 = 11, 6 frames
+    got = compare.against_teacher(_Fixed([student_1, student_2]), waves, _Fixed([teacher_1, teacher_2]))
+    # agreement: recording 1 differs at frames 2, 3, 5, 8 (7 of 11 agree); recording 2 at 0 and 3 (4 of 6)
+    assert got["agreement"] == pytest.approx(11 / 17)
+    assert got["pp_runs"] == 3 and got["pp_recall"] == pytest.approx(1 / 3)
+    assert got["frames"] == 17 and got["seconds"] == pytest.approx(15 * 320 / 16000)

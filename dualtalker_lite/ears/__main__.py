@@ -5,13 +5,16 @@
     python -m dualtalker_lite.ears train --data runs/ears/data/train --val runs/ears/data/val \\
                                          --out runs/ears/student_la3.pt [--lookahead 3] [--cpu-budget-s 1200] ...
     python -m dualtalker_lite.ears all   --out runs/ears/data --weights runs/ears/student_la3.pt [both's options]
+    python -m dualtalker_lite.ears evaluate --weights runs/ears/student_la3.pt [...] --audio FILE [FILE ...]
 
 ``build`` fetches the manifest's used sources from their packages (``ears.sources``: apt-get download, dpkg-deb,
 TTS), verifies them against the manifest, and writes the held-out split (``ears.dataset.build_split``): the
 training shards in ``<out>/train`` (``--copies`` per recording, copy 0 clean, the others augmented) and the
 held-out shards in ``<out>/val`` (``--held-out-copies``, clean by default). ``train`` is the distillation loop
 (``ears.distil``: the same options as ``python -m dualtalker_lite.ears.distil``). ``all`` runs both, the
-training on ``<out>/train`` with ``<out>/val`` held out. Big outputs go under ``runs/`` (git ignores it).
+training on ``<out>/train`` with ``<out>/val`` held out. ``evaluate`` runs the teacher and each student on
+recordings (``ears.compare``: frame agreement, PP recall against the teacher, the student's CPU s per s whole and
+streamed in 100 ms chunks) and prints one line per weights file. Big outputs go under ``runs/`` (git ignores it).
 
 Exit status: 0 done; 2 bad arguments (one ``error:`` line from the parser, before anything is fetched, read or
 written); 1 a run that failed (a source that cannot be fetched or does not match the manifest, a damaged shard:
@@ -29,7 +32,10 @@ from pathlib import Path
 
 import torch
 
-from . import dataset, distil, sources
+from ..audio import load_audio
+from . import compare, dataset, distil, sources
+from .model import StudentWeightsError, load_student
+from .teacher import Teacher
 
 PROG = "python -m dualtalker_lite.ears"
 
@@ -61,6 +67,13 @@ def parser() -> argparse.ArgumentParser:
         if action.dest not in ("data", "val", "out", "help", "seed"):     # one --seed for both
             both._add_action(action)
     both.add_argument("--weights", required=True, help="the weights file to write")
+    ev = sub.add_parser("evaluate", help="students against the teacher on recordings, and their cost")
+    ev.add_argument("--weights", nargs="+", required=True, help="student weights files")
+    ev.add_argument("--audio", nargs="+", required=True, help="recordings (wav/flac, resampled to 16 kHz)")
+    ev.add_argument("--tolerance", type=int, default=distil.DistilConfig.tolerance, help="frames (20 ms)")
+    ev.add_argument("--chunk-ms", type=float, default=100.0, help="the streamed cost's chunk")
+    ev.add_argument("--cache", default=None, help="teacher tracks' cache (default: <sources cache>/teacher)")
+    ev.add_argument("--threads", type=int, default=None)
     return p
 
 
@@ -106,6 +119,41 @@ def run_build(args: argparse.Namespace) -> tuple[Path, Path]:
     return train_json, val_json
 
 
+def check_evaluate_arguments(args: argparse.Namespace) -> str | None:
+    """One line saying what is wrong with ``evaluate``'s options, or None."""
+    for flag, paths in (("--weights", args.weights), ("--audio", args.audio)):
+        missing = [p for p in paths if not Path(p).is_file()]
+        if missing:
+            return f"{flag} {missing[0]}: no such file"
+    if args.tolerance < 0 or args.chunk_ms <= 0:
+        return "--tolerance must be >= 0 and --chunk-ms > 0"
+    if args.threads is not None and args.threads < 1:
+        return f"--threads must be >= 1, got {args.threads}"
+    return None
+
+
+def run_evaluate(args: argparse.Namespace) -> list[dict]:
+    cache = Path(args.cache) if args.cache else sources.default_cache_dir() / "teacher"
+    teacher = Teacher(cache_dir=cache)
+    waves = [load_audio(p, mono="mean") for p in args.audio]
+    longest = max(waves, key=len)
+    rows = []
+    for path in args.weights:
+        student, info = load_student(path)
+        student.eval()
+        row = {"weights": path, "lookahead": student.cfg.lookahead,
+               **compare.against_teacher(student, waves, teacher, args.tolerance),
+               **{f"cost_{k}": v for k, v in compare.student_cost(student, longest, args.chunk_ms / 1000).items()
+                  if k != "chunk_s"}}
+        rows.append(row)
+        print(f"{path}: look-ahead {row['lookahead']} ({row['lookahead'] * 20} ms), {len(waves)} recordings, "
+              f"{row['seconds'] / 60:.1f} min: agreement {row['agreement']:.3f}, PP recall {row['pp_recall']:.3f} "
+              f"({row['pp_runs']} teacher runs, +-{args.tolerance * 20} ms); CPU s per s: whole "
+              f"{row['cost_whole']:.4f}, streamed in {args.chunk_ms:.0f} ms chunks {row['cost_streamed']:.4f} "
+              f"(on {len(longest) / 16000:.1f} s)", flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     p = parser()
@@ -120,12 +168,16 @@ def main(argv: list[str] | None = None) -> int:
                                                                "val": None}))
     elif args.command == "train":
         problem = distil.check_arguments(args)
+    elif args.command == "evaluate":
+        problem = check_evaluate_arguments(args)
     if problem:
         sub.error(problem)                                              # exit 2, one line, nothing written
     if getattr(args, "threads", None) is not None:
         torch.set_num_threads(args.threads)
     command = f"{PROG} {shlex.join(argv)}"
     try:
+        if args.command == "evaluate":
+            run_evaluate(args)
         if args.command in ("build", "all"):
             run_build(args)
         if args.command in ("train", "all"):
@@ -133,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.data, args.val = str(Path(args.out) / "train"), str(Path(args.out) / "val")
                 args.out = args.weights
             distil.train(args, command)
-    except (sources.SourceError, ValueError, OSError) as err:
+    except (sources.SourceError, StudentWeightsError, ValueError, OSError) as err:
         print(f"{PROG} {args.command}: error: {err}", file=sys.stderr)
         return 1
     return 0
