@@ -201,3 +201,27 @@ def test_against_teacher_counts_by_hand():
     assert got["agreement"] == pytest.approx(11 / 17)
     assert got["pp_runs"] == 3 and got["pp_recall"] == pytest.approx(1 / 3)
     assert got["frames"] == 17 and got["seconds"] == pytest.approx(15 * 320 / 16000)
+
+
+def test_build_skips_empty_recordings(tmp_path):
+    """A prompt set ships an empty file (asterisk-core-sounds-ru-wav's is.wav): it is skipped and listed."""
+    import json
+
+    from dualtalker_lite.ears.teacher import TeacherTrack
+
+    class SilentTeacher:                                  # no spikes: every frame sil
+        def track(self, wave):
+            return TeacherTrack(np.zeros(0), np.zeros((0, 15), np.float32), len(wave) / 16000)
+
+        def settings(self):
+            return {"stand-in": True}
+
+    rng = np.random.default_rng(0)
+    recs = [dataset.Recording("s", "empty.wav", np.zeros(0, np.float32)),
+            dataset.Recording("s", "short.wav", np.zeros(1599, np.float32)),          # under 0.1 s
+            dataset.Recording("s", "ok.wav", 0.1 * rng.normal(size=8000).astype(np.float32))]
+    meta = json.loads(dataset.build_dataset(recs, tmp_path, SilentTeacher(), copies=1).read_text())
+    assert [i["file"] for i in meta["items"]] == ["ok.wav"]
+    assert meta["skipped"] == [{"source": "s", "file": "empty.wav", "samples": 0},
+                               {"source": "s", "file": "short.wav", "samples": 1599}]
+    assert meta["frames"] == 1 + 8000 // 320

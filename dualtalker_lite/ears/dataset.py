@@ -45,6 +45,7 @@ HOP_LENGTH = model.HOP                             # 320 samples = 20 ms: the te
 N_MELS = model.N_MELS                              # 80
 assert abs(HOP_S - model.HOP_S) < 1e-12, "the teacher's hop and the student's must be the same"
 SHARD_FRAMES = 100_000                             # about 33 minutes of frames per shard (16 MB as float16)
+MIN_SECONDS = 0.1                                  # shorter recordings are skipped (a prompt set ships an empty file)
 
 
 @dataclass
@@ -108,15 +109,19 @@ def build_dataset(recordings: Iterable[Recording], out: str | os.PathLike, teach
 
     ``copies`` per recording (copy 0 clean when ``clean_copy``), each drawn with :func:`copy_rng`
     (``seed``, recording number, copy) from ``ranges`` (``augment.RANGES`` by default). ``extra``: more to record
-    in ``dataset.json`` (e.g. the sources' manifest entries)."""
+    in ``dataset.json`` (e.g. the sources' manifest entries). Recordings shorter than :data:`MIN_SECONDS` (the
+    Russian prompt set ships an empty ``is.wav``) are skipped and listed under ``skipped``."""
     if copies < 1:
         raise ValueError(f"copies must be >= 1, got {copies}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     teacher = teacher or Teacher()
-    items, shards, parts, frames = [], [], [], 0
+    items, shards, parts, frames, skipped = [], [], [], 0, []
     for i, rec in enumerate(recordings):
         clean = np.asarray(rec.wave, dtype=np.float32)
+        if len(clean) < MIN_SECONDS * SAMPLE_RATE:
+            skipped.append({"source": rec.source, "file": rec.name, "samples": int(len(clean))})
+            continue
         track = teacher.track(clean)
         for c in range(copies):
             rng = copy_rng(seed, i, c)
@@ -139,7 +144,8 @@ def build_dataset(recordings: Iterable[Recording], out: str | os.PathLike, teach
             "n_mels": N_MELS, "features": "audio.log_mel_spectrogram(wave, hop_length=320), 80 bands",
             "seed": seed, "copies": copies, "clean_copy": clean_copy,
             "ranges": dict(augment.RANGES, **(ranges or {})), "teacher": teacher.settings(),
-            "frames": int(sum(s["frames"] for s in shards)), "shards": shards, "items": items, **(extra or {})}
+            "frames": int(sum(s["frames"] for s in shards)), "shards": shards, "items": items, "skipped": skipped,
+            **(extra or {})}
     path = out / "dataset.json"
     atomic_write_text(path, json.dumps(meta, indent=1, default=float) + "\n")
     return path
