@@ -23,6 +23,8 @@ one ``error:`` line).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import resource
 import shlex
@@ -135,7 +137,13 @@ def check_evaluate_arguments(args: argparse.Namespace) -> str | None:
 def run_evaluate(args: argparse.Namespace) -> list[dict]:
     cache = Path(args.cache) if args.cache else sources.default_cache_dir() / "teacher"
     teacher = Teacher(cache_dir=cache)
-    waves = [load_audio(p, mono="mean") for p in args.audio]
+    quiet = io.StringIO()
+    with contextlib.redirect_stderr(quiet):              # one line for all the upsampled telephone recordings
+        waves = [load_audio(p, mono="mean") for p in args.audio]
+    upsampled = quiet.getvalue().count("upsampled")
+    if upsampled:
+        print(f"{upsampled} of {len(waves)} recordings sampled below 16 kHz, upsampled (as in training)",
+              file=sys.stderr)
     longest = max(waves, key=len)
     rows = []
     for path in args.weights:
