@@ -225,3 +225,29 @@ def test_build_skips_empty_recordings(tmp_path):
     assert meta["skipped"] == [{"source": "s", "file": "empty.wav", "samples": 0},
                                {"source": "s", "file": "short.wav", "samples": 1599}]
     assert meta["frames"] == 1 + 8000 // 320
+
+
+def test_by_held_out_part_groups_the_split(tmp_path):
+    from dualtalker_lite.ears import compare
+    from dualtalker_lite.ears.model import Student, StudentConfig
+    from dualtalker_lite.ears.teacher import TeacherTrack
+
+    class SilentTeacher:
+        def track(self, wave):
+            return TeacherTrack(np.zeros(0), np.zeros((0, 15), np.float32), len(wave) / 16000)
+
+        def settings(self):
+            return {"stand-in": True}
+
+    rng = np.random.default_rng(1)
+    recs = [dataset.Recording(src, f"{i}.wav", 0.1 * rng.normal(size=16000 * 3).astype(np.float32))
+            for i, src in enumerate(["asterisk-fr-wav", "flite-awb", "asterisk-it-wav"])]
+    dataset.build_dataset(recs, tmp_path, SilentTeacher(), copies=1,
+                          extra={"split": {"held_out_sources": ["flite-awb"]}})
+    got = compare.by_held_out_part(Student(StudentConfig.tiny()), tmp_path)
+    assert list(got) == ["unseen recording", "unseen recording: asterisk-fr-wav", "unseen recording: asterisk-it-wav",
+                         "unseen voice", "unseen voice: flite-awb"]
+    frames = 1 + 16000 * 3 // 320                                              # 151 per 3 s recording
+    assert got["unseen recording"]["minutes"] == pytest.approx(2 * frames * 0.02 / 60)
+    assert got["unseen voice: flite-awb"]["minutes"] == pytest.approx(frames * 0.02 / 60)
+    assert got["unseen voice"]["pp_runs"] == 0                                 # an all-sil teacher has no PP run

@@ -72,6 +72,7 @@ def parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="students against the teacher on recordings, and their cost")
     ev.add_argument("--weights", nargs="+", required=True, help="student weights files")
     ev.add_argument("--audio", nargs="+", required=True, help="recordings (wav/flac, resampled to 16 kHz)")
+    ev.add_argument("--val", default=None, help="also: the held-out set build wrote (<out>/val), by part")
     ev.add_argument("--tolerance", type=int, default=distil.DistilConfig.tolerance, help="frames (20 ms)")
     ev.add_argument("--chunk-ms", type=float, default=100.0, help="the streamed cost's chunk")
     ev.add_argument("--cache", default=None, help="teacher tracks' cache (default: <sources cache>/teacher)")
@@ -127,6 +128,8 @@ def check_evaluate_arguments(args: argparse.Namespace) -> str | None:
         missing = [p for p in paths if not Path(p).is_file()]
         if missing:
             return f"{flag} {missing[0]}: no such file"
+    if args.val is not None and not (Path(args.val) / "dataset.json").is_file():
+        return f"--val {args.val}: no dataset.json there (build one with `{PROG} build`)"
     if args.tolerance < 0 or args.chunk_ms <= 0:
         return "--tolerance must be >= 0 and --chunk-ms > 0"
     if args.threads is not None and args.threads < 1:
@@ -159,6 +162,10 @@ def run_evaluate(args: argparse.Namespace) -> list[dict]:
               f"({row['pp_runs']} teacher runs, +-{args.tolerance * 20} ms); CPU s per s: whole "
               f"{row['cost_whole']:.4f}, streamed in {args.chunk_ms:.0f} ms chunks {row['cost_streamed']:.4f} "
               f"(on {len(longest) / 16000:.1f} s)", flush=True)
+        if args.val:
+            for part, m in compare.by_held_out_part(student, args.val, args.tolerance).items():
+                print(f"  {args.val} {part}: {m['minutes']:.1f} min, agreement {m['agreement']:.3f}, PP recall "
+                      f"{m['pp_recall']:.3f} ({m['pp_runs']} runs)", flush=True)
     return rows
 
 

@@ -12,21 +12,27 @@ measures ``distil`` reports per epoch (the teacher's argmax as truth):
 call) and streamed (``model.StudentStream.push_audio`` in chunks of ``chunk_s``, then ``finish``), the best of
 ``repeats`` runs of ``time.process_time`` (the process's CPU time, every thread).
 
-``python -m dualtalker_lite.ears evaluate --weights W [W ...] --audio FILE [FILE ...]`` prints both for each
-weights file.
+:func:`by_held_out_part` reads a held-out set that ``build`` wrote (``<out>/val``) and gives ``distil.evaluate``'s
+measures for each part of the split (unseen voices, unseen recordings of seen voices) and each source in it.
+
+``python -m dualtalker_lite.ears evaluate --weights W [W ...] --audio FILE [FILE ...] [--val DIR]`` prints them
+for each weights file.
 """
 from __future__ import annotations
 
+import json
 import time
+from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from .distil import pp_recall
+from .distil import evaluate, load_pairs, pp_recall
 from .model import Student, StudentStream
 from .teacher import Teacher
 
-__all__ = ["against_teacher", "student_cost"]
+__all__ = ["against_teacher", "student_cost", "by_held_out_part"]
 
 
 def against_teacher(student: Student, waves: list[np.ndarray], teacher: Teacher, tolerance: int = 2) -> dict:
@@ -68,3 +74,21 @@ def student_cost(student: Student, wave: np.ndarray, chunk_s: float = 0.1, repea
             stream.finish()
 
     return {"whole": best(lambda: student.posteriors(wave)), "streamed": best(streamed), "chunk_s": chunk_s}
+
+
+def by_held_out_part(student: Student, folder: str | Path, tolerance: int = 2) -> dict[str, dict]:
+    """``{part: measures}`` on the held-out set in ``folder`` (``dataset.json`` and its shards, ``build``'s
+    ``<out>/val``): parts ``"unseen voice"`` and ``"unseen recording"`` (``dataset.is_held_out``), and each
+    ``"<part>: <source>"``; measures: ``distil.evaluate``'s, plus ``minutes``."""
+    meta = json.loads((Path(folder) / "dataset.json").read_text())
+    pairs = load_pairs(folder)                                            # in the order of meta["items"]
+    if len(pairs) != len(meta["items"]):
+        raise ValueError(f"{folder}: {len(pairs)} clips in the shards, dataset.json lists {len(meta['items'])}")
+    unseen = set(meta.get("split", {}).get("held_out_sources", []))
+    groups = defaultdict(list)
+    for item, pair in zip(meta["items"], pairs):
+        part = "unseen voice" if item["source"] in unseen else "unseen recording"
+        groups[part].append(pair)
+        groups[f"{part}: {item['source']}"].append(pair)
+    return {name: {**evaluate(student, group, tolerance), "minutes": sum(len(q) for _, q in group) / 3000}
+            for name, group in sorted(groups.items())}
