@@ -45,6 +45,7 @@ HOP_LENGTH = model.HOP                             # 320 samples = 20 ms: the te
 N_MELS = model.N_MELS                              # 80
 assert abs(HOP_S - model.HOP_S) < 1e-12, "the teacher's hop and the student's must be the same"
 SHARD_FRAMES = 100_000                             # about 33 minutes of frames per shard (16 MB as float16)
+MIN_SECONDS = 0.1                                  # shorter recordings are skipped (a prompt set ships an empty file)
 
 
 @dataclass
@@ -108,15 +109,19 @@ def build_dataset(recordings: Iterable[Recording], out: str | os.PathLike, teach
 
     ``copies`` per recording (copy 0 clean when ``clean_copy``), each drawn with :func:`copy_rng`
     (``seed``, recording number, copy) from ``ranges`` (``augment.RANGES`` by default). ``extra``: more to record
-    in ``dataset.json`` (e.g. the sources' manifest entries)."""
+    in ``dataset.json`` (e.g. the sources' manifest entries). Recordings shorter than :data:`MIN_SECONDS` (the
+    Russian prompt set ships an empty ``is.wav``) are skipped and listed under ``skipped``."""
     if copies < 1:
         raise ValueError(f"copies must be >= 1, got {copies}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     teacher = teacher or Teacher()
-    items, shards, parts, frames = [], [], [], 0
+    items, shards, parts, frames, skipped = [], [], [], 0, []
     for i, rec in enumerate(recordings):
         clean = np.asarray(rec.wave, dtype=np.float32)
+        if len(clean) < MIN_SECONDS * SAMPLE_RATE:
+            skipped.append({"source": rec.source, "file": rec.name, "samples": int(len(clean))})
+            continue
         track = teacher.track(clean)
         for c in range(copies):
             rng = copy_rng(seed, i, c)
@@ -139,7 +144,8 @@ def build_dataset(recordings: Iterable[Recording], out: str | os.PathLike, teach
             "n_mels": N_MELS, "features": "audio.log_mel_spectrogram(wave, hop_length=320), 80 bands",
             "seed": seed, "copies": copies, "clean_copy": clean_copy,
             "ranges": dict(augment.RANGES, **(ranges or {})), "teacher": teacher.settings(),
-            "frames": int(sum(s["frames"] for s in shards)), "shards": shards, "items": items, **(extra or {})}
+            "frames": int(sum(s["frames"] for s in shards)), "shards": shards, "items": items, "skipped": skipped,
+            **(extra or {})}
     path = out / "dataset.json"
     atomic_write_text(path, json.dumps(meta, indent=1, default=float) + "\n")
     return path
@@ -174,3 +180,58 @@ def load_shard(path: str | os.PathLike) -> dict:
     if missing:
         raise ValueError(f"{path}: not an ears shard (no {', '.join(missing)})")
     return arrays
+
+
+# ---------------------------------------------------------------------------------------------- held-out split
+HELD_OUT_SOURCES = ("flite-awb", "espeak-en-029-f1", "espeak-nl-m6")
+HELD_OUT_EVERY = 20
+
+
+def is_held_out(source: dict, index: int) -> bool:
+    """Whether file ``index`` (in the fetched order) of a manifest ``source`` is held out of training.
+
+    Two kinds of held-out audio, so the per-epoch measures say how the student does on speech it never heard:
+
+    * *unseen voices*: every file of :data:`HELD_OUT_SOURCES`: two English TTS voices speaking the project's
+      sentences (flite's ``awb``, a Scottish male voice, and espeak-ng's Caribbean English ``en-029+f1``; English
+      is the target language, and no other source speaks English in these voices) and one language/voice no
+      training source has (espeak-ng Dutch ``nl+m6``);
+    * *unseen recordings of seen voices*: every :data:`HELD_OUT_EVERY`-th file (index 0, 20, 40, ...) of each
+      recorded prompt set (``kind: "deb"``), about 5 % of the recorded speech.
+
+    The real-voice benchmark's voice (Allison) is never a source at all: it is the English evaluation set."""
+    if source["name"] in HELD_OUT_SOURCES:
+        return True
+    return source["kind"] == "deb" and index % HELD_OUT_EVERY == 0
+
+
+def split_fetched(fetched: Iterable[Fetched]) -> tuple[list[Fetched], list[Fetched]]:
+    """(train, held_out): the fetched sources with their files split by :func:`is_held_out` (a source with no
+    file on one side is left out of that side)."""
+    train, held = [], []
+    for got in fetched:
+        flags = [is_held_out(got.source, i) for i in range(len(got.files))]
+        for side, keep in ((train, False), (held, True)):
+            files = [f for f, flag in zip(got.files, flags) if flag == keep]
+            if files:
+                side.append(Fetched(got.source, files, got.version))
+    return train, held
+
+
+def build_split(out: str | os.PathLike, cache: str | os.PathLike | None = None, manifest: dict | None = None,
+                names=None, copies: int = 2, held_out_copies: int = 1, seed: int = 0,
+                teacher: Teacher | None = None) -> tuple[Path, Path]:
+    """End to end with the held-out split: fetch and verify the used sources, then write the training set into
+    ``<out>/train`` (``copies`` per recording, copy 0 clean) and the held-out set into ``<out>/val``
+    (``held_out_copies`` per recording, copy 0 clean: by default the clean recordings only, the teacher's own
+    conditions). Returns the two ``dataset.json`` paths."""
+    cache = Path(cache) if cache is not None else default_cache_dir()
+    fetched = fetch(manifest, cache, names)
+    train, held = split_fetched(fetched)
+    teacher = teacher or Teacher(cache_dir=cache / "teacher")
+    split = {"held_out_sources": list(HELD_OUT_SOURCES), "held_out_every": HELD_OUT_EVERY}
+    paths = []
+    for side, folder, n in ((train, "train", copies), (held, "val", held_out_copies)):
+        paths.append(build_dataset(source_recordings(side), Path(out) / folder, teacher, copies=n, seed=seed,
+                                   extra={"sources": [f.source for f in side], "split": dict(split, side=folder)}))
+    return paths[0], paths[1]

@@ -43,7 +43,8 @@ from ..seeding import set_seed
 from .model import Student, StudentConfig, save_student
 
 __all__ = ["DistilConfig", "PP", "distillation_loss", "frame_agreement", "runs_of", "pp_recall", "evaluate",
-           "set_normalisation", "sample_batch", "distil", "SHARD_KEYS", "load_pairs", "main"]
+           "set_normalisation", "sample_batch", "distil", "SHARD_KEYS", "load_pairs", "add_arguments",
+           "check_arguments", "train", "main"]
 
 PP = VISEMES.index("PP")   # the bilabial viseme: /p b m/ (face.visemes.PHONEME_TO_VISEME)
 SHARD_KEYS = ("features", "posteriors", "offsets")   # what load_pairs reads of an ears.dataset shard
@@ -207,9 +208,9 @@ def load_pairs(folder: str | Path) -> list:
     return pairs
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Train a student from dataset shards and save it (``--out``) with the command and commit."""
-    p = argparse.ArgumentParser(prog="python -m dualtalker_lite.ears.distil", description=main.__doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The training options (``--data``, ``--val``, ``--out``, ``--lookahead``, ``--tiny`` and every
+    :class:`DistilConfig` field) on a parser: shared by :func:`main` and ``python -m dualtalker_lite.ears train``."""
     p.add_argument("--data", required=True, help="folder of training shards (*.npz, ears.dataset's)")
     p.add_argument("--val", help="folder of held-out shards (default: report on the training pairs)")
     p.add_argument("--out", required=True, help="the weights file to write")
@@ -220,16 +221,51 @@ def main(argv: list[str] | None = None) -> int:
             p.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value)
     p.add_argument("--cpu-budget-s", type=float, default=None, help="stop after this many CPU seconds")
     p.add_argument("--threads", type=int, default=None)
-    args = p.parse_args(argv)
+
+
+def check_arguments(args: argparse.Namespace) -> str | None:
+    """One line saying what is wrong with parsed training options (checked before anything is read or
+    written), or None."""
+    if args.lookahead < 0:
+        return f"--lookahead must be >= 0, got {args.lookahead}"
+    for name in ("epochs", "steps_per_epoch", "batch_size", "crop"):
+        if getattr(args, name) < 1:
+            return f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}"
+    if args.threads is not None and args.threads < 1:
+        return f"--threads must be >= 1, got {args.threads}"
+    for flag, folder in (("--data", args.data), ("--val", args.val)):
+        if folder is not None and not Path(folder).is_dir():
+            return f"{flag} {folder}: no such folder (build one with `python -m dualtalker_lite.ears build`)"
+    if Path(args.out).is_dir():
+        return f"--out {args.out} is a folder: give the weights file's path"
+    return None
+
+
+def train(args: argparse.Namespace, command: str, log=print) -> list[dict]:
+    """Train a student from parsed :func:`add_arguments` options and save it to ``args.out`` with ``command``."""
     cfg = DistilConfig(**{k: getattr(args, k) for k in asdict(DistilConfig())})
     model_cfg = (StudentConfig.tiny if args.tiny else StudentConfig)(lookahead=args.lookahead)
+    train_pairs = load_pairs(args.data)
+    val_pairs = load_pairs(args.val) if args.val else None
     student = Student(model_cfg)
-    history = distil(student, load_pairs(args.data), cfg, load_pairs(args.val) if args.val else None)
-    command = "python -m dualtalker_lite.ears.distil " + " ".join(sys.argv[1:] if argv is None else argv)
-    save_student(student, args.out, command, {"distil": asdict(cfg), "last_epoch": history[-1]})
-    print(f"wrote {args.out}")
-    return 0
+    history = distil(student, train_pairs, cfg, val_pairs, log=log)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    save_student(student, args.out, command, {"distil": asdict(cfg), "last_epoch": history[-1],
+                                              "history": history})
+    log(f"wrote {args.out}")
+    return history
 
+
+def main(argv: list[str] | None = None) -> int:
+    """Train a student from dataset shards and save it (``--out``) with the command and commit."""
+    p = argparse.ArgumentParser(prog="python -m dualtalker_lite.ears.distil", description=main.__doc__)
+    add_arguments(p)
+    args = p.parse_args(argv)
+    problem = check_arguments(args)
+    if problem:
+        p.error(problem)
+    train(args, "python -m dualtalker_lite.ears.distil " + " ".join(sys.argv[1:] if argv is None else argv))
+    return 0
 
 if __name__ == "__main__":
     sys.exit(main())
