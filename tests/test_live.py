@@ -548,6 +548,13 @@ class _Server:
         self.thread.join(30)
 
 
+# The page's lip curve against the offline prediction, best lag: 0.80-0.93 on a quiet 2-core machine, but 0.44-0.49
+# (lag up to 10 frames) a few times in a loaded CI run (issue 49's flaky case; fresh clone of this session), where
+# Chromium's fake capture and the draw loop are starved. A broken path gives about 0: the wrong sample rate plays the
+# clip 3x slower, a dead stream keeps the mouth still. 0.35 tells those apart without failing a busy CI.
+MIN_PAGE_CORR = 0.35
+
+
 def _best_lag_corr(live: np.ndarray, ref: np.ndarray, max_lag: int = 30) -> tuple[float, int]:
     """The highest correlation of ``ref`` with ``live`` shifted by -max_lag..max_lag frames, over their overlap
     (at least 80% of ``ref``): the fake microphone plays from its own start, the page captures from when the
@@ -647,7 +654,8 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     lip = np.array([np.nan if v is None else v for v in lip], float)
     assert np.isfinite(lip).all() and lip.std() > 0.2 * lip_off.std()   # the face moves
     corr, lag = _best_lag_corr(lip, lip_off)
-    assert corr > 0.5, (corr, lag)
+    print(f"fake microphone: r {corr:.3f} at lag {lag}")
+    assert corr > MIN_PAGE_CORR, (corr, lag)
     assert shown >= 0 and latency is not None and latency_text.startswith("latency ")
     # the page times every frame it draws, from its newest sample's capture: never before the audio the frame needs
     # has arrived (its look-ahead, 250 ms by default, + 20 ms spike lag + the distance to its nearest spike, >= 0,
@@ -680,6 +688,7 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     file_lip = np.array([np.nan if v is None else v for v in file_lip], float)
     assert np.isfinite(file_lip).all() and file_lip.std() > 0.2 * lip_off.std() and file_rate != 16000
     corr, lag = _best_lag_corr(file_lip, lip_off[:len(file_lip)])
-    assert corr > 0.5, ("file at the browser's rate", corr, lag)
+    print(f"file at the browser's rate: r {corr:.3f} at lag {lag}")
+    assert corr > MIN_PAGE_CORR, ("file at the browser's rate", corr, lag)
     local = (f"http://{base}/", f"ws://{base}/")
     assert requests and [u for u in requests if not u.startswith(local)] == []
