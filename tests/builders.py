@@ -20,3 +20,12 @@ def grid_faces(rows=4, cols=5):
             a, b, c, d = i * cols + j, i * cols + j + 1, (i + 1) * cols + j, (i + 1) * cols + j + 1
             faces += [(a, b, d), (a, d, c)]
     return torch.tensor(faces).numpy()
+
+
+def fake_microphone_args(wav, loop: bool = False) -> list[str]:
+    """Chromium's flags for the live-page tests: software WebGL, a fake microphone that plays ``wav`` (once unless
+    ``loop``), microphone permission granted and autoplay allowed."""
+    return ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+            "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+            f"--use-file-for-fake-audio-capture={wav}{'' if loop else '%noloop'}",
+            "--autoplay-policy=no-user-gesture-required"]

@@ -36,6 +36,7 @@ from aiohttp.test_utils import TestClient, TestServer  # noqa: E402
 
 from dualtalker_lite.live.server import HEADER, Limits, load_config, make_app  # noqa: E402
 from dualtalker_lite.live.stream import StreamingVisemes, new_extractor  # noqa: E402
+from builders import fake_microphone_args  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT / "notebooks" / "data" / "real" / "agent-pass.flac"
@@ -602,10 +603,7 @@ def test_page_animates_a_fake_microphone_in_headless_chromium(config, offline, t
     requests = []
     try:
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=[
-                "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
-                f"--use-file-for-fake-audio-capture={wav}%noloop", "--autoplay-policy=no-user-gesture-required"])
+            browser = p.chromium.launch(executable_path=exe, args=fake_microphone_args(wav))
             try:
                 page = browser.new_page(viewport={"width": 800, "height": 600})
                 page.on("request", lambda r: requests.append(r.url))

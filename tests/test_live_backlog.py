@@ -21,6 +21,7 @@ from aiohttp import WSMsgType  # noqa: E402
 from aiohttp.test_utils import TestClient, TestServer  # noqa: E402
 
 from dualtalker_lite.live.server import HEADER, Limits, LiveConfig, LiveConnection, make_app  # noqa: E402
+from builders import fake_microphone_args  # noqa: E402
 
 RATE, FPS, V = 16000, 30, 3
 
@@ -177,10 +178,7 @@ def test_the_page_says_it_is_behind_then_returns_to_normal(monkeypatch, tmp_path
     thread.start()
     try:
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=exe, args=[
-                "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
-                f"--use-file-for-fake-audio-capture={wav}%noloop", "--autoplay-policy=no-user-gesture-required"])
+            browser = p.chromium.launch(executable_path=exe, args=fake_microphone_args(wav))
             try:
                 page = browser.new_page(viewport={"width": 640, "height": 480})
                 page.goto(f"http://127.0.0.1:{port}/")
