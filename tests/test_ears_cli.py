@@ -44,6 +44,8 @@ def _write_shard(folder: Path, clips: int = 3, frames: int = 60, seed: int = 0) 
     (["train", "--data", "DATA", "--val", "MISSING", "--out", "OUT/w.pt"], "--val MISSING: no such folder"),
     (["train", "--data", "DATA", "--out", "OUT/w.pt", "--lookahead", "-1"], "--lookahead must be >= 0"),
     (["train", "--data", "DATA", "--out", "OUT/w.pt", "--epochs", "0"], "--epochs must be >= 1"),
+    (["train", "--data", "DATA", "--out", "OUT/w.pt", "--pp-weight", "-1"], "--pp-weight must be >= 0"),
+    (["train", "--data", "DATA", "--out", "OUT/w.pt", "--channels", "0"], "--channels must be >= 1"),
     (["train", "--data", "DATA", "--out", "DATA"], "is a folder"),
     (["all", "--out", "OUT", "--weights", "OUT/w.pt", "--copies", "0"], "--copies must be >= 1"),
     (["all", "--out", "OUT", "--weights", "OUT/w.pt", "--batch-size", "0"], "--batch-size must be >= 1"),

@@ -158,6 +158,19 @@ def test_loss_is_the_kl_to_the_smoothed_targets():
     assert D.distillation_loss(two, torch.cat([q, q]), eps, mask).item() == pytest.approx(expected, rel=1e-6)
 
 
+def test_frame_weights_lean_on_the_teachers_pp_mass():
+    # three frames over (sil, PP, aa): q_PP = 0, 0.5, 1; the third frame is padding (mask 0)
+    q = torch.tensor([[[1.0, 0.0, 0.0], [0.25, 0.5, 0.25], [0.0, 1.0, 0.0]]])
+    mask = torch.tensor([[1.0, 1.0, 0.0]])
+    assert D.frame_weights(q, mask, 0.0).tolist() == [[1.0, 1.0, 0.0]]       # a plain mean
+    assert D.frame_weights(q, mask, 2.0).tolist() == [[1.0, 2.0, 0.0]]       # 1 + 2 * 0.5 on the second
+    # the loss with those weights is the weighted mean of the per-frame KLs, (1 * kl_0 + 2 * kl_1) / 3
+    logits = torch.zeros(1, 3, 3)                                            # p = 1/3 everywhere
+    kl = [math.log(3), 0.25 * math.log(0.75) + 0.5 * math.log(1.5) + 0.25 * math.log(0.75)]
+    got = D.distillation_loss(logits, q, 0.0, D.frame_weights(q, mask, 2.0)).item()
+    assert got == pytest.approx((kl[0] + 2 * kl[1]) / 3, rel=1e-6)
+
+
 def test_metrics_on_a_hand_made_example():
     PP, sil, aa = VISEMES.index("PP"), VISEMES.index("sil"), VISEMES.index("aa")
     assert D.PP == PP == 1

@@ -9,7 +9,8 @@ so that a perfect student scores 0):
 
     q'_t = (1 - eps) q_t + eps / K,     KL(q'_t || p_t) = sum_k q'_tk (log q'_tk - log p_tk),   p_t = softmax(y_t)
 
-averaged over the frames. AdamW, learning rate on a cosine from ``lr`` to 0 over the planned steps (after a short
+averaged over the frames, each weighted by ``w_t = 1 + pp_weight * q_t,PP`` (``pp_weight`` 0: a plain mean; > 0
+leans on the bilabials, the few frames the face must not miss: :func:`frame_weights`). AdamW, learning rate on a cosine from ``lr`` to 0 over the planned steps (after a short
 linear warm-up), gradients clipped. ``cpu_budget_s`` stops early once the process has used that many CPU seconds
 (as ``train.TrainConfig``'s does); the schedule is not stretched.
 
@@ -43,7 +44,7 @@ from ..seeding import set_seed
 from .model import Student, StudentConfig, save_student
 
 __all__ = ["DistilConfig", "PP", "distillation_loss", "frame_agreement", "runs_of", "pp_recall", "evaluate",
-           "set_normalisation", "sample_batch", "distil", "SHARD_KEYS", "load_pairs", "add_arguments",
+           "set_normalisation", "frame_weights", "sample_batch", "distil", "SHARD_KEYS", "load_pairs", "add_arguments",
            "check_arguments", "train", "main"]
 
 PP = VISEMES.index("PP")   # the bilabial viseme: /p b m/ (face.visemes.PHONEME_TO_VISEME)
@@ -60,6 +61,7 @@ class DistilConfig:
     weight_decay: float = 0.01
     warmup: int = 50                # steps of linear warm-up
     label_smoothing: float = 0.05   # eps
+    pp_weight: float = 0.0          # extra loss weight on the teacher's PP mass (frame_weights)
     grad_clip: float = 1.0
     tolerance: int = 2              # frames around a teacher PP run where a student PP counts (pp_recall)
     seed: int = 0
@@ -77,6 +79,11 @@ def distillation_loss(logits: torch.Tensor, teacher: torch.Tensor, smoothing: fl
     if mask is None:
         return kl.mean()
     return (kl * mask).sum() / mask.sum().clamp_min(1)
+
+
+def frame_weights(teacher: torch.Tensor, mask: torch.Tensor, pp_weight: float) -> torch.Tensor:
+    """Each frame's loss weight ``mask_t * (1 + pp_weight * q_t,PP)``; teacher (..., K), mask (...) -> (...)."""
+    return mask * (1 + pp_weight * teacher[..., PP])
 
 
 def frame_agreement(student: torch.Tensor, teacher: torch.Tensor) -> float:
@@ -168,7 +175,7 @@ def distil(student: Student, train_pairs: list, cfg: DistilConfig, val_pairs: li
         losses = []
         for _ in range(cfg.steps_per_epoch):
             x, q, mask = sample_batch(train_pairs, cfg.batch_size, cfg.crop, gen)
-            loss = distillation_loss(student(x), q, cfg.label_smoothing, mask)
+            loss = distillation_loss(student(x), q, cfg.label_smoothing, frame_weights(q, mask, cfg.pp_weight))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(student.parameters(), cfg.grad_clip)
@@ -216,6 +223,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="the weights file to write")
     p.add_argument("--lookahead", type=int, default=StudentConfig.lookahead, help="L, frames of 20 ms")
     p.add_argument("--tiny", action="store_true", help="the tiny student (a smoke run)")
+    p.add_argument("--channels", type=int, default=None, help="C, the student's width (default: the config's)")
     for name, value in asdict(DistilConfig()).items():
         if name != "threads" and value is not None and not isinstance(value, bool):
             p.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value)
@@ -228,6 +236,10 @@ def check_arguments(args: argparse.Namespace) -> str | None:
     written), or None."""
     if args.lookahead < 0:
         return f"--lookahead must be >= 0, got {args.lookahead}"
+    if getattr(args, "channels", None) is not None and args.channels < 1:
+        return f"--channels must be >= 1, got {args.channels}"
+    if args.pp_weight < 0:
+        return f"--pp-weight must be >= 0, got {args.pp_weight}"
     for name in ("epochs", "steps_per_epoch", "batch_size", "crop"):
         if getattr(args, name) < 1:
             return f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}"
@@ -244,7 +256,8 @@ def check_arguments(args: argparse.Namespace) -> str | None:
 def train(args: argparse.Namespace, command: str, log=print) -> list[dict]:
     """Train a student from parsed :func:`add_arguments` options and save it to ``args.out`` with ``command``."""
     cfg = DistilConfig(**{k: getattr(args, k) for k in asdict(DistilConfig())})
-    model_cfg = (StudentConfig.tiny if args.tiny else StudentConfig)(lookahead=args.lookahead)
+    sizes = {} if getattr(args, "channels", None) is None else {"channels": args.channels}
+    model_cfg = (StudentConfig.tiny if args.tiny else StudentConfig)(lookahead=args.lookahead, **sizes)
     train_pairs = load_pairs(args.data)
     val_pairs = load_pairs(args.val) if args.val else None
     student = Student(model_cfg)
