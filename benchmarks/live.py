@@ -272,7 +272,7 @@ def _real_prompts(every: int = 1, references: bool = True):
 def fig_quality(args) -> dict:
     """Live (look-ahead 100, 200 ms) and offline (animate) on the real prompts, real_voices' metrics."""
     from dualtalker_lite.checkpoints import load_checkpoint
-    from dualtalker_lite.front_ends import from_settings
+    from dualtalker_lite.front_ends import at_test, from_settings
     from dualtalker_lite.inference import animate_wave
     from dualtalker_lite.live.server import load_config
     from dualtalker_lite.live.stream import LiveSession, LiveSettings
@@ -281,16 +281,22 @@ def fig_quality(args) -> dict:
     items, subject, lip_mid, n_all, failed = _real_prompts(args.every)
     import real_voices as rv  # importable now: _real_prompts put benchmarks/ on the path
 
-    config = load_config(args.checkpoint, subject)
+    student = args.ears == "student"
+    config = load_config(args.checkpoint, subject, settings=LiveSettings(ears=args.ears))
     _, ckpt = load_checkpoint(args.checkpoint)
     offline_ex = from_settings(ckpt.get("features"), args.checkpoint, cache=False)
     rows = {"reference rig (aligned phones)": [], "offline (animate)": []}
+    if student:   # the student's ears offline too (animate --front-end student)
+        rows["offline, student (animate --front-end student)"] = []
+        student_ex = at_test(ckpt.get("features"), "student", args.checkpoint)
     aheads = args.ahead_frames or [LiveSettings.ahead_frames]
 
     def live_key(la: int, ahead: int) -> str:  # the default encoder look-ahead keeps the rows' old names
         extra = "" if aheads == [LiveSettings.ahead_frames] else f", encoder look-ahead {ahead} frames"
+        if student:
+            return f"live, student (look-ahead {config.student.cfg.lookahead * 20} ms){extra}"
         return f"live, look-ahead {la} ms{extra}"
-    configs = [(la, a, live_key(la, a)) for la in args.lookaheads for a in aheads]
+    configs = [(la, a, live_key(la, a)) for la in ([0] if student else args.lookaheads) for a in aheads]
     rows.update({key: [] for _, _, key in configs})
     cpu = {k: 0.0 for k in rows}
     corr = {key: [] for _, _, key in configs}
@@ -308,9 +314,16 @@ def fig_quality(args) -> dict:
         cpu["offline (animate)"] += time.process_time() - c0
         mismatched += len(off) != n
         rows["offline (animate)"].append(off[:n])
+        if student:
+            c0 = time.process_time()
+            off_s = lip_distance(animate_wave(config.model, it["wave"], config.template, config.speaker,
+                                              front_end=student_ex), *lip_mid)
+            cpu["offline, student (animate --front-end student)"] += time.process_time() - c0
+            rows["offline, student (animate --front-end student)"].append(off_s[:n])
         for la, ahead, key in configs:
             session = LiveSession(config.model, config.front_end, config.template, config.speaker,
-                                  LiveSettings(lookahead_s=la / 1000, ahead_frames=ahead, **hop))
+                                  LiveSettings(lookahead_s=la / 1000, ahead_frames=ahead, ears=args.ears, **hop),
+                                  student=config.student)
             out, c, _ = feed(session, it["wave"])
             cpu[key] += c
             live = lip_distance(np.concatenate([v for _, v in out]), *lip_mid)
@@ -395,8 +408,9 @@ def fig_keepup(args) -> dict:
 
     wave, one = _speech(args.minutes)
     rss0 = _rss_mb()
-    config = load_config(args.checkpoint, "SPK01")
-    session = LiveSession(config.model, config.front_end, config.template, config.speaker, LiveSettings())
+    config = load_config(args.checkpoint, "SPK01", settings=LiveSettings(ears=args.ears))
+    session = LiveSession(config.model, config.front_end, config.template, config.speaker, config.settings,
+                          student=config.student)
     rss_loaded = _rss_mb()
     c0, w0 = time.process_time(), time.perf_counter()
     sim = simulate(session, wave, clock=args.clock,
@@ -419,7 +433,7 @@ def fig_keepup(args) -> dict:
             "decoder_window": getattr(config.model.cfg, "decoder_window", None)}
 
 
-def _live_server(checkpoint, lookahead_ms: int, ahead: int):
+def _live_server(checkpoint, lookahead_ms: int, ahead: int, ears: str = "hama"):
     """``dualtalker-lite live`` in its own process on a free port, once it listens -> (the process, the port)."""
     import os
     import socket
@@ -430,7 +444,7 @@ def _live_server(checkpoint, lookahead_ms: int, ahead: int):
         port = s.getsockname()[1]
     server = subprocess.Popen([sys.executable, "-m", "dualtalker_lite.cli", "live", "--checkpoint",
                                str(checkpoint), "--port", str(port), "--lookahead-ms", str(lookahead_ms),
-                               "--encoder-ahead-frames", str(ahead)],
+                               "--encoder-ahead-frames", str(ahead), "--ears", ears],
                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                               env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"})
     for _ in range(600):                       # up to 60 s for the model to load
@@ -489,14 +503,14 @@ def fig_page(args) -> dict:
     wave, _ = _speech(args.page_seconds / 60)
     warm = 3 * 30                                          # frames: the playout delay adapts over the first 3 s
     out = {"audio_s": len(wave) / 16000, "warm_up_frames_left_out": warm, "synced": bool(args.synced),
-           "lookaheads": {}}
+           "ears": args.ears, "lookaheads": {}}
     with tempfile.TemporaryDirectory() as tmp:
         wav = Path(tmp) / "speech.wav"
         sf.write(wav, wave, 16000, subtype="PCM_16")
         aheads = args.ahead_frames or [LiveSettings.ahead_frames]
         for la, ahead in [(la, ahead) for la in args.lookaheads for ahead in aheads]:
             key = str(la) if aheads == [LiveSettings.ahead_frames] else f"{la} ms, encoder look-ahead {ahead} frames"
-            server, port = _live_server(args.checkpoint, la, ahead)
+            server, port = _live_server(args.checkpoint, la, ahead, args.ears)
             try:
                 got = _page_run(exe, wav, port, len(wave) / 16000, args.synced)
             finally:
@@ -697,6 +711,9 @@ def figures(argv) -> None:
     ap.add_argument("--ahead-frames", type=int, nargs="+", default=None,
                     help="quality, page: the audio encoder's look-ahead(s) in mesh frames (LiveSettings' default)")
     ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
+    ap.add_argument("--ears", choices=["hama", "student"], default="hama",
+                    help="quality, keepup, page: who hears the visemes live (student: its own look-ahead, so "
+                         "--lookaheads is ignored by quality); the step's file is <step>_student.json")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
     ap.add_argument("--keep-earlier", type=Path, default=None, help="report: keep this earlier report whole")
     ap.add_argument("--earlier-key", default=None, help="report: the key it is kept under")
@@ -713,13 +730,14 @@ def figures(argv) -> None:
                    "checkpoint": args.checkpoint, "wall_s": time.time() - t0,
                    "cpu_s": time.process_time() - c0, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                    "load_avg": list(__import__("os").getloadavg())}
-    path = FIG_DIR / f"{args.step}.json"
+    path = FIG_DIR / f"{args.step}{'_student' if args.ears == 'student' else ''}.json"
     path.write_text(json.dumps(res, indent=1, default=float))
     print(json.dumps({k: v for k, v in res.items() if k not in ("per_minute",)}, indent=1, default=float)[:6000])
     print(f"-> {path}")
 
 
-FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose", "page")
+FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose", "page", "quality_student", "keepup_student",
+             "page_student")
 
 
 def report(out: Path, earlier: Path | None = None, key: str | None = None) -> None:

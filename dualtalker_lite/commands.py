@@ -295,12 +295,14 @@ def _predict_with_progress(model, dataset, mode: str) -> dict:
         return predict_split(model, dataset, on_batch=lambda done: bar.update(done - bar.n))
 
 
-def _evaluation_set(ckpt: dict, corpus: Corpus, split: str, source: str, cache: bool) -> Dataset:
+def _evaluation_set(ckpt: dict, corpus: Corpus, split: str, source: str, cache: bool,
+                    ears: str | None = None) -> Dataset:
     """Split ``split`` of ``corpus`` as the checkpoint's model reads it: computed by its own front end from the audio
-    (visemes: the recogniser's tracks; log-mel), or the labels of a front end that no recording gives (phonemes)."""
+    (visemes: the recogniser's tracks; log-mel; ``ears``: the other ears, ``front_ends.at_test``), or the labels of a
+    front end that no recording gives (phonemes)."""
     features = ckpt.get("features") or {"name": "logmel"}
     computed = front_ends.get(features["name"]).from_audio
-    front_end = front_ends.from_settings(features, source, cache=cache) if computed else None
+    front_end = front_ends.at_test(features, ears, source, cache=cache) if computed else None
     dataset = TalkingFaceDataset(corpus, split, front_end=front_end)
     view = "logmel" if computed else features["name"]  # "logmel": the features as the front end computed them
     return feature_view(dataset, view, len(corpus.phoneme_inventory))[0]
@@ -315,7 +317,8 @@ def run_evaluate(args: argparse.Namespace) -> dict:
     if ckpt.get("speakers") and list(ckpt["speakers"]) != list(corpus.train_speakers):
         raise ValueError(f"corpus {corpus.root} has training speakers {corpus.train_speakers}, the checkpoint "
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
-    dataset = _evaluation_set(ckpt, corpus, args.split, args.checkpoint, cache=not args.no_cache)
+    dataset = _evaluation_set(ckpt, corpus, args.split, args.checkpoint, cache=not args.no_cache,
+                              ears=getattr(args, "front_end", None))
     out = _predict_with_progress(model, dataset, progress_mode(args.quiet))
     for clip, pred in zip(out["names"], out["preds"]):
         check_finite(pred, f"{args.checkpoint}: prediction for clip {clip!r}")

@@ -49,7 +49,7 @@ from .ears.model import StudentExtractor
 from .recogniser import NAME as RECOGNISER, OUTPUTS, RecogniserExtractor
 
 __all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "get", "build", "settings",
-           "from_settings", "canonical", "paired"]
+           "from_settings", "canonical", "paired", "EARS", "at_test"]
 
 
 @dataclass(frozen=True)
@@ -169,3 +169,24 @@ def from_settings(features: dict | None, source: str = "checkpoint", cache: bool
     if name == "student":  # refuses other weights than the ones recorded
         return StudentExtractor.from_settings(features, source)
     return LogMelExtractor(**features.get("settings", {}))
+
+
+EARS = ("visemes", "student")   # front ends that hear the same 15 viseme classes: either feeds a model of the other
+
+
+def at_test(features: dict | None, name: str | None = None, source: str = "checkpoint", cache: bool = True) -> Any:
+    """What ``animate``/``evaluate`` feed a checkpoint: :func:`from_settings` of what it recorded, or, with ``name``
+    (``--front-end``), the other *ears* of :data:`EARS`: a model trained on the corpus's viseme labels (``visemes``
+    or ``student``: the same labels) reads hama's hard track (``visemes``) or the student's (``student``: one-hot of
+    its argmax per mesh frame, the class hama's track would give, since the student learnt that track). One
+    ValueError line naming ``source`` for any other pair (a log-mel model cannot hear visemes)."""
+    trained = canonical(features).get("name") if features else "logmel"
+    if name is None or name == trained:
+        return from_settings(features, source, cache=cache)
+    if trained not in EARS or name not in EARS:
+        raise ValueError(f"{source}: trained on {trained!r} features; --front-end {name} can only swap the ears of "
+                         f"a model trained on viseme labels ({' or '.join(EARS)})")
+    fps = int(dict(features.get("settings", {})).get("fps", 30))
+    if name == "student":
+        return StudentExtractor(fps=fps, hard=True)
+    return RecogniserExtractor(name, fps=fps, cache=cache)

@@ -322,7 +322,8 @@ def run(args: argparse.Namespace) -> list[Path]:
                                      ("template", args.template), ("corpus", args.corpus or sample_path())])
     device = resolve_device(args.device)
     speaker, template, faces, corpus = resolve_face(ckpt, args.speaker, args.template, args.corpus)
-    front_end = front_ends.from_settings(ckpt.get("features"), str(args.checkpoint), cache=not args.no_cache)
+    front_end = front_ends.at_test(ckpt.get("features"), getattr(args, "front_end", None), str(args.checkpoint),
+                                   cache=not args.no_cache)                # --front-end: the other ears
     wave = AudioStream(args.wav, sample_rate=front_end.sample_rate,  # checked now, read block by block later
                        front_end=front_end.front_end)
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the

@@ -259,27 +259,32 @@ def load_student(path: str | os.PathLike | None = None) -> tuple[Student, dict]:
     return student.eval(), dict(record.get("provenance", {}))
 
 
-def to_mesh_rate(posteriors: torch.Tensor, n_frames: int, fps: float) -> torch.Tensor:
-    """(L, 15) posteriors at the 20 ms hop -> (n_frames, 15) at mesh frame times f / fps, linearly interpolated
-    (rows still sum to 1), held at the last frame past the end."""
-    pos = (torch.arange(n_frames, dtype=torch.float64) / fps / HOP_S).clamp(0, posteriors.shape[0] - 1)  # (T,)
+def to_mesh_rate(posteriors: torch.Tensor, n_frames: int, fps: float, first: int = 0,
+                 offset: int = 0) -> torch.Tensor:
+    """(L, 15) posteriors at the 20 ms hop -> (n_frames - first, 15) at mesh frame times f / fps for f = ``first``
+    .. ``n_frames - 1``, linearly interpolated (rows still sum to 1), held at the last frame past the end.
+    ``offset``: ``posteriors[0]`` is student frame ``offset`` (a stream that forgot its older frames)."""
+    last = offset + posteriors.shape[0] - 1                                        # the newest student frame
+    pos = (torch.arange(first, n_frames, dtype=torch.float64) / fps / HOP_S).clamp(0, last)   # (T,)
     i0 = pos.floor().long()
-    i1 = (i0 + 1).clamp(max=posteriors.shape[0] - 1)
+    i1 = (i0 + 1).clamp(max=last)
     w = (pos - i0).float()[:, None]                                                # (T, 1)
-    return (1 - w) * posteriors[i0] + w * posteriors[i1]                            # (T, 15)
+    return (1 - w) * posteriors[i0 - offset] + w * posteriors[i1 - offset]         # (T, 15)
 
 
 class StudentExtractor:
     """The ``student`` front end (``front_ends.FRONT_ENDS``): ``(wave, n_frames) -> (n_frames, 15)`` viseme
     posteriors at ``fps`` mesh frames per second, from the weights at ``weights`` (default:
-    :func:`default_weights_path`); ``stream`` gives the same from blocks through :class:`StudentStream`."""
+    :func:`default_weights_path`); ``stream`` gives the same from blocks through :class:`StudentStream`.
+    ``hard``: one-hot of each frame's argmax instead (what hama's ``visemes`` track is: ``front_ends.at_test``)."""
 
     front_end = "student"
 
-    def __init__(self, fps: int = 30, weights: str | os.PathLike | None = None):
+    def __init__(self, fps: int = 30, weights: str | os.PathLike | None = None, hard: bool = False):
         self.path = Path(weights) if weights is not None else default_weights_path()
         self.student, self.provenance = load_student(self.path)
         self.fps, self.sample_rate, self.dim = fps, SAMPLE_RATE, self.student.cfg.n_visemes
+        self.hard = hard     # one-hot of the argmax per mesh frame: the student as hama's hard track (front_ends.at_test)
 
     def weights_hash(self) -> str:
         """The first 16 hex digits of the weights file's sha256 (a checkpoint records which student fed it)."""
@@ -307,10 +312,13 @@ class StudentExtractor:
         """(n_frames, 15) float32 posteriors at the mesh frame times."""
         if n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {n_frames}")
-        return to_mesh_rate(self.student.posteriors(wave), n_frames, self.fps)
+        return self._out(to_mesh_rate(self.student.posteriors(wave), n_frames, self.fps))
+
+    def _out(self, p: torch.Tensor) -> torch.Tensor:
+        return F.one_hot(p.argmax(-1), p.shape[-1]).float() if self.hard else p
 
     def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
         """:meth:`__call__` of a wave given as blocks (an iterable, or a callable returning one), never whole."""
         stream = StudentStream(self.student)
         parts = [stream.push_audio(b) for b in (blocks() if callable(blocks) else blocks)]
-        return to_mesh_rate(torch.cat(parts + [stream.finish()]), n_frames, self.fps)
+        return self._out(to_mesh_rate(torch.cat(parts + [stream.finish()]), n_frames, self.fps))

@@ -54,6 +54,7 @@ import numpy as np
 
 from .. import front_ends
 from ..checkpoints import load_checkpoint
+from ..ears.model import load_student
 from ..export.html import page_dir, vendor_dir
 from ..export.visemes import NAMES, rig_viseme_targets
 from ..inference import resolve_face
@@ -109,6 +110,7 @@ class LiveConfig:
     checkpoint: str = ""
     max_behind_s: float | None = 1.0                  # queued audio, late by more than this: dropped (catch_up);
                                                       # None: never drop (queue it all, the old behaviour)
+    student: object = None                            # the ears when settings.ears == "student" (load_student)
 
 
 def _allowed_hosts(request) -> set[str]:
@@ -141,8 +143,13 @@ def _mesh_doc(config: LiveConfig) -> str:
         "fps": fe.fps, "sample_rate": SAMPLE_RATE,
         "lip_midpoints": list(map(int, config.lip_midpoints)) if config.lip_midpoints else None,
         "speaker": config.speaker_name, "checkpoint": Path(config.checkpoint).name,
-        "latency_s": settings.latency_s(fe.fps, fe.lag_s, fe.window_s),
+        "latency_s": settings.latency_s(fe.fps, fe.lag_s, fe.window_s, _student_lookahead(config)),
+        "ears": settings.ears, "piece_ms": 40 if config.student is not None else 100,
         "lookahead_ms": round(settings.lookahead_s * 1000), "avatar": avatar_controls()})
+
+
+def _student_lookahead(config: LiveConfig) -> int | None:
+    return config.student.cfg.lookahead if config.student is not None else None
 
 
 def _static_file(path: str) -> tuple[Path, str] | None:
@@ -531,7 +538,8 @@ class LiveConnection:
 
     def _new_session(self, visemes: bool = False) -> LiveSession:
         c = self.config
-        return LiveSession(c.model, c.front_end, c.template, c.speaker, c.settings, visemes=visemes)
+        return LiveSession(c.model, c.front_end, c.template, c.speaker, c.settings, visemes=visemes,
+                           student=c.student)
 
     def _in_thread(self, fn, *args):
         """Run ``fn(*args)`` in the server's worker threads (the event loop keeps serving) -> an awaitable."""
@@ -558,9 +566,18 @@ def load_config(checkpoint: str, speaker: str = "SPK01", template: str | None = 
         IncrementalDecoder(model, face.template, face.speaker)  # refuses other model families with one line
     except ValueError as e:
         raise ValueError(f"{checkpoint}: {e}") from None
+    settings = settings or LiveSettings()
+    student = load_student()[0] if settings.ears == "student" else None   # one StudentWeightsError line if missing
     return LiveConfig(model=model, front_end=front_end, template=np.asarray(face.template, np.float32).reshape(-1),
                       faces=np.asarray(face.faces), speaker=face.speaker, speaker_name=speaker, lip_midpoints=lips,
-                      settings=settings or LiveSettings(), checkpoint=str(checkpoint))
+                      settings=settings, checkpoint=str(checkpoint), student=student)
+
+
+def _ears_line(config: LiveConfig) -> str:
+    """Who hears the visemes, as the start-up line says it."""
+    if config.student is not None:
+        return f"ears: the student, look-ahead {config.student.cfg.lookahead * 20} ms"
+    return f"ears: hama, look-ahead {config.settings.lookahead_s * 1000:.0f} ms"
 
 
 def serve(config: LiveConfig, host: str = "127.0.0.1", port: int = 8765) -> None:
@@ -580,7 +597,7 @@ def serve(config: LiveConfig, host: str = "127.0.0.1", port: int = 8765) -> None
             raise OSError(f"{host}:{port}: cannot listen ({e.strerror or e}); choose another --port") from None
         shown = f"[{host}]" if ":" in host else host
         print(f"live lip sync at http://{shown}:{port}/  (model {Path(config.checkpoint).name}, speaker "
-              f"{config.speaker_name}, look-ahead {config.settings.lookahead_s * 1000:.0f} ms; Ctrl-C stops)",
+              f"{config.speaker_name}, {_ears_line(config)}; Ctrl-C stops)",
               flush=True)
         if host not in ("127.0.0.1", "localhost", "::1"):
             print(f"warning: listening on {host}: other machines can reach this page", flush=True)
@@ -613,5 +630,5 @@ def run(args) -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     config = load_config(args.checkpoint, args.speaker, args.template, args.corpus,
                          LiveSettings(lookahead_s=args.lookahead_ms / 1000, past_s=args.context_ms / 1000,
-                                      ahead_frames=args.encoder_ahead_frames))
+                                      ahead_frames=args.encoder_ahead_frames, ears=args.ears))
     serve(config, args.host, args.port)

@@ -52,7 +52,7 @@ from ..face.visemes import VISEMES
 from ..models.contract import hook
 from ..recogniser import FRAME_SAMPLES, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track
 
-__all__ = ["StreamingVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "LiveSession", "LiveSettings"]
+__all__ = ["StreamingVisemes", "StreamingStudentVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "LiveSession", "LiveSettings"]
 
 SAMPLE_RATE = 16000
 
@@ -68,10 +68,16 @@ class LiveSettings:
     past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
     ahead_frames: int = 0         # audio-encoder look-ahead (mesh frames) after it (was 3: fewer close the lips
                                   # more often live, at a little less agreement with offline; results/live.md)
+    ears: str = "hama"            # who hears the visemes: "hama" (StreamingVisemes, the settings above) or
+                                  # "student" (StreamingStudentVisemes: its own look-ahead, no hop, no past_s)
 
-    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
-        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this at most (in a
-        pause; during speech window_s is cut to the distance to the frame's nearest spike, StreamingVisemes)."""
+    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1,
+                  student_lookahead: int | None = None) -> float:
+        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this at most (hama:
+        in a pause; during speech window_s is cut to the distance to the frame's nearest spike, StreamingVisemes;
+        the student: :meth:`StreamingStudentVisemes.latency_s` of its look-ahead)."""
+        if self.ears == "student":
+            return StreamingStudentVisemes.latency_s(student_lookahead or 0, fps) + self.ahead_frames / fps
         return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
 
 
@@ -189,6 +195,86 @@ class StreamingVisemes:
                 break
             f += 1
         return f
+
+
+class StreamingStudentVisemes:
+    """The same interface as :class:`StreamingVisemes` (``push``, ``flush``, ``frames_done``,
+    ``recogniser_seconds``), heard by the project's own causal student (``dualtalker_lite.ears``) instead of hama.
+
+        track = StreamingStudentVisemes(student, fps=30)
+        ids = track.push(piece)               # (k,) int64 viseme ids of the mesh frames that became final
+        rest = track.flush()
+
+    Every 20 ms student frame is computed once (:class:`~dualtalker_lite.ears.model.StudentStream`: no window is
+    re-run), so the cost is the student's (about 0.007 CPU s per s in 100 ms pieces, ``docs/ears.md``), not a
+    recogniser call per hop. Mesh frame f takes the argmax of the posteriors interpolated at f / fps
+    (:func:`~dualtalker_lite.ears.model.to_mesh_rate`): the student learnt the offline track's classes (its
+    argmax is hama's hard track), so a model trained on viseme labels reads it as it reads hama's. Frame f is final
+    once the student frame after f / fps is out, i.e. once the audio up to ``f / fps + 20 ms + L x 20 ms + 16 ms``
+    has arrived (L the student's look-ahead, 16 ms the STFT's half window): :meth:`latency_s`. The ids equal the
+    whole-utterance route's, ``argmax to_mesh_rate(student.posteriors(wave))`` (``tests/test_live_student.py``).
+    Only the student frames later frames can still read are kept, so hours of streaming hold seconds of them."""
+
+    def __init__(self, student, fps: float = 30.0):
+        from ..ears.model import StudentStream
+        self.stream, self.fps = StudentStream(student), fps
+        self.post = torch.zeros(0, student.cfg.n_visemes)     # student frames offset .. offset + len - 1
+        self.offset, self.n = 0, 0                            # the oldest frame kept; samples received
+        self.frames_done, self.recogniser_seconds = 0, 0.0
+
+    @staticmethod
+    def latency_s(lookahead: int, fps: float = 30.0) -> float:
+        """The algorithmic latency: frame f's id needs audio up to f / fps + this (see the class doc)."""
+        return (1 + lookahead) * 0.02 + 0.016
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        """Append samples (float32 (n,), 16 kHz) -> viseme ids (k,) of the mesh frames that became final."""
+        samples = np.asarray(samples, dtype=np.float32).reshape(-1)
+        if samples.size and not np.isfinite(samples).all():
+            raise ValueError("audio samples must be finite")
+        t0 = time.perf_counter()
+        self._keep(self.stream.push_audio(samples))
+        self.n += samples.size
+        out = self._take(min(self._ready(), int(self.n * self.fps / SAMPLE_RATE)))   # never past the offline count
+        self.recogniser_seconds += time.perf_counter() - t0
+        return out
+
+    def flush(self) -> np.ndarray:
+        """End of stream: the last frames (look-ahead padded with silence), up to ``round(n fps / 16000)``."""
+        t0 = time.perf_counter()
+        self._keep(self.stream.finish() if self.n else torch.zeros(0, self.post.shape[1]))
+        if not len(self.post) and not self.offset:            # no audio at all: one silent frame
+            self.post = torch.eye(self.post.shape[1])[:1]
+        out = self._take(max(1, int(round(self.n * self.fps / SAMPLE_RATE))))
+        self.recogniser_seconds += time.perf_counter() - t0
+        return out
+
+    def _keep(self, new: torch.Tensor) -> None:
+        self.post = torch.cat([self.post, new])
+
+    def _ready(self) -> int:
+        """The first mesh frame not final yet: frames f with ``f / fps`` at or before the newest student frame's
+        time (to_mesh_rate's positions, the same float64 arithmetic: what is final never changes)."""
+        newest = self.offset + len(self.post) - 1
+        if newest < 0:
+            return 0
+        f = int(newest * 0.02 * self.fps) + 1
+        while f > 0 and (f - 1) / self.fps / 0.02 > newest:
+            f -= 1
+        while f / self.fps / 0.02 <= newest:
+            f += 1
+        return f
+
+    def _take(self, stop: int) -> np.ndarray:
+        """The ids of mesh frames ``frames_done .. stop - 1``, then forget the student frames no later one reads."""
+        from ..ears.model import to_mesh_rate
+        if stop <= self.frames_done:
+            return np.empty(0, np.int64)
+        p = to_mesh_rate(self.post, stop, self.fps, first=self.frames_done, offset=self.offset)   # (k, 15)
+        self.frames_done = stop
+        drop = max(0, min(int(np.floor(stop / self.fps / 0.02)) - 1 - self.offset, len(self.post) - 1))
+        self.post, self.offset = self.post[drop:], self.offset + drop
+        return p.argmax(-1).numpy().astype(np.int64)
 
 
 class StreamingVisemeWeights:
@@ -323,7 +409,8 @@ class IncrementalDecoder:
 
 
 class LiveSession:
-    """Samples in, vertices out: :class:`StreamingVisemes` -> one-hot -> :class:`IncrementalDecoder`.
+    """Samples in, vertices out: :class:`StreamingVisemes` (or, with ``settings.ears == "student"``,
+    :class:`StreamingStudentVisemes` of ``student``) -> one-hot -> :class:`IncrementalDecoder`.
 
         session = LiveSession(model, front_end, template, speaker=0, settings=LiveSettings())
         first, verts = session.push(samples)    # first: the index of verts[0]; verts (k, V*3) float32
@@ -331,12 +418,19 @@ class LiveSession:
     """
 
     def __init__(self, model, front_end: RecogniserExtractor, template: np.ndarray, speaker: int = 0,
-                 settings: LiveSettings | None = None, visemes: bool = False):
+                 settings: LiveSettings | None = None, visemes: bool = False, student=None):
         if getattr(front_end, "front_end", None) != "visemes":
             raise ValueError(f"live decoding needs a model trained on the recogniser's viseme track (front end "
                              f"'visemes'), this one reads {front_end!r}")
         self.settings = s = settings or LiveSettings()
-        self.visemes = StreamingVisemes(front_end, s.lookahead_s, s.past_s, s.hop_s)
+        if s.ears == "student":   # student: an ears.model.Student (load_student), the track's ears instead of hama
+            if student is None:
+                raise ValueError("live with ears 'student' needs the student (ears.model.load_student)")
+            self.visemes = StreamingStudentVisemes(student, front_end.fps)
+        elif s.ears == "hama":
+            self.visemes = StreamingVisemes(front_end, s.lookahead_s, s.past_s, s.hop_s)
+        else:
+            raise ValueError(f"unknown ears {s.ears!r}: 'hama' or 'student'")
         self.decoder = IncrementalDecoder(model, template, speaker, s.past_frames, s.ahead_frames)
         # visemes=True: also the standard viseme curves of the same frames (pop_weights)
         self.curves = StreamingVisemeWeights(front_end.fps, s.past_frames) if visemes else None

@@ -229,7 +229,7 @@ try {
     const source = await makeSource(ctx);      // may throw (no microphone permission)
     enter('connecting');
     ws = await connect();
-    const node = new AudioWorkletNode(ctx, 'pcm-sender');
+    const node = new AudioWorkletNode(ctx, 'pcm-sender', { processorOptions: { pieceMs: info.piece_ms || 100 } });
     const mute = ctx.createGain(); mute.gain.value = 0;
     node.connect(mute).connect(ctx.destination);   // pulled by the graph, silent
     node.port.onmessage = (e) => {

@@ -1,13 +1,16 @@
-// AudioWorklet: the context's input (microphone or a file) -> 16 kHz mono int16, posted to the page every 100 ms
-// with the block's RMS level. The page asks for a 16 kHz AudioContext; where the browser runs it at another rate,
+// AudioWorklet: the context's input (microphone or a file) -> 16 kHz mono int16, posted to the page in pieces of
+// processorOptions.pieceMs (the server's /mesh "piece_ms": 100 ms for hama, 40 ms for the student, whose latency
+// the piece's wait is a large part of) with the block's RMS level. The page asks for a 16 kHz AudioContext; where the browser runs it at another rate,
 // the samples are resampled here by averaging each output sample's span of input samples (a box low-pass: crude,
 // but the recogniser hears telephone-band speech well).
 class PcmSender extends AudioWorkletProcessor {
-  constructor() {
+  constructor(options) {
     super();
     this.ratio = sampleRate / 16000;     // input samples per output sample
     this.acc = 0; this.accN = 0; this.pos = 0;
-    this.out = new Int16Array(1600); this.n = 0; this.sq = 0;
+    const ms = (options && options.processorOptions && options.processorOptions.pieceMs) || 100;
+    this.size = Math.max(160, Math.min(16000, Math.round(16 * ms)));     // samples per message (10 ms .. 1 s)
+    this.out = new Int16Array(this.size); this.n = 0; this.sq = 0;
   }
   push(x) {
     const v = Math.max(-1, Math.min(1, x));
@@ -15,7 +18,7 @@ class PcmSender extends AudioWorkletProcessor {
     if (this.n === this.out.length) {
       const rms = Math.sqrt(this.sq / this.n);
       this.port.postMessage({ pcm: this.out.buffer, rms }, [this.out.buffer]);
-      this.out = new Int16Array(1600); this.n = 0; this.sq = 0;
+      this.out = new Int16Array(this.size); this.n = 0; this.sq = 0;
     }
   }
   process(inputs) {
