@@ -55,6 +55,9 @@ EVAL_EXAMPLE = """example:
 
 
 # ------------------------------------------------------------------------------------------------ parsers
+EARS_HELP = ("the ears of a model trained on viseme labels: visemes (hama) or student (the project's causal "
+             "recogniser, faster); default: the one the checkpoint recorded")
+
 def _new_parser(command: str, description: str, epilog: str) -> argparse.ArgumentParser:
     """The parser of ``dualtalker-lite COMMAND``: its usage line, description, examples, and every default shown."""
     return argparse.ArgumentParser(prog=f"dualtalker-lite {command}", description=description, epilog=epilog,
@@ -139,9 +142,7 @@ def evaluate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--split", default="test_a", help="the corpus split to predict and score")
-    ap.add_argument("--front-end", choices=front_ends.EARS, default=None,
-                    help="the ears of a model trained on viseme labels: visemes (hama) or student (the project's "
-                         "causal recogniser); default: the one the checkpoint recorded")
+    ap.add_argument("--front-end", choices=front_ends.EARS, default=None, help=EARS_HELP)
     ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing --json file (only an earlier metrics file of evaluate)")
@@ -168,9 +169,7 @@ def animate_parser() -> argparse.ArgumentParser:
                     "default: recognised from the speech")
     ap.add_argument("--level", type=int, choices=(1, 2), help="emotion-aware models: intensity 1 (normal, default) "
                     "or 2 (strong)")
-    ap.add_argument("--front-end", choices=front_ends.EARS, default=None,
-                    help="the ears of a model trained on viseme labels: visemes (hama) or student (the project's "
-                         "causal recogniser, faster); default: the one the checkpoint recorded")
+    ap.add_argument("--front-end", choices=front_ends.EARS, default=None, help=EARS_HELP)
     ap.add_argument("--template", help="neutral mesh (OBJ/PLY) with the model's topology; default: the speaker's")
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
     ap.add_argument("--out", default="runs/animation", help="output folder (created; see --overwrite)")
@@ -206,9 +205,8 @@ def live_parser() -> argparse.ArgumentParser:
                     help="audio-encoder look-ahead in mesh frames (33 ms each) of the latency's fixed part: 0 "
                          "closed the lips more often than 1 or 3 on the real-voice prompts, sooner, with a little "
                          "less agreement with the offline animation (results/live.md)")
-    ap.add_argument("--ears", choices=("hama", "student"), default=LiveSettings.ears,
-                    help="who hears the visemes: the student (the project's causal recogniser: ~100 ms, a few "
-                         "ms of CPU per second; --lookahead-ms and --context-ms are hama's) or hama")
+    ap.add_argument("--ears", choices=("hama", "student"), default=LiveSettings.ears, help="who hears the "
+                    "visemes: hama or the student (~100 ms; --lookahead-ms and --context-ms are hama's)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
     ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")
