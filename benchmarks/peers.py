@@ -42,8 +42,10 @@ with the reference (vowel 1, /p b m/ 0, silence 0, other consonants 0.5) per cli
 shift (ms, -100..300 in 10 ms steps) of the path's curve that maximises that mean (positive: the path is late).
 CPU s per s of audio: ``time.process_time`` of the path's own computation in its process (one torch thread; the
 features included, loading excluded). HeadAudio: the CPU time (utime + stime, /proc) of every Chromium process
-while rendering all recordings with its node, minus the same with a plain OfflineAudioContext (source to
-destination) over the same recordings: the worklet's cost with its message passing, not the browser's.
+while rendering all recordings, joined by 0.5 s gaps, in one OfflineAudioContext with its node, minus the same
+without it (source to destination): the worklet's cost (a JS call per 128-sample quantum, MFCC, classifier, its
+messages), not the browser's; the per-recording renders, each also setting up a context, the worklet module and
+the model, are reported beside it.
 """
 from __future__ import annotations
 
@@ -331,29 +333,39 @@ def headaudio_classes(messages, n: int) -> np.ndarray:
     return one_hot(ids)
 
 
+def _render_cpu(page, urls: list[str], with_node: bool) -> tuple[list, float]:
+    """Render each url (float32 16 kHz samples) in the page -> (its results, CPU seconds of the browser)."""
+    c0 = _tree_cpu()
+    runs = [page.evaluate("([u, w]) => render(u, w)", [u, with_node]) for u in urls]
+    return runs, _tree_cpu() - c0
+
+
 def run_headaudio(waves, chromium: str) -> tuple[dict, float, dict]:
-    """Each wave through HeadAudio in headless Chromium -> ({"values": tracks, "classes": tracks}, CPU s, info)."""
+    """Each wave through HeadAudio in headless Chromium, an OfflineAudioContext per recording -> ({"values":
+    tracks, "classes": tracks}, CPU s, facts). CPU: every recording in one render (0.5 s of silence between
+    them), with the node minus without, the second of two such pairs (so one set-up, not one per recording); the
+    per-recording renders' CPU (set-up of a context, its worklet module and its model each time) is in the facts."""
     from playwright.sync_api import sync_playwright
 
     out = {"values": [], "classes": []}
+    gap = np.zeros(8000, np.float32)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "node_modules").symlink_to(PEERS / "node_modules")
         (folder / "index.html").write_text((PEERS / "headaudio.html").read_text())
         for i, w in enumerate(waves):
             np.asarray(w, dtype="<f4").tofile(folder / f"{i}.f32")
+        np.concatenate([x for w in waves for x in (np.asarray(w, np.float32), gap)]).astype("<f4").tofile(
+            folder / "all.f32")
         server, url = _serve(folder)
-        cpu = {}
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--disable-gpu"])
             page = browser.new_page()
             page.goto(url + "index.html")
             page.wait_for_function("window.ready === true")
-            for with_node in (False, True, False, True):   # each twice: the second pass is measured (warm)
-                c0 = _tree_cpu()
-                runs = [page.evaluate("([u, w]) => render(u, w)", [f"{url}{i}.f32", with_node])
-                        for i in range(len(waves))]
-                cpu[with_node] = _tree_cpu() - c0
+            urls = [f"{url}{i}.f32" for i in range(len(waves))]
+            _, plain_each = _render_cpu(page, urls, False)
+            runs, node_each = _render_cpu(page, urls, True)
             for i, (w, run) in enumerate(zip(waves, runs)):
                 msgs = [{**m, "t": m["t"] - (0.016 if m["event"] == "ended" else 0.0)} for m in run["messages"]]
                 n = int(np.ceil(len(w) / 16000 / GRID_S - 1e-9))
@@ -363,17 +375,22 @@ def run_headaudio(waves, chromium: str) -> tuple[dict, float, dict]:
                     values[:, VISEMES.index(OCULUS_TO_VISEME[name])] += np.array(rep["values"])[:, j]
                 out["values"].append((np.arange(n) * GRID_S, values))
                 out["classes"].append((np.arange(n) * GRID_S, headaudio_classes(msgs, n)))
+            whole = {}
+            for with_node in (False, True, False, True):
+                whole[with_node] = _render_cpu(page, [f"{url}all.f32"], with_node)[1]
             version = page.evaluate("navigator.userAgent")
             browser.close()
         server.shutdown()
-    return out, cpu[True] - cpu[False], {"user_agent": version, "cpu_with_node_s": cpu[True],
-                                         "cpu_plain_s": cpu[False]}
+    return out, whole[True] - whole[False], {
+        "user_agent": version, "cpu_whole_with_node_s": whole[True], "cpu_whole_plain_s": whole[False],
+        "cpu_each_with_node_s": node_each, "cpu_each_plain_s": plain_each,
+        "whole_s": sum(len(w) + len(gap) for w in waves) / 16000}
 
 
 # ------------------------------------------------------------------------------------------- the run
 ROWS = {  # row key -> (label, algorithmic wait for future audio)
     "offline": ("this project, offline (hama over the whole recording, `visemes` front end)", "whole recording"),
-    "live": ("this project, live (hama windowed as the live server, 0.25 s look-ahead)", "370 ms"),
+    "live": ("this project, live (hama windowed as the live server, 0.25 s look-ahead)", None),
     "student": ("this project, student (causal net, `ears`)", None),
     "pylipsync": ("pylipsync (uLipSync port, vowels only)", "32 ms"),
     "headaudio_values": ("HeadAudio, blend-shape values (its update loop)", "24 ms + easing"),
@@ -381,20 +398,20 @@ ROWS = {  # row key -> (label, algorithmic wait for future audio)
 }
 
 
-def load_clips(every: int, limit: int | None) -> tuple[list[dict], set, list[str]]:
+def load_clips(every: int, limit: int | None) -> tuple[list[dict], set, list[str], int]:
     """Every ``every``-th usable prompt of ``benchmarks/real_voices.py`` (name order) with its aligned phones ->
-    (clips, the vowel phones, prompts whose alignment failed)."""
+    (clips, the vowel phones, prompts whose alignment failed, usable prompts in all)."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import real_voices as rv
 
-    clips, failed = [], []
-    for p in rv.read_prompts()[::every][:limit]:
+    clips, failed, prompts = [], [], rv.read_prompts()
+    for p in prompts[::every][:limit]:
         segs = rv.align(p["wave"], p["words"])
         if segs is None:
             failed.append(p["name"])
         else:
             clips.append({"name": p["name"], "wave": p["wave"], "segments": segs})
-    return clips, set(rv.VOWELS), failed
+    return clips, set(rv.VOWELS), failed, len(prompts)
 
 
 def default_student() -> Path:
@@ -449,7 +466,7 @@ def main(argv=None) -> None:
     if "student" in args.paths and not args.student_weights.is_file():
         raise SystemExit(f"student weights not found at {args.student_weights}: give --student-weights")
     sys.path.insert(0, str(ROOT))
-    clips, vowels, failed = load_clips(args.every, args.limit)
+    clips, vowels, failed, usable = load_clips(args.every, args.limit)
     waves = [c["wave"] for c in clips]
     seconds = sum(len(w) for w in waves) / 16000
     print(f"{len(clips)} prompts ({len(failed)} alignments failed), {seconds / 60:.1f} min", flush=True)
@@ -462,7 +479,7 @@ def main(argv=None) -> None:
         print(row, json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in results[row].items()}),
               flush=True)
     meta = {"clips": [c["name"] for c in clips], "failed_alignments": failed, "minutes": seconds / 60,
-            "every": args.every, "info": info}
+            "every": args.every, "usable_prompts": usable, "info": info}
     if args.no_report:
         return
     write_report(results, meta, argv if argv is not None else sys.argv[1:])
@@ -484,14 +501,19 @@ def write_report(results: dict, meta: dict, argv: list[str]) -> None:
     atomic_write_text(ROOT / "results" / "peers.json", json.dumps({"meta": meta, "rows": results}, indent=1))
     student = meta["info"].get("student", {})
     waits = {k: w for k, (_, w) in ROWS.items()}
+    from dualtalker_lite.live.stream import LiveSettings
+
+    waits["live"] = f"{LiveSettings().latency_s() * 1000:.0f} ms"
     if student:
         waits["student"] = f"{student['lookahead_frames'] * 20 + 16} ms"
     any_row = next(iter(results.values()))
     lines = ["# Peers, measured (issue 47, item 5)", "",
              f"Made by `{meta['command']}` ({meta['date']}, commit {meta['commit']}; {machine_line(meta['machine'])})"
              "; `benchmarks/peers.py` says how each path runs and how each figure is computed. Recordings: "
-             f"{len(meta['clips'])} Allison prompts (every {meta['every']}{'st' if meta['every'] == 1 else 'th'} "
-             "usable prompt of `benchmarks/real_voices.py`, in name order; one professional US voice, 8 kHz "
+             f"{len(meta['clips'])} Allison prompts (" + ("all the usable prompts" if meta["every"] == 1 else
+                                                   f"every k-th, k = {meta['every']}, of the "
+                                                   f"{meta['usable_prompts']} usable prompts") +
+             " of `benchmarks/real_voices.py`, in name order; one professional US voice, 8 kHz "
              f"telephone band), {meta['minutes']:.1f} min, {any_row['n_bilabials']} /p b m/, "
              f"{any_row['n_vowel_frames']} vowel frames of 10 ms ({any_row['n_vowel_frames_far']} of them > 50 ms "
              "from any /p b m/), phones force-aligned by pocketsphinx 5.1.1.", "",
@@ -515,10 +537,15 @@ def write_report(results: dict, meta: dict, argv: list[str]) -> None:
                   f"{student['trained_at_commit']})."]
     info = meta["info"]
     if "headaudio" in info:
+        h = info["headaudio"]
         lines += ["", f"HeadAudio 0.1.0 (npm, shipped model `model-en-mixed.bin`, default parameters) in "
-                  f"{info['headaudio']['user_agent'].split(') ')[-1]}; its CPU: "
-                  f"{info['headaudio']['cpu_with_node_s']:.2f} s rendering every recording with the node, "
-                  f"{info['headaudio']['cpu_plain_s']:.2f} s without."]
+                  f"{h['user_agent'].split(') ')[-1]}. Its CPU (Chromium's processes): every recording in one "
+                  f"OfflineAudioContext ({h['whole_s']:.0f} s with 0.5 s gaps) {h['cpu_whole_with_node_s']:.2f} s "
+                  f"with the node, {h['cpu_whole_plain_s']:.2f} s without (the table's figure: the difference per "
+                  f"second of speech); one context per recording, as scored, {h['cpu_each_with_node_s']:.2f} s "
+                  f"with, {h['cpu_each_plain_s']:.2f} s without (a new context, worklet module and model each "
+                  f"time: {(h['cpu_each_with_node_s'] - h['cpu_each_plain_s']) / meta['minutes'] / 60:.3f} s per "
+                  "s with that set-up)."]
     if "pylipsync_version" in info:
         lines += ["", f"pylipsync {info['pylipsync_version']} (PyPI), its defaults."]
     lines += ["", "Not measured here: the issue's two telephone-band points (other voices; every recording here is "
