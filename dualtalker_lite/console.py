@@ -11,7 +11,9 @@ user error (``USER_ERRORS``) 2            ``error: <file>: <problem>`` (one line
 out of a resource            2            the same: the file, the cause (disk full, quota, file-size
                                           limit, memory) and what to do
 wrong arguments (argparse)   2            argparse's usage line and ``error: ...``
-Ctrl-C or SIGTERM            130          ``interrupted; temporary files removed``
+Ctrl-C, SIGTERM or SIGHUP    130          ``interrupted; temporary files removed`` (SIGHUP: ``hung up
+                                          (SIGHUP: its terminal was closed); ...``); an ignored
+                                          SIGHUP (``nohup``) stays ignored
 anything else (a bug)        1            Python's traceback
 ===========================  ===========  ==========================================================
 
@@ -74,23 +76,34 @@ def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def _interrupted_line(e: KeyboardInterrupt) -> str:
+    """The one line of a stopped command: which signal, when it was not Ctrl-C or SIGTERM (the handlers here and
+    in ``files`` raise ``KeyboardInterrupt('... signal N')``)."""
+    if str(e).endswith(f"signal {int(signal.SIGHUP)}"):
+        return "hung up (SIGHUP: its terminal was closed); temporary files removed"
+    return "interrupted; temporary files removed"
+
+
 def run_main(func: Callable, argv: Sequence[str] | None = None):
-    """Call ``func(argv)`` as a command -> its value. User errors: ``error: ...`` on stderr and exit 2; Ctrl-C or
-    SIGTERM: exit 130 (``finally`` blocks and context managers run first, so temporary files are removed)."""
+    """Call ``func(argv)`` as a command -> its value. User errors: ``error: ...`` on stderr and exit 2; Ctrl-C,
+    SIGTERM or SIGHUP: exit 130 (``finally`` blocks and context managers run first, so temporary files are removed
+    and claims released; an ignored SIGHUP, as under ``nohup``, stays ignored)."""
     argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]  # Path objects welcome
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
-    old_term = None
-    try:
-        old_term = signal.signal(signal.SIGTERM, _raise_interrupt)  # SIGTERM unwinds like Ctrl-C (cleanup runs)
-    except ValueError:  # not in the main thread
-        pass
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):  # unwind like Ctrl-C (cleanup runs)
+        try:
+            if sig == signal.SIGTERM or signal.getsignal(sig) is signal.SIG_DFL:
+                old[sig] = signal.signal(sig, _raise_interrupt)
+        except ValueError:  # not in the main thread
+            pass
     try:
         return func(argv)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
         if debug:
             raise
-        print("interrupted; temporary files removed", file=sys.stderr)
+        print(_interrupted_line(e), file=sys.stderr)
         sys.exit(130)
     except (*USER_ERRORS, MemoryError) as e:
         if debug:
@@ -99,8 +112,8 @@ def run_main(func: Callable, argv: Sequence[str] | None = None):
         print("(run with --debug for the full traceback)", file=sys.stderr)
         sys.exit(2)
     finally:
-        if old_term is not None:
-            signal.signal(signal.SIGTERM, old_term)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def exit_status(func: Callable, argv: Sequence[str] | None = None) -> int:

@@ -1,11 +1,12 @@
 """Files on the way out: the run folder, and writes that are atomic (a temporary sibling, then a rename).
 
-A crash, Ctrl-C or SIGTERM never leaves half a file or a mixed folder behind: :func:`atomic_torch_save`,
+A crash, Ctrl-C, SIGTERM or SIGHUP never leaves half a file or a mixed folder behind: :func:`atomic_torch_save`,
 :func:`atomic_write_text` and :class:`AtomicOutputDir` build the result aside and move it into place only when it
 is complete, and remove their temporaries otherwise.
 
 What may be replaced (issue 32): an output folder carries a manifest, :data:`MANIFEST`, naming the command that
-wrote it and its files, and ``overwrite`` replaces only such a folder of the same command that holds nothing else;
+wrote it and its files, and ``overwrite`` replaces only such a folder of the same command that holds nothing else
+(checked again at the instant of replacing it: files saved into it meanwhile are kept, issue 48);
 a target that is or holds one of the command's inputs is never replaced (:func:`refuse_inputs`). When the machine
 runs out of something while writing (a full disk, a quota, the file-size limit of ``ulimit -f``, memory), the error
 is one :class:`ResourceError` line naming the file and what to do (:func:`resource_error`), and a checkpoint that
@@ -23,6 +24,7 @@ import glob
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import sys
@@ -39,7 +41,7 @@ from .console import MEMORY_ADVICE, RESOURCE_ADVICE
 __all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir",
            "temporary_prefix", "sweep_stale", "claim", "Claim", "claims_released",
            "check_free_space", "fallback_dir", "tensor_bytes", "MANIFEST", "output_path", "helper_stem",
-           "resource_error", "ResourceError", "refuse_inputs", "rescue_name", "sigterm_as_exit"]
+           "resource_error", "ResourceError", "refuse_inputs", "rescue_name", "sigterm_as_exit", "out_of_memory"]
 
 MANIFEST = ".dualtalker-output.json"  # inside every output folder: which command wrote it, and which files
 
@@ -107,23 +109,40 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _leftover_pid(name: str, stem: str) -> int | None:
+    """The process id in ``name`` if it is a temporary this package makes beside the output whose helper stem is
+    ``stem``: ``.<stem>.<pid>.<random>.tmp``, ``<random>`` of ``tempfile``'s letters (lower case, digits, ``_``),
+    nothing else; None for any other name (a user's file that merely looks alike is never touched)."""
+    match = re.fullmatch(rf"\.{re.escape(stem)}\.(\d+)\.[a-z0-9_]+\.tmp", name)
+    return int(match.group(1)) if match else None
+
+
+def _tree_size(path: Path) -> int:
+    """Bytes of the regular files in ``path`` (a file, or a folder walked without following symbolic links)."""
+    if not path.is_dir() or path.is_symlink():
+        return path.lstat().st_size
+    return sum(os.lstat(os.path.join(top, f)).st_size for top, _, files in os.walk(path) for f in files)
+
+
 def sweep_stale(path: str | os.PathLike) -> list[Path]:
-    """Remove the temporaries a killed run left beside ``path`` (``.name.<pid>.*.tmp`` whose process is gone; a
-    live concurrent run's are kept) and name each on stderr in one ``note:`` line -> the removed paths.
+    """Remove the temporaries a killed run left beside ``path`` (``.name.<pid>.<random>.tmp`` whose process is
+    gone, :func:`_leftover_pid`; a live concurrent run's are kept) and name each on stderr in one ``note:`` line
+    -> the removed paths.
 
     SIGKILL cannot be caught, so the run it stops leaves its temporary file or folder behind (gigabytes for an hour
-    of audio); every atomic write calls this before it starts, so the next run into the same place cleans up."""
+    of audio); every atomic write calls this before it starts, so the next run into the same place cleans up. Only
+    what this package names so is removed, and a symbolic link is never followed (issue 48): a link of that name
+    is left alone, and a folder is removed without entering the links inside it (``shutil.rmtree`` does not)."""
     path = Path(path)
     removed = []
     if not path.parent.is_dir():
         return removed
     stem = helper_stem(path)
     for leftover in path.parent.glob(f".{glob.escape(stem)}.*.tmp"):
-        pid = leftover.name[len(stem) + 2:].split(".", 1)[0]
-        if not pid.isdigit() or _alive(int(pid)):
+        pid = _leftover_pid(leftover.name, stem)
+        if pid is None or leftover.is_symlink() or _alive(pid):
             continue
-        size = sum(f.stat().st_size for f in leftover.rglob("*") if f.is_file()) if leftover.is_dir() else \
-            leftover.stat().st_size
+        size = _tree_size(leftover)
         if leftover.is_dir():
             shutil.rmtree(leftover, ignore_errors=True)
         else:
@@ -264,6 +283,32 @@ class ResourceError(OSError):
     def __init__(self, code: int, message: str):
         super().__init__(message)
         self.errno = code
+
+
+def _allocation_failed(e: BaseException) -> bool:
+    """Memory ran out: a ``MemoryError``, or torch's ``RuntimeError`` for it (``DefaultCPUAllocator: can't
+    allocate memory``, ``CUDA out of memory``, ``torch.OutOfMemoryError``)."""
+    text = str(e).lower()
+    return isinstance(e, MemoryError) or isinstance(e, RuntimeError) and (
+        "out of memory" in text or "can't allocate memory" in text or "outofmemory" in type(e).__name__.lower())
+
+
+@contextlib.contextmanager
+def out_of_memory(source: str | os.PathLike, doing: str):
+    """Inside the block, memory running out (:func:`_allocation_failed`) becomes one :class:`ResourceError` line
+    (``ENOMEM``, exit 2) naming the input ``source`` and what was being ``doing`` (issue 48): ``me.wav: out of
+    memory while computing its features (MemoryError); close other programs, or run on a machine with more
+    memory``. Without it the line could only say "out of memory", not where."""
+    try:
+        yield
+    except ResourceError:
+        raise
+    except (MemoryError, RuntimeError) as e:
+        if not _allocation_failed(e):
+            raise
+        cause = (str(e).strip().splitlines() or [""])[0][:200] or type(e).__name__
+        raise ResourceError(errno.ENOMEM, f"{source}: out of memory while {doing} ({cause}); "
+                                          f"{MEMORY_ADVICE}") from e
 
 
 def _file_size_limit() -> int | None:
@@ -466,21 +511,24 @@ def _rescue(obj: Any, path: Path, cause: int, why: str, error: BaseException) ->
 
 @contextlib.contextmanager
 def sigterm_as_exit():
-    """Inside the block, SIGTERM raises ``SystemExit(143)`` so ``finally``/``with`` clean-ups run (temporary files
-    and folders). Only in the main thread, and only when nobody else installed a SIGTERM handler."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+    """Inside the block, SIGTERM and SIGHUP (its terminal closed) raise ``SystemExit(128 + signal)`` so
+    ``finally``/``with`` clean-ups run (temporary files and folders). Only in the main thread, and for each signal
+    only when nobody else installed a handler (an ignored SIGHUP, as under ``nohup``, stays ignored)."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
         raise SystemExit(128 + signum)
 
-    signal.signal(signal.SIGTERM, handler)
+    ours = [sig for sig in (signal.SIGTERM, signal.SIGHUP) if signal.getsignal(sig) is signal.SIG_DFL]
+    for sig in ours:
+        signal.signal(sig, handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        for sig in ours:
+            signal.signal(sig, signal.SIG_DFL)
 
 
 def default_file_mode(executable: bool = False) -> int:
@@ -491,9 +539,10 @@ def default_file_mode(executable: bool = False) -> int:
 
 
 class _remove_on_signal:
-    """While active (main thread only), SIGINT and SIGTERM raise KeyboardInterrupt, so ``finally`` blocks clean
-    up, and are remembered in ``interrupted``: an exception raised where Python swallows it (e.g. in the at-fork
-    hooks run while a subprocess starts) must still stop the result from being moved into place."""
+    """While active (main thread only), SIGINT, SIGTERM and SIGHUP (unless ignored, as under ``nohup``) raise
+    KeyboardInterrupt, so ``finally`` blocks clean up, and are remembered in ``interrupted``: an exception raised
+    where Python swallows it (e.g. in the at-fork hooks run while a subprocess starts) must still stop the result
+    from being moved into place."""
 
     def __init__(self, *paths):
         self.paths = paths
@@ -506,7 +555,9 @@ class _remove_on_signal:
                 self.interrupted = signum
                 raise KeyboardInterrupt(f"terminated by signal {signum}")
 
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                if sig == signal.SIGHUP and signal.getsignal(sig) is signal.SIG_IGN:
+                    continue
                 self.old[sig] = signal.getsignal(sig)
                 signal.signal(sig, handler)
         return self
@@ -597,10 +648,13 @@ class AtomicOutputDir:
     - ``target`` ``.`` (or ``..``) means that folder by its absolute name; the current folder, or one holding it, is
       refused (replacing it would pull the folder from under the shell);
     - the parent folder's writability is checked on construction (call it before any long work);
-    - on an exception, Ctrl-C or SIGTERM the temporary folder is removed and ``target`` is left as it was; a full
-      disk, a quota, a file-size limit or memory running out becomes one :class:`ResourceError` line naming
-      ``target`` and what to do;
-    - on success the old ``target`` (if any) is replaced as a whole: never a mix of old and new files;
+    - on an exception, Ctrl-C, SIGTERM or SIGHUP the temporary folder is removed and ``target`` is left as it
+      was; a full disk, a quota, a file-size limit or memory running out becomes one :class:`ResourceError` line
+      naming ``target`` and what to do;
+    - on success the old ``target`` (if any) is replaced as a whole: never a mix of old and new files; it is
+      checked again at that instant (:meth:`_move_aside`), so a file saved into it meanwhile is kept (the new
+      output then goes to ``<target>-2``, one line), and only the files its manifest lists are deleted;
+    - a ``target`` that is a symbolic link names its folder: that folder is the output, the link stays;
     - ``target`` is claimed (:func:`claim`) from construction to the end of the ``with`` block: a concurrent run
       into the same target fails at construction with one line.
     """
@@ -609,6 +663,8 @@ class AtomicOutputDir:
                  inputs=()):
         self.given = Path(target)
         self.target = output_path(target) if self.given.name in ("", ".", "..") else self.given
+        if self.target.is_symlink():  # the folder the link names is the output; the link itself stays (issue 48)
+            self.target = Path(os.path.realpath(self.target))
         self.overwrite = overwrite
         self.command = command
         self.inputs = list(inputs)
@@ -644,26 +700,29 @@ class AtomicOutputDir:
 
     def _check_owned(self) -> None:
         """``overwrite``: the folder must be an earlier output of this command and hold nothing else."""
-        remedy = f"--overwrite replaces only an earlier output of {self.command}; remove it yourself or choose " \
-                 f"another --out"
-        manifest = self.target / MANIFEST
+        reason, _ = self._foreign(self.target)
+        if reason:
+            raise FileExistsError(f"--out {self.given}: {reason}; --overwrite replaces only an earlier output of "
+                                  f"{self.command}; remove it yourself or choose another --out")
+
+    def _foreign(self, folder: Path) -> tuple[str | None, set]:
+        """-> (why ``folder`` is not an earlier output of this command holding nothing else, or None; the files
+        its manifest lists)."""
+        manifest = folder / MANIFEST
         if not manifest.is_file():
-            raise FileExistsError(f"--out {self.given}: was not written by dualtalker-lite {self.command} (no "
-                                  f"{MANIFEST} in it); {remedy}")
+            return f"was not written by dualtalker-lite {self.command} (no {MANIFEST} in it)", set()
         try:
             record = json.loads(manifest.read_text())
             command, listed = record["command"], set(record["files"])
         except (OSError, ValueError, KeyError, TypeError) as e:
-            raise FileExistsError(f"--out {self.given}: its {MANIFEST} is unreadable ({type(e).__name__}); "
-                                  f"{remedy}") from e
+            return f"its {MANIFEST} is unreadable ({type(e).__name__})", set()
         if command != self.command:
-            raise FileExistsError(f"--out {self.given}: is the output of dualtalker-lite {command}, not of "
-                                  f"{self.command}; {remedy}")
-        extra = [f for f in _owned_files(self.target) if f != MANIFEST and f not in listed]
+            return f"is the output of dualtalker-lite {command}, not of {self.command}", listed
+        extra = [f for f in _owned_files(folder) if f != MANIFEST and f not in listed]
         if extra:
             more = f" (and {len(extra) - 1} more)" if len(extra) > 1 else ""
-            raise FileExistsError(f"--out {self.given}: holds {extra[0]}{more}, which {self.command} did not write; "
-                                  f"{remedy}")
+            return f"holds {extra[0]}{more}, which {self.command} did not write", listed
+        return None, listed
 
     def __enter__(self) -> Path:
         sweep_stale(self.target)
@@ -701,10 +760,70 @@ class AtomicOutputDir:
         (self.tmp / MANIFEST).write_text(json.dumps(record, indent=1) + "\n")
         os.chmod(self.tmp / MANIFEST, default_file_mode())
         os.chmod(self.tmp, default_file_mode(executable=True))
-        old = None
-        if self.target.exists():
-            old = self.target.with_name(f".{helper_stem(self.target)}.old-{os.getpid()}-{time.time_ns()}")
-            os.replace(self.target, old)
+        old, listed = self._move_aside()
         os.replace(self.tmp, self.target)
         if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+            self._remove_own(old, listed)
+
+    def _move_aside(self) -> tuple[Path | None, set]:
+        """Just before the new output moves in: rename what is at the target aside (one rename: nothing can be
+        added to it under the target's name after that) and check it again, as it is *now* (issue 48): files saved
+        into it while this run worked are not this run's to delete. -> (the old folder, the files its manifest
+        lists), or (None, set()) when there was none. A folder that no longer passes (``overwrite``: an earlier
+        output of this command holding nothing else; without it: empty) is put back as it was, this run's output
+        goes to a new folder beside it (``<out>-2``, ``<out>-3``, ...) and one line says so (exit 2)."""
+        if not os.path.lexists(self.target):
+            return None, set()
+        old = self.target.with_name(f".{helper_stem(self.target)}.old-{os.getpid()}-{time.time_ns()}")
+        os.replace(self.target, old)
+        if not old.is_dir() or old.is_symlink():
+            reason, listed = "is no longer a folder", set()
+        elif not any(old.iterdir()):
+            return old, set()
+        else:
+            reason, listed = self._foreign(old)
+            reason = reason or (None if self.overwrite else "holds an earlier output, which only --overwrite "
+                                                             "replaces")
+        if reason is None:
+            return old, listed
+        try:
+            os.replace(old, self.target)
+        except OSError:  # something new took the target's name meanwhile: keep the old one where it is
+            reason += f" (now kept as {old})"
+        alt = _free_sibling(self.target)
+        os.replace(self.tmp, alt)
+        raise FileExistsError(f"--out {self.given}: {reason}, found when this run came to replace it (saved there "
+                              f"while it worked?); it is kept as it is, and this run's output was written to {alt} "
+                              f"instead")
+
+    def _remove_own(self, old: Path, listed: set) -> None:
+        """Delete, of the replaced folder, only the files its manifest lists (and the manifest), then the folders
+        left empty, following no symbolic link; a file that arrived in the instant since :meth:`_move_aside`
+        checked it is kept, with the folder, and named in one ``note:`` line."""
+        listed = listed | {MANIFEST}
+        for top, dirs, files in os.walk(old, topdown=False):
+            rel = Path(top).relative_to(old)
+            for name in files + [d for d in dirs if os.path.islink(os.path.join(top, d))]:
+                if (rel / name).as_posix() in listed:
+                    with contextlib.suppress(OSError):
+                        os.unlink(os.path.join(top, name))
+            with contextlib.suppress(OSError):
+                os.rmdir(top)
+        if os.path.lexists(old):
+            left = _owned_files(old)
+            print(f"note: {old}: kept, it holds {left[0] if left else 'files'} that {self.command} did not write "
+                  f"(saved while {self.given} was being replaced); move what you need out of it and remove it",
+                  file=sys.stderr)
+
+
+def _free_sibling(target: Path) -> Path:
+    """A new, empty folder beside ``target``: ``<name>-2``, ``<name>-3``, ... (``mkdir`` is exclusive, so two
+    runs never get the same one); a folder renamed onto it replaces it."""
+    for n in range(2, 10_000):
+        candidate = target.with_name(f"{target.name}-{n}")
+        try:
+            candidate.mkdir()
+            return candidate
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{target}: 10,000 folders named like it; move some of them away")

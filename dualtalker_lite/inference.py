@@ -58,7 +58,7 @@ from .streaming import fixed_mmap_threshold, predict_chunks, write_npy_stream
 from .checks import check_finite, resolve_device
 from .console import ProgressLines, progress_mode
 from .export.gltf import write_gltf
-from .files import AtomicOutputDir
+from .files import AtomicOutputDir, out_of_memory
 
 __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_template", "resolve_speaker",
            "resolve_face", "SpeakerFace", "resolve_emotion", "check_corpus", "write_obj", "write_glb",
@@ -309,7 +309,8 @@ def run(args: argparse.Namespace) -> list[Path]:
         from .export.visemes import check_available
 
         check_available()  # the phoneme recogniser times the visemes: refuse now, not after the prediction
-    model, ckpt = load_checkpoint(args.checkpoint)
+    with out_of_memory(args.checkpoint, "loading this checkpoint"):
+        model, ckpt = load_checkpoint(args.checkpoint)
     if args.list_speakers:
         print(describe(ckpt))
         return []
@@ -329,11 +330,13 @@ def run(args: argparse.Namespace) -> list[Path]:
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
     # memory-mapped file; all inside the temporary folder, moved to --out only when complete.
     conditions = {"emotion": resolve_emotion(args.emotion, corpus), "level": args.level}
-    n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=front_end.sample_rate,
-                                      front_end=front_end, device=device, amp=args.amp, chunk=args.chunk, fps=FPS,
-                                      conditions=conditions)
+    with out_of_memory(args.wav, f"computing its features ({len(wave) / wave.sample_rate:.1f} s of audio)"):
+        n_frames, blocks = predict_chunks(model, wave, template, speaker, sample_rate=front_end.sample_rate,
+                                          front_end=front_end, device=device, amp=args.amp, chunk=args.chunk,
+                                          fps=FPS, conditions=conditions)
     mode = progress_mode(args.quiet)
     with target as tmp:
+        blocks = _memory_named(blocks, args.wav, n_frames, args.chunk)
         npy = write_npy_stream(tmp / "vertices.npy", _frame_progress(blocks, n_frames, args.chunk, mode), n_frames,
                                template.size)
         written = write_outputs(tmp, npy, faces, wave, formats, front_end.sample_rate, template=template,
@@ -343,6 +346,20 @@ def run(args: argparse.Namespace) -> list[Path]:
     print(f"{n_frames} frames ({n_frames / FPS:.1f} s){_conditions_used(model, args.emotion, conditions, corpus)} -> "
           + ", ".join(map(str, names)))
     return names
+
+
+def _memory_named(blocks, wav, n_frames: int, chunk: int):
+    """``blocks``, with memory running out while one is predicted named as such: the recording and the frames
+    (:func:`~dualtalker_lite.files.out_of_memory`), not only the ``--out`` being written when it happened."""
+    done = 0
+    while True:
+        with out_of_memory(wav, f"predicting its frames {done}-{min(done + chunk, n_frames)} of {n_frames} "
+                                f"(a smaller --chunk needs less)"):
+            block = next(blocks, None)
+        if block is None:
+            return
+        done += len(block)
+        yield block
 
 
 def _formats(spec: str, no_video: bool) -> tuple[str, ...]:

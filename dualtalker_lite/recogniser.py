@@ -43,6 +43,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import sys
 from pathlib import Path
 from typing import Iterator
@@ -321,12 +322,44 @@ the 32 bytes of the key it was made for (:func:`wave_hash`), and the sha256 of t
 checks all of it (:meth:`PhonemeRecogniser._check_entry`); entries of older versions (no trailer) are recomputed."""
 
 
+_ENTRY_TMP = "dualtalker-entry"  # the temporary's name: this package's prefix, the process id, a hex id, .tmp
+_TOP_TMP = re.compile(rf"(?:{_ENTRY_TMP}|entry|stream)\.(\d+)\.[0-9a-f]+\.tmp")  # older versions: entry, stream
+_SHARD_TMP = re.compile(r"[0-9a-f]{32}\.(\d+)\.tmp")                          # older versions, in a shard folder
+_SHARD = re.compile(r"[0-9a-f]{2}")
+
+
+def _cache_temporaries(folder: Path) -> list[tuple[Path, int]]:
+    """The temporaries of cache writes in ``folder`` (``<cache>/hama-<version>``) -> ``(path, process id)``: regular
+    files (never a symbolic link) named as this package names them, ``dualtalker-entry.<pid>.<hex>.tmp`` and older
+    versions' ``entry.<pid>.<hex>.tmp`` and ``stream.<pid>.<hex>.tmp`` in the folder itself, ``<32 hex>.<pid>.tmp``
+    in a shard folder (two hex digits, a real folder: one that is a symbolic link is not entered). A file of any
+    other name, the user's or another program's, is no temporary of ours."""
+    found = []
+    try:
+        top = list(os.scandir(folder))
+    except OSError:               # no cache folder yet, or an unreadable one (the write then says so)
+        return found
+    for entry in top:
+        pattern = _SHARD_TMP if _SHARD.fullmatch(entry.name) else _TOP_TMP
+        if pattern is _SHARD_TMP and entry.is_dir(follow_symlinks=False):
+            try:
+                inner = list(os.scandir(entry.path))
+            except OSError:
+                continue
+            found += [(Path(e.path), int(m.group(1))) for e in inner
+                      if (m := _SHARD_TMP.fullmatch(e.name)) and e.is_file(follow_symlinks=False)]
+        elif pattern is _TOP_TMP and (m := _TOP_TMP.fullmatch(entry.name)) and entry.is_file(follow_symlinks=False):
+            found.append((Path(entry.path), int(m.group(1))))
+    return found
+
+
 class _EntryWriter:
     """One cache entry written as its blocks come (:data:`ENTRY_LAYOUT`), under the temporary name
-    ``<cache>/hama-<version>/entry.<pid>.<id>.tmp`` (the process id tells :meth:`PhonemeRecogniser._sweep` whether
-    its writer is still alive), renamed onto the entry's path only when complete, so a reader never sees half an
-    entry. Any OSError (read-only, full, something in the way) turns the recogniser's cache off with one warning
-    (:meth:`PhonemeRecogniser._unusable`) and the writer into a no-op; ``strict=True`` raises it instead."""
+    ``<cache>/hama-<version>/dualtalker-entry.<pid>.<id>.tmp`` (the process id tells
+    :meth:`PhonemeRecogniser._sweep` whether its writer is still alive), renamed onto the entry's path only when
+    complete, so a reader never sees half an entry. Any OSError (read-only, full, something in the way) turns the
+    recogniser's cache off with one warning (:meth:`PhonemeRecogniser._unusable`) and the writer into a no-op;
+    ``strict=True`` raises it instead."""
 
     def __init__(self, rec: "PhonemeRecogniser", shape: tuple[int, int], strict: bool = False):
         self.rec, self.strict, self.f, self.tmp = rec, strict, None, None
@@ -334,7 +367,7 @@ class _EntryWriter:
             folder = rec.cache_folder
             folder.mkdir(parents=True, exist_ok=True)
             rec._sweep()
-            self.tmp = folder / f"entry.{os.getpid()}.{id(self):x}.tmp"
+            self.tmp = folder / f"{_ENTRY_TMP}.{os.getpid()}.{id(self):x}.tmp"
             self.f = open(self.tmp, "wb")
             header = io.BytesIO()
             np.lib.format.write_array_header_1_0(header, {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float16)),
@@ -511,19 +544,18 @@ class PhonemeRecogniser:
         self.cache = False
 
     def _sweep(self) -> None:
-        """Remove the temporaries of cache writes whose process is gone (``entry.<pid>.<id>.tmp``; older versions'
-        ``stream.<pid>.<id>.tmp`` and ``<key>.<pid>.tmp``): a killed run leaves one, 69 MB per hour of audio, that
-        nothing else removes. A live process's are kept; one ``note:`` line per removal. Once per recogniser,
-        before its first write. (A process id is checked on this machine: a cache shared with other machines or
-        containers should not be written by several of them at once.)"""
+        """Remove the temporaries of cache writes whose process is gone (``dualtalker-entry.<pid>.<id>.tmp``; older
+        versions' ``entry.``, ``stream.<pid>.<id>.tmp`` and ``<key>.<pid>.tmp``): a killed run leaves one, 69 MB
+        per hour of audio, that nothing else removes. A live process's are kept; one ``note:`` line per removal.
+        Once per recogniser, before its first write. Only names this package makes are removed
+        (:func:`_cache_temporaries`), and no symbolic link is followed (issue 48). (A process id is checked on this
+        machine: a cache shared with other machines or containers should not be written by several of them at
+        once.)"""
         if self._swept:
             return
         self._swept = True
-        folder = self.cache_folder
-        for tmp in [*folder.glob("*.tmp"), *folder.glob("*/*.tmp")]:
-            parts = tmp.name.split(".")
-            pid = parts[1] if len(parts) >= 3 else ""
-            if not pid.isdigit() or _alive(int(pid)):
+        for tmp, pid in _cache_temporaries(self.cache_folder):
+            if _alive(pid):
                 continue
             try:
                 size = tmp.stat().st_size

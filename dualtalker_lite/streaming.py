@@ -18,6 +18,8 @@ removed on failure, Ctrl-C and SIGTERM, and a non-finite frame stops the run wit
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 from contextlib import nullcontext
 from pathlib import Path
@@ -27,7 +29,7 @@ import torch
 
 from .audio import AudioStream, LogMelExtractor, validate_wave
 from .checks import NonFiniteError, check_finite, resolve_device
-from .files import sigterm_as_exit  # noqa: F401 - its home is files (the mp4 writer in export/ uses it too)
+from .files import ResourceError, sigterm_as_exit  # noqa: F401 - sigterm_as_exit's home is files (export/ too)
 from .models.contract import conditions as model_conditions, hook
 
 __all__ = ["sigterm_as_exit", "write_npy_stream", "generate_to_npy", "SpooledFeatures", "predict_chunks",
@@ -119,20 +121,31 @@ class SpooledFeatures:
         self.dtype, self.device = torch.float32, torch.device("cpu")
 
     @classmethod
-    def write(cls, pieces, n_frames: int, dim: int, directory: str | os.PathLike | None = None) -> "SpooledFeatures":
+    def write(cls, pieces, n_frames: int, dim: int, directory: str | os.PathLike | None = None,
+              source: str | os.PathLike = "the recording") -> "SpooledFeatures":
         """Spool consecutive (first_row, rows) pieces (e.g. ``LogMelExtractor.stream_rows``), whose bytes in
-        order are the (n_frames, dim) float32 features; fewer or more bytes than that is an error."""
+        order are the (n_frames, dim) float32 features; fewer or more bytes than that is an error. The file lies in
+        ``directory`` (default: ``$TMPDIR``, else ``/tmp``); when it cannot be made or written there (a full disk,
+        a quota, a file-size limit, a read-only folder), one :class:`~dualtalker_lite.files.ResourceError` line
+        names ``source`` (the recording), the folder and how to move it (:func:`_spool_error`)."""
         import tempfile
 
-        f = tempfile.TemporaryFile(dir=directory)
+        folder = directory or tempfile.gettempdir()
+        try:
+            f = tempfile.TemporaryFile(dir=directory)
+        except OSError as e:
+            raise _spool_error(e, folder, source, 4 * n_frames * dim) from e
         try:
             for _, rows in pieces:
                 f.write(np.ascontiguousarray(np.asarray(rows), dtype=np.float32).tobytes())
             f.flush()
             if f.tell() != 4 * n_frames * dim:
                 raise ValueError(f"spooled {f.tell() // 4} feature values, expected {n_frames} x {dim}")
-        except BaseException:
-            f.close()
+        except BaseException as e:
+            with contextlib.suppress(OSError):  # its buffer's rest cannot be written either
+                f.close()
+            if isinstance(e, OSError) and not isinstance(e, ResourceError):
+                raise _spool_error(e, folder, source, 4 * n_frames * dim) from e
             raise
         return cls(f, n_frames, dim)
 
@@ -163,6 +176,24 @@ class SpooledFeatures:
 
     def __repr__(self) -> str:
         return f"SpooledFeatures(1 x {self.n_frames} frames x {self.n_values})"
+
+
+def _spool_error(e: OSError, folder, source, nbytes: int) -> ResourceError:
+    """The features of ``source`` could not be spooled into ``folder`` -> one line naming both, the system's reason
+    and what to do: make room there or move the spool elsewhere with ``TMPDIR`` (issue 48); under a file-size
+    limit, which holds in every folder, raise the limit."""
+    reason = os.strerror(e.errno) if e.errno else (str(e).strip().splitlines() or [type(e).__name__])[0]
+    import resource
+
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if e.errno == errno.EFBIG and limit != resource.RLIM_INFINITY:
+        advice = f"the file-size limit (ulimit -f) is {limit} bytes: raise it (ulimit -f unlimited)"
+    else:
+        advice = (f"free some space there, or set TMPDIR to a folder on a disk with room (TMPDIR=/big/tmp "
+                  f"dualtalker-lite animate ...) to move it")
+    return ResourceError(e.errno or errno.EIO, f"{source}: its features could not be spooled to the temporary "
+                                               f"folder {folder} ({reason}; they take {nbytes / 1e6:.1f} MB "
+                                               f"there); {advice}")
 
 
 def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
@@ -246,7 +277,7 @@ def _features(front_end, wave, streamed: bool, n_frames: int, dev: torch.device)
     with torch.no_grad():
         if streamed and hasattr(front_end, "stream_rows") and dev.type == "cpu":  # log-mel: not even A whole
             return SpooledFeatures.write(front_end.stream_rows(wave.blocks, len(wave), n_frames), n_frames,
-                                         front_end.dim)  # (1, T, D_a) on disk, read window by window
+                                         front_end.dim, source=wave.path)  # (1, T, D_a) on disk, by windows
         if streamed and hasattr(front_end, "stream"):  # the recogniser: never the whole wave in memory
             # the callable, not an iterator: the recogniser reads the file more than once (cache key, then hama)
             return front_end.stream(wave.blocks, len(wave), n_frames)[None]  # (1, T, D_a)

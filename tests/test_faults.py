@@ -1806,9 +1806,9 @@ def test_memory_running_out_is_one_line(ckpt, wav, tmp_path, capsys, monkeypatch
 
     def no_memory(*a, **k):
         raise MemoryError()
-    monkeypatch.setattr(inference, "predict_chunks", no_memory)
-    refused_in_process(capsys, _animate_argv(ckpt, wav, tmp_path / "anim"), "error: out of memory (MemoryError); close "
-                       "other programs")
+    monkeypatch.setattr(inference, "predict_chunks", no_memory)  # what was being done, too (issue 48)
+    refused_in_process(capsys, _animate_argv(ckpt, wav, tmp_path / "anim"), f"error: {wav}: out of memory while "
+                       f"computing its features (0.5 s of audio) (MemoryError); close other programs")
     assert list(tmp_path.iterdir()) == []
 
     def cache_full(*a, **k):  # a resource error the system raises elsewhere (e.g. the recogniser's cache)

@@ -297,14 +297,90 @@ def test_a_stalled_client_is_closed_after_the_idle_timeout(config, caplog):
             await ws.receive(timeout=10)
             await ws.send_bytes(bytes(3200))                        # 0.1 s, then nothing
             text, code = await _closed_with_error(ws)
-            assert text == "no message for 0.5 s" and code == 1008
+            assert text == "no audio or command for 0.5 s" and code == 1008
             await _still_serves(client)
         finally:
             await client.close()
 
     with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
         _run(main())
-    assert caplog.text.count("no message for 0.5 s") == 1
+    assert caplog.text.count("no audio or command for 0.5 s") == 1
+
+
+def test_idle_clients_that_answer_pings_no_longer_lock_out_a_fifth(config, caplog):
+    """Issue 48. Was: aiohttp's receive timeout starts again at every ping or pong, so a tab that sends nothing
+    but keeps pinging (every browser answers the server's pings) held its slot forever: four such tabs locked
+    everyone else out with 503. Now (real WebSocket clients, pinging every 0.2 s, an idle time of 1 s) the four
+    are closed after 1 s without audio or a command, each with 1008 and one log line, and a fifth gets in."""
+    async def main():
+        client = await _client(config, Limits(idle_timeout_s=1.0, max_sessions=4))
+        origin = {"Origin": _origin(client)}
+        try:
+            idle = [await client.ws_connect("/ws", headers=origin, heartbeat=0.2) for _ in range(4)]
+            for ws in idle:
+                assert json.loads((await ws.receive(timeout=10)).data)["type"] == "hello"
+            closes = [asyncio.create_task(_closed_with_error(ws)) for ws in idle]   # reading: pongs are answered
+            with pytest.raises(WSServerHandshakeError) as e:
+                await client.ws_connect("/ws", headers=origin)
+            assert e.value.status == 503                                             # the four hold every slot
+            t0 = asyncio.get_running_loop().time()
+            results = await asyncio.wait_for(asyncio.gather(*closes), timeout=6)
+            assert all(r == ("no audio or command for 1 s", 1008) for r in results), results
+            assert asyncio.get_running_loop().time() - t0 < 3
+            await _still_serves(client)                                              # the fifth: hello
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("no audio or command for 1 s") == 4
+
+
+def test_a_session_is_closed_after_its_longest_time_however_busy(config, caplog):
+    """Issue 48: a client streaming audio without end (a forgotten tab with its microphone on) holds a slot at
+    most ``max_session_s`` (here 1.5 s): closed with 1008 and one log line, though it sent audio all along."""
+    async def main():
+        client = await _client(config, Limits(max_session_s=1.5, idle_timeout_s=10))
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            await ws.receive(timeout=10)
+            t0 = asyncio.get_running_loop().time()
+            while asyncio.get_running_loop().time() - t0 < 2.5 and not ws.closed:
+                await ws.send_bytes(bytes(3200))                             # 0.1 s of silence, in real time
+                await asyncio.sleep(0.1)
+            text, code = await _closed_with_error(ws)
+            assert text.startswith("connected for 1.5 s, the longest a session may last") and code == 1008
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("connected for 1.5 s") == 1
+
+
+@pytest.mark.parametrize("text, reason", [("[" * 30000, "text message of 30000 characters, more than a command's"),
+                                          ("[" * 1020, "nested too deeply to be a command"),
+                                          ('{"type": "start"', "unknown text message"),
+                                          ("[1, 2]", "unknown text message")])
+def test_deep_and_malformed_json_is_bad_data_not_a_server_error(config, caplog, text, reason):
+    """Issue 48. Was: a 30,000-deep JSON message closed with 1011 (server error: json's RecursionError escaped as
+    a bug). Now deep, long or malformed JSON is bad data: 1003 and one log line; the server serves on."""
+    async def main():
+        client = await _client(config)
+        try:
+            ws = await client.ws_connect("/ws", headers={"Origin": _origin(client)})
+            await ws.receive(timeout=10)
+            await ws.send_str(text)
+            got, code = await _closed_with_error(ws)
+            assert reason in got and code == 1003, (got, code)
+            await _still_serves(client)
+        finally:
+            await client.close()
+
+    with caplog.at_level(logging.WARNING, "dualtalker_lite.live"):
+        _run(main())
+    assert caplog.text.count("closed 127.0.0.1") == 1 and reason in caplog.text
 
 
 def test_a_failing_session_is_one_log_line_and_a_1011_close(config, caplog, monkeypatch):

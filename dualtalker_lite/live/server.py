@@ -35,8 +35,8 @@ head (``page/avatar.js``); ``/mesh`` carries what it needs (``avatar``: :func:`a
 Safety (``docs/live.md``, "Safety rules"; each rule tested in ``tests/test_live.py``): the server binds to
 127.0.0.1 unless ``--host`` says otherwise; a Host header that does not name the address the request came in on
 (DNS rebinding) gets 403, and so does a WebSocket whose Origin is not this server's; at most ``max_sessions``
-connections (503). A client that breaks :class:`Limits` (size 1009; odd length or unknown text 1003; flood, too
-fast or silent 1008) or whose session fails (1011) loses its own connection, with one log line; the server serves on.
+connections (503). A client that breaks :class:`Limits` (size 1009; odd length, unknown text, bad JSON 1003; flood,
+too fast, idle (pings aside) or too long 1008) or whose session fails (1011) loses its connection, with a log line.
 """
 from __future__ import annotations
 
@@ -91,7 +91,10 @@ class Limits:
     max_message_bytes: int = 2 * SAMPLE_RATE          # 1 s of int16 audio per message
     max_messages_per_s: float = 100.0                 # the page sends 10 a second (25 with the student's 40 ms)
     max_speed: float = 2.0                            # audio seconds per wall second, after a 2 s allowance
-    idle_timeout_s: float = 60.0                      # a connection silent this long is closed
+    idle_timeout_s: float = 60.0                      # no audio and no command this long: closed (pings
+                                                      # do not count: every browser answers them)
+    max_session_s: float = 4 * 3600.0                 # one connection at most this long (reconnect to go on)
+    max_command_chars: int = 1024                     # a text message longer than this is no command
     max_sessions: int = 4
 
 
@@ -270,9 +273,11 @@ class LiveConnection:
                                                         speed limit's clock and sample count restart
     any        ``stop`` (:meth:`stop`)                  after the queued audio: flush, the last frames,     stopped
                                                         then ``done``
-    any        other text, odd length, too fast, more   ``error`` message, close 1003 or 1008               closed
-               than ``max_messages_per_s``, or silence
-               for ``idle_timeout_s``
+    any        other text (malformed or deep JSON),     ``error`` message, close 1003 or 1008               closed
+               odd length, too fast, more than
+               ``max_messages_per_s``, no audio and no
+               command for ``idle_timeout_s`` (pings
+               aside), open for ``max_session_s``
     any        a message over ``max_message_bytes``     aiohttp closes with 1009; one log line              closed
     any        the session raises (:meth:`fail`)        ``error`` message, close 1011                       closed
     any        the client goes away (:meth:`gone`)      one log line (with the audio's length when          closed
@@ -301,6 +306,7 @@ class LiveConnection:
         # the session computing now began at frame ``offset`` of the stream (0 unless audio was dropped).
         self.consumed, self.offset, self.dropped = 0, 0, 0
         self.audio_from = None                              # when the first audio since the start arrived
+        self.opened = self.active = self.started            # connected; the last audio or command (idle clock)
 
     @classmethod
     async def handle(cls, request, config: LiveConfig, executor: ThreadPoolExecutor, sockets: set):
@@ -332,10 +338,7 @@ class LiveConnection:
         await self.open()
         try:
             while not self.ws.closed:
-                try:
-                    msg = await self.ws.receive(timeout=self.limits.idle_timeout_s)
-                except asyncio.TimeoutError:
-                    raise _Refused(POLICY_VIOLATION, f"no message for {self.limits.idle_timeout_s:g} s") from None
+                msg = await self.next_message()
                 now = time.monotonic()
                 self.count(now)
                 if msg.type == WSMsgType.BINARY:
@@ -362,6 +365,24 @@ class LiveConnection:
             self.backlog.clear()
             if self.worker is not None and not self.worker.done():
                 self.worker.cancel()
+
+    async def next_message(self):
+        """The next message, within the idle and session time left, else :class:`_Refused` (1008). The clock is
+        the connection's own: aiohttp's ``receive(timeout=)`` starts again at every ping or pong it answers inside,
+        so a client that only answers pings (every browser tab) would hold its slot forever (issue 48)."""
+        now, limits = time.monotonic(), self.limits
+        idle_left = limits.idle_timeout_s - (now - self.active)
+        session_left = limits.max_session_s - (now - self.opened)
+        try:
+            if min(idle_left, session_left) <= 0:
+                raise asyncio.TimeoutError
+            async with asyncio.timeout(min(idle_left, session_left)):   # in this task: a cancellation stays one
+                return await self.ws.receive()
+        except asyncio.TimeoutError:
+            if session_left <= idle_left:
+                raise _Refused(POLICY_VIOLATION, f"connected for {limits.max_session_s:g} s, the longest a session "
+                                                 f"may last (max_session_s); reconnect to go on") from None
+            raise _Refused(POLICY_VIOLATION, f"no audio or command for {limits.idle_timeout_s:g} s") from None
 
     # ---------------------------------------------------------------------------------- messages and events
     async def open(self) -> None:
@@ -390,6 +411,8 @@ class LiveConnection:
             raise _Refused(UNSUPPORTED_DATA, f"binary message of odd length {len(data)} (expected int16 PCM)")
         if self.audio_from is None and len(data):
             self.audio_from = now
+        if len(data):
+            self.active = now
         self.samples += len(data) // 2
         self.state = "streaming" if self.samples else "ready"
         if self.samples / SAMPLE_RATE > self.limits.max_speed * (now - self.started) + 2.0:
@@ -399,12 +422,22 @@ class LiveConnection:
             self.worker = asyncio.create_task(self.work())
 
     async def command(self, text: str) -> None:
-        """Text: a JSON command, run after the audio that came before it: ``start`` or ``stop``, else 1003."""
+        """Text: a JSON command, run after the audio that came before it: ``start`` or ``stop``, else 1003 (also
+        for text longer than ``max_command_chars`` and JSON nested too deeply for Python's parser: bad data, not
+        a server error)."""
+        if len(text) > self.limits.max_command_chars:
+            raise _Refused(UNSUPPORTED_DATA, f"text message of {len(text)} characters, more than a command's "
+                                             f"{self.limits.max_command_chars}")
         try:
             command = json.loads(text)
             kind = command.get("type")
+        except RecursionError:
+            raise _Refused(UNSUPPORTED_DATA, f"text message {text[:20]!r}... nested too deeply to be a command") \
+                from None
         except (ValueError, AttributeError):
             command, kind = {}, None
+        if kind in ("start", "stop"):
+            self.active = time.monotonic()
         if self.worker is not None:
             await self.worker                                  # the audio before the command, first
         if kind == "start":
