@@ -287,7 +287,8 @@ plt.show()
 #
 # The same tiny architecture at four look-aheads, $L \in \{0, 1, 3, 5\}$ frames (16 to 116 ms of audio delay),
 # each trained by `ears.distil.distil` for 150 steps of 16 three-second crops (a few CPU seconds) on the 64
-# training clips, from the same seed, and measured on the 24 held-out clips with the teacher's argmax as truth:
+# training clips, from the same initial weights and the same seed, and measured on the 24 held-out clips with the
+# teacher's argmax as truth:
 #
 # $$\mathrm{agr} = \frac{1}{T} \sum_t \big[\arg\max_k p_{tk} = \arg\max_k q_{tk}\big], \qquad
 # \mathrm{rec}_{\mathrm{PP}} = \frac{\#\{\text{PP runs with a student PP within } \pm \tau\}}{\#\{\text{PP runs}\}}
@@ -302,6 +303,7 @@ LOOKAHEADS = (0, 1, 3, 5)
 recipe = D.DistilConfig(epochs=1, steps_per_epoch=150, batch_size=16, crop=150, warmup=20, lr=1e-2, seed=0)
 students, history = {}, {}
 for la in LOOKAHEADS:
+    set_seed(recipe.seed)                                               # the same initial weights for every L
     students[la] = Student(StudentConfig.tiny(lookahead=la, channels=32, dilations=(1, 2, 4), dropout=0.0))
     history[la] = D.distil(students[la], train_pairs, recipe, val_pairs, log=lambda line: None)[-1]
     print(f"L = {la} ({20 * la + 16:3d} ms): loss {history[la]['loss']:.3f}, agreement "
@@ -311,7 +313,8 @@ print(f"{n_params} parameters each; R = {students[0].cfg.receptive_field} frames
 
 # %% [markdown]
 # How much of a difference between two look-aheads is real? The held-out set is 24 clips and a few dozen PP runs,
-# so each figure comes with a 90 % bootstrap interval over the clips (resampled 2000 times, seeded).
+# so each figure comes with a 90 % bootstrap interval over the clips (resampled 2000 times, seeded), and each
+# look-ahead's difference from $L = 0$ with a *paired* interval (the same resampled clips for both students).
 
 # %%
 def per_clip(student):
@@ -323,20 +326,23 @@ def per_clip(student):
             rows.append([D.frame_agreement(p, qt) * len(qt), len(qt), *D.pp_recall(p, qt, recipe.tolerance)])
     return np.array(rows)
 
-
+# %%
 boot = np.random.default_rng(0).integers(0, len(val_pairs), size=(2000, len(val_pairs)))
-curve = {}
+curve, resampled = {}, {}
 for la in LOOKAHEADS:
     c = per_clip(students[la])
     s = c[boot].sum(1)                                                  # (2000, 4) resampled sums
-    curve[la] = {"agreement": (c[:, 0].sum() / c[:, 1].sum(), *np.percentile(s[:, 0] / s[:, 1], [5, 95])),
-                 "pp_recall": (c[:, 2].sum() / c[:, 3].sum(), *np.percentile(s[:, 2] / s[:, 3], [5, 95]))}
+    resampled[la] = {"agreement": s[:, 0] / s[:, 1], "pp_recall": s[:, 2] / s[:, 3]}
+    curve[la] = {"agreement": (c[:, 0].sum() / c[:, 1].sum(), *np.percentile(resampled[la]["agreement"], [5, 95])),
+                 "pp_recall": (c[:, 2].sum() / c[:, 3].sum(), *np.percentile(resampled[la]["pp_recall"], [5, 95]))}
     assert abs(curve[la]["agreement"][0] - history[la]["agreement"]) < 1e-6    # the same measure as distil's
     assert curve[la]["pp_recall"][0] >= 0.7 and curve[la]["agreement"][0] >= 0.35
-spread = {m: np.ptp([curve[la][m][0] for la in LOOKAHEADS]) for m in ("agreement", "pp_recall")}
-width = {m: np.mean([curve[la][m][2] - curve[la][m][1] for la in LOOKAHEADS]) for m in spread}
-print("spread across look-aheads vs mean 90 % interval width: " +
-      ", ".join(f"{m} {spread[m]:.3f} vs {width[m]:.3f}" for m in spread))
+for m in ("agreement", "pp_recall"):
+    paired = {la: np.percentile(resampled[la][m] - resampled[0][m], [5, 95]) for la in LOOKAHEADS[1:]}
+    print(f"{m:9s} minus L = 0, 90 % paired interval: " + ", ".join(
+        f"L = {la}: {curve[la][m][0] - curve[0][m][0]:+.3f} [{lo:+.3f}, {hi:+.3f}]" for la, (lo, hi) in paired.items()))
+    # agreement: no look-ahead gains 0.05 over L = 0; PP recall: no look-ahead told apart from L = 0
+    assert all(hi < 0.05 if m == "agreement" else lo < 0 < hi for lo, hi in paired.values())
 
 # %%
 ms = np.array([20 * la + 16 for la in LOOKAHEADS])
@@ -344,7 +350,7 @@ fig, ax = plt.subplots(figsize=(8, 3.6), layout="constrained")
 for metric, colour in (("pp_recall", "tab:red"), ("agreement", "tab:blue")):
     mid, lo, hi = (np.array([curve[la][metric][i] for la in LOOKAHEADS]) for i in range(3))
     ax.errorbar(ms, mid, yerr=(mid - lo, hi - mid), marker="o", capsize=4, color=colour,
-                label=f"{metric.replace('_', ' ')} (eq. 5), 90 % interval")
+                label=f"{'PP recall' if metric == 'pp_recall' else metric} (eq. 5), 90 % interval")
 ax.axhline(0.9, color="tab:red", ls=":", lw=1, label="the issue's gate: PP recall 0.9")
 ax.axhline(np.mean(val_hard == np.bincount(np.concatenate([q.argmax(1) for _, q in train_pairs])).argmax()),
            color="0.5", ls="--", lw=1, label="agreement of always saying the commonest viseme")
@@ -355,21 +361,25 @@ ax.legend(fontsize=8, loc="lower right")
 plt.show()
 
 # %% [markdown]
-# **What this curve shows, and what it does not.** Every tiny student finds most of the teacher's PP runs within
-# 40 ms and agrees with about half of its frames, far above always saying the commonest viseme; but the
-# look-aheads are *not* told apart: the spread between them is about the width of one interval (printed above),
-# and the order changes with the seed or the number of steps (exercise 2). That is a property of this run, not of
-# the physics: a few seconds of training on 2 minutes of one synthetic voice family, measured on a few dozen runs.
-# The package's own students are no different in kind: trained for 11 CPU minutes on 268 minutes of augmented
-# speech, look-ahead 3 (76 ms) and 5 (116 ms) found 0.81 and 0.76 of the PP runs on held-out real English, which
-# one seed each cannot tell apart either (`docs/ears.md`, "First run"). The evidence for a 50-70 ms knee comes from
-# perceptual studies (issue 47), and telling look-aheads apart here needs several seeds and far more held-out runs
-# than a 60-second notebook can afford.
+# **What this curve shows, and what it does not.** Every tiny student finds most of the teacher's PP runs within 40
+# ms and agrees with about half of its frames, far above always saying the commonest viseme. But look-ahead buys
+# nothing here: no PP recall is told apart from $L = 0$ (every paired interval holds 0), and the agreement does not
+# rise with $L$; if anything it falls a little at 5 frames (printed above). With seeds 1 and 2 or 300 steps (exercise
+# 2) the order of the PP recalls changes, and the agreement at the larger look-aheads stays within a few hundredths
+# of that at $L = 0$, below it in most of those runs: not what a look-ahead should buy. One likely reason: these nets
+# read a fixed window of $R$ frames ending at $t + L$, so each frame of look-ahead is a frame of past they no longer
+# see, and seconds of training do not learn to use the future. This is a property of such a run, not of the physics:
+# a few seconds of training on 2 minutes of one synthetic voice family, measured on a few dozen runs. The package's
+# own students are no different in kind: trained for 11 CPU minutes on 268 minutes of augmented speech, look-ahead 3
+# (76 ms) and 5 (116 ms) found 0.81 and 0.76 of the PP runs on held-out real English, which one seed each cannot tell
+# apart either (`docs/ears.md`, "First run"). The evidence for a 50-70 ms knee comes from perceptual studies (issue
+# 47), and telling look-aheads apart here needs several seeds and far more held-out runs than a 60-second notebook
+# can afford.
 #
 # ## 5. The trained student against the teacher on a real recording
 #
-# The package's student (`default_weights_path()`: `dualtalker_lite/ears/weights/student.pt`, 128 channels,
-# dilations 1 2 4 8) never heard this voice: the two prompts in `data/real/` are Allison's (CC-BY-SA 3.0,
+# The package's student (`default_weights_path()`: `dualtalker_lite/ears/weights/student.pt`; its look-ahead and
+# size are printed below) never heard this voice: the two prompts in `data/real/` are Allison's (CC-BY-SA 3.0,
 # `notebooks/data/real/NOTICE`), the real-voice benchmark's speaker, which is held out of every training source.
 # Their phones were force-aligned by pocketsphinx (the JSON beside each file). We compare three tracks at 20 ms:
 # the teacher's, the student's (streamed in 100 ms chunks, as the live path would), and the aligned phones'.
@@ -443,12 +453,13 @@ for ax in axes:
 plt.show()
 
 # %% [markdown]
-# The student is causal and sees 76 ms of future audio against the teacher's whole recording, and it costs well
-# under a thousandth of a CPU second per second of audio on the whole wave (`docs/ears.md`: 0.0006 whole,
-# 0.0068 streamed in 100 ms chunks, against the teacher's 0.045). Where it follows the teacher, its PP peaks sit on
+# The student is causal and hears $20L + 16$ ms of future audio (printed above) against the teacher's whole
+# recording, and it is cheap: the first trained student cost well under a thousandth of a CPU second per second
+# of audio on the whole wave (`docs/ears.md`: 0.0006 whole, 0.0068 streamed in 100 ms chunks, against the
+# teacher's 0.045). Where it follows the teacher, its PP peaks sit on
 # the same aligned /p b m/. The hardest bilabial for a causal student is the first, the /p/ of "Please" at 0 s: the
 # recording starts inside its closure, so the student has heard nothing before it (its past is digital silence)
-# and only 76 ms after it, where the teacher hears the whole release. The figures of this section come from two short prompts (a handful of bilabials), so they
+# and only its look-ahead after it, where the teacher hears the whole release. The figures of this section come from two short prompts (a handful of bilabials), so they
 # illustrate rather than measure: `docs/ears.md` has the student on 271 held-out prompts of this voice.
 #
 # ## Summary
