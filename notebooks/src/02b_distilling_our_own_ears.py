@@ -286,7 +286,7 @@ plt.show()
 # ## 4. The look-ahead trade-off
 #
 # The same tiny architecture at four look-aheads, $L \in \{0, 1, 3, 5\}$ frames (16 to 116 ms of audio delay),
-# each trained by `ears.distil.distil` for 150 steps of 16 three-second crops (a few CPU seconds) on the 64
+# each trained by `ears.distil.distil` for 150 steps of 16 two-second crops (a few CPU seconds) on the 64
 # training clips, from the same initial weights and the same seed, and measured on the 24 held-out clips with the
 # teacher's argmax as truth:
 #
@@ -300,7 +300,7 @@ plt.show()
 
 # %%
 LOOKAHEADS = (0, 1, 3, 5)
-recipe = D.DistilConfig(epochs=1, steps_per_epoch=150, batch_size=16, crop=150, warmup=20, lr=1e-2, seed=0)
+recipe = D.DistilConfig(epochs=1, steps_per_epoch=150, batch_size=16, crop=100, warmup=20, lr=1e-2, seed=0)
 students, history = {}, {}
 for la in LOOKAHEADS:
     set_seed(recipe.seed)                                               # the same initial weights for every L
