@@ -23,7 +23,7 @@
 # | symbol | code name | shape |
 # |---|---|---|
 # | $X_t$ (log-mel frame $t$, 20 ms hop, 80 bands) | `x`, `student_features(wave)` | (T, 80) = (1 + N // 320, 80) |
-# | $l_s$ (hama's log-probabilities at a spike, symbol $s$) | `recogniser.log_probs(wave)[j]` | (191,) |
+# | $l_s$ (hama's log-probabilities at a spike, symbol $s$) | `teacher.recogniser.log_probs(wave)[j]` | (191,) |
 # | $q_t$ (teacher's viseme posteriors of frame $t$) | `q`, `teacher.frames(wave)[0]` | (T, 15) |
 # | $h_u$ (the causal net's raw output at frame $u$) | `student.raw(x)[0]` | (B, T, 15) |
 # | $y_t$ (student's logits for frame $t$), $p_t = \mathrm{softmax}(y_t)$ | `student(x)`, `p` | (B, T, 15) |
@@ -34,7 +34,7 @@
 # | $\varepsilon$ (label smoothing) | `DistilConfig.label_smoothing` | scalar |
 # | $\lambda$ (extra weight on the teacher's PP mass) | `DistilConfig.pp_weight` | scalar |
 # | $m_t$, $w_t$ (real-frame mask, frame weight) | `mask`, `frame_weights(q, mask, lam)` | (B, T) |
-# | $o_t$ (openness of frame $t$) | `open_t`, `open_s` | (T,) |
+# | $o_t$ (openness of frame $t$; of the aligned phones) | `1 - p[:, SIL] - p[:, PP]`; `OPENNESS[aligned]` | (T,) |
 
 # %%
 %matplotlib inline
