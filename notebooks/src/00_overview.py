@@ -157,6 +157,7 @@ plt.show()
 # | **01** synthetic talking faces | the corpus: template mesh, rig, espeak-ng speech, visemes, coarticulation, speakers, emotions |
 # | **02** audio features | STFT, mel filterbank, log-mel, alignment to 30 fps; where wav2vec 2.0 fits |
 # | **02a** phonetic front end | why log-mel from one voice fails on people; a phoneme recogniser's viseme track, the route that lip-syncs real voices |
+# | **02b** distilling our own ears | a small causal viseme recogniser distilled from that track: teacher labels, a causal receptive field with a look-ahead, the distillation loss, the look-ahead trade-off, the student on a real voice |
 # | **03** attention | scaled dot-product and multi-head attention (eqs. 3-4), FaceFormer's biases, alignment mask |
 # | **04** speaker-aware gate | DualTalker's SE-style speaker gate (eq. 5) |
 # | **05** cross-modal fusion and dual integration | audio-visual integration (eq. 6) and its dual with shared Q/K (eq. 7) |

@@ -1,4 +1,4 @@
-"""Rebuild notebooks/data/real/ (the real recordings of notebook 02a) from Debian's packages.
+"""Rebuild notebooks/data/real/ (the real recordings of notebooks 02a and 02b) from Debian's packages.
 
     apt-get install -y asterisk-core-sounds-en-wav asterisk-core-sounds-en
     .venv/bin/python -m pip install pocketsphinx==5.1.1      # benchmark-only, not a dependency of the package
