@@ -393,6 +393,10 @@ ROWS = {  # row key -> (label, algorithmic wait for future audio)
     "live": ("this project, live (hama windowed as the live server, 0.25 s look-ahead)", None),
     "student": ("this project, student (causal net, `ears`)", None),
     "pylipsync": ("pylipsync (uLipSync port, vowels only)", "32 ms"),
+    "offline_curves": ("this project, offline, as the viseme curves it exports (`animate --format visemes`)",
+                       "whole recording"),
+    "live_curves": ("this project, live, as viseme curves (the live page's second head)", None),
+    "student_curves": ("this project, student, as viseme curves", None),
     "headaudio_values": ("HeadAudio, blend-shape values (its update loop)", "24 ms + easing"),
     "headaudio_classes": ("HeadAudio, classifier's viseme per vector", "24 ms"),
 }
@@ -419,6 +423,25 @@ def default_student() -> Path:
     return own if own.is_file() else ROOT / "runs" / "ears" / "student_la3.pt"
 
 
+def as_curves(times: np.ndarray, weights: np.ndarray, fps: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+    """A path's track -> the 15 standard viseme curves this project exports for other avatars
+    (``export.visemes.viseme_weights`` of the class track's runs: the rig's dominance functions, coarticulated),
+    at ``fps``, in :data:`VISEMES` order (``viseme_nn``, /n l/, folded into DD; WW has no column: 0). The class
+    track at the mesh rate is the argmax of the path's weights interpolated at the frame times (a hard track
+    stays itself), as ``animate`` and the live page do."""
+    from dualtalker_lite.export.visemes import COLUMN, NAMES, track_segments, viseme_weights
+
+    n = max(1, int(round((times[-1] + (times[1] - times[0] if len(times) > 1 else 0)) * fps)))
+    at = np.arange(n) / fps
+    w = np.stack([np.interp(at, times, weights[:, k]) for k in range(weights.shape[1])], 1)     # (n, 15)
+    curves = viseme_weights(track_segments(w.argmax(1), fps), n, fps)                        # (n, 15) NAMES order
+    owner = {**{COLUMN[v]: v for v in VISEMES if v != "WW"}, "viseme_nn": "DD"}    # WW's column is U's
+    out = np.zeros((n, len(VISEMES)))
+    for j, name in enumerate(NAMES):
+        out[:, VISEMES.index(owner[name])] += curves[:, j]
+    return at, out
+
+
 def run_paths(args, waves) -> tuple[dict, dict, dict]:
     """Every chosen path -> ({row: tracks}, {row: CPU s}, extra facts)."""
     import torch
@@ -439,6 +462,10 @@ def run_paths(args, waves) -> tuple[dict, dict, dict]:
             both, c, info["headaudio"] = run_headaudio(waves, args.chromium)
             for kind in ("values", "classes"):
                 tracks[f"headaudio_{kind}"], cpu[f"headaudio_{kind}"] = both[kind], c
+        if path in ("offline", "live", "student"):                  # what an avatar is driven with
+            c0 = time.process_time()
+            tracks[f"{path}_curves"] = [as_curves(t, w) for t, w in tracks[path]]
+            cpu[f"{path}_curves"] = cpu[path] + time.process_time() - c0
         print(f"{path}: {time.time() - t0:.0f} s wall", flush=True)
     return tracks, cpu, info
 
@@ -503,9 +530,9 @@ def write_report(results: dict, meta: dict, argv: list[str]) -> None:
     waits = {k: w for k, (_, w) in ROWS.items()}
     from dualtalker_lite.live.stream import LiveSettings
 
-    waits["live"] = f"{LiveSettings().latency_s() * 1000:.0f} ms"
+    waits["live"] = waits["live_curves"] = f"{LiveSettings().latency_s() * 1000:.0f} ms"
     if student:
-        waits["student"] = f"{student['lookahead_frames'] * 20 + 16} ms"
+        waits["student"] = waits["student_curves"] = f"{student['lookahead_frames'] * 20 + 16} ms"
     any_row = next(iter(results.values()))
     lines = ["# Peers, measured (issue 47, item 5)", "",
              f"Made by `{meta['command']}` ({meta['date']}, commit {meta['commit']}; {machine_line(meta['machine'])})"
