@@ -133,3 +133,14 @@ def test_headaudio_hears_nothing_in_digital_silence():
         assert len(times) == 100
         assert (peers.fill_neutral(w).argmax(1) == 0).all()
     assert np.abs(tracks["values"][0][1]).max() == 0.0
+
+
+def test_as_curves_keeps_the_track_and_folds_the_export_columns_into_the_15_visemes():
+    PP, aa, WW, sil = (VISEMES.index(v) for v in ("PP", "aa", "WW", "sil"))
+    ids = np.array([sil] * 10 + [PP] * 4 + [aa] * 10 + [sil] * 6)              # 30 frames at 30 fps
+    times, curves = peers.as_curves(np.arange(30) / 30, np.eye(len(VISEMES))[ids])
+    assert curves.shape == (30, 15) and np.allclose(curves.sum(1), 1) and np.allclose(times, np.arange(30) / 30)
+    assert curves[:, WW].max() == 0                                            # WW's export column is U's
+    assert curves[11:13].argmax(1).tolist() == [PP, PP] and curves[18].argmax() == aa
+    assert curves[3, sil] > 0.99                                               # far from any segment: silence
+    assert 0 < curves[9, PP] < curves[12, PP]                                  # coarticulated: rises before the run
