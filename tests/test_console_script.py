@@ -393,3 +393,30 @@ def test_no_module_imports_the_cli():
                 offenders.append("console.py imports the package")
     assert offenders == []
 
+
+
+def test_help_loads_no_torch():
+    """``dualtalker-lite --help`` and every ``COMMAND --help`` answer without importing torch (about 5 s on a busy
+    laptop; ``docs/cli.md`` gives the time with the command that measured it): a fresh interpreter runs each help as
+    the console script does, then reports whether ``torch`` (and the command modules) were imported."""
+    code = ("import sys\nfrom dualtalker_lite.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('torch', 'dualtalker_lite.commands', 'dualtalker_lite.inference', "
+            "'dualtalker_lite.models', 'dualtalker_lite.live.server') if m in sys.modules), file=sys.stderr)")
+    for argv in [["--help"], *([c, "--help"] for c in COMMANDS)]:
+        proc = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120,
+                              env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert proc.returncode == 0 and "dualtalker-lite" in proc.stdout, (argv, proc.stderr[-2000:])
+        assert proc.stderr.splitlines()[-1] == "[]", (argv, proc.stderr[-2000:])
+
+
+def test_the_help_choices_are_the_packages_own():
+    """The light names the parsers offer (``dualtalker_lite.choices``) are the heavy modules' own: the registry's
+    trainable built-in models, in its order, and the front ends marked as offered, the default first."""
+    from dualtalker_lite import choices, front_ends
+    from dualtalker_lite.models import registry
+
+    assert choices.TRAINABLE_MODELS == tuple(n for n in registry.BUILTIN_MODELS if registry.get(n).trainable)
+    assert choices.TRAINABLE_MODELS == ("voca", "faceformer", "dualtalker", "corrtalk", "emoface")
+    assert [n for n, f in front_ends.FRONT_ENDS.items() if f.offered] == ["visemes", "logmel"]
+    assert front_ends.DEFAULT == "visemes" and front_ends.CHOICES == ("visemes", "logmel")

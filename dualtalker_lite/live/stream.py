@@ -41,7 +41,6 @@ is asynchronous: the server calls ``push`` in a worker thread.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -51,28 +50,11 @@ from ..export.visemes import NAMES, track_segments, viseme_weights
 from ..face.visemes import VISEMES
 from ..models.contract import hook
 from ..recogniser import FRAME_SAMPLES, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track
+from .settings import LiveSettings  # defined there: live --help reads its defaults without torch
 
 __all__ = ["StreamingVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "LiveSession", "LiveSettings"]
 
 SAMPLE_RATE = 16000
-
-
-@dataclass
-class LiveSettings:
-    """What a live session trades: look-ahead (latency) against agreement with the offline animation, and past
-    context and hop against cost. Defaults measured in ``docs/live.md``."""
-    lookahead_s: float = 0.25     # recogniser look-ahead (was 0.2: 0.25 with ahead_frames 0 meets the closure target
-                                  # on all 255 real-voice prompts at a 50 ms smaller budget than 0.2 with 3; live.md)
-    past_s: float = 2.0           # recogniser context before the first frame not yet final (was 0.6, results/live.md)
-    hop_s: float = 0.2            # hama runs once per hop of new audio
-    past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
-    ahead_frames: int = 0         # audio-encoder look-ahead (mesh frames) after it (was 3: fewer close the lips
-                                  # more often live, at a little less agreement with offline; results/live.md)
-
-    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1) -> float:
-        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this at most (in a
-        pause; during speech window_s is cut to the distance to the frame's nearest spike, StreamingVisemes)."""
-        return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
 
 
 class StreamingVisemes:
