@@ -10,12 +10,13 @@
    viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``; they close
    the lips on most but not all of a real voice's /p b m/, ``results/time_to_quality.md``, ``docs/front-ends.md``);
    ``--features logmel`` gives the papers' kind of input, which learns the corpus's synthetic voices only;
-2. evaluates both, plus the static template, on test-A with autoregressive generation;
+2. evaluates both, plus the static template, on test-A with autoregressive generation, and both on the real
+   recordings shipped in ``notebooks/data/real/`` (the lip closures of ``evaluate --real``, printed under the table);
 3. writes into ``--out``:
 
    ==================  ================================================================================
    ``metrics.md``      the metrics table (units in the header) and a legend, one line per column, also printed
-   ``metrics.json``    the same numbers, the command, epochs actually trained, timings, file paths
+   ``metrics.json``    the same numbers and ``real_voices``, the command, epochs trained, timings, file paths
    ``lip_distance.png`` DualTalker Fig. 5: upper-to-lower lip distance of one test-A clip, GT vs both
                        models, with the clip's phones in IPA (``data.speech.to_ipa``; a caption says so)
    ``error_map.png``   per-vertex mean Euclidean error of DualTalker over test-A on the mesh (mm)
@@ -51,8 +52,9 @@ import torch
 
 from .experiments import (FEATURES, METRICS, TEST_SPLIT, load_data, predict_split, run_specs, split_metrics,
                           table_specs, test_features)
+from .experiments.real import real_voice_closures, real_voices_line
 
-__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "metrics_markdown", "lip_distance_figure", "budget_notes",
+__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "REAL_VOICES_HEADER", "metrics_markdown", "lip_distance_figure", "budget_notes",
            "main"]
 
 # label -> (row of the experiments' "main" table, checkpoint file name or None)
@@ -139,6 +141,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+REAL_VOICES_HEADER = ("Real voices (the table's closures are test-A's synthetic voice through the recogniser): the "
+                      "lips on the 24 real recordings shipped in notebooks/data/real/, 44 /p b m/ (one model: "
+                      "dualtalker-lite evaluate --checkpoint CKPT --real; the README's figures: 255 such prompts)")
 PHONE_CAPTION = ("Shaded bands: the clip's phones, in IPA (espeak-ng's timing; e.g. ŋ sing, ɔ off, j the linking y "
                  "of the apple). The lips should close at p b m.")
 
@@ -214,6 +219,21 @@ def _reloaded_predictions(out: Path, results: dict, test_set, regions) -> dict:
     return pred
 
 
+def _real_voices(out: Path, data: dict) -> dict:
+    """Step 3c: each saved checkpoint's lip closures on the real recordings shipped in ``notebooks/data/real/``, as
+    ``dualtalker-lite evaluate --real`` prints them (:mod:`dualtalker_lite.experiments.real`) -> {label: closures}."""
+    from . import front_ends
+    from .checkpoints import load_checkpoint
+    corpus, found = data["corpus"], {}
+    for label, (_, ckpt) in MODELS.items():
+        if ckpt is not None:
+            model, meta = load_checkpoint(out / ckpt)
+            front_end = front_ends.from_settings(meta.get("features"), str(out / ckpt))
+            found[label] = real_voice_closures(model, front_end, corpus.template(corpus.train_speakers[0]),
+                                               corpus.regions["lip_midpoints"])
+    return found
+
+
 def _figures_and_video(out: Path, pred: dict, data: dict, quick: bool) -> tuple[dict, str]:
     """Step 3b: on the longest test-A clip, the lip-distance figure, DualTalker's mean vertex error map and the
     side-by-side video with the speech -> ({name: path}, the clip's name)."""
@@ -273,6 +293,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     pred = _reloaded_predictions(out, results, test_features(data, TEST_SPLIT, args.features),
                                  data["corpus"].regions)
     files, clip = _figures_and_video(out, pred, data, args.quick)
+    real = _real_voices(out, data)
     names = pred["DualTalker"]["names"]
 
     epochs_done = {label: r["epochs"] for label, r in results.items()}
@@ -292,12 +313,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
                "models": {label: {k: r[k] for k in ("metrics", "train_seconds", "eval_seconds", "n_parameters",
                                                     "model_config", "loss_history")}
                           for label, r in results.items()},
-               "files": {k: str(v) for k, v in files.items()}}
+               "real_voices": real, "files": {k: str(v) for k, v in files.items()}}
     files["metrics_json"] = out / "metrics.json"
     total = time.perf_counter() - t_start
     payload["total_seconds"] = total
     files["metrics_json"].write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
     print(table)
+    print(REAL_VOICES_HEADER)
+    for label, m in real.items():
+        print(f"  {label:18s}{real_voices_line(m).split(':', 1)[1]}")
     print("Files:")
     for k, v in files.items():
         print(f"  {k:28s} {v}")

@@ -29,8 +29,9 @@ TRAIN_EXAMPLE = """examples:
   dualtalker-lite train --model dualtalker --out runs/my_model.pt --resume      # continue a killed run
   dualtalker-lite train --corpus vocaset --model faceformer --device cuda --out runs/vocaset_ff.pt"""
 
-EVAL_EXAMPLE = """example:
-  dualtalker-lite evaluate --checkpoint runs/my_model.pt --split test_a --json runs/my_model_metrics.json"""
+EVAL_EXAMPLE = """examples:
+  dualtalker-lite evaluate --checkpoint runs/my_model.pt --split test_a --json runs/my_model_metrics.json
+  dualtalker-lite evaluate --checkpoint runs/demo/dualtalker.pt --real     # lip closures on real voices"""
 
 
 def _new_parser(command: str, description: str, epilog: str) -> argparse.ArgumentParser:
@@ -116,6 +117,10 @@ def evaluate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--checkpoint", required=True, help="checkpoint written by dualtalker-lite train (.pt)")
     ap.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     ap.add_argument("--split", default="test_a", help="the corpus split to predict and score")
+    ap.add_argument("--real", action="store_true",
+                    help="instead of a split: the lip closures (< 2 / < 1 mm at /p b m/) on the real recordings that "
+                         "ship in notebooks/data/real/ (24 prompts of one professional voice, 44 /p b m/; the "
+                         "README's real-voice figures come from 255 such prompts, results/real_voices.md)")
     ap.add_argument("--json", default=None, help="also write the metrics to this JSON file (strict JSON)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing --json file (only an earlier metrics file of evaluate)")

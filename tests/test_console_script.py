@@ -420,3 +420,13 @@ def test_the_help_choices_are_the_packages_own():
     assert choices.TRAINABLE_MODELS == ("voca", "faceformer", "dualtalker", "corrtalk", "emoface")
     assert [n for n, f in front_ends.FRONT_ENDS.items() if f.offered] == ["visemes", "logmel"]
     assert front_ends.DEFAULT == "visemes" and front_ends.CHOICES == ("visemes", "logmel")
+
+
+def test_evaluate_real_prints_the_real_voice_closures(voca_ckpt, tmp_path):
+    """``evaluate --real``: the README's real-voice check in one command, on the recordings shipped with their
+    licence and alignments (24 prompts, 44 /p b m/, counted in tests/test_real_check.py)."""
+    out = ok(run("evaluate", "--checkpoint", voca_ckpt, "--real", "--json", tmp_path / "real.json"))
+    assert "real voices (24 shipped recordings, 44 /p b m/): closure < 2 mm " in out
+    m = strict_json(tmp_path / "real.json")["metrics"]
+    assert m["n_bilabials"] == 44 and 0 <= m["closure_1mm"] <= m["closure_2mm"] <= 1
+    assert f"< 2 mm {m['closure_2mm']:.2f}, < 1 mm {m['closure_1mm']:.2f}" in out
