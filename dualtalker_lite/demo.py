@@ -54,13 +54,23 @@ from .experiments import (FEATURES, METRICS, TEST_SPLIT, load_data, predict_spli
                           table_specs, test_features)
 from .experiments.real import real_voice_closures, real_voices_line
 
-__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "REAL_VOICES_HEADER", "metrics_markdown", "lip_distance_figure", "budget_notes",
+__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "REAL_VOICES_HEADER", "PROGRESS_EVERY_S", "step", "metrics_markdown", "lip_distance_figure", "budget_notes",
            "main"]
 
 # label -> (row of the experiments' "main" table, checkpoint file name or None)
 MODELS = {"Static template": ("Static template", None),
           "FaceFormer-style": ("FaceFormer-style", "faceformer.pt"),
           "DualTalker": ("DualTalker", "dualtalker.pt")}
+
+
+PROGRESS_EVERY_S = 5.0  # an epoch takes 1-5 s: a line at least every ~10 s, on a busy machine too
+
+
+def step(what: str, args: argparse.Namespace) -> None:
+    """One progress line on stderr as a step of the demo begins (``--no-progress``: none); the training's lines come
+    from the worker processes, one per epoch at most every :data:`PROGRESS_EVERY_S` seconds."""
+    if not args.no_progress:
+        print(f"demo: {what}", file=sys.stderr, flush=True)
 
 
 def budget_notes(results: dict, cpu_budget: float | None = None, time_budget: float | None = None) -> dict[str, str]:
@@ -137,7 +147,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--processes", type=int, default=2, help="train the two models in parallel (1 thread each)")
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     p.add_argument("--quick", action="store_true", help="1 epoch on a few clips, short video (tests)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress lines on stderr (otherwise one as each step begins and, while training, one per "
+                        "epoch of each model at most every 5 s)")
     return p.parse_args(argv)
 
 
@@ -193,9 +205,11 @@ def _train_and_evaluate(args, out: Path, epochs: int | None, processes: int, bud
     loader = threading.Thread(target=load_data, args=(args.corpus, args.quick), daemon=True)
     if processes > 1:  # in-process runs load it themselves
         loader.start()
+    step("training DualTalker and FaceFormer-style, then evaluating them on test-A", args)
     runs = run_specs([jobs[i] for i in order], epochs, processes, args.corpus, args.quick,
-                     checkpoints=[checkpoints[i] for i in order], progress=not args.no_progress, time_budget_s=budget,
-                     recipe=args.recipe, cpu_budget_s=cpu_budget)
+                     checkpoints=[checkpoints[i] for i in order], progress=False, time_budget_s=budget,
+                     recipe=args.recipe, cpu_budget_s=cpu_budget,
+                     epoch_lines_s=None if args.no_progress else PROGRESS_EVERY_S)
     results = dict(zip([list(MODELS)[i] for i in order], runs))
     if loader.is_alive():
         loader.join()
@@ -290,9 +304,11 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
     results = _train_and_evaluate(args, out, epochs, processes, budget, cpu_budget)  # 1-2. train and evaluate
     data = load_data(args.corpus, args.quick)  # 3. figures and video from the saved checkpoints
+    step("the saved checkpoints on test-A again, figures and the side-by-side video", args)
     pred = _reloaded_predictions(out, results, test_features(data, TEST_SPLIT, args.features),
                                  data["corpus"].regions)
     files, clip = _figures_and_video(out, pred, data, args.quick)
+    step("both models on the real recordings of notebooks/data/real/", args)
     real = _real_voices(out, data)
     names = pred["DualTalker"]["names"]
 
