@@ -125,7 +125,8 @@ def test_each_run_reports_its_epochs_and_the_demo_its_steps(capsys):
 
     runner.run_one(RunSpec(row="VOCA-style", model="voca", features="logmel"), 0, 3, quick=True, epoch_lines_s=0)
     lines = capsys.readouterr().err.splitlines()
-    assert [line.split(", loss")[0] for line in lines] == [f"VOCA-style, seed 0: epoch {k}/3" for k in (1, 2, 3)]
+    assert lines[0] == "VOCA-style, seed 0: data ready, training 3 epochs (the first also sets up)"
+    assert [line.split(", loss")[0] for line in lines[1:]] == [f"VOCA-style, seed 0: epoch {k}/3" for k in (1, 2, 3)]
     assert PROGRESS_EVERY_S < 10  # with epochs of at most 5 s on a busy machine: a line at least every ~10 s
     step("figures", parse_args([]))
     step("figures", parse_args(["--no-progress"]))

@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict
@@ -172,9 +173,12 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
 def _epoch_lines(spec: RunSpec, seed: int, epochs: int, every_s: float | None):
     """``run_one``'s ``on_epoch`` for ``epoch_lines_s``: a :class:`~dualtalker_lite.console.ProgressLines` line on
     stderr after the first and the last epoch and after any epoch that ends ``every_s`` seconds or more after the
-    previous line (``DualTalker, seed 0: epoch 7/20, loss 0.0123, 0:14 elapsed, about 0:26 left``); None: none."""
+    previous line (``DualTalker, seed 0: epoch 7/20, loss 0.0123, 0:14 elapsed, about 0:26 left``), after one line
+    saying the training starts (the data are ready; the first epoch also sets up); None: none."""
     if every_s is None:
         return None
+    print(f"{spec.row}, seed {seed}: data ready, training {epochs} epochs (the first also sets up)", file=sys.stderr,
+          flush=True)
     lines = ProgressLines(f"{spec.row}, seed {seed}: epoch", epochs, every_s=every_s)
     return lambda model, history: lines.update(len(history.terms),
                                                loss=f"{history.terms[-1].get('total', math.nan):.4g}")
