@@ -304,9 +304,10 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
     results = _train_and_evaluate(args, out, epochs, processes, budget, cpu_budget)  # 1-2. train and evaluate
     data = load_data(args.corpus, args.quick)  # 3. figures and video from the saved checkpoints
-    step("the saved checkpoints on test-A again, figures and the side-by-side video", args)
+    step("the saved checkpoints on test-A again", args)
     pred = _reloaded_predictions(out, results, test_features(data, TEST_SPLIT, args.features),
                                  data["corpus"].regions)
+    step("the figures and the side-by-side video", args)
     files, clip = _figures_and_video(out, pred, data, args.quick)
     step("both models on the real recordings of notebooks/data/real/", args)
     real = _real_voices(out, data)
