@@ -6,7 +6,7 @@ Each value is defined here once and the module that works with it imports it fro
 
 - :data:`FAST_EPOCHS`       the short recipe's epochs per model (:mod:`dualtalker_lite.train`, ``train --epochs``)
 - :data:`FEATURES`          the front ends ``--features`` offers, the default first (:mod:`dualtalker_lite.front_ends`)
-- :data:`FORMATS`           ``animate --format``'s formats, and :data:`FORMAT_ALIASES` (:mod:`dualtalker_lite.inference`)
+- :data:`FORMATS`           ``animate --format``'s formats and :data:`FORMAT_ALIASES` (:mod:`dualtalker_lite.inference`)
 - :data:`PLUGINS_ENV`       the variable naming plugin modules (:mod:`dualtalker_lite.models.registry`)
 - :data:`TINY_EPOCHS`       ``train --recipe tiny``'s default epochs (:mod:`dualtalker_lite.cli`)
 - :data:`TRAINABLE_MODELS`  the package's own trainable models, in the registry's order (``train --model``; the

@@ -77,9 +77,10 @@ def _check_train_args(args: argparse.Namespace) -> TrainRequest:
 
 # ------------------------------------------------------------------------------------------------ commands
 def _trainable_models() -> Sequence[str]:
-    """``train --model``'s choices: the package's own models; with ``$DUALTALKER_PLUGINS`` set the registry's, which
-    imports the models and their plugins (and torch) to know their names (:func:`.commands.model_specs`)."""
-    if not os.environ.get(PLUGINS_ENV, "").strip():
+    """``train --model``'s choices: the package's own models, without importing torch; the registry's (plugins and
+    models registered in this process included, :func:`.commands.model_specs`) when it is loaded already or
+    ``$DUALTALKER_PLUGINS`` names modules that register more."""
+    if "dualtalker_lite.models.registry" not in sys.modules and not os.environ.get(PLUGINS_ENV, "").strip():
         return TRAINABLE_MODELS
     from .commands import model_specs
     return list(model_specs())

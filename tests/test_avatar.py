@@ -29,7 +29,9 @@ for (const w of [0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.7, 1]) {
   const toHead = new THREE.Matrix4().copy(head.matrixWorld).invert();
   const points = (m) => {
     const p = m.geometry.attributes.position, v = new THREE.Vector3(), all = [];
-    for (let i = 0; i < p.count; i++) all.push(v.fromBufferAttribute(p, i).applyMatrix4(m.matrixWorld).applyMatrix4(toHead).toArray());
+    for (let i = 0; i < p.count; i++) {
+      all.push(v.fromBufferAttribute(p, i).applyMatrix4(m.matrixWorld).applyMatrix4(toHead).toArray());
+    }
     return all;
   };
   const centre = (m) => new THREE.Vector3().setFromMatrixPosition(m.matrixWorld).applyMatrix4(toHead).toArray();

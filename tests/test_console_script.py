@@ -202,7 +202,10 @@ def test_generate_and_its_sentences_file_errors(tmp_path):
     proc = run("generate", "--out", tmp_path / "c", "--sentences-file", good, *small)
     out = ok(proc)
     # 5 clips: with --emotion-speakers 0 no emotional clip at all (test_emo_b too: 8 more before)
-    assert out.startswith(f"wrote 5 clips to {tmp_path / 'c'}") and (tmp_path / "c" / "metadata.json").is_file()
+    note, wrote = out.splitlines()[:2]  # --vertices 500 is below the coarsest mesh (810 vertices): said first
+    assert note.startswith("note: --vertices 500: the template mesh has 810 vertices")
+    assert wrote.startswith(f"wrote 5 clips to {tmp_path / 'c'} (810 vertices)")
+    assert (tmp_path / "c" / "metadata.json").is_file()
     done = [(m[1], m[2], m[3]) for m in progress_lines(proc.stderr)]  # each stage's first and last clip at least
     for stage in ("generate: speech clip", "generate: face clip"):
         assert (stage, "1", "5") in done and (stage, "5", "5") in done, proc.stderr

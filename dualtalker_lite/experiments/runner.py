@@ -125,9 +125,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
     ``cpu_budget_s`` (the demo's default): the same in CPU seconds of this process, which another job on the machine
     barely changes.
     ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
-    ``epoch_lines_s`` (the demo): the training's progress on stderr, one line per epoch at most that often
-    (:func:`_epoch_lines`), so a run in a worker process shows it is moving.
-    """
+    ``epoch_lines_s`` (the demo): progress lines on stderr, per epoch at most that often (:func:`_epoch_lines`)."""
     from ..train import train
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
@@ -141,8 +139,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
                                 logmel=data["train"].front_end, recipe=recipe)
         model, model_cfg, train_cfg = run.model, run.model_config, run.train_config
         t0 = time.perf_counter()
-        on_epoch = _epoch_lines(spec, seed, train_cfg.epochs, epoch_lines_s)
-        history = None if run.loader is None else train(model, run.loader, train_cfg, on_epoch=on_epoch)
+        lines = _epoch_lines(spec, seed, train_cfg.epochs, epoch_lines_s)
+        history = None if run.loader is None else train(model, run.loader, train_cfg, on_epoch=lines)
         train_seconds = time.perf_counter() - t0
         if checkpoint is not None and model_cfg is not None:
             _save_row_checkpoint(checkpoint, run, history, data["corpus"])
