@@ -139,7 +139,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
                                 logmel=data["train"].front_end, recipe=recipe)
         model, model_cfg, train_cfg = run.model, run.model_config, run.train_config
         t0 = time.perf_counter()
-        lines = _epoch_lines(spec, seed, train_cfg.epochs, epoch_lines_s)
+        lines = _epoch_lines(spec, seed, train_cfg.epochs, epoch_lines_s if run.loader is not None else None)
         history = None if run.loader is None else train(model, run.loader, train_cfg, on_epoch=lines)
         train_seconds = time.perf_counter() - t0
         if checkpoint is not None and model_cfg is not None:
