@@ -1,5 +1,5 @@
 # dualtalker-lite: every target creates/reuses the virtual environment .venv itself.
-#   make lab    open JupyterLab on notebooks/         (main job, interactive)
+#   make lab    open JupyterLab on working copies of notebooks/ in runs/notebooks/ (main job, interactive)
 #   make demo   headless end-to-end run -> runs/demo/ (main job, no browser); options: make demo ARGS="--seed 1"
 #   make test   every test CI runs: installs the test tools it can first (make test-tools), then the unit tests, the
 #               tests that need those tools and nbval over every notebook; lists every skipped test at the end
@@ -35,8 +35,10 @@ env: $(STAMP)
 # Jupyter refuses to run as root unless told to (containers, CI-like machines): allow it there only.
 LAB_FLAGS ?= $(if $(filter 0,$(shell id -u)),--allow-root,)
 
+# JupyterLab saves what it runs: it opens working copies in runs/notebooks/ (tools/lab.py), never notebooks/
 lab: $(STAMP)
-	$(VENV)/bin/jupyter lab $(LAB_FLAGS) notebooks/
+	$(PY) tools/lab.py --out runs/notebooks
+	$(VENV)/bin/jupyter lab $(LAB_FLAGS) runs/notebooks/
 
 demo: $(STAMP)
 	$(PY) -m dualtalker_lite.demo --out runs/demo $(ARGS)

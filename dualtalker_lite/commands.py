@@ -42,6 +42,7 @@ from .data.dataset import TalkingFaceDataset
 from .data.pairs import PairDataset
 from .experiments.assembly import Assembly, assemble_training, feature_view
 from .experiments.evaluation import emotion_split_metrics, predict_split, split_metrics
+from .experiments.real import real_voice_closures, real_voices_line
 from .experiments.specs import EMOTION_METRICS, EMOTIONAL_TRAIN, METRICS, RunSpec, table_specs
 from .files import NAME_MAX, atomic_torch_save, atomic_write_text, check_free_space, claim, sweep_stale
 from .inference import check_corpus
@@ -317,6 +318,8 @@ def run_evaluate(args: argparse.Namespace) -> dict:
     if ckpt.get("speakers") and list(ckpt["speakers"]) != list(corpus.train_speakers):
         raise ValueError(f"corpus {corpus.root} has training speakers {corpus.train_speakers}, the checkpoint "
                          f"knows {ckpt['speakers']}: evaluate on the corpus it was trained on")
+    if args.real:
+        return _evaluate_real(args, model, ckpt, corpus)
     dataset = _evaluation_set(ckpt, corpus, args.split, args.checkpoint, cache=not args.no_cache,
                               ears=getattr(args, "front_end", None))
     out = _predict_with_progress(model, dataset, progress_mode(args.quiet))
@@ -343,3 +346,23 @@ def run_evaluate(args: argparse.Namespace) -> dict:
                                                 indent=1, allow_nan=False))
         print(f"metrics -> {args.json}")
     return metrics
+
+
+def _evaluate_real(args: argparse.Namespace, model, ckpt: dict, corpus: Corpus) -> dict:
+    """``evaluate --real``: the closures of :func:`~dualtalker_lite.experiments.real.real_voice_closures` on the
+    shipped real recordings, printed (and written to ``--json``)."""
+    front = front_ends.get(front_ends.canonical(ckpt.get("features") or {}).get("name", "logmel"))
+    if not front.from_audio:
+        raise ValueError(f"{args.checkpoint}: a {front.name!r} model cannot animate a recording; --real needs one "
+                         f"trained on features computed from audio (visemes or logmel)")
+    front_end = front_ends.at_test(ckpt.get("features"), getattr(args, "front_end", None), str(args.checkpoint),
+                                   cache=not args.no_cache)            # --front-end: the other ears
+    template = corpus.template(corpus.train_speakers[0])
+    m = real_voice_closures(model, front_end, template, corpus.regions["lip_midpoints"])
+    print(describe(ckpt))
+    print(real_voices_line(m))
+    if args.json:
+        atomic_write_text(args.json, json.dumps({"checkpoint": str(args.checkpoint), "split": "real",
+                                                 "metrics": m, "left_out": {}}, indent=1, allow_nan=False))
+        print(f"metrics -> {args.json}")
+    return m

@@ -10,12 +10,13 @@
    viseme tracks of the test audio, so the checkpoints animate any voice (``dualtalker-lite animate``; they close
    the lips on most but not all of a real voice's /p b m/, ``results/time_to_quality.md``, ``docs/front-ends.md``);
    ``--features logmel`` gives the papers' kind of input, which learns the corpus's synthetic voices only;
-2. evaluates both, plus the static template, on test-A with autoregressive generation;
+2. evaluates both, plus the static template, on test-A with autoregressive generation, and both on the real
+   recordings shipped in ``notebooks/data/real/`` (the lip closures of ``evaluate --real``, printed under the table);
 3. writes into ``--out``:
 
    ==================  ================================================================================
    ``metrics.md``      the metrics table (units in the header) and a legend, one line per column, also printed
-   ``metrics.json``    the same numbers, the command, epochs actually trained, timings, file paths
+   ``metrics.json``    the same numbers and ``real_voices``, the command, epochs trained, timings, file paths
    ``lip_distance.png`` DualTalker Fig. 5: upper-to-lower lip distance of one test-A clip, GT vs both
                        models, with the clip's phones in IPA (``data.speech.to_ipa``; a caption says so)
    ``error_map.png``   per-vertex mean Euclidean error of DualTalker over test-A on the mesh (mm)
@@ -51,14 +52,25 @@ import torch
 
 from .experiments import (FEATURES, METRICS, TEST_SPLIT, load_data, predict_split, run_specs, split_metrics,
                           table_specs, test_features)
+from .experiments.real import real_voice_closures, real_voices_line
 
-__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "metrics_markdown", "lip_distance_figure", "budget_notes",
+__all__ = ["MODELS", "COLUMN_LEGEND", "PHONE_CAPTION", "REAL_VOICES_HEADER", "PROGRESS_EVERY_S", "step", "metrics_markdown", "lip_distance_figure", "budget_notes",
            "main"]
 
 # label -> (row of the experiments' "main" table, checkpoint file name or None)
 MODELS = {"Static template": ("Static template", None),
           "FaceFormer-style": ("FaceFormer-style", "faceformer.pt"),
           "DualTalker": ("DualTalker", "dualtalker.pt")}
+
+
+PROGRESS_EVERY_S = 5.0  # an epoch takes 1-5 s: a line at least every ~10 s, on a busy machine too
+
+
+def step(what: str, args: argparse.Namespace) -> None:
+    """One progress line on stderr as a step of the demo begins (``--no-progress``: none); the training's lines come
+    from the worker processes, one per epoch at most every :data:`PROGRESS_EVERY_S` seconds."""
+    if not args.no_progress:
+        print(f"demo: {what}", file=sys.stderr, flush=True)
 
 
 def budget_notes(results: dict, cpu_budget: float | None = None, time_budget: float | None = None) -> dict[str, str]:
@@ -135,10 +147,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--processes", type=int, default=2, help="train the two models in parallel (1 thread each)")
     p.add_argument("--corpus", default=None, help="corpus folder (default: the shipped data_samples/)")
     p.add_argument("--quick", action="store_true", help="1 epoch on a few clips, short video (tests)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress lines on stderr (otherwise one as each step begins and, while training, one per "
+                        "epoch of each model at most every 5 s)")
     return p.parse_args(argv)
 
 
+REAL_VOICES_HEADER = ("Real voices (the table's closures are test-A's synthetic voice through the recogniser): the "
+                      "lips on the 24 real recordings shipped in notebooks/data/real/, 44 /p b m/ (one model: "
+                      "dualtalker-lite evaluate --checkpoint CKPT --real; the README's figures: 255 such prompts)")
 PHONE_CAPTION = ("Shaded bands: the clip's phones, in IPA (espeak-ng's timing; e.g. ŋ sing, ɔ off, j the linking y "
                  "of the apple). The lips should close at p b m.")
 
@@ -188,9 +205,11 @@ def _train_and_evaluate(args, out: Path, epochs: int | None, processes: int, bud
     loader = threading.Thread(target=load_data, args=(args.corpus, args.quick), daemon=True)
     if processes > 1:  # in-process runs load it themselves
         loader.start()
+    step("training DualTalker and FaceFormer-style, then evaluating them on test-A", args)
     runs = run_specs([jobs[i] for i in order], epochs, processes, args.corpus, args.quick,
-                     checkpoints=[checkpoints[i] for i in order], progress=not args.no_progress, time_budget_s=budget,
-                     recipe=args.recipe, cpu_budget_s=cpu_budget)
+                     checkpoints=[checkpoints[i] for i in order], progress=False, time_budget_s=budget,
+                     recipe=args.recipe, cpu_budget_s=cpu_budget,
+                     epoch_lines_s=None if args.no_progress else PROGRESS_EVERY_S)
     results = dict(zip([list(MODELS)[i] for i in order], runs))
     if loader.is_alive():
         loader.join()
@@ -212,6 +231,21 @@ def _reloaded_predictions(out: Path, results: dict, test_set, regions) -> dict:
                 print(f"warning: {label}: the reloaded checkpoint gives LVE_pub {again['lve_published']:.6g}, "
                       f"training process {saved['lve_published']:.6g}", file=sys.stderr)
     return pred
+
+
+def _real_voices(out: Path, data: dict) -> dict:
+    """Step 3c: each saved checkpoint's lip closures on the real recordings shipped in ``notebooks/data/real/``, as
+    ``dualtalker-lite evaluate --real`` prints them (:mod:`dualtalker_lite.experiments.real`) -> {label: closures}."""
+    from . import front_ends
+    from .checkpoints import load_checkpoint
+    corpus, found = data["corpus"], {}
+    for label, (_, ckpt) in MODELS.items():
+        if ckpt is not None:
+            model, meta = load_checkpoint(out / ckpt)
+            front_end = front_ends.from_settings(meta.get("features"), str(out / ckpt))
+            found[label] = real_voice_closures(model, front_end, corpus.template(corpus.train_speakers[0]),
+                                               corpus.regions["lip_midpoints"])
+    return found
 
 
 def _figures_and_video(out: Path, pred: dict, data: dict, quick: bool) -> tuple[dict, str]:
@@ -270,9 +304,13 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
     results = _train_and_evaluate(args, out, epochs, processes, budget, cpu_budget)  # 1-2. train and evaluate
     data = load_data(args.corpus, args.quick)  # 3. figures and video from the saved checkpoints
+    step("the saved checkpoints on test-A again", args)
     pred = _reloaded_predictions(out, results, test_features(data, TEST_SPLIT, args.features),
                                  data["corpus"].regions)
+    step("the figures and the side-by-side video", args)
     files, clip = _figures_and_video(out, pred, data, args.quick)
+    step("both models on the real recordings of notebooks/data/real/", args)
+    real = _real_voices(out, data)
     names = pred["DualTalker"]["names"]
 
     epochs_done = {label: r["epochs"] for label, r in results.items()}
@@ -292,12 +330,15 @@ def main(argv: Sequence[str] | None = None) -> dict:
                "models": {label: {k: r[k] for k in ("metrics", "train_seconds", "eval_seconds", "n_parameters",
                                                     "model_config", "loss_history")}
                           for label, r in results.items()},
-               "files": {k: str(v) for k, v in files.items()}}
+               "real_voices": real, "files": {k: str(v) for k, v in files.items()}}
     files["metrics_json"] = out / "metrics.json"
     total = time.perf_counter() - t_start
     payload["total_seconds"] = total
     files["metrics_json"].write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
     print(table)
+    print(REAL_VOICES_HEADER)
+    for label, m in real.items():
+        print(f"  {label:18s}{real_voices_line(m).split(':', 1)[1]}")
     print("Files:")
     for k, v in files.items():
         print(f"  {k:28s} {v}")

@@ -34,8 +34,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from .console import MEMORY_ADVICE, RESOURCE_ADVICE
 
 __all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "atomic_write_text", "AtomicOutputDir",
@@ -264,7 +262,8 @@ def check_free_space(path: str | os.PathLike, needed: int, what: str = "the outp
 
 def tensor_bytes(obj: Any) -> int:
     """Bytes of the tensors and arrays in nested dicts/lists/tuples: the bulk of what ``torch.save`` writes."""
-    if isinstance(obj, torch.Tensor):
+    torch = sys.modules.get("torch")  # a tensor exists only once torch was imported (this module never imports it)
+    if torch is not None and isinstance(obj, torch.Tensor):
         return obj.element_size() * obj.nelement()
     if hasattr(obj, "nbytes") and not isinstance(obj, (str, bytes)):
         return int(obj.nbytes)
@@ -370,6 +369,8 @@ class _SaveFailed(Exception):
 
 
 def _save_aside(obj: Any, path: Path) -> None:
+    import torch  # here, not at the head: the command line imports this module for --help too, which needs no torch
+
     sweep_stale(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path), suffix=".tmp")
     os.close(fd)
@@ -406,6 +407,8 @@ def rescue_name(folder: Path, name: str) -> Path:
 def _save_in_parts(obj: Any, first: Path, part_size: int) -> list[Path]:
     """``torch.save`` into memory, then write the bytes as ``first``, ``first.part2``, ... of at most
     ``part_size`` bytes each (a file-size limit cannot stop that); ``cat`` joins them into the checkpoint."""
+    import torch  # as in _save_aside
+
     buffer = io.BytesIO()
     torch.save(obj, buffer)
     data = buffer.getbuffer()

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from .audio import LogMelExtractor
+from .choices import EARS  # front ends that hear the same 15 viseme classes: either feeds a model of the other
+from .choices import FEATURES  # defined there: the command line's --help reads it without torch
 from .deprecation import renamed_keyword
 from .ears.model import StudentExtractor
 from .recogniser import NAME as RECOGNISER, OUTPUTS, RecogniserExtractor
@@ -56,21 +58,24 @@ __all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "get
 class FrontEnd:
     """One row of :data:`FRONT_ENDS`. ``labels``: trained on the corpus's labels (viseme or phoneme), not on the
     features of its audio; ``from_audio``: computable from a recording (so ``evaluate`` and ``animate`` can feed it);
-    ``recogniser``: computed by the phoneme recogniser (the ``[phonetic]`` extra, ``hama``); ``offered``: a choice of
-    the commands' ``--features``."""
+    ``recogniser``: computed by the phoneme recogniser (the ``[phonetic]`` extra, ``hama``); :attr:`offered`: a choice
+    of the commands' ``--features`` (:data:`dualtalker_lite.choices.FEATURES`)."""
 
     name: str
     description: str
     labels: bool = False
     from_audio: bool = True
     recogniser: bool = False
-    offered: bool = False
+
+    @property
+    def offered(self) -> bool:
+        return self.name in FEATURES
 
 
 FRONT_ENDS: dict[str, FrontEnd] = {f.name: f for f in (
     FrontEnd("visemes", "phonetic route: trained on the corpus's viseme labels, tested on the hama recogniser's "
-                        "viseme tracks of the audio", labels=True, recogniser=True, offered=True),
-    FrontEnd("logmel", "log-mel (the papers' kind of acoustic input)", offered=True),
+                        "viseme tracks of the audio", labels=True, recogniser=True),
+    FrontEnd("logmel", "log-mel (the papers' kind of acoustic input)"),
     FrontEnd("visemes+logmel", "phonetic route for the content branch, log-mel for the emotion branch", labels=True,
              recogniser=True),
     FrontEnd("phonemes", "one-hot phoneme labels", labels=True, from_audio=False),
@@ -79,8 +84,8 @@ FRONT_ENDS: dict[str, FrontEnd] = {f.name: f for f in (
     FrontEnd("student", "trained on the corpus's viseme labels, tested on the student's causal viseme posteriors "
                         "(ears, issue 47)", labels=True),
 )}
-DEFAULT = "visemes"  # the phonetic route: the only front end that animates real voices (docs/front-ends.md)
-CHOICES = tuple(sorted((n for n, f in FRONT_ENDS.items() if f.offered), key=lambda n: n != DEFAULT))
+DEFAULT = FEATURES[0]  # "visemes", the phonetic route: the only front end that animates real voices (front-ends.md)
+CHOICES = FEATURES
 OLD_SPELLINGS = {RECOGNISER: "the recogniser's 'output' setting"}  # name before issue 30 -> what it maps to
 
 
@@ -170,8 +175,6 @@ def from_settings(features: dict | None, source: str = "checkpoint", cache: bool
         return StudentExtractor.from_settings(features, source)
     return LogMelExtractor(**features.get("settings", {}))
 
-
-EARS = ("visemes", "student")   # front ends that hear the same 15 viseme classes: either feeds a model of the other
 
 
 def at_test(features: dict | None, name: str | None = None, source: str = "checkpoint", cache: bool = True) -> Any:

@@ -1,7 +1,7 @@
 """Animate a face mesh from your own speech recording with a trained model.
 
     dualtalker-lite animate --checkpoint runs/demo/dualtalker.pt --wav my_speech.wav \\
-        --speaker SPK01 --out runs/my_animation          # its options: dualtalker_lite.cli.animate_parser
+        --speaker SPK01 --out runs/my_animation          # its options: dualtalker_lite.parsers.animate_parser
 
 writes into ``--out`` (formats chosen with ``--format``, default ``npy,mp4``):
 
@@ -56,6 +56,7 @@ from .data import sample_path
 from .data.corpus import Corpus, check_face_size
 from .streaming import fixed_mmap_threshold, predict_chunks, write_npy_stream
 from .checks import check_finite, resolve_device
+from .choices import FORMAT_ALIASES, FORMATS  # defined there: animate --help reads them without torch
 from .console import ProgressLines, progress_mode
 from .export.gltf import write_gltf
 from .files import AtomicOutputDir, out_of_memory
@@ -65,8 +66,6 @@ __all__ = ["FORMATS", "animate_wave", "animate_wav", "resolve_device", "read_tem
            "write_outputs", "run", "FORMAT_ALIASES"]
 
 FPS = 30
-FORMATS = ("npy", "obj", "gltf", "html", "mp4", "visemes")
-FORMAT_ALIASES = {"glb": "gltf"}  # the .glb's old name: now the morph-target file (the flip-book is gone)
 
 
 def animate_wave(model: torch.nn.Module, wave: np.ndarray, template: np.ndarray, speaker: int = 0,
@@ -299,7 +298,7 @@ def write_outputs(folder: Path, verts, faces: np.ndarray, wave: np.ndarray | Non
 
 # -------------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> list[Path]:
-    """The ``animate`` command on the arguments :func:`dualtalker_lite.cli.animate_parser` parsed -> the paths written;
+    """The ``animate`` command on the arguments :func:`dualtalker_lite.parsers.animate_parser` parsed -> the paths written;
     raises one line on any problem (the command layer, :mod:`dualtalker_lite.cli`, turns it into exit status 2)."""
     fixed_mmap_threshold()  # flat memory in the audio's length: freed blocks go back to the system
     formats = _formats(args.format, args.no_video)

@@ -46,6 +46,7 @@ from tqdm.auto import tqdm
 
 from . import checkpoints
 from .checks import NonFiniteError
+from .choices import FAST_EPOCHS  # defined there: the command line's --help reads it without torch
 from .deprecation import moved
 from .face.visemes import VISEMES
 from .losses.contact import bilabial_contact
@@ -126,7 +127,6 @@ class TrainConfig:
 RECIPE = dict(epochs=37, batch_size=8, lr=3e-3, max_frames=90, grad_clip=1.0, warmup_steps=30, decay="cosine",
               min_lr_ratio=0.0, threads=1, mean_init=True)
 FAST = dict(pca_init=64, lr=6e-3, basis_space=True, lip_contact=1e-3)
-FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
 # per-model changes to FAST; VOCA-style (a sliding window, no autoregressive decoder) and EmoFace (Mesh Attention
 # mixes two decoders per vertex, as CorrTalk's mask does) have no basis step either
 FAST_MODEL = {"corrtalk": dict(basis_space=False), "voca": dict(basis_space=False),

@@ -17,13 +17,13 @@ PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
 
 LAYERS = [  # lowest first
     ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "recogniser",
-                     "front_ends", "export", "provenance", "deprecation", "ears.model")),
+                     "front_ends", "export", "provenance", "deprecation", "ears.model", "choices")),
     ("data and blocks", ("data", "blocks", "ears")),  # ears: the student's data (reads audio, recogniser, data)
     ("models and losses", ("models", "losses")),
     ("training and evaluation", ("train", "checkpoints", "metrics")),
     ("applications", ("experiments", "inference", "streaming", "live", "commands")),
     ("visualisation", ("viz",)),
-    ("front ends", ("cli", "demo", "viz.widgets", "experiments.__main__")),
+    ("front ends", ("cli", "parsers", "demo", "viz.widgets", "experiments.__main__")),
 ]
 # the modules of the registered models (dualtalker_lite.models.registry): no one of them imports another
 PAPERS = tuple(sorted({e.model_cls.__module__.partition(".")[2] for e in registry.entries().values()

@@ -202,7 +202,10 @@ def test_generate_and_its_sentences_file_errors(tmp_path):
     proc = run("generate", "--out", tmp_path / "c", "--sentences-file", good, *small)
     out = ok(proc)
     # 5 clips: with --emotion-speakers 0 no emotional clip at all (test_emo_b too: 8 more before)
-    assert out.startswith(f"wrote 5 clips to {tmp_path / 'c'}") and (tmp_path / "c" / "metadata.json").is_file()
+    note, wrote = out.splitlines()[:2]  # --vertices 500 is below the coarsest mesh (810 vertices): said first
+    assert note.startswith("note: --vertices 500: the template mesh has 810 vertices")
+    assert wrote.startswith(f"wrote 5 clips to {tmp_path / 'c'} (810 vertices)")
+    assert (tmp_path / "c" / "metadata.json").is_file()
     done = [(m[1], m[2], m[3]) for m in progress_lines(proc.stderr)]  # each stage's first and last clip at least
     for stage in ("generate: speech clip", "generate: face clip"):
         assert (stage, "1", "5") in done and (stage, "5", "5") in done, proc.stderr
@@ -393,3 +396,40 @@ def test_no_module_imports_the_cli():
                 offenders.append("console.py imports the package")
     assert offenders == []
 
+
+
+def test_help_loads_no_torch():
+    """``dualtalker-lite --help`` and every ``COMMAND --help`` answer without importing torch (about 5 s on a busy
+    laptop; ``docs/cli.md`` gives the time with the command that measured it): a fresh interpreter runs each help as
+    the console script does, then reports whether ``torch`` (and the command modules) were imported."""
+    code = ("import sys\nfrom dualtalker_lite.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('torch', 'dualtalker_lite.commands', 'dualtalker_lite.inference', "
+            "'dualtalker_lite.models', 'dualtalker_lite.live.server') if m in sys.modules), file=sys.stderr)")
+    for argv in [["--help"], *([c, "--help"] for c in COMMANDS)]:
+        proc = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120,
+                              env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert proc.returncode == 0 and "dualtalker-lite" in proc.stdout, (argv, proc.stderr[-2000:])
+        assert proc.stderr.splitlines()[-1] == "[]", (argv, proc.stderr[-2000:])
+
+
+def test_the_help_choices_are_the_packages_own():
+    """The light names the parsers offer (``dualtalker_lite.choices``) are the heavy modules' own: the registry's
+    trainable built-in models, in its order, and the front ends marked as offered, the default first."""
+    from dualtalker_lite import choices, front_ends
+    from dualtalker_lite.models import registry
+
+    assert choices.TRAINABLE_MODELS == tuple(n for n in registry.BUILTIN_MODELS if registry.get(n).trainable)
+    assert choices.TRAINABLE_MODELS == ("voca", "faceformer", "dualtalker", "corrtalk", "emoface")
+    assert [n for n, f in front_ends.FRONT_ENDS.items() if f.offered] == ["visemes", "logmel"]
+    assert front_ends.DEFAULT == "visemes" and front_ends.CHOICES == ("visemes", "logmel")
+
+
+def test_evaluate_real_prints_the_real_voice_closures(voca_ckpt, tmp_path):
+    """``evaluate --real``: the README's real-voice check in one command, on the recordings shipped with their
+    licence and alignments (24 prompts, 44 /p b m/, counted in tests/test_real_check.py)."""
+    out = ok(run("evaluate", "--checkpoint", voca_ckpt, "--real", "--json", tmp_path / "real.json"))
+    assert "real voices (24 shipped recordings, 44 /p b m/): closure < 2 mm " in out
+    m = strict_json(tmp_path / "real.json")["metrics"]
+    assert m["n_bilabials"] == 44 and 0 <= m["closure_1mm"] <= m["closure_2mm"] <= 1
+    assert f"< 2 mm {m['closure_2mm']:.2f}, < 1 mm {m['closure_1mm']:.2f}" in out

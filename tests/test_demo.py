@@ -113,3 +113,21 @@ def test_demo_trains_each_model_with_the_short_recipe_by_default():
     assert got["DualTalker", "fast"] == (20, 6e-3, 64, True) and got["FaceFormer-style", "fast"] == (30, 6e-3, 64, True)
     assert got["DualTalker", "tiny"] == got["FaceFormer-style", "tiny"] == (37, 3e-3, 0, False)
     assert got["Static template", "fast"] == got["Static template", "tiny"]
+
+
+def test_each_run_reports_its_epochs_and_the_demo_its_steps(capsys):
+    """``make demo``'s progress is per epoch, not per run (a bar counting runs sat at 0/3 for minutes on a busy
+    machine): ``run_one(epoch_lines_s=0)`` prints a line after every epoch, naming the row, seed and epoch, from the
+    process that trains (a worker's stderr is the demo's); ``demo.step`` says which step begins."""
+    from dualtalker_lite.demo import PROGRESS_EVERY_S, parse_args, step
+    from dualtalker_lite.experiments import runner
+    from dualtalker_lite.experiments.specs import RunSpec
+
+    runner.run_one(RunSpec(row="VOCA-style", model="voca", features="logmel"), 0, 3, quick=True, epoch_lines_s=0)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "VOCA-style, seed 0: data ready, training 3 epochs (the first also sets up)"
+    assert [line.split(", loss")[0] for line in lines[1:]] == [f"VOCA-style, seed 0: epoch {k}/3" for k in (1, 2, 3)]
+    assert PROGRESS_EVERY_S < 10  # with epochs of at most 5 s on a busy machine: a line at least every ~10 s
+    step("figures", parse_args([]))
+    step("figures", parse_args(["--no-progress"]))
+    assert capsys.readouterr().err == "demo: figures\n"

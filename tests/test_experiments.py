@@ -285,6 +285,10 @@ def test_demo_quick_writes_every_file(tmp_path):
     model, _ = load_checkpoint(tmp_path / "dualtalker.pt")
     assert type(model).__name__ == "DualTalker" and model.cfg.dual
     assert res["metrics"]["DualTalker"] == payload["models"]["DualTalker"]["metrics"]
+    # the real-voice closures of evaluate --real, for both trained models: 44 /p b m/ in the 24 shipped recordings
+    assert set(payload["real_voices"]) == {"DualTalker", "FaceFormer-style"}
+    assert all(m["n_bilabials"] == 44 and 0 <= m["closure_1mm"] <= m["closure_2mm"] <= 1
+               for m in payload["real_voices"].values())
 
 
 # ------------------------------------------------------------------------------ collapse detection

@@ -301,3 +301,21 @@ def test_generate_says_which_speakers_train_and_counts_each_split(tmp_path, caps
     gen.main(["--out", str(tmp_path / "d"), "--speakers", "4", "--unseen-speakers", "1", "--sentences", "20",
               "--processes", "1"])
     assert not any(line.startswith("note: 4 speakers") for line in capsys.readouterr().out.splitlines())
+
+
+def test_too_few_vertices_get_the_coarsest_mesh_and_a_note(capsys):
+    """``--vertices 500`` cannot be honoured: the template's coarsest grid is 24 rings of 32 columns, 24 x 32 + 2
+    poles + the lower lip's copies and the mouth bag = 810 vertices (1500 asks for 34 x 44 + 2 + 11 + 49 = 1558). The
+    corpus gets that mesh and one ``note:`` line says so; ``--help`` gives the same floor."""
+    from dualtalker_lite.data.generate import _vertices_note, generate_parser
+    from dualtalker_lite.face.mesh import build_template, grid_size
+
+    assert grid_size(500) == grid_size(100) == (24, 32) and build_template(n_vertices=500).n_vertices == 810
+    assert build_template(n_vertices=1500).n_vertices == 34 * 44 + 2 + 11 + 49
+    _vertices_note(500)
+    assert capsys.readouterr().out == ("note: --vertices 500: the template mesh has 810 vertices, the fewest it can "
+                                       "have (its coarsest grid, 24 rings of 32 columns)\n")
+    _vertices_note(1500)
+    _vertices_note(800)  # 842: "about 800"
+    assert capsys.readouterr().out == ""
+    assert "at least 810" in " ".join(generate_parser("generate").format_help().split())

@@ -589,7 +589,7 @@ def _clip_table(root: Path, used: list[str], splits: dict[str, list[str]]) -> di
 
 # -------------------------------------------------------------------------------------- commands
 def convert_templates_command(args) -> Path:
-    """``dualtalker-lite convert-templates`` on the arguments :func:`dualtalker_lite.cli.convert_templates_parser`
+    """``dualtalker-lite convert-templates`` on the arguments :func:`dualtalker_lite.parsers.convert_templates_parser`
     parsed -> the .npz written."""
     from ..files import claim
 
@@ -601,7 +601,7 @@ def convert_templates_command(args) -> Path:
 
 
 def prepare_command(args) -> dict:
-    """``dualtalker-lite prepare-dataset`` on the arguments :func:`dualtalker_lite.cli.prepare_parser` parsed -> the
+    """``dualtalker-lite prepare-dataset`` on the arguments :func:`dualtalker_lite.parsers.prepare_parser` parsed -> the
     metadata written."""
     meta = prepare_dataset(args.root, args.preset, args.overwrite)
     sizes = {k: len(v) for k, v in meta["splits"].items()}

@@ -468,7 +468,8 @@ SPEC_HELP = {"speakers": "speakers in all, seen and unseen",
                                  "(test_emo_b neither)",
              "emotion_sentences": "shortest training sentences spoken with every emotion and level",
              "emotion_test_sentences": "shortest test sentences spoken with every emotion and level",
-             "vertices": "approximate vertex count of the template mesh",
+             "vertices": "approximate vertex count of the template mesh (1500 gives 1558; at least 810: the "
+                         "coarsest grid of 24 rings x 32 columns, which any smaller count gets, with a note)",
              "seed": "seed of the speakers' faces and of which sentences go to which split"}
 
 GENERATE_EXAMPLE = """examples:
@@ -561,11 +562,23 @@ def _print_notes(args: argparse.Namespace, spec: CorpusSpec, scaled: list[str]) 
         print(f"note: {spec.speakers} speakers: {spec.speakers - spec.unseen_speakers} in training, the last "
               f"{spec.unseen_speakers} held out for test_b (unseen speakers; --unseen-speakers sets how many, 0 for "
               f"none)", flush=True)
+    _vertices_note(spec.vertices)
     if scaled:
         print(f"note: {spec.sentences} sentences: {spec.val_sentences} for validation and {spec.test_sentences} for "
               f"test-A, {spec.sentences - spec.val_sentences - spec.test_sentences} for training (scaled down from "
               f"{d.val_sentences} and {d.test_sentences} of {d.sentences}; --val-sentences and --test-sentences set "
               f"them)", flush=True)
+
+
+def _vertices_note(asked: int) -> None:
+    """One ``note:`` line when ``--vertices`` asks for fewer vertices than the coarsest template mesh has (its grid
+    has at least 24 rings of 32 columns, :func:`dualtalker_lite.face.mesh.grid_size`): that mesh is what you get."""
+    from ..face import build_template
+
+    n = build_template(n_vertices=asked).n_vertices
+    if n > 1.1 * asked:
+        print(f"note: --vertices {asked}: the template mesh has {n} vertices, the fewest it can have (its coarsest "
+              f"grid, 24 rings of 32 columns)", flush=True)
 
 
 def split_summary(meta: dict) -> str:

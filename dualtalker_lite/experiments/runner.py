@@ -6,7 +6,9 @@ spawned workers import them by this module's path).
 from __future__ import annotations
 
 import copy
+import math
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict
@@ -20,6 +22,7 @@ from .assembly import PHONETIC, feature_view, assemble_training, build_model  # 
 from .evaluation import (AudioSwapped, audio_sensitivity, collapse_reasons, emotion_split_metrics,
                          predict_split, split_metrics, swap_partners)
 from .. import front_ends
+from ..console import ProgressLines
 from .specs import EMOTIONAL_TRAIN, QUICK_CLIPS, TEST_SPLIT, RunSpec
 
 # ------------------------------------------------------------------------------------------- data and models
@@ -106,7 +109,7 @@ def training_set(data: dict, spec: RunSpec, seed: int) -> tuple[Dataset, bool]:
 def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: str | None = None, quick: bool = False,
             checkpoint: str | Path | None = None, time_budget_s: float | None = None,
             test_split: str = TEST_SPLIT, clips: dict | None = None, recipe: str = "tiny",
-            cpu_budget_s: float | None = None) -> dict:
+            cpu_budget_s: float | None = None, epoch_lines_s: float | None = None) -> dict:
     """Train one row with one seed for ``epochs`` epochs (1 torch thread), evaluate on ``test_split`` -> a result.
 
     ``recipe``: "tiny" (``TrainConfig.tiny``, the tables') or "fast" (``TrainConfig.fast``, the demo's); ``epochs``
@@ -122,7 +125,7 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
     ``cpu_budget_s`` (the demo's default): the same in CPU seconds of this process, which another job on the machine
     barely changes.
     ``clips`` ({split: n}; benchmarks only): train and test on the first n clips of those splits (:func:`load_data`).
-    """
+    ``epoch_lines_s`` (the demo): progress lines on stderr, per epoch at most that often (:func:`_epoch_lines`)."""
     from ..train import train
 
     spec = RunSpec(**spec) if isinstance(spec, dict) else spec
@@ -136,7 +139,8 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
                                 logmel=data["train"].front_end, recipe=recipe)
         model, model_cfg, train_cfg = run.model, run.model_config, run.train_config
         t0 = time.perf_counter()
-        history = None if run.loader is None else train(model, run.loader, train_cfg)
+        lines = _epoch_lines(spec, seed, train_cfg.epochs, epoch_lines_s if run.loader is not None else None)
+        history = None if run.loader is None else train(model, run.loader, train_cfg, on_epoch=lines)
         train_seconds = time.perf_counter() - t0
         if checkpoint is not None and model_cfg is not None:
             _save_row_checkpoint(checkpoint, run, history, data["corpus"])
@@ -162,6 +166,20 @@ def run_one(spec: RunSpec | dict, seed: int, epochs: int | None, corpus_path: st
         return result
     finally:
         torch.set_num_threads(threads)
+
+
+def _epoch_lines(spec: RunSpec, seed: int, epochs: int, every_s: float | None):
+    """``run_one``'s ``on_epoch`` for ``epoch_lines_s``: a :class:`~dualtalker_lite.console.ProgressLines` line on
+    stderr after the first and the last epoch and after any epoch that ends ``every_s`` seconds or more after the
+    previous line (``DualTalker, seed 0: epoch 7/20, loss 0.0123, 0:14 elapsed, about 0:26 left``), after one line
+    saying the training starts (the data are ready; the first epoch also sets up); None: none."""
+    if every_s is None:
+        return None
+    print(f"{spec.row}, seed {seed}: data ready, training {epochs} epochs (the first also sets up)", file=sys.stderr,
+          flush=True)
+    lines = ProgressLines(f"{spec.row}, seed {seed}: epoch", epochs, every_s=every_s)
+    return lambda model, history: lines.update(len(history.terms),
+                                               loss=f"{history.terms[-1].get('total', math.nan):.4g}")
 
 
 def _save_row_checkpoint(path: str | Path, run, history, corpus) -> None:
@@ -221,9 +239,9 @@ def _worker_init(parent_pid: int | None = None) -> None:
 def _job(args: tuple) -> tuple[int, dict]:
     """One job of :func:`run_specs` (a plain tuple, so it pickles to a worker) -> (its index, :func:`run_one`'s
     result)."""
-    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe, cpu_budget = args
+    index, spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe, cpu_budget, lines_s = args
     return index, run_one(spec, seed, epochs, corpus_path, quick, checkpoint, budget, split, recipe=recipe,
-                          cpu_budget_s=cpu_budget)
+                          cpu_budget_s=cpu_budget, epoch_lines_s=lines_s)
 
 
 def executor_kind(executor: str) -> str:
@@ -249,7 +267,8 @@ def _dask_job(args: tuple) -> tuple[int, dict]:
 def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_path: str | None = None,
               quick: bool = False, checkpoints: list | None = None, progress: bool = True,
               time_budget_s: float | None = None, recipe: str = "tiny", executor: str = "local",
-              failures: list | None = None, cpu_budget_s: float | None = None) -> list[dict]:
+              failures: list | None = None, cpu_budget_s: float | None = None,
+              epoch_lines_s: float | None = None) -> list[dict]:
     """Run (spec, seed) or (spec, seed, test split) jobs -> results in job order.
 
     ``executor`` "local": in this process (``processes=1``) or in a spawn pool of ``processes`` workers; a failed
@@ -262,13 +281,13 @@ def run_specs(jobs: list[tuple], epochs: int | None, processes: int = 1, corpus_
     everything, one torch thread; tested).
 
     ``checkpoints``: one path (or None) per job; see :func:`run_one` for ``time_budget_s``, ``cpu_budget_s``,
-    ``recipe`` and ``epochs`` None."""
+    ``recipe``, ``epoch_lines_s`` and ``epochs`` None."""
     from tqdm.auto import tqdm
 
     kind = executor_kind(executor)
     checkpoints = checkpoints or [None] * len(jobs)
     args = [(i, asdict(job[0]), job[1], epochs, corpus_path, quick, ckpt, time_budget_s,
-             job[2] if len(job) > 2 else TEST_SPLIT, recipe, cpu_budget_s)
+             job[2] if len(job) > 2 else TEST_SPLIT, recipe, cpu_budget_s, epoch_lines_s)
             for i, (job, ckpt) in enumerate(zip(jobs, checkpoints))]
     results: list = [None] * len(jobs)
     bar = tqdm(total=len(jobs), desc="runs", unit="run", disable=not progress)

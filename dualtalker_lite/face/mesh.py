@@ -188,7 +188,8 @@ def _gauss(x, y, x0, y0, sx, sy):
 
 
 def grid_size(n_vertices: int = BASE_VERTICES) -> tuple[int, int]:
-    """(rings, columns per ring) for about ``n_vertices`` vertices; the count grows like the square."""
+    """(rings, columns per ring) for about ``n_vertices`` vertices; the count grows like the square. Never fewer
+    than 24 rings of 32 columns (810 vertices in all, ``generate --vertices`` says so): the coarsest grid."""
     scale = float(np.sqrt(n_vertices / BASE_VERTICES))
     n_rows = max(24, int(round(BASE_ROWS * scale)))
     half = max(16, int(round(BASE_HALF_COLS * scale)))

@@ -41,7 +41,6 @@ is asynchronous: the server calls ``push`` in a worker thread.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -51,34 +50,12 @@ from ..export.visemes import NAMES, track_segments, viseme_weights
 from ..face.visemes import VISEMES
 from ..models.contract import hook
 from ..recogniser import FRAME_SAMPLES, RATE, PhonemeRecogniser, RecogniserExtractor, spike_track
+from .settings import LiveSettings, student_latency_s  # defined there: live --help reads them without torch
 
-__all__ = ["StreamingVisemes", "StreamingStudentVisemes", "StreamingVisemeWeights", "IncrementalDecoder", "LiveSession", "LiveSettings"]
+__all__ = ["StreamingVisemes", "StreamingStudentVisemes", "StreamingVisemeWeights", "IncrementalDecoder",
+           "LiveSession", "LiveSettings"]
 
 SAMPLE_RATE = 16000
-
-
-@dataclass
-class LiveSettings:
-    """What a live session trades: look-ahead (latency) against agreement with the offline animation, and past
-    context and hop against cost. Defaults measured in ``docs/live.md``."""
-    lookahead_s: float = 0.25     # recogniser look-ahead (was 0.2: 0.25 with ahead_frames 0 meets the closure target
-                                  # on all 255 real-voice prompts at a 50 ms smaller budget than 0.2 with 3; live.md)
-    past_s: float = 2.0           # recogniser context before the first frame not yet final (was 0.6, results/live.md)
-    hop_s: float = 0.2            # hama runs once per hop of new audio
-    past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
-    ahead_frames: int = 0         # audio-encoder look-ahead (mesh frames) after it (was 3: fewer close the lips
-                                  # more often live, at a little less agreement with offline; results/live.md)
-    ears: str = "hama"            # who hears the visemes: "hama" (StreamingVisemes, the settings above) or
-                                  # "student" (StreamingStudentVisemes: its own look-ahead, no hop, no past_s)
-
-    def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1,
-                  student_lookahead: int | None = None) -> float:
-        """The algorithmic latency (no compute): frame f's vertices need audio up to f / fps + this at most (hama:
-        in a pause; during speech window_s is cut to the distance to the frame's nearest spike, StreamingVisemes;
-        the student: :meth:`StreamingStudentVisemes.latency_s` of its look-ahead)."""
-        if self.ears == "student":
-            return StreamingStudentVisemes.latency_s(student_lookahead or 0, fps) + self.ahead_frames / fps
-        return self.lookahead_s + lag_s + window_s + self.ahead_frames / fps
 
 
 class StreamingVisemes:
@@ -225,7 +202,7 @@ class StreamingStudentVisemes:
     @staticmethod
     def latency_s(lookahead: int, fps: float = 30.0) -> float:
         """The algorithmic latency: frame f's id needs audio up to f / fps + this (see the class doc)."""
-        return (1 + lookahead) * 0.02 + 0.016
+        return student_latency_s(lookahead)
 
     def push(self, samples: np.ndarray) -> np.ndarray:
         """Append samples (float32 (n,), 16 kHz) -> viseme ids (k,) of the mesh frames that became final."""

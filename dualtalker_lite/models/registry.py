@@ -19,10 +19,10 @@ from typing import Any, Callable
 
 import torch
 
+from ..choices import PLUGINS_ENV  # defined there: the command line reads it without torch
+
 __all__ = ["ModelEntry", "PLUGINS_ENV", "BUILTIN_MODELS", "register", "unregister", "entries", "get", "names", "by_class_name",
            "classes", "load_plugins"]
-
-PLUGINS_ENV = "DUALTALKER_PLUGINS"
 
 
 @dataclass(frozen=True)

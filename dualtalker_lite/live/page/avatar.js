@@ -30,6 +30,25 @@ export function mouthShape(c) {
   };
 }
 
+// The head's sizes (head radius = 1): the skull is an egg of these radii about the origin, the mouth sits at MOUTH,
+// each lip is a capsule of radius LIP_R (times its thickness) along x. The upper lip rises by half the gap as the
+// mouth opens, where the egg bulges forward: it rides on the egg's front (skullFront at the lip's top edge, on the
+// mid-line, where the egg reaches farthest) so that it never sinks into the head (it did at wide openings). The
+// lower lip and the mouth's inside keep the lips' depth at rest, the inside just behind the upper lip.
+export const SKULL = [0.85, 1.05, 0.9], MOUTH = [0, -0.42, 0.8], LIP_R = 0.055;
+export const skullFront = (y) => SKULL[2] * Math.sqrt(Math.max(0, 1 - (y / SKULL[1]) ** 2));
+
+// mouthShape's result -> where the lips and the inside go, in the mouth's coordinates (MOUTH is its origin)
+export function lipPlacement(s) {
+  const thick = 1 - 0.4 * s.press;
+  const up = s.gap / 2 + 0.04 * thick;
+  const onSkull = (y) => skullFront(MOUTH[1] + y + LIP_R * thick) + 0.005 - MOUTH[2];  // the top edge just outside
+  const rest = onSkull(0.02 / 2 + 0.04 * thick);                                         // mouthShape's rest gap 0.02
+  const upperZ = Math.max(rest, onSkull(up)) + s.forward;
+  return { thick, upper: [0, up, upperZ], lower: [0, -up - s.jaw * 0.5, rest + s.forward],
+           inside: upperZ - 0.03 };
+}
+
 // viseme weights (15, in `spec.names` order) -> the rig's mouth controls {name: value}
 export function controlsOf(weights, spec) {
   const c = {};
@@ -52,7 +71,8 @@ export function makeAvatar(spec) {
   };
   const head = new THREE.Group();
   const skin = mat(0x7fb8d8);
-  head.add(ball(1, skin, 0, 0, 0, 0.85, 1.05, 0.9));                     // the skull: an egg
+  const skull = ball(1, skin, 0, 0, 0, ...SKULL);                        // the skull: an egg
+  head.add(skull);
   head.add(ball(0.16, skin, -0.84, 0.02, 0), ball(0.16, skin, 0.84, 0.02, 0));   // ears
   for (const x of [-0.3, 0.3]) {
     head.add(ball(0.15, mat(0xffffff, 0.3), x, 0.28, 0.72));             // eyes
@@ -64,10 +84,10 @@ export function makeAvatar(spec) {
   const chin = ball(0.3, skin, 0, -0.74, 0.48, 1.1, 0.7, 0.8);            // moves down with jaw_open
   head.add(chin);
   const mouth = new THREE.Group();
-  mouth.position.set(0, -0.42, 0.8);
+  mouth.position.set(...MOUTH);
   const cavity = ball(1, mat(0x3a0d12, 0.9), 0, 0, -0.03);                 // the dark inside, scaled per frame
   const lip = () => {
-    const m = new THREE.Mesh(new THREE.CapsuleGeometry(0.055, 1, 6, 16), mat(0xc4505a, 0.45));
+    const m = new THREE.Mesh(new THREE.CapsuleGeometry(LIP_R, 1, 6, 16), mat(0xc4505a, 0.45));
     m.rotation.z = Math.PI / 2;                                            // along x
     return m;
   };
@@ -80,14 +100,13 @@ export function makeAvatar(spec) {
   camera.lookAt(0, -0.05, 0);
 
   const pose = (c) => {
-    const s = mouthShape(c);
-    const thick = 1 - 0.4 * s.press;
-    for (const [m, sign] of [[upper, 1], [lower, -1]]) {
-      m.scale.set(thick, s.width, thick);                                 // capsule along x: its y is the length
-      m.position.set(0, sign * (s.gap / 2 + 0.04 * thick) - (sign < 0 ? s.jaw * 0.5 : 0), s.forward);
+    const s = mouthShape(c), at = lipPlacement(s);
+    for (const [m, where] of [[upper, at.upper], [lower, at.lower]]) {
+      m.scale.set(at.thick, s.width, at.thick);                           // capsule along x: its y is the length
+      m.position.set(...where);
     }
     cavity.scale.set(s.width * 0.5, (s.gap + s.jaw * 0.5) / 2 + 0.01, 0.08);
-    cavity.position.y = -s.jaw * 0.25;
+    cavity.position.set(0, -s.jaw * 0.25, at.inside);
     chin.position.y = -0.74 - s.jaw;
     return s;
   };
@@ -97,5 +116,6 @@ export function makeAvatar(spec) {
     camera.position.z = Math.max(5.2, 4.3 / aspect);
     camera.updateProjectionMatrix();
   };
-  return { scene, camera, rest, fit, update: (weights) => pose(controlsOf(weights, spec)) };
+  return { scene, camera, rest, fit, update: (weights) => pose(controlsOf(weights, spec)), pose,
+           parts: { head, skull, upper, lower } };
 }
