@@ -19,7 +19,7 @@ TEST_JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 # and a notebook's cells run in order in one kernel
 XDIST  := -n $(TEST_JOBS) --dist loadscope
 
-.PHONY: lab demo test test-tools unit nbval env sample bench gpu-check clean katex
+.PHONY: lab demo test test-tools unit nbval env sample bench gpu-check clean katex fuzz
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -58,6 +58,17 @@ test-tools:
 # three.js, KaTeX, the browser and the real recordings; pyproject.toml's markers).
 unit: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m pytest tests -m "not tools" $(XDIST)
+
+# The property tests of tests/test_fuzz.py (mutated checkpoint configs, front-end settings, WAV headers, output
+# manifests) with random examples, round after round (a new seed each), for FUZZ_SECONDS (the last round may run
+# over); failures are kept in .hypothesis/ and replayed first. In the suite they run derandomized, a few seconds.
+FUZZ_SECONDS ?= 600
+fuzz: $(STAMP)
+	end=$$(( $$(date +%s) + $(FUZZ_SECONDS) )); seed=0; \
+	while [ $$(date +%s) -lt $$end ]; do \
+	  OMP_NUM_THREADS=1 $(PY) -m pytest tests/test_fuzz.py -q --hypothesis-profile fuzz \
+	    --hypothesis-seed=$$seed || exit 1; seed=$$((seed + 1)); \
+	done; echo "fuzz: $$seed rounds, no failure"
 
 nbval: $(STAMP)
 	OMP_NUM_THREADS=1 $(PY) -m pytest notebooks --nbval-lax $(XDIST)

@@ -19,7 +19,6 @@ import math
 import os
 import struct
 import sys
-import warnings
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -27,9 +26,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .checks import file_kind
+
 __all__ = [
     "SAMPLE_RATE", "N_FFT", "WIN_LENGTH", "HOP_LENGTH", "N_MELS", "LOG_EPS",
-    "MAX_AMPLITUDE", "load_audio", "AudioStream", "resample", "validate_wave", "check_wav_header", "hz_to_mel", "mel_to_hz",
+    "MAX_AMPLITUDE", "load_audio", "AudioStream", "resample", "validate_wave", "check_wav_header",
+    "check_audio_header", "peak_warning", "MIN_SAMPLE_RATE", "MAX_SAMPLE_RATE", "hz_to_mel", "mel_to_hz",
     "mel_filterbank",
     "log_mel_spectrogram", "interpolate_frames", "FeatureExtractor", "LogMelExtractor", "Wav2Vec2Extractor",
 ]
@@ -96,6 +98,7 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, not an audio file; name a WAV or FLAC file")
+    _refuse_special(path)
     if not path.is_file():
         raise FileNotFoundError(f"audio file not found: {path}")
     check_wav_header(path)
@@ -103,6 +106,7 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
     try:
         with _quiet_stderr(mp3), sf.SoundFile(str(path)) as f:  # mpg123 prints its own warnings on fd 2
             declared, file_sr, fmt = f.frames, f.samplerate, f.format
+            check_audio_header(path, f)
             data = f.read(dtype="float32", always_2d=True)  # (N, C)
     except (sf.SoundFileError, RuntimeError) as e:  # LibsndfileError: corrupt / unsupported format
         raise ValueError(f"could not decode audio file {path} (corrupt or not WAV/FLAC?): {e}") from e
@@ -123,8 +127,7 @@ def load_audio(path: str | os.PathLike, sample_rate: int = SAMPLE_RATE, resample
         raise ValueError(f"{path}: sample amplitudes reach {peak:.3g}, far outside [-1, 1] (a float WAV holding "
                          f"unscaled or corrupt data?); rescale it to [-1, 1]")
     if peak > 1.0:
-        warnings.warn(f"{path}: peak amplitude {peak:.3g} exceeds 1; the audio was peak-normalised to [-1, 1]",
-                      stacklevel=2)
+        print(peak_warning(path, peak), file=sys.stderr)
         wave = wave / peak
     if file_sr != sample_rate:
         if not resample:
@@ -168,6 +171,7 @@ class AudioStream:
         path = self.path
         if path.is_dir():
             raise IsADirectoryError(f"{path}: is a folder, not an audio file; name a WAV or FLAC file")
+        _refuse_special(path)
         if not path.is_file():
             raise FileNotFoundError(f"audio file not found: {path}")
         check_wav_header(path)
@@ -176,6 +180,7 @@ class AudioStream:
         try:
             with _quiet_stderr(self.mp3), sf.SoundFile(str(path)) as f:
                 declared, self.file_sr, fmt, channels = f.frames, f.samplerate, f.format, f.channels
+                check_audio_header(path, f)
                 if channels > 1:
                     raise ValueError(f"{path} has {channels} channels; downmix it to mono "
                                      f"(e.g. `sox in.wav -c 1 out.wav`)")
@@ -199,8 +204,7 @@ class AudioStream:
                              f"unscaled or corrupt data?); rescale it to [-1, 1]")
         self.peak = 1.0  # the divisor of every sample, as in load_audio
         if peak > 1.0:
-            warnings.warn(f"{path}: peak amplitude {peak:.3g} exceeds 1; the audio was peak-normalised to [-1, 1]",
-                          stacklevel=2)
+            print(peak_warning(path, peak), file=sys.stderr)
             self.peak = peak
         if self.file_sr < self.sample_rate:
             print(upsampled_warning(path, self.file_sr, self.sample_rate, front_end), file=sys.stderr)
@@ -306,6 +310,42 @@ def check_mp3_length(path: str | os.PathLike, declared: int, decoded: int, sampl
     if decoded < declared - 1152:
         raise ValueError(f"{path}: MP3 header declares {declared / sample_rate:.2f} s but only "
                          f"{decoded / sample_rate:.2f} s decode (truncated copy or download?)")
+
+
+MIN_SAMPLE_RATE, MAX_SAMPLE_RATE = 4000, 384000  # Hz: telephone speech is 8 kHz, studio audio at most 384 kHz
+_PCM_BITS = {"PCM_S8": 8, "PCM_U8": 8, "PCM_16": 16, "PCM_24": 24, "PCM_32": 32, "FLOAT": 32, "DOUBLE": 64,
+             "ULAW": 8, "ALAW": 8}
+_UNCOMPRESSED = ("WAV", "WAVEX", "W64", "RF64", "AIFF", "AU", "RAW")  # containers of samples as they are
+
+
+def _refuse_special(path: Path) -> None:
+    """One line for a FIFO, device or socket given as a recording (reading one would wait or never end)."""
+    kind = file_kind(path)
+    if kind:
+        raise ValueError(f"{path}: is {kind}, not an audio file; name a WAV or FLAC file (save a stream to a file "
+                         f"first)")
+
+
+def peak_warning(path: str | os.PathLike, peak: float) -> str:
+    """The one ``warning:`` line for a recording whose samples exceed 1 (it is peak-normalised, not refused)."""
+    return f"warning: {path}: peak amplitude {peak:.3g} exceeds 1; the audio was peak-normalised to [-1, 1]"
+
+
+def check_audio_header(path: str | os.PathLike, info) -> None:
+    """One ValueError line unless the header of an open ``soundfile.SoundFile`` ``info`` is plausible, before a
+    sample is read: a sample rate from :data:`MIN_SAMPLE_RATE` to :data:`MAX_SAMPLE_RATE` (a WAV declaring 1 Hz
+    made 200 kB of samples into 27.8 hours of audio), and for uncompressed audio a length the file can hold (the
+    declared frames times the bytes of a frame, at most the file's size)."""
+    rate, frames, channels = info.samplerate, info.frames, info.channels
+    if not MIN_SAMPLE_RATE <= rate <= MAX_SAMPLE_RATE:
+        raise ValueError(f"{path}: its header declares a sample rate of {rate} Hz, outside {MIN_SAMPLE_RATE // 1000}"
+                         f"-{MAX_SAMPLE_RATE // 1000} kHz (a damaged or forged header?)")
+    bits = _PCM_BITS.get(info.subtype) if info.format in _UNCOMPRESSED else None  # FLAC says PCM_16 too
+    size = os.path.getsize(path)
+    if bits and frames * channels * bits // 8 > size:
+        raise ValueError(f"{path}: its header declares {frames / rate:.1f} s of {bits}-bit audio "
+                         f"({frames * channels * bits // 8:,} bytes), but the file holds {size:,} bytes (a damaged "
+                         f"or forged header?)")
 
 
 def check_wav_header(path: str | os.PathLike) -> None:

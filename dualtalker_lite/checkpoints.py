@@ -49,9 +49,10 @@ import torch
 
 from . import front_ends
 from .models import registry as _registry
+from .models.bounds import check_config
 from .models.contract import hook
 from .models.faceformer import FaceFormerConfig
-from .checks import NonFiniteError
+from .checks import NonFiniteError, file_kind
 from .deprecation import warn
 from .files import atomic_torch_save
 
@@ -76,6 +77,10 @@ FEATURE_NAMES = (*front_ends.FRONT_ENDS, *front_ends.OLD_SPELLINGS)
 # LogMelExtractor's settings: name -> (accepted types, what a value must satisfy, in words)
 _LOGMEL_INTS = ("n_mels", "frames_per_mesh_frame", "fps", "sample_rate", "n_fft", "win_length", "hop_length")
 _LOGMEL_KEYS = (*_LOGMEL_INTS, "f_min", "f_max", "mean", "std")
+# ceilings of the log-mel ints (and the sample rate's floor): 4x to 32x the defaults, and audio.py's rate range
+_LOGMEL_MAX = {"n_mels": 512, "frames_per_mesh_frame": 16, "fps": 120, "sample_rate": 384000, "n_fft": 16384,
+               "win_length": 16384, "hop_length": 16384}
+_LOGMEL_MIN = {"sample_rate": 4000}
 
 
 def topology_fingerprint(faces: np.ndarray | None) -> str | None:
@@ -301,23 +306,33 @@ def _check_features(features: Any, source: str) -> None:
 
         check_settings(settings, source)
         return
-    if name != "logmel":
-        return
+    if name == "logmel":
+        _check_logmel(settings, source)
+
+
+def _check_logmel(settings: dict, source: str) -> None:
+    """Log-mel settings the extractor can use: known keys, ints from 1 to their ceiling (``_LOGMEL_MAX``: an
+    unbounded size was allocated before anything refused it), ``win_length <= n_fft``, band limits under the
+    Nyquist rate, per-band statistics of the right length."""
     unknown = sorted(map(str, set(settings) - set(_LOGMEL_KEYS)))
     if unknown:
         raise ValueError(f"{source}: features settings {unknown} are not LogMelExtractor settings; known: "
                          f"{', '.join(_LOGMEL_KEYS)}")
     for key in _LOGMEL_INTS:
-        if key in settings and not (_is_int(settings[key]) and settings[key] > 0):
-            raise ValueError(f"{source}: features setting {key!r} must be a positive int, found "
+        low, high = _LOGMEL_MIN.get(key, 1), _LOGMEL_MAX[key]
+        if key in settings and not (_is_int(settings[key]) and low <= settings[key] <= high):
+            raise ValueError(f"{source}: features setting {key!r} must be a positive int from {low} to {high}, found "
                              f"{_type_name(settings[key])}")
-    for key in ("f_min", "f_max"):
+    if settings.get("win_length", 400) > settings.get("n_fft", 512):
+        raise ValueError(f"{source}: features setting 'win_length' {settings.get('win_length', 400)} must be at most "
+                         f"n_fft {settings.get('n_fft', 512)}")
+    for key in ("f_min", "f_max"):  # f_max may be null (the Nyquist rate), f_min may not
         v = settings.get(key)
-        if v is not None and not (_is_number(v) and v >= 0):
+        if (key in settings if key == "f_min" else v is not None) and not (_is_number(v) and v >= 0):
             raise ValueError(f"{source}: features setting {key!r} must be a number >= 0 (Hz), found {_type_name(v)}")
-    f_min, f_max = settings.get("f_min") or 0.0, settings.get("f_max")
+    f_min, f_max = settings.get("f_min", 0.0), settings.get("f_max")
     rate = settings.get("sample_rate", 16000)
-    if f_max is not None and not f_min < f_max <= rate / 2:
+    if not f_min < (rate / 2 if f_max is None else f_max) <= rate / 2:
         raise ValueError(f"{source}: features settings f_min {f_min} and f_max {f_max} Hz must satisfy "
                          f"f_min < f_max <= sample_rate / 2 = {rate / 2:g}")
     n_mels = settings.get("n_mels", 80)
@@ -393,6 +408,9 @@ def _read_checkpoint_dict(path: Path, map_location: str | torch.device) -> dict:
     """
     if path.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, not a checkpoint file")
+    kind = file_kind(path)
+    if kind:  # reading a FIFO waits for a writer, a device never ends
+        raise ValueError(f"{path}: is {kind}, not a checkpoint file; name a .pt file that train wrote")
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
     verify_integrity(path)
@@ -434,10 +452,31 @@ def _build_model(ckpt: dict, path: Path) -> torch.nn.Module:
         raise ValueError(f"{path}: model_config has field(s) {unknown} that {cfg_cls.__name__} does not know "
                          f"(written by another version of the package?)")
     _check_config_types(cfg, cfg_cls, str(path))
+    config, meta = check_config(cls, cfg_cls, cfg, str(path))  # ranges, divisibility, size: before any layer
+    if meta is not None and isinstance(ckpt.get("state_dict"), dict):
+        _check_shapes(meta.state_dict(), ckpt["state_dict"], name, path)
     try:
-        return cls(cfg_cls(**cfg))
-    except (TypeError, ValueError, AssertionError, RuntimeError) as e:
+        return cls(config)
+    except (TypeError, ValueError, AssertionError, RuntimeError, ZeroDivisionError) as e:
         raise ValueError(f"{path}: invalid model_config for {name}: {_first_line(e)}") from e
+
+
+def _check_shapes(expected: dict, state: dict, name: str, path: Path) -> None:
+    """One line for the first weight whose shape differs from the model the config describes (``expected``: its
+    state_dict on the meta device), before the real model is built: a config edited to another size is refused
+    without allocating it. Missing or extra names are one line too."""
+    missing, extra = [k for k in expected if k not in state], [k for k in state if k not in expected]
+    if missing or extra:
+        which = f"lacks {missing[:3]}" if missing else f"has weights {extra[:3]} it does not describe"
+        raise ValueError(f"{path}: weights do not fit a {name} built from its model_config (edited or mixed-up "
+                         f"checkpoint?): the model it describes {which} ({len(missing)} missing, {len(extra)} "
+                         f"extra)")
+    for key, tensor in state.items():
+        want = expected.get(key)
+        if want is not None and torch.is_tensor(tensor) and tuple(tensor.shape) != tuple(want.shape):
+            raise ValueError(f"{path}: weights do not fit a {name} built from its model_config (edited or mixed-up "
+                             f"checkpoint?): {key!r} is {tuple(tensor.shape)} in the file, {tuple(want.shape)} for "
+                             f"the config")
 
 
 def _load_weights(model: torch.nn.Module, ckpt: dict, path: Path) -> None:

@@ -303,7 +303,7 @@ def _evaluation_set(ckpt: dict, corpus: Corpus, split: str, source: str, cache: 
     front end that no recording gives (phonemes)."""
     features = ckpt.get("features") or {"name": "logmel"}
     computed = front_ends.get(features["name"]).from_audio
-    front_end = front_ends.at_test(features, ears, source, cache=cache) if computed else None
+    front_end = front_ends.at_test(features, ears, source, cache=cache, fps=corpus.fps) if computed else None
     dataset = TalkingFaceDataset(corpus, split, front_end=front_end)
     view = "logmel" if computed else features["name"]  # "logmel": the features as the front end computed them
     return feature_view(dataset, view, len(corpus.phoneme_inventory))[0]

@@ -58,9 +58,16 @@ RESOURCE_ADVICE = {errno.ENOSPC: "free some space or choose another place (anoth
 MEMORY_ADVICE = "close other programs, or run on a machine with more memory"
 
 
-def _message(e: BaseException) -> str:
+def _message(e: BaseException, doing: str = "") -> str:
+    """The ``error:`` line of a user error ``e``; ``doing``: what the process was doing (``running animate``),
+    named when memory ran out (a ``MemoryError``, or an ``OSError`` ENOMEM from ``fork``, ``mmap``, ...)."""
+    while_ = f" while {doing}" if doing else ""
     if isinstance(e, MemoryError):
-        return f"out of memory ({_first_line(e) or 'MemoryError'}); {MEMORY_ADVICE}"
+        return f"out of memory{while_} ({_first_line(e) or 'MemoryError'}); {MEMORY_ADVICE}"
+    if type(e) is OSError and e.errno == errno.ENOMEM and e.strerror:  # the system's own (a ResourceError, a
+        # subclass, has its own line naming the input and the stage)
+        on = f" on {e.filename}" if e.filename is not None else ""
+        return f"out of memory{while_}: the system refused an allocation{on} ({e.strerror}); {MEMORY_ADVICE}"
     if isinstance(e, OSError) and e.errno in RESOURCE_ADVICE and e.filename is not None:
         # a resource error raised by the system or a library, not by our own writers: name its file, say what to do
         return f"{e.filename}: {e.strerror}; {RESOURCE_ADVICE[e.errno]}"
@@ -108,7 +115,8 @@ def run_main(func: Callable, argv: Sequence[str] | None = None):
     except (*USER_ERRORS, MemoryError) as e:
         if debug:
             raise
-        print(f"error: {_message(e)}", file=sys.stderr)
+        print(f"error: {_message(e, f'running {argv[0]}' if argv and not argv[0].startswith('-') else '')}",
+              file=sys.stderr)
         print("(run with --debug for the full traceback)", file=sys.stderr)
         sys.exit(2)
     finally:

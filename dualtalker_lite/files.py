@@ -42,6 +42,7 @@ __all__ = ["repo_root", "runs_dir", "atomic_torch_save", "default_file_mode", "a
            "resource_error", "ResourceError", "refuse_inputs", "rescue_name", "sigterm_as_exit", "out_of_memory"]
 
 MANIFEST = ".dualtalker-output.json"  # inside every output folder: which command wrote it, and which files
+MAX_MANIFEST_BYTES = 16 << 20  # read with this cap (checks.read_small): a linked huge or sparse file is refused
 
 # Errors that mean "the machine ran out of something", not "the input is wrong": each is reported naming the file
 # being written and what to do about it (:func:`resource_error`); the advice lives in console, the bottom layer.
@@ -715,10 +716,15 @@ class AtomicOutputDir:
         if not manifest.is_file():
             return f"was not written by dualtalker-lite {self.command} (no {MANIFEST} in it)", set()
         try:
-            record = json.loads(manifest.read_text())
-            command, listed = record["command"], set(record["files"])
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            return f"its {MANIFEST} is unreadable ({type(e).__name__})", set()
+            from .checks import read_small  # here: checks imports torch, which --help must not
+            record = json.loads(read_small(manifest, "an output's manifest", MAX_MANIFEST_BYTES))
+            command, listed = record["command"], record["files"]
+            if not (isinstance(listed, list) and all(isinstance(f, str) for f in listed)):
+                raise TypeError("its 'files' is not a list of names")
+            listed = set(listed)
+        except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:  # RecursionError: a deep document
+            why = str(e).split(": ", 1)[-1][:160] if str(e) else type(e).__name__
+            return f"its {MANIFEST} is unreadable ({why})", set()
         if command != self.command:
             return f"is the output of dualtalker-lite {command}, not of {self.command}", listed
         extra = [f for f in _owned_files(folder) if f != MANIFEST and f not in listed]

@@ -155,11 +155,33 @@ def canonical(features: Any) -> Any:
     return {**features, "name": output} if output in OUTPUTS else features
 
 
-def from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True) -> Any:
+def from_settings(features: dict | None, source: str = "checkpoint", cache: bool = True,
+                  fps: int | None = None, dim: int | None = None) -> Any:
     """Rebuild the front end a checkpoint was trained with (``None`` -> the default log-mel, as format-1 checkpoints
     had). One ValueError line naming ``source`` for one that cannot be computed from a recording (``phonemes``).
     ``cache=False`` (``--no-cache``): the recogniser computes in memory, never touching its disk cache (log-mel has
-    no cache)."""
+    no cache). ``fps``: the mesh rate the command writes; a front end recorded at another rate is refused (its
+    frames would be written at ``fps``: the motion stretched or squeezed in time, without a word). ``dim``: the
+    features per frame the model reads; settings that make another number (``n_mels``, ...) are refused."""
+    return _checked(_rebuilt(features, source, cache), source, fps, dim)
+
+
+def _checked(front_end: Any, source: str, fps: int | None, dim: int | None) -> Any:
+    """``front_end``, unless it makes features at another rate than ``fps`` or of another width than ``dim``."""
+    made = getattr(front_end, "fps", None)
+    if fps is not None and made is not None and made != fps:
+        raise ValueError(f"{source}: features setting 'fps' is {made!r}: the model was trained on features at {made} "
+                         f"mesh frames per second, but this command writes {fps} fps (the motion would be "
+                         f"{made / fps:.3g}x slower than the speech); retrain at {fps} fps")
+    width = getattr(front_end, "dim", None)
+    if dim is not None and width is not None and width != dim:
+        raise ValueError(f"{source}: its features settings make {width} values per frame, but its model reads {dim} "
+                         f"(model_config audio_dim): hand-edited or mixed-up checkpoint?")
+    return front_end
+
+
+def _rebuilt(features: dict | None, source: str, cache: bool) -> Any:
+    """The front end of :func:`from_settings`, before the rate check."""
     if not features:
         return LogMelExtractor()
     features = canonical(features)
@@ -177,19 +199,21 @@ def from_settings(features: dict | None, source: str = "checkpoint", cache: bool
 
 
 
-def at_test(features: dict | None, name: str | None = None, source: str = "checkpoint", cache: bool = True) -> Any:
+def at_test(features: dict | None, name: str | None = None, source: str = "checkpoint", cache: bool = True,
+            fps: int | None = None, dim: int | None = None) -> Any:
     """What ``animate``/``evaluate`` feed a checkpoint: :func:`from_settings` of what it recorded, or, with ``name``
     (``--front-end``), the other *ears* of :data:`EARS`: a model trained on the corpus's viseme labels (``visemes``
     or ``student``: the same labels) reads hama's hard track (``visemes``) or the student's (``student``: one-hot of
     its argmax per mesh frame, the class hama's track would give, since the student learnt that track). One
-    ValueError line naming ``source`` for any other pair (a log-mel model cannot hear visemes)."""
+    ValueError line naming ``source`` for any other pair (a log-mel model cannot hear visemes). ``fps``, ``dim``: the
+    rate the command writes and the model's width, checked as :func:`from_settings` checks them."""
     trained = canonical(features).get("name") if features else "logmel"
     if name is None or name == trained:
-        return from_settings(features, source, cache=cache)
+        return from_settings(features, source, cache=cache, fps=fps, dim=dim)
     if trained not in EARS or name not in EARS:
         raise ValueError(f"{source}: trained on {trained!r} features; --front-end {name} can only swap the ears of "
                          f"a model trained on viseme labels ({' or '.join(EARS)})")
-    fps = int(dict(features.get("settings", {})).get("fps", 30))
-    if name == "student":
-        return StudentExtractor(fps=fps, hard=True)
-    return RecogniserExtractor(name, fps=fps, cache=cache)
+    made = int(dict(features.get("settings", {})).get("fps", 30))
+    ears = StudentExtractor(fps=made, hard=True) if name == "student" else RecogniserExtractor(name, fps=made,
+                                                                                             cache=cache)
+    return _checked(ears, source, fps, dim)

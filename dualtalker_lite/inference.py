@@ -323,7 +323,8 @@ def run(args: argparse.Namespace) -> list[Path]:
     device = resolve_device(args.device)
     speaker, template, faces, corpus = resolve_face(ckpt, args.speaker, args.template, args.corpus)
     front_end = front_ends.at_test(ckpt.get("features"), getattr(args, "front_end", None), str(args.checkpoint),
-                                   cache=not args.no_cache)                # --front-end: the other ears
+                                   cache=not args.no_cache, fps=FPS,    # --front-end: the other ears
+                                   dim=(ckpt.get("model_config") or {}).get("audio_dim"))
     wave = AudioStream(args.wav, sample_rate=front_end.sample_rate,  # checked now, read block by block later
                        front_end=front_end.front_end)
     # Stream: features -> model.generate_chunks -> <tmp>/vertices.npy block by block, then every format from the
@@ -370,7 +371,10 @@ def _formats(spec: str, no_video: bool) -> tuple[str, ...]:
               f"write --format {FORMAT_ALIASES[old]}", file=sys.stderr)
     formats = tuple(dict.fromkeys(FORMAT_ALIASES.get(f, f) for f in names))
     unknown = sorted(set(formats) - set(FORMATS))
-    if unknown or not formats:
+    if not formats:
+        raise ValueError(f"--format {spec!r}: names no format; choose one or more of {', '.join(FORMATS)} "
+                         f"(comma-separated)")
+    if unknown:
         raise ValueError(f"--format {spec!r}: unknown format(s) {unknown}; choose from {', '.join(FORMATS)}")
     if no_video:
         formats = tuple(f for f in formats if f != "mp4")

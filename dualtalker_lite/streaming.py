@@ -222,7 +222,9 @@ def predict_chunks(model: torch.nn.Module, wave: np.ndarray, template: np.ndarra
     conditions = _check_conditions(model, conditions)
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive number of frames, got {chunk!r}")
-    front_end = front_end or LogMelExtractor()  # a front end of front_ends.FRONT_ENDS (default: log-mel)
+    front_end = front_end or LogMelExtractor(fps=fps)  # a front end of front_ends.FRONT_ENDS (default: log-mel)
+    if getattr(front_end, "fps", fps) != fps:  # its frames would be written at fps: the motion stretched in time
+        raise ValueError(f"the front end makes features at {front_end.fps} frames per second, but fps is {fps}")
     template = _check_template(model, template, speaker)  # (V*3,)
     if device is not None:
         dev = resolve_device(device, option="device")

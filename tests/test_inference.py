@@ -244,12 +244,15 @@ def test_overflowing_float_wav(ckpt, tmp_path, capsys):
     _nothing_written(tmp_path, tmp_path / "o")
 
 
-def test_slightly_hot_float_wav_is_normalised_with_a_warning(tmp_path):
+def test_slightly_hot_float_wav_is_normalised_with_a_warning(tmp_path, capsys):
+    """One ``warning:`` line on stderr (was a two-line Python warning naming audio.py's source line; issue 48)."""
     from dualtalker_lite.audio import load_audio
 
     sf.write(tmp_path / "hot.wav", _tone(0.5, 16000, amp=3.0), 16000, subtype="FLOAT")
-    with pytest.warns(UserWarning, match="hot.wav: peak amplitude 3 exceeds 1"):
-        wave = load_audio(tmp_path / "hot.wav")
+    wave = load_audio(tmp_path / "hot.wav")
+    err = capsys.readouterr().err
+    assert err == f"warning: {tmp_path / 'hot.wav'}: peak amplitude 3 exceeds 1; the audio was peak-normalised to " \
+                  f"[-1, 1]\n"
     assert abs(np.abs(wave).max() - 1.0) < 1e-6
 
 

@@ -51,7 +51,7 @@ class MeshAttention(nn.Module):
     def __init__(self, n_vertices: int, channels: int, spirals: Tensor, delta: int = PAPER_DELTA,
                  n_layers: int = 2, time_pad: str = "zeros"):
         super().__init__()
-        spirals = torch.as_tensor(spirals)
+        spirals = torch.as_tensor(spirals, device=spirals.device if torch.is_tensor(spirals) else "cpu")
         if spirals.ndim != 2 or spirals.shape[0] != n_vertices:
             raise ValueError(f"MeshAttention: spirals must be ({n_vertices}, L), got {tuple(spirals.shape)}")
         if n_layers < 1:

@@ -276,7 +276,7 @@ class SpiralConv3D(nn.Module):
     def __init__(self, in_channels: int, out_channels: int, spirals: Tensor, delta: int = PAPER_DELTA,
                  time_pad: str = "zeros"):
         super().__init__()
-        spirals = torch.as_tensor(spirals)
+        spirals = torch.as_tensor(spirals, device=spirals.device if torch.is_tensor(spirals) else "cpu")
         if spirals.ndim != 2 or spirals.dtype != torch.int64:
             raise ValueError(f"spirals: expected a (V, L) LongTensor, got {spirals.dtype} {tuple(spirals.shape)}")
         if spirals.numel() and (spirals.min() < 0 or spirals.max() >= spirals.shape[0]):

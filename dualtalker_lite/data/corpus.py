@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import check_finite, check_name, load_npy, load_npz
+from ..checks import check_finite, check_name, load_npy, load_npz, read_small
 
 __all__ = ["Corpus", "FORMATS", "MAX_FRAME_MISMATCH", "SPEAKER_MARGIN"]
 
@@ -68,10 +68,14 @@ def check_face_size(points: np.ndarray, what: str) -> None:
         raise ValueError(f"{what} is {size:.4g} units across, not a plausible face size in metres {HEAD_SIZE_M}{hint}")
 
 
+MAX_JSON_BYTES = 64 << 20  # a corpus's metadata.json, speakers.json, regions.json (the sample's largest: 0.9 MB)
+
+
 def read_json(path: Path) -> object:
-    """JSON file -> object, with a one-line error naming the file and the position of a syntax error."""
+    """JSON file -> object, with a one-line error naming the file and the position of a syntax error; a file above
+    :data:`MAX_JSON_BYTES` or not a regular file is refused before it is read (``checks.read_small``)."""
     try:
-        return json.loads(_need(path).read_text())
+        return json.loads(read_small(_need(path), "a corpus's JSON file", MAX_JSON_BYTES))
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}") from e
     except UnicodeDecodeError as e:

@@ -8,6 +8,8 @@ paper's ``losses`` module; no model imports another model.
 - ``emoface``     EmoFace: emotion and content branches (two MotionDecoders), Mesh Attention, self-growing training
 - ``baselines``   static template and a VOCA-style sliding-window regressor
 - ``contract``    what every model offers (the ``TalkingFaceModel`` Protocol) and the optional hooks (``contract.hook``)
+- ``bounds``      the config half of the contract: each field's range and the model's size, checked before a layer of
+                  a checkpoint's model is built
 - ``registry``    the one table of models (name -> class, config, builder) that checkpoints, runner and CLI read
 """
 from .baselines import StaticTemplate, VocaConfig, VocaStyle

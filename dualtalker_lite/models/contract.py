@@ -5,7 +5,8 @@ satisfies :class:`TalkingFaceModel` (the required part, checkable with ``isinsta
 optional hooks in :data:`HOOKS`. Code outside the models reads an optional hook only through :func:`hook`, never
 with its own ``getattr`` probe, so this module is the one list of what a model can be asked. The one hook with an
 interface of its own is ``stepper``: it returns a :class:`Stepper`, the model decoded one frame at a time as its
-input features arrive (the live path, ``live.stream.IncrementalDecoder``).
+input features arrive (the live path, ``live.stream.IncrementalDecoder``). What a model's config may hold (each
+field's range, a config class's own ``BOUNDS``, the model's size) is the config half of the contract, :mod:`.bounds`.
 
 Shapes: ``B`` clips, ``T`` frames, ``D_a`` audio features per frame, ``V`` vertices (vertices flattened to
 ``V*3``); a batch is what ``data.dataset.collate`` makes (``audio (B, T, D_a)``, ``template (B, V*3)``,

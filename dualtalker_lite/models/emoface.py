@@ -198,7 +198,7 @@ class EmoFace(nn.Module):
         self.mesh_attention = None
         if cfg.fusion == "mesh_attention":
             if faces is None:  # placeholder: every slot repeats the centre (masked); filled by load_state_dict
-                spirals = torch.arange(cfg.n_vertices)[:, None].repeat(1, cfg.spiral_length)  # (V, L)
+                spirals = torch.arange(cfg.n_vertices, device="cpu")[:, None].repeat(1, cfg.spiral_length)  # (V, L)
             else:
                 spirals = spiral_indices(faces, cfg.n_vertices, length=cfg.spiral_length,
                                          dilation=cfg.spiral_dilation, vertices=vertices)  # (V, L)
