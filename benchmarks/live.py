@@ -31,6 +31,10 @@ Issue 33 item 4, the live path against its targets (``figures``; each step write
     OMP_NUM_THREADS=1 python benchmarks/live.py figures latency --checkpoint runs/live_dt.pt
     OMP_NUM_THREADS=1 python benchmarks/live.py figures report
 
+With ``--ears student`` the ``quality``, ``keepup`` and ``page`` steps run the live path with the project's own
+student as its ears (``live --ears student``; ``quality`` also adds ``animate --front-end student``), each into
+``<step>_student.json``, and ``report --ears student`` joins those into ``results/live_student.json``.
+
 * ``quality``: the real-voice benchmark's prompts (``benchmarks/real_voices.py``: asterisk recordings, pocketsphinx
   alignment, the rig driven by the aligned phones as reference; every ``--every``-th prompt in name order), each
   run through the live path (a :class:`LiveSession` built from :func:`~dualtalker_lite.live.server.load_config`,
@@ -720,8 +724,12 @@ def figures(argv) -> None:
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     FIG_DIR.mkdir(parents=True, exist_ok=True)
+    if args.step == "report" and args.ears == "student":   # the student's steps only, beside the hama report
+        return report(ROOT / "results" / "live_student", steps=tuple(k for k in FIG_STEPS if k.endswith("_student")),
+                      command="python benchmarks/live.py figures report --ears student")
     if args.step == "report":
-        return report(args.out, args.keep_earlier, args.earlier_key)
+        return report(args.out, args.keep_earlier, args.earlier_key,
+                      steps=tuple(k for k in FIG_STEPS if not k.endswith("_student")))
     t0, c0 = time.time(), time.process_time()
     stamp = provenance("OMP_NUM_THREADS=1 python benchmarks/live.py figures " + " ".join(argv))  # the code measured
     res = {"quality": fig_quality, "keepup": fig_keepup, "latency": fig_latency,
@@ -740,13 +748,13 @@ FIG_STEPS = ("quality", "keepup", "latency", "breakdown", "diagnose", "page", "q
              "page_student")
 
 
-def report(out: Path, earlier: Path | None = None, key: str | None = None) -> None:
+def report(out: Path, earlier: Path | None = None, key: str | None = None, steps: tuple = FIG_STEPS,
+           command: str = "python benchmarks/live.py figures report") -> None:
     """Join the steps' files into ``out``.json; ``earlier``: a previous report kept whole under ``key`` (figures of
     an older default that the page still quotes), or, when that report already has ``key`` (it is the current
     ``out`` itself, re-made after a step changed), its entry under ``key``: the same command re-makes the file."""
-    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in FIG_STEPS if (FIG_DIR / f"{k}.json").is_file()}
+    parts = {k: json.loads((FIG_DIR / f"{k}.json").read_text()) for k in steps if (FIG_DIR / f"{k}.json").is_file()}
     out.parent.mkdir(parents=True, exist_ok=True)
-    command = "python benchmarks/live.py figures report"
     if earlier is not None:
         doc = json.loads(Path(earlier).read_text())
         parts[key or "earlier"] = doc.get(key or "earlier", doc)
