@@ -295,15 +295,18 @@ def fig_quality(args) -> dict:
         student_ex = at_test(ckpt.get("features"), "student", args.checkpoint)
     aheads = args.ahead_frames or [LiveSettings.ahead_frames]
 
-    def live_key(la: int, ahead: int) -> str:  # the default encoder look-ahead keeps the rows' old names
+    def live_key(la: int, ahead: int, ears: str) -> str:  # the default encoder look-ahead keeps the rows' old names
         extra = "" if aheads == [LiveSettings.ahead_frames] else f", encoder look-ahead {ahead} frames"
-        if student:
+        if ears == "student":
             return f"live, student (look-ahead {config.student.cfg.lookahead * 20} ms){extra}"
         return f"live, look-ahead {la} ms{extra}"
-    configs = [(la, a, live_key(la, a)) for la in ([0] if student else args.lookaheads) for a in aheads]
-    rows.update({key: [] for _, _, key in configs})
+    # with --ears student: hama's live path at its default look-ahead beside the student's, on the same prompts
+    looks = [(round(LiveSettings.lookahead_s * 1000), "hama"), (0, "student")] if student else \
+        [(la, "hama") for la in args.lookaheads]
+    configs = [(la, a, live_key(la, a, ears), ears) for la, ears in looks for a in aheads]
+    rows.update({key: [] for _, _, key, _ in configs})
     cpu = {k: 0.0 for k in rows}
-    corr = {key: [] for _, _, key in configs}
+    corr = {key: [] for _, _, key, _ in configs}
     mismatched = 0
     hop = {"hop_s": args.hop} if args.hop else {}       # else LiveSettings' default
     if args.past:
@@ -324,9 +327,9 @@ def fig_quality(args) -> dict:
                                               front_end=student_ex), *lip_mid)
             cpu["offline, student (animate --front-end student)"] += time.process_time() - c0
             rows["offline, student (animate --front-end student)"].append(off_s[:n])
-        for la, ahead, key in configs:
+        for la, ahead, key, ears in configs:
             session = LiveSession(config.model, config.front_end, config.template, config.speaker,
-                                  LiveSettings(lookahead_s=la / 1000, ahead_frames=ahead, ears=args.ears, **hop),
+                                  LiveSettings(lookahead_s=la / 1000, ahead_frames=ahead, ears=ears, **hop),
                                   student=config.student)
             out, c, _ = feed(session, it["wave"])
             cpu[key] += c
@@ -716,8 +719,8 @@ def figures(argv) -> None:
                     help="quality, page: the audio encoder's look-ahead(s) in mesh frames (LiveSettings' default)")
     ap.add_argument("--reps", type=int, default=2, help="breakdown: interleaved repetitions of every configuration")
     ap.add_argument("--ears", choices=["hama", "student"], default="hama",
-                    help="quality, keepup, page: who hears the visemes live (student: its own look-ahead, so "
-                         "--lookaheads is ignored by quality); the step's file is <step>_student.json")
+                    help="quality, keepup, page: who hears the visemes live (student: its own look-ahead; quality "
+                         "adds hama's live path at its default); the step's file is <step>_student.json")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "live")
     ap.add_argument("--keep-earlier", type=Path, default=None, help="report: keep this earlier report whole")
     ap.add_argument("--earlier-key", default=None, help="report: the key it is kept under")
