@@ -497,6 +497,7 @@ def main(argv=None) -> None:
     waves = [c["wave"] for c in clips]
     seconds = sum(len(w) for w in waves) / 16000
     print(f"{len(clips)} prompts ({len(failed)} alignments failed), {seconds / 60:.1f} min", flush=True)
+    stamp = _stamp(argv if argv is not None else sys.argv[1:])     # the code measured: stamped before the run
     tracks, cpu, info = run_paths(args, waves)
     segments = [c["segments"] for c in clips]
     results = {}
@@ -509,20 +510,27 @@ def main(argv=None) -> None:
             "every": args.every, "usable_prompts": usable, "info": info}
     if args.no_report:
         return
-    write_report(results, meta, argv if argv is not None else sys.argv[1:])
+    write_report(results, meta, stamp)
 
 
 def _f(v, digits: int = 2) -> str:
     return "-" if v is None or not np.isfinite(v) else f"{v:.{digits}f}"
 
 
-def write_report(results: dict, meta: dict, argv: list[str]) -> None:
-    """results/peers.json and results/peers.md."""
-    from dualtalker_lite.files import atomic_write_text
-    from dualtalker_lite.provenance import machine_line, provenance
+def _stamp(argv: list[str]) -> dict:
+    """The command and the commit (``provenance``), taken when the run starts: a commit made while it runs is not
+    the code it measured."""
+    from dualtalker_lite.provenance import provenance
 
     env = " ".join(f"{k}={os.environ[k]}" for k in ("PYTHONPATH", "DTL_PEERS_PYTHON") if os.environ.get(k))
-    stamp = provenance((env + " " if env else "") + "python benchmarks/peers.py " + shlex.join(argv))
+    return provenance((env + " " if env else "") + "python benchmarks/peers.py " + shlex.join(argv))
+
+
+def write_report(results: dict, meta: dict, stamp: dict) -> None:
+    """results/peers.json and results/peers.md."""
+    from dualtalker_lite.files import atomic_write_text
+    from dualtalker_lite.provenance import machine_line
+
     meta = {"command": stamp["command"], "commit": stamp["commit"], "machine": stamp["machine"],
             "date": time.strftime("%Y-%m-%d"), **meta}
     atomic_write_text(ROOT / "results" / "peers.json", json.dumps({"meta": meta, "rows": results}, indent=1))
