@@ -222,6 +222,21 @@ def test_same_seed_same_result():
         assert torch.equal(v, runs[1][1][k]), k
 
 
+def test_the_command_seeds_the_initial_weights_too(tmp_path):
+    # the weights a command writes depend on --seed only, not on what ran before it in the process (the imports of
+    # another commit drew from the global RNG: the same command then gave other weights)
+    _shard(tmp_path / "shard.npz", _pairs(2, T=40))
+    argv = ["--data", str(tmp_path), "--tiny", "--epochs", "1", "--steps-per-epoch", "3", "--batch-size", "2",
+            "--crop", "20", "--seed", "3"]
+    states = []
+    for i, disturb in enumerate((0, 1000)):
+        torch.rand(disturb)                                   # the global RNG left elsewhere
+        assert D.main(argv + ["--out", str(tmp_path / f"w{i}.pt")]) == 0
+        states.append(torch.load(tmp_path / f"w{i}.pt", weights_only=True)["state_dict"])
+    for k, v in states[0].items():
+        assert torch.equal(v, states[1][k]), k
+
+
 def _shard(path, clips) -> None:
     """A shard in ears.dataset's format (i47-b's docs/ears.md, 'Training audio'): clips concatenated, float16."""
     np.savez(path, features=np.concatenate([x for x, _ in clips]).astype(np.float16),

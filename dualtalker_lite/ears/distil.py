@@ -260,6 +260,7 @@ def train(args: argparse.Namespace, command: str, log=print) -> list[dict]:
     model_cfg = (StudentConfig.tiny if args.tiny else StudentConfig)(lookahead=args.lookahead, **sizes)
     train_pairs = load_pairs(args.data)
     val_pairs = load_pairs(args.val) if args.val else None
+    set_seed(cfg.seed, cfg.threads)        # the initial weights too: not whatever the imports left the RNG at
     student = Student(model_cfg)
     history = distil(student, train_pairs, cfg, val_pairs, log=log)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
