@@ -183,7 +183,8 @@ def test_sighup_during_animate_is_one_line_and_cleans_up(ckpt, wav, tmp_path, ig
     script = SLOW_ANIMATE.replace("time.sleep(60)", "time.sleep(1)") if ignored else SLOW_ANIMATE
     proc = subprocess.Popen([sys.executable, "-c", script, *map(str, _animate_argv(ckpt, wav, out, "--overwrite"))],
                             env=_env(), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=(lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)) if ignored else None)
+                            # the child's SIGHUP set either way: a suite started under nohup would pass SIG_IGN on
+                            preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN if ignored else signal.SIG_DFL))
     try:
         assert proc.stdout.readline().strip() == "writing"
         hidden = [p.name for p in tmp_path.iterdir() if p.name.startswith(".anim.")]
