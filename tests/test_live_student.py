@@ -142,7 +142,8 @@ def test_live_with_the_students_ears_sends_every_frame_like_animate_front_end_st
 
     hello, frames = asyncio.run(main())
     mesh = json.loads(_mesh_doc(config))
-    assert (mesh["ears"], mesh["piece_ms"], mesh["latency_s"]) == ("student", 40, pytest.approx(0.096))
+    assert (mesh["ears"], mesh["piece_ms"], mesh["lookahead_ms"]) == ("student", 40, 60)
+    assert mesh["latency_s"] == pytest.approx(0.096)
     assert hello["type"] == "hello" and sorted(frames) == list(range(len(offline)))
     up, lo = config.lip_midpoints
     live = np.stack([frames[i] for i in range(len(frames))]).reshape(len(frames), -1, 3)

@@ -148,7 +148,8 @@ def _mesh_doc(config: LiveConfig) -> str:
         "speaker": config.speaker_name, "checkpoint": Path(config.checkpoint).name,
         "latency_s": settings.latency_s(fe.fps, fe.lag_s, fe.window_s, _student_lookahead(config)),
         "ears": settings.ears, "piece_ms": 40 if config.student is not None else 100,
-        "lookahead_ms": round(settings.lookahead_s * 1000), "avatar": avatar_controls()})
+        "lookahead_ms": round(settings.lookahead_s * 1000) if config.student is None
+        else 20 * _student_lookahead(config), "avatar": avatar_controls()})
 
 
 def _student_lookahead(config: LiveConfig) -> int | None:
