@@ -80,7 +80,7 @@ _LOGMEL_KEYS = (*_LOGMEL_INTS, "f_min", "f_max", "mean", "std")
 # ceilings of the log-mel ints (and the sample rate's floor): 4x to 32x the defaults, and audio.py's rate range
 _LOGMEL_MAX = {"n_mels": 512, "frames_per_mesh_frame": 16, "fps": 120, "sample_rate": 384000, "n_fft": 16384,
                "win_length": 16384, "hop_length": 16384}
-_LOGMEL_MIN = {"sample_rate": 4000}
+_LOGMEL_MIN = {"sample_rate": 4000, "n_fft": 16}
 
 
 def topology_fingerprint(faces: np.ndarray | None) -> str | None:
@@ -312,7 +312,8 @@ def _check_features(features: Any, source: str) -> None:
 
 def _check_logmel(settings: dict, source: str) -> None:
     """Log-mel settings the extractor can use: known keys, ints from 1 to their ceiling (``_LOGMEL_MAX``: an
-    unbounded size was allocated before anything refused it), ``win_length <= n_fft``, band limits under the
+    unbounded size was allocated before anything refused it), an even ``n_fft`` of at least 16 (``make fuzz``
+    found ``n_fft: 1``: an IndexError), ``win_length <= n_fft``, band limits under the
     Nyquist rate, per-band statistics of the right length."""
     unknown = sorted(map(str, set(settings) - set(_LOGMEL_KEYS)))
     if unknown:
@@ -323,6 +324,8 @@ def _check_logmel(settings: dict, source: str) -> None:
         if key in settings and not (_is_int(settings[key]) and low <= settings[key] <= high):
             raise ValueError(f"{source}: features setting {key!r} must be a positive int from {low} to {high}, found "
                              f"{_type_name(settings[key])}")
+    if settings.get("n_fft", 512) % 2:  # centred frames: an odd n_fft pads n_fft - 1 and makes one frame fewer
+        raise ValueError(f"{source}: features setting 'n_fft' must be even, found {settings['n_fft']}")
     if settings.get("win_length", 400) > settings.get("n_fft", 512):
         raise ValueError(f"{source}: features setting 'win_length' {settings.get('win_length', 400)} must be at most "
                          f"n_fft {settings.get('n_fft', 512)}")

@@ -241,8 +241,18 @@ def test_log_mel_sizes_are_bounded_above(sample_checkpoint, tmp_path, setting, v
     default ``n_fft`` 512; a null ``f_min`` was a ``TypeError`` when the features were made."""
     path = edited(sample_checkpoint, tmp_path / "mel.pt", **{f"features_{setting}": value})
     expected = {"win_length": "must be at most n_fft 512", "f_min": "must be a number >= 0 (Hz)"}.get(
-        setting, "must be a positive int from 1 to")
+        setting, "must be a positive int from")
     _refused_on_load(path, f"features setting {setting!r}", expected)
+
+
+@pytest.mark.parametrize("value, expected", [(1, "must be a positive int from 16 to 16384"), (15, "from 16"),
+                                             (513, "must be even, found 513")])
+def test_log_mel_n_fft_is_even_and_at_least_16(sample_checkpoint, tmp_path, value, expected):
+    """Found by ``make fuzz``: ``n_fft: 1`` (with ``win_length: 1``) loaded, then the features failed with an
+    IndexError: a centred STFT pads ``n_fft // 2`` on each side, so an odd ``n_fft`` makes one frame fewer than the
+    ``1 + N // hop`` the streaming features count on. Now refused at load."""
+    path = edited(sample_checkpoint, tmp_path / "mel.pt", features_n_fft=value, features_win_length=1)
+    _refused_on_load(path, "features setting 'n_fft'", expected)
 
 
 # ------------------------------------------------------------------------ item 3: archives, manifests, headers
