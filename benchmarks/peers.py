@@ -241,7 +241,9 @@ def run_student(waves, weights: Path) -> tuple[list, float, dict]:
     import hashlib
 
     digest = hashlib.sha256(Path(weights).read_bytes()).hexdigest()[:16]
-    return out, cpu, {"weights": str(weights), "sha256": digest, "lookahead_frames": student.cfg.lookahead,
+    shown = Path(weights).resolve()
+    shown = shown.relative_to(ROOT) if shown.is_relative_to(ROOT) else Path(weights).name   # no machine's path
+    return out, cpu, {"weights": str(shown), "sha256": digest, "lookahead_frames": student.cfg.lookahead,
                       "trained_by": prov.get("command"), "trained_at_commit": prov.get("commit")}
 
 
