@@ -29,3 +29,28 @@ def fake_microphone_args(wav, loop: bool = False) -> list[str]:
             "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
             f"--use-file-for-fake-audio-capture={wav}{'' if loop else '%noloop'}",
             "--autoplay-policy=no-user-gesture-required"]
+
+
+def tiny_sample_checkpoint(path):
+    """An untrained tiny log-mel DualTalker of the shipped sample corpus (animate's default corpus and template),
+    saved to ``path`` (seeded: the same file every time) -> path."""
+    from dualtalker_lite.checkpoints import save_checkpoint
+    from dualtalker_lite.data import sample_path
+    from dualtalker_lite.data.corpus import Corpus
+    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+
+    corpus = Corpus(sample_path())
+    torch.manual_seed(0)
+    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
+                                n_speakers=len(corpus.train_speakers))
+    save_checkpoint(path, DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers, faces=corpus.faces)
+    return path
+
+
+def short_wav(path):
+    """0.5 s of a 127 Hz tone at 16 kHz, 16-bit, written to ``path`` -> path."""
+    import numpy as np
+    import soundfile as sf
+
+    sf.write(path, 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
+    return path

@@ -27,6 +27,7 @@ from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
 from dualtalker_lite.models import registry
 from dualtalker_lite.models.bounds import MAX_PARAMETERS, check_fields
+from builders import short_wav, tiny_sample_checkpoint
 from test_faults import cli, earlier_animation, refused, refused_in_process, snapshot
 
 N_VERTICES = 40  # tiny meshes: building the five models takes a fraction of a second
@@ -176,22 +177,12 @@ def test_a_forged_config_through_animate_is_one_line_and_fast(tiny_checkpoints, 
 @pytest.fixture(scope="module")
 def sample_checkpoint(tmp_path_factory) -> Path:
     """A tiny log-mel DualTalker of the sample corpus (animate's default corpus and template)."""
-    from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
-
-    corpus = Corpus(sample_path())
-    torch.manual_seed(0)
-    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
-                                n_speakers=len(corpus.train_speakers))
-    path = tmp_path_factory.mktemp("sample") / "model.pt"
-    save_checkpoint(path, DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers, faces=corpus.faces)
-    return path
+    return tiny_sample_checkpoint(tmp_path_factory.mktemp("sample") / "model.pt")
 
 
 @pytest.fixture(scope="module")
 def wav(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("audio") / "me.wav"
-    sf.write(path, 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
-    return path
+    return short_wav(tmp_path_factory.mktemp("audio") / "me.wav")
 
 
 def _animate_refused(capsys, ckpt: Path, wav: Path, tmp_path: Path, *fragments, extra=()) -> str:

@@ -34,6 +34,7 @@ from dualtalker_lite.data.faceformer import (MAX_DEPTH, VOCASET_TEST, VOCASET_TR
                                              safe_load_pickle)
 from dualtalker_lite.data.sentences import SENTENCES as SENTENCES_DEFAULT
 from dualtalker_lite.models.dualtalker import DualTalker, DualTalkerConfig
+from builders import short_wav, tiny_sample_checkpoint
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -314,20 +315,12 @@ def test_truncated_templates_npz_reused_by_prepare_dataset(tmp_path):
 # ----------------------------------------------------------------------------------------------- checkpoints
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory) -> Path:
-    corpus = Corpus(sample_path())
-    torch.manual_seed(0)
-    cfg = DualTalkerConfig.tiny(n_vertices=corpus.metadata["n_vertices"], audio_dim=160,
-                                n_speakers=len(corpus.train_speakers))
-    path = tmp_path_factory.mktemp("ckpt") / "model.pt"
-    save_checkpoint(path, DualTalker(cfg).eval(), cfg, speakers=corpus.train_speakers, faces=corpus.faces)
-    return path
+    return tiny_sample_checkpoint(tmp_path_factory.mktemp("ckpt") / "model.pt")
 
 
 @pytest.fixture(scope="module")
 def wav(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("audio") / "me.wav"
-    sf.write(path, 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
-    return path
+    return short_wav(tmp_path_factory.mktemp("audio") / "me.wav")
 
 
 def _flip_in_largest_record(src: Path, dst: Path) -> str:
