@@ -16,7 +16,7 @@ from dualtalker_lite.models import registry
 PACKAGE = Path(__file__).resolve().parents[1] / "dualtalker_lite"
 
 LAYERS = [  # lowest first
-    ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "recogniser",
+    ("foundations", ("seeding", "checks", "files", "processes", "console", "utils", "face", "audio", "prosody_features", "recogniser",
                      "front_ends", "export", "provenance", "deprecation", "ears.model", "choices")),
     ("data and blocks", ("data", "blocks", "ears")),  # ears: the student's data (reads audio, recogniser, data)
     ("models and losses", ("models", "losses")),
