@@ -19,7 +19,7 @@ from __future__ import annotations
 __all__ = ["EARS", "FAST_EPOCHS", "FEATURES", "FORMATS", "FORMAT_ALIASES", "PLUGINS_ENV", "TINY_EPOCHS",
            "TRAINABLE_MODELS"]
 
-FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10}
+FAST_EPOCHS = {"dualtalker": 20, "faceformer": 30, "corrtalk": 10, "emoface": 4}
 EARS = ("visemes", "student")  # front ends that hear the same 15 viseme classes (front_ends.at_test, --front-end)
 FEATURES = ("visemes", "logmel")  # the phonetic route (the default: it animates real voices), the papers' log-mel
 FORMATS = ("npy", "obj", "gltf", "html", "mp4", "visemes")

@@ -71,7 +71,8 @@ def _check_train_args(args: argparse.Namespace) -> TrainRequest:
                                       checkpoint_every=args.checkpoint_every)
     return TrainRequest(model=args.model, corpus=args.corpus, out=out, recipe=recipe, epochs=epochs,
                         features=args.features or FEATURES[0], seed=args.seed, clips=args.clips,
-                        lip_contact=args.lip_contact, device=args.device, threads=args.threads, quiet=args.quiet,
+                        lip_contact=args.lip_contact, emotion_features=args.emotion_features or "prosody",
+                        device=args.device, threads=args.threads, quiet=args.quiet,
                         checkpoint_every=args.checkpoint_every, resume=resume)
 
 

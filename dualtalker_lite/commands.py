@@ -46,6 +46,7 @@ from .experiments.real import real_voice_closures, real_voices_line
 from .experiments.specs import EMOTION_METRICS, EMOTIONAL_TRAIN, METRICS, RunSpec, table_specs
 from .files import NAME_MAX, atomic_torch_save, atomic_write_text, check_free_space, claim, sweep_stale
 from .inference import check_corpus
+from .prosody_features import ProsodyExtractor
 from .models import registry
 from .train import RESUME_FORMAT, check_resume_args, load_resume_state, resume_file, resume_path, train
 
@@ -65,8 +66,9 @@ def model_specs() -> dict[str, RunSpec]:
             for name in registry.names(trainable_only=True)}
 
 
-def pair_dataset(corpus: Corpus, seed: int) -> PairDataset:
-    """EmoFace's training clips: ``train`` + ``train_emo``, each with its pseudo-pair partner (data.pairs)."""
+def pair_dataset(corpus: Corpus, seed: int, front_end=None) -> PairDataset:
+    """EmoFace's training clips: ``train`` + ``train_emo``, each with its pseudo-pair partner (data.pairs), their
+    sound through ``front_end`` (None: the log-mel)."""
     splits = corpus.metadata.get("splits", {})
     missing = [s for s in EMOTIONAL_TRAIN if not splits.get(s)]
     if missing or not corpus.metadata.get("pairs"):
@@ -74,7 +76,7 @@ def pair_dataset(corpus: Corpus, seed: int) -> PairDataset:
         raise ValueError(f"{corpus.root / 'metadata.json'}: no {what}; --model emoface trains on emotional "
                          f"pseudo-pairs (the same speaker and sentence read with two emotions), as written by "
                          f"dualtalker-lite generate (e.g. the shipped data_samples/)")
-    return PairDataset(corpus, EMOTIONAL_TRAIN, seed=seed)
+    return PairDataset(corpus, EMOTIONAL_TRAIN, front_end=front_end, seed=seed)
 
 
 # ------------------------------------------------------------------------------------------------ train
@@ -92,6 +94,7 @@ class TrainRequest:
     seed: int = 0
     clips: int | None = None    # train on this many clips, spread evenly; None: all
     lip_contact: float | None = None  # None: the recipe's
+    emotion_features: str = "prosody"  # EmoFace on visemes: what its emotion branch reads (front_ends.EMOTION_PARTS)
     device: str = "cpu"
     threads: int = 1
     quiet: bool = False
@@ -162,14 +165,15 @@ def _check_checkpoint_path(out: Path, corpus: str | None, overwrite: bool, resum
 
 
 def training_clips(corpus: Corpus, spec: RunSpec, features: str, clips: int | None = None,
-                   seed: int = 0) -> TrainingClips:
+                   seed: int = 0, emotion_features: str = "prosody") -> TrainingClips:
     """The clips ``train`` trains row ``spec`` on with front end ``features``. The phonetic route (``visemes``, the
-    default) trains on the corpus's viseme labels, EmoFace on ``visemes+logmel`` (its emotion branch reads the
-    sound); a corpus without viseme labels (e.g. VOCASET in FaceFormer's layout) trains on the recogniser's viseme
+    default) trains on the corpus's viseme labels, EmoFace on ``visemes+prosody`` (its emotion branch reads the
+    speaker-normalised prosody; ``emotion_features="logmel"``: ``visemes+logmel``, the tables'); a corpus without viseme labels (e.g. VOCASET in FaceFormer's layout) trains on the recogniser's viseme
     tracks of its audio instead, with a note on stderr. ``clips``: that many clips spread evenly over the set."""
     paired = spec.data == "pairs"
     if features == "visemes":
-        spec = dataclasses.replace(spec, features=front_ends.paired("visemes") if paired else "visemes")
+        spec = dataclasses.replace(spec, features=front_ends.paired("visemes", emotion_features) if paired
+                                   else "visemes")
     computed = None
     if features == "visemes" and not paired and not any(corpus.meta(n).get("visemes") for n in corpus.split("train")):
         print(f"note: {corpus.root}: no viseme labels in metadata.json; training on the recogniser's viseme tracks "
@@ -177,7 +181,8 @@ def training_clips(corpus: Corpus, spec: RunSpec, features: str, clips: int | No
         computed = front_ends.build(spec.features, corpus.fps)  # what evaluate/animate feed it (checks hama)
         dataset = TalkingFaceDataset(corpus, "train", front_end=computed)
     else:
-        dataset = pair_dataset(corpus, seed) if paired else TalkingFaceDataset(corpus, "train")
+        sound = ProsodyExtractor(fps=corpus.fps) if spec.features.endswith("+prosody") else None  # else log-mel
+        dataset = pair_dataset(corpus, seed, sound) if paired else TalkingFaceDataset(corpus, "train")
     chosen = dataset
     if clips is not None and clips < len(dataset):
         chosen = Subset(dataset, np.linspace(0, len(dataset) - 1, clips).round().astype(int).tolist())
@@ -193,7 +198,8 @@ def _run_arguments(request: TrainRequest, corpus: Corpus, run: Assembly) -> dict
             "corpus_metadata_sha256": hashlib.sha256(meta.read_bytes()).hexdigest() if meta.is_file() else None,
             "epochs": request.epochs, "clips": request.clips, "features": request.features, "seed": request.seed,
             "training_clips": len(run.train_set), **({"recipe": request.recipe} if request.recipe != "tiny" else {}),
-            **({"lip_contact": run.train_config.lip_contact} if run.train_config.lip_contact else {})}
+            **({"lip_contact": run.train_config.lip_contact} if run.train_config.lip_contact else {}),
+            **({"front_end": run.spec.features} if run.spec.data == "pairs" else {})}
 
 
 def _epoch_lines(progress: str, epochs: int, done: int):
@@ -215,7 +221,8 @@ def run_train(request: TrainRequest) -> Path:
     torch.set_num_threads(request.threads)
     corpus = Corpus(request.corpus or sample_path())
     progress = progress_mode(request.quiet)  # a bar on a terminal (train's own), else lines, or none
-    chosen = training_clips(corpus, model_specs()[request.model], request.features, request.clips, request.seed)
+    chosen = training_clips(corpus, model_specs()[request.model], request.features, request.clips, request.seed,
+                            request.emotion_features)
     run = assemble_training(chosen.spec, chosen.clips, corpus, paired=chosen.paired, logmel=chosen.logmel,
                             computed=chosen.computed, seed=request.seed, epochs=request.epochs, device=str(device),
                             progress=progress == "bar", recipe=request.recipe, lip_contact=request.lip_contact)

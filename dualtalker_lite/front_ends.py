@@ -21,6 +21,9 @@ name                   D_a    trained on                                        
 ``phonemes``           P      one-hot phoneme labels (an ablation row)             none: it animates nothing
 ``logprobs``           191    the recogniser's log-probabilities (experiments      the same
                               only: ``benchmarks/real_voices.py``)
+``visemes+prosody``    70     the same, then the speaker-normalised prosody and    the recogniser's track, then the
+                              spectral shape (``prosody_features``; EmoFace's      same prosody
+                              emotion branch in ``train``, issue 50)
 ``logprobs+logmel``    351    the same, then the log-mel                           the same
 ``student``            15     the corpus's viseme labels, as ``visemes``           the student's viseme posteriors
                                                                                    (``ears``), at the mesh rate
@@ -31,7 +34,7 @@ voices, so a model trained on viseme labels animates anyone's speech, where a lo
 synthetic voices (``docs/front-ends.md``). :data:`CHOICES` are the names the commands offer (``--features``), the
 default first (``student`` is not offered until its weights ship at ``dualtalker_lite/ears/weights/student.pt``;
 until then :func:`build` says so in one line); a row that trains on emotional pseudo-pairs reads :func:`paired` of
-its front end (``visemes`` -> ``visemes+logmel``).
+its front end (``visemes`` -> ``visemes+logmel``, the tables'; ``visemes+prosody``, ``train``'s, issue 50).
 
 Checkpoints record ``{"name": <a name above>, "settings": {...}}`` (:func:`settings`) and :func:`from_settings`
 rebuilds the front end from that. Old spellings still load: before issue 30 a recogniser front end was recorded as
@@ -50,7 +53,7 @@ from .deprecation import renamed_keyword
 from .ears.model import StudentExtractor
 from .recogniser import NAME as RECOGNISER, OUTPUTS, RecogniserExtractor
 
-__all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "get", "build", "settings",
+__all__ = ["FrontEnd", "FRONT_ENDS", "DEFAULT", "CHOICES", "OLD_SPELLINGS", "EMOTION_PARTS", "get", "build", "settings",
            "from_settings", "canonical", "paired", "EARS", "at_test"]
 
 
@@ -78,6 +81,8 @@ FRONT_ENDS: dict[str, FrontEnd] = {f.name: f for f in (
     FrontEnd("logmel", "log-mel (the papers' kind of acoustic input)"),
     FrontEnd("visemes+logmel", "phonetic route for the content branch, log-mel for the emotion branch", labels=True,
              recogniser=True),
+    FrontEnd("visemes+prosody", "phonetic route for the content branch, speaker-normalised prosody for the emotion "
+                                "branch", labels=True, recogniser=True),
     FrontEnd("phonemes", "one-hot phoneme labels", labels=True, from_audio=False),
     FrontEnd("logprobs", "the recogniser's log-probabilities (end to end)", recogniser=True),
     FrontEnd("logprobs+logmel", "the recogniser's log-probabilities and the log-mel", recogniser=True),
@@ -96,10 +101,19 @@ def get(name: str) -> FrontEnd:
     return FRONT_ENDS[name]
 
 
-def paired(name: str) -> str:
+EMOTION_PARTS = ("logmel", "prosody")  # what EmoFace's emotion branch may read after the visemes
+
+
+def paired(name: str, emotion: str = "logmel") -> str:
     """The front end of a row that trains on emotional pseudo-pairs (EmoFace's emotion branch reads the partner's
-    log-mel): ``visemes`` -> ``visemes+logmel``; ``logmel`` and the ``+logmel`` ones unchanged."""
-    return f"{name}+logmel" if name in ("visemes", "logprobs") else name
+    sound): ``visemes`` -> ``visemes+logmel`` (the tables', the paper's kind of input) or, with
+    ``emotion="prosody"``, ``visemes+prosody`` (``train``'s: the speaker-normalised prosody, issue 50);
+    ``logprobs`` -> ``logprobs+logmel``; ``logmel`` and the combined ones unchanged."""
+    if emotion not in EMOTION_PARTS:
+        raise ValueError(f"emotion must be one of {EMOTION_PARTS}, got {emotion!r}")
+    if name == "visemes":
+        return f"visemes+{emotion}"
+    return "logprobs+logmel" if name == "logprobs" else name
 
 
 def build(name: str, fps: int = 30, cache: bool = True) -> Any:

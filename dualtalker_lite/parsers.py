@@ -108,8 +108,13 @@ def _recipe_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--features", choices=FEATURES, default=None,
                     help="audio front-end: visemes (the default: the phonetic route, trained on the corpus's viseme "
                          "labels, fed the phoneme recogniser's viseme tracks by evaluate and animate; works on any "
-                         "voice; emoface's emotion branch also reads the log-mel) or logmel (the papers' kind of "
-                         "input; learns this corpus's voices only)")
+                         "voice; emoface's emotion branch also reads the sound, --emotion-features) or logmel (the "
+                         "papers' kind of input; learns this corpus's voices only)")
+    ap.add_argument("--emotion-features", choices=("prosody", "logmel"), default=None,
+                    help="emoface with --features visemes: what its emotion branch reads after the visemes; prosody "
+                         "(the default: pitch, energy and spectral shape relative to the speaker's own, so a voice "
+                         "the corpus lacks is not heard as an emotion, prosody_features) or logmel (the emotional "
+                         "tables': the raw log-mel, heard the corpus's voices only)")
 
 
 def evaluate_parser() -> argparse.ArgumentParser:

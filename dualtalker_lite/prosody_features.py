@@ -41,10 +41,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .audio import SAMPLE_RATE, validate_wave
+from .audio import N_MELS, SAMPLE_RATE, hz_to_mel, log_mel_spectrogram, mel_to_hz, validate_wave
 
-__all__ = ["ProsodyExtractor", "yin_f0", "frame_power_db", "prosody_frames", "FEATURES", "F0_MIN", "F0_MAX",
-           "YIN_THRESHOLD", "VOICED_RANGE_DB", "HOP", "WINDOW"]
+__all__ = ["ProsodyExtractor", "yin_f0", "frame_power_db", "prosody_frames", "spectral_shape", "spectral_bins",
+           "FEATURES", "F0_MIN", "F0_MAX", "YIN_THRESHOLD", "VOICED_RANGE_DB", "HOP", "WINDOW", "BAND_HZ"]
 
 FEATURES = ("voicing", "pitch", "pitch_slope", "energy", "energy_slope", "syllable_rate")
 HOP = 160               # samples: 10 ms analysis frames at 16 kHz
@@ -57,6 +57,8 @@ ENERGY_FLOOR_DB = -100.0
 BLOCK_FRAMES = 3000     # analysis frames per block (30 s): bounded memory for hour-long waves
 ONSET_MIN_FRAMES = 3    # a voiced run of at least 30 ms counts as a syllable nucleus
 RATE_WINDOW = 100       # analysis frames (1 s) of the syllable-rate window
+BAND_HZ = (250.0, 3600.0)  # the spectral shape's mel bands: those whose centre lies in the telephone band
+SHAPE_CLIP = 4.0        # |log-mel - the utterance's mean| is clipped here (natural-log units)
 
 
 def _frames(wave: np.ndarray, length: int) -> np.ndarray:
@@ -163,13 +165,32 @@ def prosody_frames(f0: np.ndarray, power_db: np.ndarray) -> np.ndarray:
     return feats.astype(np.float32)                                    # (L, 6)
 
 
+def spectral_bins(n_mels: int = N_MELS, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
+    """Indices of the log-mel bands (:func:`~dualtalker_lite.audio.mel_filterbank`'s, 0 .. sr/2) whose centre
+    frequency lies in :data:`BAND_HZ`: 49 of the 80 at 16 kHz."""
+    points = mel_to_hz(np.linspace(hz_to_mel(0.0), hz_to_mel(sample_rate / 2), n_mels + 2))
+    centres = points[1:-1]
+    return np.flatnonzero((centres >= BAND_HZ[0]) & (centres <= BAND_HZ[1]))
+
+
+def spectral_shape(log_mel: np.ndarray, power_db: np.ndarray) -> np.ndarray:
+    """The spectral shape relative to the utterance: the telephone-band log-mel (L, n_mels) minus its mean over the
+    utterance's active frames (within :data:`VOICED_RANGE_DB` of its loud ones), clipped to ±:data:`SHAPE_CLIP`
+    -> (L, len(spectral_bins())) float32. The mean is the voice's (and the microphone's, the line's) average
+    spectrum; what is left moves with the phones and with how the voice is used (effort, tension)."""
+    band = log_mel[:, spectral_bins(log_mel.shape[1])]
+    active = power_db > (np.percentile(power_db, 95) if len(power_db) else 0.0) - VOICED_RANGE_DB
+    mean = band[active].mean(axis=0) if active.any() else band.mean(axis=0)
+    return np.clip(band - mean, -SHAPE_CLIP, SHAPE_CLIP).astype(np.float32)
+
+
 class ProsodyExtractor:
     """:class:`~dualtalker_lite.audio.FeatureExtractor` of the speaker-normalised prosody (module table):
     ``(T, 6)`` per mesh frame, each the mean of the 10 ms frames whose centre falls in it (the nearest one for a
     mesh frame that holds none). ``front_end``: its part of the ``visemes+prosody`` front end."""
 
     front_end = "prosody"
-    dim = len(FEATURES)
+    dim = len(FEATURES) + len(spectral_bins())
 
     def __init__(self, fps: int = 30, sample_rate: int = SAMPLE_RATE):
         if sample_rate != SAMPLE_RATE:
@@ -181,11 +202,15 @@ class ProsodyExtractor:
                 "yin_threshold": YIN_THRESHOLD, "voiced_range_db": VOICED_RANGE_DB, "fps": self.fps}
 
     def frames(self, wave: np.ndarray | torch.Tensor) -> np.ndarray:
-        """(L, 6) at 100 Hz (:func:`prosody_frames` of :func:`yin_f0` and :func:`frame_power_db`)."""
+        """(L, dim) at 100 Hz: :func:`prosody_frames` of :func:`yin_f0` and :func:`frame_power_db`, then
+        :func:`spectral_shape` of the log-mel."""
         validate_wave(wave, self.sample_rate, expected=self.sample_rate)
         w = wave.detach().cpu().numpy() if torch.is_tensor(wave) else np.asarray(wave)
         w = w.astype(np.float64)
-        return prosody_frames(yin_f0(w, self.sample_rate)[0], frame_power_db(w))
+        power = frame_power_db(w)
+        mel = log_mel_spectrogram(torch.from_numpy(w.astype(np.float32)), self.sample_rate).numpy()  # (L, 80)
+        return np.concatenate([prosody_frames(yin_f0(w, self.sample_rate)[0], power),
+                               spectral_shape(mel[: len(power)], power)], axis=1)
 
     def to_mesh_rate(self, feats: np.ndarray, n_frames: int) -> torch.Tensor:
         """(L, 6) at 100 Hz -> (n_frames, 6): mesh frame t averages the analysis frames i with i HOP / sr in
@@ -206,5 +231,15 @@ class ProsodyExtractor:
         return torch.from_numpy((sums / counts[:, None]).astype(np.float32))
 
     def __call__(self, wave: np.ndarray | torch.Tensor, n_frames: int) -> torch.Tensor:
-        """(n_frames, 6) float32 speaker-normalised prosody of ``wave`` (16 kHz mono)."""
+        """(n_frames, dim) float32 speaker-normalised prosody and spectral shape of ``wave`` (16 kHz mono)."""
         return self.to_mesh_rate(self.frames(wave), n_frames)
+
+    def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
+        """:meth:`__call__` of a wave given as consecutive blocks (an iterable, or a zero-argument callable
+        returning one): the blocks are joined first (the utterance's statistics need all of it; an hour of
+        16 kHz audio is 230 MB), so the numbers are the same as the whole wave's."""
+        wave = np.concatenate([np.asarray(b, dtype=np.float32).reshape(-1)
+                               for b in (blocks() if callable(blocks) else blocks)] or [np.zeros(0, np.float32)])
+        if len(wave) != n_samples:
+            raise ValueError(f"ProsodyExtractor.stream: the blocks hold {len(wave)} samples, expected {n_samples}")
+        return self(wave, n_frames)

@@ -32,6 +32,8 @@ samples around ``320 j`` (t = 20 ms x j), and N samples give ``1 + N // 320`` fr
   ``"logprobs+logmel"``  351    the same plus the 160 log-mel features of ``audio.LogMelExtractor``
   ``"visemes+logmel"``   175    the viseme one-hot then the 160 log-mel features (for models that also need what
                                 visemes drop, e.g. EmoFace's emotion; train on ``VisemeLabels(base, keep_audio=True)``)
+  ``"visemes+prosody"``  70     the viseme one-hot then the 55 speaker-normalised prosody and spectral-shape
+                                features of ``prosody_features.ProsodyExtractor`` (EmoFace's emotion, issue 50)
   =====================  =====  ================================================================================
 
   ``stream`` gives the same features, exactly, from blocks (``animate``); ``settings``/``from_settings`` record and
@@ -52,6 +54,7 @@ import numpy as np
 import torch
 
 from .audio import SAMPLE_RATE, LogMelExtractor, validate_wave
+from .prosody_features import ProsodyExtractor
 from .face.visemes import VISEMES
 from .files import _alive
 
@@ -72,7 +75,7 @@ LAG_S = 0.02                    # spikes are moved this much earlier: hama's spi
 WINDOW_S = 0.1                  # a mesh frame takes the nearest spike within this distance, else "sil"
 BLANK_BIAS = -0.1               # added to <blank> before the argmax (hama's own greedy decoder does the same)
 OUTPUTS = {"visemes": len(VISEMES), "logprobs": 191, "logprobs+logmel": 191 + 160,
-           "visemes+logmel": len(VISEMES) + 160}
+           "visemes+logmel": len(VISEMES) + 160, "visemes+prosody": len(VISEMES) + ProsodyExtractor.dim}
 # What a checkpoint's settings may hold (check_settings): every bound comes from the code that uses the value.
 MAX_LAG_S = 0.3                 # |lag_s|: hama trails the phones by 14 ms (tuned on 0 .. 80 ms); a phone lasts
                                 # 50-200 ms, so a lag of 300 ms gives every frame the viseme of a phone or two away
@@ -807,7 +810,7 @@ class RecogniserExtractor:
     """:class:`~dualtalker_lite.audio.FeatureExtractor` from hama's phoneme recogniser (table in the module doc).
 
     ``output``: ``"visemes"`` (one-hot (T, 15), the phonetic route), ``"logprobs"`` ((T, 191)),
-    ``"logprobs+logmel"`` ((T, 351)) or ``"visemes+logmel"`` ((T, 175)). ``lag_s``: spikes and log-probs are
+    ``"logprobs+logmel"`` ((T, 351)), ``"visemes+logmel"`` ((T, 175)) or ``"visemes+prosody"`` ((T, 70)). ``lag_s``: spikes and log-probs are
     read ``lag_s`` later than the mesh frame time (hama lags the phones). ``window_s``: the nearest-spike window of
     :func:`spike_track`.
     ``recogniser``: share one :class:`PhonemeRecogniser` (and its cache) between extractors. ``cache=False``:
@@ -825,7 +828,9 @@ class RecogniserExtractor:
         self.front_end = output  # its name in front_ends.FRONT_ENDS (audio.upsampled_warning words by it)
         self.dim = OUTPUTS[output]
         self.recogniser = recogniser or PhonemeRecogniser(cache=cache, cache_dir=cache_dir)
-        self._logmel = LogMelExtractor(fps=fps) if output.endswith("+logmel") else None
+        # what follows the recogniser's part: the log-mel, or the speaker-normalised prosody (issue 50)
+        self._extra = (LogMelExtractor(fps=fps) if output.endswith("+logmel") else
+                       ProsodyExtractor(fps=fps) if output.endswith("+prosody") else None)
 
     # ---- checkpoints
     def settings(self) -> dict:
@@ -892,8 +897,8 @@ class RecogniserExtractor:
             feats = torch.nn.functional.one_hot(ids, len(VISEMES)).float()
         else:
             feats = self.log_probs(wave, n_frames)
-        if self._logmel is not None:
-            feats = torch.cat([feats, self._logmel(wave, n_frames)], dim=1)
+        if self._extra is not None:
+            feats = torch.cat([feats, self._extra(wave, n_frames)], dim=1)
         return feats
 
     def stream(self, blocks, n_samples: int, n_frames: int) -> torch.Tensor:
@@ -907,13 +912,14 @@ class RecogniserExtractor:
         recogniser on a miss; a hit reads the cache entry block by block). Memory for an hour: ``"visemes"``
         keeps only the spikes (a few hundred KB) and the (T, 15) one-hot (6.5 MB); ``"visemes+logmel"`` adds
         :meth:`LogMelExtractor.stream <dualtalker_lite.audio.LogMelExtractor.stream>` (69 MB, one more pass);
+        ``"visemes+prosody"`` holds the wave whole for the prosody (230 MB, :meth:`ProsodyExtractor.stream`);
         ``"logprobs"`` outputs hold the whole (L, 191) float16 log-probs (69 MB, not the wave) before
         interpolating them (the result is 82 MB).
         """
         if n_frames < 1:
             raise ValueError(f"n_frames must be >= 1, got {n_frames}")
-        if self._logmel is not None and not callable(blocks):
-            raise ValueError(f"output {self.output!r} reads the audio twice (recogniser, log-mel): pass a callable "
+        if self._extra is not None and not callable(blocks):
+            raise ValueError(f"output {self.output!r} reads the audio twice (recogniser, then the rest): pass a callable "
                              f"returning the blocks, e.g. AudioStream(path).blocks, not an iterator")
         lp_blocks = self.recogniser.stream_log_probs(blocks, n_samples)
         if self.output.startswith("visemes"):
@@ -932,8 +938,8 @@ class RecogniserExtractor:
                     lp = np.empty((n_recogniser_frames(n_samples), block.shape[1]), dtype=block.dtype)
                 lp[first:first + block.shape[0]] = block
             feats = self._interpolate(lp, n_frames)
-        if self._logmel is not None:
-            feats = torch.cat([feats, self._logmel.stream(blocks, n_samples, n_frames)], dim=1)
+        if self._extra is not None:
+            feats = torch.cat([feats, self._extra.stream(blocks, n_samples, n_frames)], dim=1)
         return feats
 
     def __repr__(self) -> str:

@@ -51,11 +51,11 @@ def feature_view(dataset: Dataset, features: str, n_phonemes: int, training: boo
         from ..data.dataset import SILENCE_PAD, VisemeLabels
 
         labels = VisemeLabels(dataset, pad_silence=SILENCE_PAD if training else 0,
-                              keep_audio=features == "visemes+logmel")
+                              keep_audio=features in ("visemes+logmel", "visemes+prosody"))
         return labels, labels.dim
     front_ends.get(features)  # an unknown name: one line naming the table's
     raise ValueError(f"front end {features!r} is not trained on by the experiment tables; they train on 'logmel', "
-                     f"'phonemes', 'visemes' or 'visemes+logmel'")
+                     f"'phonemes', 'visemes', 'visemes+logmel' or 'visemes+prosody'")
 
 
 def build_model(spec: RunSpec, n_vertices: int, audio_dim: int, n_speakers: int, faces=None,

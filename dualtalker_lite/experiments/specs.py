@@ -88,9 +88,9 @@ class RunSpec:
     def __post_init__(self):
         if self.data not in DATA:
             raise ValueError(f"RunSpec {self.row!r}: data must be one of {DATA}, got {self.data!r}")
-        if self.data == "pairs" and self.features not in ("logmel", "visemes+logmel"):
-            raise ValueError(f"RunSpec {self.row!r}: data 'pairs' needs features 'logmel' or 'visemes+logmel' (the "
-                             f"emotion branch reads the partner's log-mel), got {self.features!r}")
+        if self.data == "pairs" and self.features not in ("logmel", "visemes+logmel", "visemes+prosody"):
+            raise ValueError(f"RunSpec {self.row!r}: data 'pairs' needs features 'logmel', 'visemes+logmel' or "
+                             f"'visemes+prosody' (the emotion branch reads the partner's sound), got {self.features!r}")
 
     def key(self, test_split: str = TEST_SPLIT) -> str:
         """Identity of the computation (everything but the label and the notes): equal keys = equal runs.

@@ -57,9 +57,11 @@ from ..blocks.mesh_attention import MeshAttention
 from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
 from ..losses.emoface import EmoFaceWeights, emoface_loss
 
-__all__ = ["EmoFaceConfig", "frame_level_stats", "self_growing_share", "EmoFace", "PAST_MOTION", "FUSIONS"]
+__all__ = ["EmoFaceConfig", "frame_level_stats", "self_growing_share", "EmoFace", "PAST_MOTION", "FUSIONS",
+           "EMOTION_INPUTS"]
 
 PAST_MOTION = ("self_growing", "teacher_forcing", "scheduled_sampling", "dropout")
+EMOTION_INPUTS = ("logmel", "prosody")
 FUSIONS = ("mesh_attention", "sum")
 
 
@@ -71,6 +73,8 @@ class EmoFaceConfig:
     audio_dim: int = 160  # D_a: log-mel per mesh frame
     content_dims: int = 0  # > 0: the phonetic route (project addition, issue 19): audio[..., :content_dims] (the
     #                        viseme one-hot) feeds E_c alone, the rest (log-mel) E_e alone; 0: both read all of A
+    emotion_input: str = "logmel"  # what E_e reads: "logmel" (per-frame LayerNorm, then z = frame_level_stats) or
+    #                        "prosody" (prosody_features, already speaker-normalised: neither; issue 50)
     n_speakers: int = 8  # speaking styles (one-hot s in R^n)
     n_emotions: int = 5  # N_e: emotion categories (corpus.emotions; 0 = neutral)
     n_levels: int = 2  # emotion levels (one-hot l in R^2)
@@ -110,6 +114,8 @@ class EmoFaceConfig:
         for name in ("n_emotions", "n_levels", "n_speakers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.emotion_input not in EMOTION_INPUTS:
+            raise ValueError(f"emotion_input must be one of {EMOTION_INPUTS}, got {self.emotion_input!r}")
         if not 0 <= self.content_dims < self.audio_dim:
             raise ValueError(f"content_dims must lie in [0, audio_dim = {self.audio_dim}), got {self.content_dims}")
 
@@ -177,6 +183,8 @@ class EmoFace(nn.Module):
         d, c = cfg.d_model, cfg.audio_hidden
         k = cfg.content_dims
         self.extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=cfg.audio_dim - k, content_dims=0))
+        if cfg.emotion_input == "prosody":  # its features are on a unit scale, relative to the speaker already: a
+            self.extractor.input_norm = nn.Identity()  # per-frame LayerNorm would mix pitch, energy and shape
         # phonetic route: E_c gets its own extractor over the viseme one-hot, so the content branch never hears
         # the voice; the shared extractor above then reads only the log-mel, for E_e
         self.content_extractor = AudioFeatureExtractor.from_config(replace(cfg, audio_dim=k, content_dims=0)) if k else None
@@ -244,10 +252,12 @@ class EmoFace(nn.Module):
         k = self.cfg.content_dims
         h = self.extractor(self.emotion_audio(audio), mask)  # (B, T, C) shared extractor (log-mel only if k)
         h_c = h if self.content_extractor is None else self.content_extractor(audio[..., :k], mask)  # (B, T, C)
-        stats = (frame_level_stats(self.emotion_audio(audio)) - self.level_stats_mean) / self.level_stats_std
-        if mask is not None:
-            stats = stats.masked_fill(~mask[..., None], 0.0)
-        fe = self.emotion_projection(h) + self.emotion_level_stats(stats)  # (B, T, d)
+        fe = self.emotion_projection(h)  # (B, T, d)
+        if self.cfg.emotion_input == "logmel":  # z: what the per-frame LayerNorm removed (loudness, spread)
+            stats = (frame_level_stats(self.emotion_audio(audio)) - self.level_stats_mean) / self.level_stats_std
+            if mask is not None:
+                stats = stats.masked_fill(~mask[..., None], 0.0)
+            fe = fe + self.emotion_level_stats(stats)  # (B, T, d)
         for layer in self.emotion_layers:
             fe = layer(fe, key_mask=mask, radius=self.cfg.audio_radius)  # (B, T, d)
         return self.content_encoder(h_c), fe
@@ -380,7 +390,10 @@ class EmoFace(nn.Module):
     def init_from_data(self, data) -> None:
         """Data-dependent init (``train`` calls it when ``mean_init``): the mean and standard deviation over every
         training frame of :func:`frame_level_stats`, used to standardise them. ``data``: a dataset of clips
-        (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``)."""
+        (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``). Nothing to do
+        for ``emotion_input="prosody"`` (no z)."""
+        if self.cfg.emotion_input != "logmel":
+            return
         items = getattr(data, "items", None)  # the clips of a (Pair|TalkingFace)Dataset: no partner draws used up
         if self.cfg.content_dims:
             items = None  # a wrapper's items (e.g. VisemeLabels over a PairDataset) lack the visemes: read its own
