@@ -75,6 +75,8 @@ class EmoFaceConfig:
     #                        viseme one-hot) feeds E_c alone, the rest (log-mel) E_e alone; 0: both read all of A
     emotion_input: str = "logmel"  # what E_e reads: "logmel" (per-frame LayerNorm, then z = frame_level_stats) or
     #                        "prosody" (prosody_features, already speaker-normalised: neither; issue 50)
+    neutral_voices: int = 0  # > 0 (with "prosody"): each training step also classifies this many clips of real
+    #                        voices the corpus lacks (ears.neutral_voices), labelled neutral (issue 50)
     n_speakers: int = 8  # speaking styles (one-hot s in R^n)
     n_emotions: int = 5  # N_e: emotion categories (corpus.emotions; 0 = neutral)
     n_levels: int = 2  # emotion levels (one-hot l in R^2)
@@ -114,6 +116,9 @@ class EmoFaceConfig:
         for name in ("n_emotions", "n_levels", "n_speakers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.neutral_voices < 0 or (self.neutral_voices and self.emotion_input != "prosody"):
+            raise ValueError(f"neutral_voices must be >= 0, and 0 unless emotion_input is 'prosody' (they ship as "
+                             f"prosody features), got {self.neutral_voices} with {self.emotion_input!r}")
         if self.emotion_input not in EMOTION_INPUTS:
             raise ValueError(f"emotion_input must be one of {EMOTION_INPUTS}, got {self.emotion_input!r}")
         if not 0 <= self.content_dims < self.audio_dim:
@@ -213,6 +218,7 @@ class EmoFace(nn.Module):
             self.mesh_attention = MeshAttention(cfg.n_vertices, d, spirals, delta=cfg.spiral_delta,
                                                 n_layers=cfg.mesh_layers)  # ε of eqs. 17-18
         self._share = 1.0  # ground-truth share of the past motion (set_epoch); 1 = teacher forcing
+        self._neutral: list[Tensor] = []  # real voices' emotion features (init_from_data; not in the state dict)
 
     def _branch_decoder(self) -> MotionDecoder:
         """D_c or D_e (eqs. 15-16): a FaceFormer-style decoder (style table S_n, PPE, ALiBi self-attention, diagonal
@@ -351,7 +357,29 @@ class EmoFace(nn.Module):
                "content_features": fc, "emotion_features": fe_raw}
         if self.cfg.cross_reconstruction and "pair_audio" in batch:
             out.update(self._cross(batch, fc, oc, template, speaker))
+        if self.training and self._neutral:
+            out["neutral_logits"] = self._neutral_logits(audio)
         return out
+
+    def _neutral_logits(self, audio: Tensor, max_frames: int = 90) -> Tensor:
+        """Eq. 10's classifier on ``neutral_voices`` clips of real voices (``ears.neutral_voices``), drawn and
+        cropped to ``max_frames`` with the global RNG (seeded by ``train``) -> logits (N, N_e), labelled neutral by
+        the loss. The content part of A is zero: E_e never reads it."""
+        picks = torch.randint(len(self._neutral), (self.cfg.neutral_voices,)).tolist()
+        clips = []
+        for i in picks:
+            clip = self._neutral[i]
+            start = int(torch.randint(max(1, len(clip) - max_frames + 1), ()))
+            clips.append(clip[start:start + max_frames])
+        T = max(len(c) for c in clips)
+        k = self.cfg.content_dims
+        a = audio.new_zeros(len(clips), T, self.cfg.audio_dim)  # (N, T, D_a)
+        mask = torch.zeros(len(clips), T, dtype=torch.bool, device=audio.device)
+        for j, c in enumerate(clips):
+            a[j, :len(c), k:] = c.to(audio)
+            mask[j, :len(c)] = True
+        _, fe = self.encode(a, mask)  # (N, T, d)
+        return self.classify(fe, mask)  # (N, N_e)
 
     def _cross(self, batch: dict, fc1: Tensor, oc1: Tensor, template: Tensor, speaker: Tensor) -> dict:
         """Eqs. 14-16, 18: clip 2 from clip 1's content and clip 2's emotion (Fig. 5). Eq. 15 as printed:
@@ -392,6 +420,13 @@ class EmoFace(nn.Module):
         training frame of :func:`frame_level_stats`, used to standardise them. ``data``: a dataset of clips
         (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``). Nothing to do
         for ``emotion_input="prosody"`` (no z)."""
+        if self.cfg.neutral_voices:
+            from ..ears.neutral_voices import load
+
+            self._neutral = load()
+            if self._neutral[0].shape[1] != self.cfg.audio_dim - self.cfg.content_dims:
+                raise ValueError(f"EmoFace: the neutral voices have {self._neutral[0].shape[1]} features, the "
+                                 f"emotion branch reads {self.cfg.audio_dim - self.cfg.content_dims}")
         if self.cfg.emotion_input != "logmel":
             return
         items = getattr(data, "items", None)  # the clips of a (Pair|TalkingFace)Dataset: no partner draws used up
