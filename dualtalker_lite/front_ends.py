@@ -5,8 +5,7 @@ trained weights; the model's own *audio feature extractor* (``model.extractor``,
 audio_encoder.AudioFeatureExtractor`, the papers' wav2vec 2.0 stand-in) is trained and reads these features.
 Every part of the package that names a front end reads :data:`FRONT_ENDS` and spells it the same way: ``train
 --features``, the experiment runner's ``--features`` and its rows (``RunSpec.features``, default :data:`DEFAULT`),
-the checkpoint's ``features["name"]``, ``animate``/``evaluate``, the live server, and the tables' notes (each
-row's ``description``).
+the checkpoint's ``features["name"]``, ``animate``/``evaluate``, the live server, the tables' notes.
 
 =====================  =====  ===================================================  ================================
 name                   D_a    trained on                                           fed at test time (evaluate,
@@ -16,14 +15,13 @@ name                   D_a    trained on                                        
                               (:class:`~dualtalker_lite.data.dataset.VisemeLabels`)  track of the audio
 ``visemes+logmel``     175    the same, then the log-mel (EmoFace: its emotion     the recogniser's track, then the
                               branch reads the sound)                              log-mel
+``visemes+prosody``    70     the same, then the speaker-normalised prosody        the recogniser's track, then the
+                              (``prosody_features``; ``train``'s EmoFace)           same prosody
 ``logmel``             160    the log-mel of the corpus audio (the papers' kind    the same, computed from the audio
                               of input, :mod:`dualtalker_lite.audio`)
 ``phonemes``           P      one-hot phoneme labels (an ablation row)             none: it animates nothing
 ``logprobs``           191    the recogniser's log-probabilities (experiments      the same
                               only: ``benchmarks/real_voices.py``)
-``visemes+prosody``    70     the same, then the speaker-normalised prosody and    the recogniser's track, then the
-                              spectral shape (``prosody_features``; EmoFace's      same prosody
-                              emotion branch in ``train``, issue 50)
 ``logprobs+logmel``    351    the same, then the log-mel                           the same
 ``student``            15     the corpus's viseme labels, as ``visemes``           the student's viseme posteriors
                                                                                    (``ears``), at the mesh rate
@@ -32,9 +30,8 @@ name                   D_a    trained on                                        
 The **default is** :data:`DEFAULT` = ``"visemes"``, *the phonetic route*: the recogniser was trained on many real
 voices, so a model trained on viseme labels animates anyone's speech, where a log-mel model learns only the corpus's
 synthetic voices (``docs/front-ends.md``). :data:`CHOICES` are the names the commands offer (``--features``), the
-default first (``student`` is not offered until its weights ship at ``dualtalker_lite/ears/weights/student.pt``;
-until then :func:`build` says so in one line); a row that trains on emotional pseudo-pairs reads :func:`paired` of
-its front end (``visemes`` -> ``visemes+logmel``, the tables'; ``visemes+prosody``, ``train``'s, issue 50).
+default first; a row that trains on emotional pseudo-pairs reads :func:`paired` of its front end (``visemes`` ->
+``visemes+logmel``, the tables'; ``visemes+prosody``, ``train``'s, issue 50).
 
 Checkpoints record ``{"name": <a name above>, "settings": {...}}`` (:func:`settings`) and :func:`from_settings`
 rebuilds the front end from that. Old spellings still load: before issue 30 a recogniser front end was recorded as

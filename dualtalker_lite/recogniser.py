@@ -32,8 +32,7 @@ samples around ``320 j`` (t = 20 ms x j), and N samples give ``1 + N // 320`` fr
   ``"logprobs+logmel"``  351    the same plus the 160 log-mel features of ``audio.LogMelExtractor``
   ``"visemes+logmel"``   175    the viseme one-hot then the 160 log-mel features (for models that also need what
                                 visemes drop, e.g. EmoFace's emotion; train on ``VisemeLabels(base, keep_audio=True)``)
-  ``"visemes+prosody"``  70     the viseme one-hot then the 55 speaker-normalised prosody and spectral-shape
-                                features of ``prosody_features.ProsodyExtractor`` (EmoFace's emotion, issue 50)
+  ``"visemes+prosody"``  70     the viseme one-hot then ``prosody_features.ProsodyExtractor``'s 55 (issue 50)
   =====================  =====  ================================================================================
 
   ``stream`` gives the same features, exactly, from blocks (``animate``); ``settings``/``from_settings`` record and
