@@ -109,7 +109,8 @@ def test_a_long_wave_has_no_seam_at_the_30_s_blocks():
 # ---- the per-10-ms features, by hand ------------------------------------------------------------------------
 def test_pitch_is_semitones_over_12_relative_to_the_median_voiced_f0():
     """F0 100 Hz x 3 then 200 Hz x 4 then an unvoiced frame; every frame equally loud (loud = 0 dB).
-    The median of the voiced semitones is 200 Hz's (4 of 7), so pitch = 12 log2(100/200) / 12 = -1, then 0.
+    The 5-frame median leaves runs of 3 and 4 as they are; the median of the voiced semitones is 200 Hz's (4 of
+    7), so pitch = 12 log2(100/200) / 12 = -1, then 0.
     Pitch slope (p[t+2] - p[t-2]) / 4, ends repeated, 0 unless t, t-2 and t+2 are voiced:
     t=0: (p0 - p2)/4 = 0; t=1..4: (0 - (-1))/4 = 0.25; t=5, 6: t+2 reaches the unvoiced frame 7 -> 0."""
     f0 = np.array([100, 100, 100, 200, 200, 200, 200, 0.0])
@@ -246,8 +247,8 @@ def test_spectral_shape_is_the_band_minus_its_mean_over_the_active_frames():
     assert out.shape == (10, 49) and out.dtype == np.float32
     band = log_mel[:, bins]
     mean = band[active].sum(axis=0) / active.sum()  # over the 7 active frames, written out
-    if np.abs(band - mean).max() < 4:  # (no clipping at this scale)
-        np.testing.assert_allclose(out, band - mean, atol=1e-5)
+    assert np.abs(band - mean).max() < 4  # nothing clipped at this scale
+    np.testing.assert_allclose(out, band - mean, atol=1e-5)
     np.testing.assert_allclose(out[active].mean(axis=0), 0.0, atol=1e-5)
     # a change of level or of the line's response (a constant per band, on every frame) changes nothing
     tilt = np.linspace(-3, 3, 80)[None, :]
