@@ -1,5 +1,6 @@
 """EmoFace: self-growing schedule (eq. 6), losses (eqs. 7-11, hand-computed), model, pseudo-pairs, checkpoints."""
 import math
+import re
 
 import pytest
 import torch
@@ -666,3 +667,156 @@ def test_phonetic_route_routes_visemes_to_content_and_the_rest_to_emotion():
 def test_content_dims_must_leave_audio_for_the_emotion_branch():
     with pytest.raises(ValueError, match=r"content_dims must lie in \[0, audio_dim = 12\), got 12"):
         _cfg(content_dims=DA)
+
+
+# ---- the speaker-normalised prosody and the neutral real voices (issue 50) -----------------------------------------
+K, DP = 15, 55  # visemes+prosody: the viseme one-hot, then ProsodyExtractor.dim features
+
+
+def _prosody_model(seed=0, **kw):
+    torch.manual_seed(seed)
+    cfg = EmoFaceConfig.tiny(n_vertices=V, audio_dim=K + DP, content_dims=K, emotion_input="prosody", n_speakers=NS,
+                             n_emotions=NE, d_model=32, d_ff=64, audio_hidden=32, motion_scale=1.0, fusion="sum", **kw)
+    return EmoFace(cfg)
+
+
+def _prosody_batch(b=2, t=12, seed=0):
+    g = torch.Generator().manual_seed(seed + 100)
+    return {**_batch(b, t, seed), "audio": torch.randn(b, t, K + DP, generator=g),
+            "pair_audio": torch.randn(b, t, K + DP, generator=g)}
+
+
+def test_prosody_input_has_no_per_frame_layer_norm():
+    """"logmel": the shared extractor's per-frame LayerNorm makes one frame x 2 invisible to it (a louder frame: the
+    level statistics z carry that instead); "prosody": no LayerNorm, so the extractor and F_e see the change (the
+    features are already relative to the speaker, and a LayerNorm would mix pitch, energy and spectral shape)."""
+    logmel, audio = _model().eval(), _batch(t=10)["audio"]
+    louder = audio.clone()
+    louder[:, 3] *= 2
+    torch.testing.assert_close(logmel.extractor(louder), logmel.extractor(audio), atol=1e-4, rtol=0)
+
+    model, audio = _prosody_model().eval(), _prosody_batch(t=10)["audio"]
+    assert isinstance(model.extractor.input_norm, torch.nn.Identity)
+    assert isinstance(logmel.extractor.input_norm, torch.nn.LayerNorm)
+    louder = audio.clone()
+    louder[:, 3, K:] *= 2  # one frame's emotion features only
+    with torch.no_grad():
+        fc, fe = model.encode(audio)
+        fc2, fe2 = model.encode(louder)
+        h, h2 = model.extractor(audio[..., K:]), model.extractor(louder[..., K:])
+    assert float((h2[:, 3] - h[:, 3]).abs().amax()) > 1e-3
+    assert float((fe2 - fe).abs().amax()) > 1e-3
+    torch.testing.assert_close(fc2, fc, rtol=0, atol=0)  # the content branch reads the visemes only
+
+
+def test_prosody_input_leaves_the_level_statistics_alone():
+    model = _prosody_model()
+    audio = torch.randn(2, 6, K + DP) * 3 - 8
+    model.init_from_data([{"audio": audio, "mask": None}])
+    torch.testing.assert_close(model.level_stats_mean, torch.zeros(2), rtol=0, atol=0)
+    torch.testing.assert_close(model.level_stats_std, torch.ones(2), rtol=0, atol=0)
+    # and F_e does not depend on them: changing the buffers changes nothing
+    model.eval()
+    with torch.no_grad():
+        _, fe = model.encode(audio)
+        model.level_stats_mean.fill_(5.0)
+        _, fe2 = model.encode(audio)
+    torch.testing.assert_close(fe2, fe, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(emotion_input="logmel", neutral_voices=3), "got 3 with 'logmel'"),
+    (dict(emotion_input="prosody", neutral_voices=-1), "got -1 with 'prosody'"),
+    (dict(emotion_input="mfcc"), "emotion_input must be one of ('logmel', 'prosody'), got 'mfcc'"),
+])
+def test_neutral_voices_need_the_prosody_input(kw, message):
+    with pytest.raises(ValueError, match=re.escape(message)) as e:
+        EmoFaceConfig.tiny(n_vertices=V, audio_dim=K + DP, content_dims=K, **kw)
+    assert "\n" not in str(e.value)
+    if "neutral_voices" in kw:
+        assert str(e.value).startswith("neutral_voices must be >= 0, and 0 unless emotion_input is 'prosody'")
+
+
+def test_neutral_voices_refuse_an_emotion_branch_of_another_width():
+    torch.manual_seed(0)
+    cfg = EmoFaceConfig.tiny(n_vertices=V, audio_dim=K + 20, content_dims=K, emotion_input="prosody",
+                             neutral_voices=2, n_speakers=NS, n_emotions=NE, d_model=32, d_ff=64, audio_hidden=32)
+    with pytest.raises(ValueError, match=r"^EmoFace: the neutral voices have 55 features, the emotion branch reads "
+                                         r"20$"):
+        EmoFace(cfg).init_from_data([])
+
+
+def test_neutral_logits_in_training_only():
+    model = _prosody_model(neutral_voices=3)
+    batch = _prosody_batch()
+    assert "neutral_logits" not in model.train()(batch)  # nothing loaded before init_from_data
+    model.init_from_data([])  # loads ears/weights/neutral_voices.npz (prosody: nothing else to do)
+    out = model.train()(batch)
+    assert out["neutral_logits"].shape == (3, NE) and bool(torch.isfinite(out["neutral_logits"]).all())
+    with torch.no_grad():
+        assert "neutral_logits" not in model.eval()(batch)
+
+
+def test_neutral_logits_are_the_classifiers_on_each_clip_alone(monkeypatch):
+    """With clips of <= 90 frames nothing is cropped: each row is eq. 10's classifier on one clip, the viseme part
+    zero, computed here clip by clip (no padding): the padded batch and its mask change nothing."""
+    from dualtalker_lite.ears import neutral_voices
+
+    model = _prosody_model(neutral_voices=4)
+    g = torch.Generator().manual_seed(7)
+    clips = [torch.randn(n, DP, generator=g) for n in (20, 35, 50)]
+    monkeypatch.setattr(neutral_voices, "load", lambda: clips)  # what init_from_data reads
+    model.init_from_data([])
+    alone = []
+    for c in clips:
+        a = torch.cat([torch.zeros(len(c), K), c], dim=1)[None]  # (1, T, K + DP)
+        alone.append(model.eval().emotion_logits(a)[0])
+    torch.manual_seed(1)
+    logits = model.train()(_prosody_batch())["neutral_logits"].detach()
+    assert logits.shape == (4, NE)
+    for row in logits:
+        assert min(float((row - a).abs().max()) for a in alone) < 1e-4, (row, alone)
+
+
+def test_the_loss_adds_the_neutral_voices_as_neutral():
+    """Eq. 10's term plus neutral_share x CE(neutral logits, class 0), CE written out with F.cross_entropy."""
+    import torch.nn.functional as F
+
+    model = _prosody_model(neutral_voices=3)
+    model.init_from_data([])
+    batch = _prosody_batch()
+    torch.manual_seed(3)
+    out = {k: v.detach() if torch.is_tensor(v) else v for k, v in model.train()(batch).items()}
+    base = F.cross_entropy(out["emotion_logits"], batch["emotion"]) + \
+        F.cross_entropy(out["pair_emotion_logits"], batch["pair_emotion"])
+    neutral = F.cross_entropy(out["neutral_logits"], torch.zeros(3, dtype=torch.long))
+    for share in (1.0, 0.5, 0.0):
+        _, terms = emoface_loss(out, batch, EmoFaceWeights(neutral_share=share))
+        assert float(terms["cls"]) == pytest.approx(float(base + share * neutral), rel=1e-6)
+    assert EmoFaceWeights().neutral_share == 1.0
+    _, terms = emoface_loss({k: v for k, v in out.items() if k != "neutral_logits"}, batch)
+    assert float(terms["cls"]) == pytest.approx(float(base), rel=1e-6)
+
+
+def test_neutral_term_by_hand():
+    """One clip's logits (0, 0) for class 0 (log 2) and two neutral clips with p(neutral) 1/4 and 4/5:
+    cls = log 2 + share x -(log 1/4 + log 4/5) / 2."""
+    out = {"emotion": PRED, "content": PRED, "vertices": PRED, "emotion_logits": torch.tensor([[0.0, 0.0]]),
+           "neutral_logits": torch.tensor([[0.0, math.log(3.0)], [math.log(4.0), 0.0]])}
+    batch = {"vertices": PRED, "mask": FULL, "emotion": torch.tensor([0])}
+    total, terms = emoface_loss(out, batch, EmoFaceWeights(lambda_cls=2.0, neutral_share=0.5))
+    cls = math.log(2) + 0.5 * -(math.log(1 / 4) + math.log(4 / 5)) / 2
+    assert float(terms["cls"]) == pytest.approx(cls, abs=1e-6)
+    assert float(total) == pytest.approx(2.0 * cls, abs=1e-5)  # the vertex terms are 0 (prediction = target)
+
+
+def test_same_seed_same_neutral_draws():
+    model = _prosody_model(neutral_voices=3)
+    model.init_from_data([])
+    batch = _prosody_batch()
+    draws = []
+    for seed in (4, 4, 5):
+        torch.manual_seed(seed)
+        draws.append(model.train()(batch)["neutral_logits"].detach())
+    torch.testing.assert_close(draws[1], draws[0], rtol=0, atol=0)
+    assert float((draws[2] - draws[0]).abs().max()) > 1e-6
