@@ -61,14 +61,15 @@ BAND_HZ = (250.0, 3600.0)  # the spectral shape's mel bands: those whose centre 
 SHAPE_CLIP = 4.0        # |log-mel - the utterance's mean| is clipped here (natural-log units)
 
 
-def _frames(wave: np.ndarray, length: int) -> np.ndarray:
-    """(N,) -> (1 + N // HOP, length): frame i starts at sample i * HOP - WINDOW // 2 (zero beyond the ends)."""
-    n = 1 + len(wave) // HOP
-    start = WINDOW // 2
-    padded = np.concatenate([np.zeros(start, np.float64), wave.astype(np.float64),
-                             np.zeros(length + HOP, np.float64)])
-    idx = np.arange(n)[:, None] * HOP + np.arange(length)[None, :]
-    return padded[idx]                                                     # (n, length)
+def _frames(wave: np.ndarray, first: int, last: int, length: int) -> np.ndarray:
+    """Analysis frames ``first`` .. ``last - 1`` of ``wave`` -> (last - first, length): frame i holds samples
+    [i HOP - WINDOW // 2, + length), zeros outside the wave (so frame i is centred on sample i HOP)."""
+    lo = first * HOP - WINDOW // 2                                         # the block's first sample (may be < 0)
+    hi = (last - 1) * HOP - WINDOW // 2 + length                           # one past its last
+    piece = wave[max(0, lo): max(0, min(len(wave), hi))].astype(np.float64)
+    padded = np.concatenate([np.zeros(max(0, -lo)), piece, np.zeros(hi - lo - max(0, -lo) - len(piece))])
+    idx = np.arange(last - first)[:, None] * HOP + np.arange(length)[None, :]
+    return padded[idx]                                                     # (last - first, length)
 
 
 def yin_f0(wave: np.ndarray, sample_rate: int = SAMPLE_RATE) -> tuple[np.ndarray, np.ndarray]:
@@ -80,9 +81,7 @@ def yin_f0(wave: np.ndarray, sample_rate: int = SAMPLE_RATE) -> tuple[np.ndarray
     f0, dips = np.zeros(n), np.ones(n)
     for a in range(0, n, BLOCK_FRAMES):
         b = min(n, a + BLOCK_FRAMES)
-        piece = wave[max(0, a * HOP - WINDOW // 2): b * HOP + WINDOW + tau_max + HOP]
-        lead = WINDOW // 2 - min(WINDOW // 2, a * HOP)                      # zeros before the wave's start
-        x = _frames(np.concatenate([np.zeros(lead), piece]), WINDOW + tau_max + 1)[: b - a]  # (m, W + τmax + 1)
+        x = _frames(wave, a, b, WINDOW + tau_max + 1)                      # (m, W + τmax + 1)
         # d(τ) = Σ_{j<W} x_j² + x_{j+τ}² - 2 x_j x_{j+τ}: the cross term by FFT, the energies by cumulative sums
         size = 1 << int(np.ceil(np.log2(2 * (WINDOW + tau_max + 1))))
         spec_a = np.fft.rfft(x[:, :WINDOW], size)
@@ -95,7 +94,9 @@ def yin_f0(wave: np.ndarray, sample_rate: int = SAMPLE_RATE) -> tuple[np.ndarray
         d = np.maximum(e0 + e_tau - 2 * cross, 0.0)                         # (m, τmax + 1), d(0) = 0
         cum = np.cumsum(d[:, 1:], axis=1)
         dn = np.ones_like(d)
-        dn[:, 1:] = d[:, 1:] * taus[1:] / np.maximum(cum, 1e-12)            # d'(τ), d'(0) = 1
+        # d'(τ), d'(0) = 1; 1 (no dip) where d is ~0 at every lag: digital silence, or a constant
+        flat = cum <= 1e-12 * np.maximum(e0, 1e-30) + 1e-20
+        dn[:, 1:] = np.where(flat, 1.0, d[:, 1:] * taus[1:] / np.maximum(cum, 1e-30))
         core = dn[:, tau_min: tau_max]                                      # lags of F0_MAX .. F0_MIN
         left, right = dn[:, tau_min - 1: tau_max - 1], dn[:, tau_min + 1: tau_max + 1]
         dip = (core < YIN_THRESHOLD) & (core <= left) & (core <= right)     # local minima under the threshold
@@ -114,9 +115,7 @@ def frame_power_db(wave: np.ndarray) -> np.ndarray:
     out = np.empty(n)
     for a in range(0, n, BLOCK_FRAMES):
         b = min(n, a + BLOCK_FRAMES)
-        piece = wave[max(0, a * HOP - WINDOW // 2): b * HOP + WINDOW + HOP]
-        lead = WINDOW // 2 - min(WINDOW // 2, a * HOP)
-        x = _frames(np.concatenate([np.zeros(lead), piece]), WINDOW)[: b - a]
+        x = _frames(wave, a, b, WINDOW)
         out[a:b] = 10 * np.log10(np.maximum((x * x).mean(axis=1), 10 ** (ENERGY_FLOOR_DB / 10)))
     return out
 
@@ -201,6 +200,14 @@ class ProsodyExtractor:
         return {"features": list(FEATURES), "hop": HOP, "window": WINDOW, "f0_min": F0_MIN, "f0_max": F0_MAX,
                 "yin_threshold": YIN_THRESHOLD, "voiced_range_db": VOICED_RANGE_DB, "fps": self.fps}
 
+    def silence_frame(self, features: torch.Tensor) -> torch.Tensor:
+        """What a pause of the clip with ``features`` (T, dim) looks like (the training's silence padding,
+        ``data.dataset.pad_with_silence``): unvoiced (voicing, pitch, the slopes and the syllable rate 0), the
+        clip's lowest energy, each band's lowest spectral shape -> (dim,)."""
+        out = features.min(0).values.clone()                                # (dim,)
+        out[[FEATURES.index(k) for k in FEATURES if k != "energy"]] = 0.0
+        return out
+
     def frames(self, wave: np.ndarray | torch.Tensor) -> np.ndarray:
         """(L, dim) at 100 Hz: :func:`prosody_frames` of :func:`yin_f0` and :func:`frame_power_db`, then
         :func:`spectral_shape` of the log-mel."""
@@ -208,7 +215,9 @@ class ProsodyExtractor:
         w = wave.detach().cpu().numpy() if torch.is_tensor(wave) else np.asarray(wave)
         w = w.astype(np.float64)
         power = frame_power_db(w)
-        mel = log_mel_spectrogram(torch.from_numpy(w.astype(np.float32)), self.sample_rate).numpy()  # (L, 80)
+        loud = np.percentile(power, 95)                          # the log-mel of the wave at a fixed loud level,
+        scaled = w / max(10 ** (loud / 20), 1e-5)                # so log_mel's floor does not depend on the gain
+        mel = log_mel_spectrogram(torch.from_numpy(scaled.astype(np.float32)), self.sample_rate).numpy()  # (L, 80)
         return np.concatenate([prosody_frames(yin_f0(w, self.sample_rate)[0], power),
                                spectral_shape(mel[: len(power)], power)], axis=1)
 

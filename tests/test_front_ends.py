@@ -181,10 +181,6 @@ def test_training_clips_give_emoface_the_chosen_emotion_features(tmp_path, emoti
             torch.testing.assert_close(item["audio"][:, 15:], own, rtol=0, atol=1e-6)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "VisemeLabels pads silence with each kept feature's quietest value: right for the log-mel, but for the "
-    "prosody a pause gets the clip's lowest pitch (-0.48 on SPK01_s00-happy1) and its most negative pitch slope "
-    "(-0.017), where the extractor gives an unvoiced frame pitch 0 and pitch slope 0"))
 def test_silence_padding_of_the_prosody_is_what_a_pause_sounds_like(tmp_path):
     from dualtalker_lite.commands import model_specs, training_clips
     from dualtalker_lite.data.corpus import Corpus

@@ -209,7 +209,8 @@ class VisemeLabels(Dataset):
                                   else onehot)
         if self.pad_silence:
             p = self.pad_silence + 1
-            item = pad_with_silence(item, (7 * index) % p, (13 * index + 5) % p, self.n_visemes)
+            item = pad_with_silence(item, (7 * index) % p, (13 * index + 5) % p, self.n_visemes,
+                                    silence=getattr(getattr(self.base, "front_end", None), "silence_frame", None))
         return item
 
     def __repr__(self) -> str:
@@ -220,9 +221,11 @@ SILENCE_PAD = 20    # frames (0.67 s at 30 fps): the most silence VisemeLabels p
 SILENCE_RAMP = 4    # frames (133 ms): edge pose -> neutral template, linearly
 
 
-def pad_with_silence(item: dict, before: int, after: int, n_visemes: int, ramp: int = SILENCE_RAMP) -> dict:
+def pad_with_silence(item: dict, before: int, after: int, n_visemes: int, ramp: int = SILENCE_RAMP,
+                     silence=None) -> dict:
     """``item`` (audio = one-hot visemes first, then any kept features) with ``before``/``after`` frames of
-    silence: one-hot ``sil``, the quietest value of each kept feature, ids 0, and motion that ramps linearly
+    silence: one-hot ``sil``, the kept features' pause (``silence(kept (T, D)) -> (D,)``, the front end's
+    ``silence_frame``, e.g. unvoiced prosody; None: the quietest value of each), ids 0, and motion that ramps linearly
     from the edge frame to the ``template`` over ``ramp`` frames and then holds it; a pseudo-pair partner's
     ``pair_audio``/``pair_vertices`` likewise. Shapes (T, ...) -> (before + T + after, ...)."""
     if before == 0 and after == 0:
@@ -231,8 +234,9 @@ def pad_with_silence(item: dict, before: int, after: int, n_visemes: int, ramp: 
     audio, verts, tmpl = item["audio"], item["vertices"], item["template"]
     sil = audio.new_zeros(audio.shape[1])                               # (D,)
     sil[0] = 1.0                                                        # the sil class
-    if audio.shape[1] > n_visemes:
-        sil[n_visemes:] = audio[:, n_visemes:].min(0).values            # quietest value per kept feature
+    if audio.shape[1] > n_visemes:  # the kept features' pause: the front end's (silence: (T, D) -> (D,)), or
+        kept = audio[:, n_visemes:]  # their quietest values (the log-mel's)
+        sil[n_visemes:] = silence(kept) if silence is not None else kept.min(0).values
     w_in = torch.clamp(torch.arange(before, 0, -1, dtype=verts.dtype) / (ramp + 1), max=1.0)[:, None]  # (before, 1)
     w_out = torch.clamp(torch.arange(1, after + 1, dtype=verts.dtype) / (ramp + 1), max=1.0)[:, None]  # (after, 1)
     lead = (1 - w_in) * verts[:1] + w_in * tmpl                         # (before, V*3): template -> first pose
@@ -242,7 +246,7 @@ def pad_with_silence(item: dict, before: int, after: int, n_visemes: int, ramp: 
     if "pair_audio" in item:  # a pseudo-pair partner is padded the same way (its own quietest values)
         partner = pad_with_silence({"audio": item["pair_audio"], "vertices": item["pair_vertices"], "template": tmpl,
                                     "phonemes": item["phonemes"], "visemes": item["visemes"]},
-                                   before, after, n_visemes, ramp)
+                                   before, after, n_visemes, ramp, silence)
         out["pair_audio"], out["pair_vertices"] = partner["audio"], partner["vertices"]
     for key in ("phonemes", "visemes"):
         ids = item[key]
