@@ -164,11 +164,6 @@ def _check_checkpoint_path(out: Path, corpus: str | None, overwrite: bool, resum
         raise PermissionError(f"output folder {out.parent} is not writable")
 
 
-# EmoFace on the speaker-normalised prosody (train's default, issue 50): λ4 of eq. 11 (the classifier's weight) for
-# the short recipe's few hundred steps; measured in results/emoface_recipe.md (the tables keep 0.01)
-PROSODY_BRANCH_LOSS = {"lambda_cls": 0.01}
-
-
 def training_clips(corpus: Corpus, spec: RunSpec, features: str, clips: int | None = None,
                    seed: int = 0, emotion_features: str = "prosody") -> TrainingClips:
     """The clips ``train`` trains row ``spec`` on with front end ``features``. The phonetic route (``visemes``, the
@@ -179,8 +174,6 @@ def training_clips(corpus: Corpus, spec: RunSpec, features: str, clips: int | No
     if features == "visemes":
         spec = dataclasses.replace(spec, features=front_ends.paired("visemes", emotion_features) if paired
                                    else "visemes")
-        if spec.features == "visemes+prosody":
-            spec = dataclasses.replace(spec, loss={**spec.loss, **PROSODY_BRANCH_LOSS})
     computed = None
     if features == "visemes" and not paired and not any(corpus.meta(n).get("visemes") for n in corpus.split("train")):
         print(f"note: {corpus.root}: no viseme labels in metadata.json; training on the recogniser's viseme tracks "

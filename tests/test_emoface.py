@@ -9,6 +9,7 @@ from dualtalker_lite.losses.emoface import (EmoFaceWeights, classification_loss,
                                             reconstruction_loss, velocity_loss)
 from dualtalker_lite.models.emoface import EmoFace, EmoFaceConfig, frame_level_stats
 from dualtalker_lite.models.emoface import self_growing_share
+from dualtalker_lite.prosody_features import FEATURES as PROSODY_FEATURES
 from dualtalker_lite.train import TrainConfig, train
 from builders import grid_faces as _grid_faces
 
@@ -725,98 +726,111 @@ def test_prosody_input_leaves_the_level_statistics_alone():
 
 
 @pytest.mark.parametrize("kw, message", [
-    (dict(emotion_input="logmel", neutral_voices=3), "got 3 with 'logmel'"),
-    (dict(emotion_input="prosody", neutral_voices=-1), "got -1 with 'prosody'"),
+    (dict(emotion_input="logmel", input_statistics=True), "need emotion_input 'prosody'"),
+    (dict(emotion_input="logmel", neutral_voices=True), "need emotion_input 'prosody'"),
+    (dict(emotion_input="prosody", neutral_voices=True), "set input_statistics too"),
     (dict(emotion_input="mfcc"), "emotion_input must be one of ('logmel', 'prosody'), got 'mfcc'"),
 ])
-def test_neutral_voices_need_the_prosody_input(kw, message):
+def test_the_statistics_classifier_needs_the_prosody_input(kw, message):
     with pytest.raises(ValueError, match=re.escape(message)) as e:
         EmoFaceConfig.tiny(n_vertices=V, audio_dim=K + DP, content_dims=K, **kw)
     assert "\n" not in str(e.value)
-    if "neutral_voices" in kw:
-        assert str(e.value).startswith("neutral_voices must be >= 0, and 0 unless emotion_input is 'prosody'")
 
 
-def test_neutral_voices_refuse_an_emotion_branch_of_another_width():
-    torch.manual_seed(0)
-    cfg = EmoFaceConfig.tiny(n_vertices=V, audio_dim=K + 20, content_dims=K, emotion_input="prosody",
-                             neutral_voices=2, n_speakers=NS, n_emotions=NE, d_model=32, d_ff=64, audio_hidden=32)
-    with pytest.raises(ValueError, match=r"^EmoFace: the neutral voices have 55 features, the emotion branch reads "
-                                         r"20$"):
-        EmoFace(cfg).init_from_data([])
+def _stats_clips(levels, t=6):
+    """One clip per (emotion, x0 level): prosody feature 0 at that level on every frame, the rest 0."""
+    out = []
+    for emotion, level in levels:
+        audio = torch.zeros(t, K + DP)
+        audio[:, K] = level
+        out.append({"audio": audio, "emotion": emotion})
+    return out
 
 
-def test_neutral_logits_in_training_only():
-    model = _prosody_model(neutral_voices=3)
-    batch = _prosody_batch()
-    assert "neutral_logits" not in model.train()(batch)  # nothing loaded before init_from_data
-    model.init_from_data([])  # loads ears/weights/neutral_voices.npz (prosody: nothing else to do)
-    out = model.train()(batch)
-    assert out["neutral_logits"].shape == (3, NE) and bool(torch.isfinite(out["neutral_logits"]).all())
-    with torch.no_grad():
-        assert "neutral_logits" not in model.eval()(batch)
+def test_fit_classifier_separates_what_the_statistics_separate(monkeypatch):
+    """Emotion 1's clips have prosody feature 0 at +1, emotion 2's at -1: the fitted map names every one, the
+    standardisation is the pooled vectors' mean and std (computed here by hand), and nothing of the map trains."""
+    model = _prosody_model(input_statistics=True)
+    clips = _stats_clips([(1, 1.0), (1, 1.2), (2, -1.0), (2, -0.8)])
+    fit = model.fit_classifier(clips)
+    assert fit == {"clips": 4, "neutral_voices": 0, "accuracy": 1.0}
+    means = torch.tensor([1.0, 1.2, -1.0, -0.8])
+    assert model.pooled_mean[0].item() == pytest.approx(means.mean().item(), abs=1e-6)       # mean of feature 0
+    assert model.pooled_std[0].item() == pytest.approx(means.std().item(), abs=1e-5)         # sample std
+    assert model.pooled_std[1].item() == pytest.approx(1e-3)  # a constant statistic: the floor, not a division by 0
+    assert model.pooled_mean[DP].item() == pytest.approx(1e-3, rel=1e-3)  # std_t of a constant: sqrt(1e-6)
+    assert not any(p.requires_grad for p in model.classifier.parameters())
+    batch = torch.stack([c["audio"] for c in clips])
+    assert model.emotion_logits(batch).argmax(-1).tolist() == [1, 1, 2, 2]
 
 
-def test_neutral_logits_are_the_classifiers_on_each_clip_alone(monkeypatch):
-    """With clips of <= 90 frames nothing is cropped: each row is eq. 10's classifier on one clip, the viseme part
-    zero, computed here clip by clip (no padding): the padded batch and its mask change nothing."""
+def test_fit_classifier_hears_the_neutral_voices_as_neutral(monkeypatch):
     from dualtalker_lite.ears import neutral_voices
 
-    model = _prosody_model(neutral_voices=4)
-    g = torch.Generator().manual_seed(7)
-    clips = [torch.randn(n, DP, generator=g) for n in (20, 35, 50)]
-    monkeypatch.setattr(neutral_voices, "load", lambda: clips)  # what init_from_data reads
-    model.init_from_data([])
-    alone = []
-    for c in clips:
-        a = torch.cat([torch.zeros(len(c), K), c], dim=1)[None]  # (1, T, K + DP)
-        alone.append(model.eval().emotion_logits(a)[0])
-    torch.manual_seed(1)
-    logits = model.train()(_prosody_batch())["neutral_logits"].detach()
-    assert logits.shape == (4, NE)
-    for row in logits:
-        assert min(float((row - a).abs().max()) for a in alone) < 1e-4, (row, alone)
+    voices = [torch.full((5, DP), 0.0) for _ in range(3)]
+    for v in voices:
+        v[:, 0] = 3.0                                                     # far from both emotions
+    monkeypatch.setattr(neutral_voices, "load", lambda: voices)
+    model = _prosody_model(input_statistics=True, neutral_voices=True)
+    fit = model.fit_classifier(_stats_clips([(1, 1.0), (1, 1.2), (2, -1.0), (2, -0.8)]))
+    assert (fit["clips"], fit["neutral_voices"], fit["accuracy"]) == (4, 3, 1.0)
+    probe = torch.zeros(1, 5, K + DP)
+    probe[0, :, K] = 3.0
+    assert model.emotion_logits(probe).argmax(-1).item() == 0
 
 
-def test_the_loss_adds_the_neutral_voices_as_neutral():
-    """Eq. 10's term plus neutral_share x CE(neutral logits, class 0), CE written out with F.cross_entropy."""
-    import torch.nn.functional as F
+def test_neutral_voices_refuse_an_emotion_branch_of_another_width(monkeypatch):
+    from dualtalker_lite.ears import neutral_voices
 
-    model = _prosody_model(neutral_voices=3)
-    model.init_from_data([])
-    batch = _prosody_batch()
-    torch.manual_seed(3)
-    out = {k: v.detach() if torch.is_tensor(v) else v for k, v in model.train()(batch).items()}
-    base = F.cross_entropy(out["emotion_logits"], batch["emotion"]) + \
-        F.cross_entropy(out["pair_emotion_logits"], batch["pair_emotion"])
-    neutral = F.cross_entropy(out["neutral_logits"], torch.zeros(3, dtype=torch.long))
-    for share in (1.0, 0.5, 0.0):
-        _, terms = emoface_loss(out, batch, EmoFaceWeights(neutral_share=share))
-        assert float(terms["cls"]) == pytest.approx(float(base + share * neutral), rel=1e-6)
-    assert EmoFaceWeights().neutral_share == 1.0
-    _, terms = emoface_loss({k: v for k, v in out.items() if k != "neutral_logits"}, batch)
-    assert float(terms["cls"]) == pytest.approx(float(base), rel=1e-6)
+    monkeypatch.setattr(neutral_voices, "load", lambda: [torch.zeros(4, DP + 1)])
+    model = _prosody_model(input_statistics=True, neutral_voices=True)
+    with pytest.raises(ValueError, match=f"neutral voices have {DP + 1} features, the emotion branch reads {DP}"):
+        model.fit_classifier(_stats_clips([(1, 1.0), (2, -1.0)]))
 
 
-def test_neutral_term_by_hand():
-    """One clip's logits (0, 0) for class 0 (log 2) and two neutral clips with p(neutral) 1/4 and 4/5:
-    cls = log 2 + share x -(log 1/4 + log 4/5) / 2."""
-    out = {"emotion": PRED, "content": PRED, "vertices": PRED, "emotion_logits": torch.tensor([[0.0, 0.0]]),
-           "neutral_logits": torch.tensor([[0.0, math.log(3.0)], [math.log(4.0), 0.0]])}
-    batch = {"vertices": PRED, "mask": FULL, "emotion": torch.tensor([0])}
-    total, terms = emoface_loss(out, batch, EmoFaceWeights(lambda_cls=2.0, neutral_share=0.5))
-    cls = math.log(2) + 0.5 * -(math.log(1 / 4) + math.log(4 / 5)) / 2
-    assert float(terms["cls"]) == pytest.approx(cls, abs=1e-6)
-    assert float(total) == pytest.approx(2.0 * cls, abs=1e-5)  # the vertex terms are 0 (prediction = target)
+def test_the_classifier_reads_the_standardised_utterance_statistics_of_the_prosody():
+    """input_statistics: logits = W ((x - μ) / σ) + b, x = [mean_t, std_t] of E_e's inputs over the valid frames:
+    one weight on the mean of feature 2 and one on the std of feature 0, the standardisation set by hand."""
+    model = _prosody_model(input_statistics=True).eval()
+    assert model.classifier.in_features == 2 * DP
+    with torch.no_grad():
+        model.classifier.weight.zero_()
+        model.classifier.bias.zero_()
+        model.classifier.weight[1, 2] = 1.0          # mean of x_2
+        model.classifier.weight[3, DP + 0] = 1.0     # std of x_0
+        model.pooled_mean[2], model.pooled_std[2] = 1.0, 2.0
+        model.pooled_mean[DP], model.pooled_std[DP] = 0.5, 0.25
+    audio = torch.zeros(1, 5, K + DP)
+    audio[0, :, K + 2] = torch.tensor([1.0, 2.0, 6.0, 9.0, 99.0])
+    audio[0, :, K + 0] = torch.tensor([0.0, 2.0, 0.0, 2.0, 50.0])
+    mask = torch.tensor([[True, True, True, True, False]])  # the last frame is padding
+    logits = model.emotion_logits(audio, mask)
+    assert logits[0, 1].item() == pytest.approx(((1 + 2 + 6 + 9) / 4 - 1.0) / 2.0, abs=1e-5)
+    assert logits[0, 3].item() == pytest.approx((math.sqrt(1.0 + 1e-6) - 0.5) / 0.25, abs=1e-5)
+    assert logits[0, 0].item() == 0.0
 
 
-def test_same_seed_same_neutral_draws():
-    model = _prosody_model(neutral_voices=3)
-    model.init_from_data([])
-    batch = _prosody_batch()
-    draws = []
-    for seed in (4, 4, 5):
-        torch.manual_seed(seed)
-        draws.append(model.train()(batch)["neutral_logits"].detach())
-    torch.testing.assert_close(draws[1], draws[0], rtol=0, atol=0)
-    assert float((draws[2] - draws[0]).abs().max()) > 1e-6
+def test_streamed_emotion_logits_equal_the_whole_clips_with_input_statistics():
+    model = _prosody_model(input_statistics=True).eval()
+    g = torch.Generator().manual_seed(3)
+    audio = torch.randn(2, 40, K + DP, generator=g)
+    mask = torch.ones(2, 40, dtype=torch.bool)
+    mask[1, 31:] = False
+    whole = model.emotion_logits(audio, mask)
+    assert torch.allclose(model.emotion_logits(audio, mask, chunk=7), whole, atol=1e-5)
+
+
+def test_the_statistics_skip_leading_and_trailing_silence():
+    """The span runs from the first to the last frame within 30 dB of the loud ones (energy feature > -1.5): two
+    frames of silence (energy -3) before and after change nothing; the same frames inside the span count."""
+    model = _prosody_model(input_statistics=True).eval()
+    e = list(PROSODY_FEATURES).index("energy")
+    speech = torch.zeros(1, 4, K + DP)
+    speech[0, :, K] = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    quiet = torch.zeros(1, 2, K + DP)
+    quiet[0, :, K + e] = -3.0
+    padded = torch.cat([quiet, speech, quiet], dim=1)
+    assert torch.allclose(model.utterance_statistics(padded), model.utterance_statistics(speech))
+    inside = torch.cat([speech[:, :2], quiet, speech[:, 2:]], dim=1)
+    stats = model.utterance_statistics(inside)
+    assert stats[0, 0].item() == pytest.approx((1 + 2 + 0 + 0 + 3 + 4) / 6)  # the pause inside is part of it

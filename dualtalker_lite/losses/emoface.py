@@ -80,8 +80,6 @@ class EmoFaceWeights:
     lambda_cross: float = 1.0   # λ2, eq. 8
     lambda_vel: float = 0.5     # λ3, eq. 9
     lambda_cls: float = 0.01    # λ4, eq. 10
-    neutral_share: float = 1.0  # the real voices' clips (EmoFace.neutral_voices, "neutral_logits") in eq. 10's
-    #                             term, as a multiple of one clip batch's cross-entropy (issue 50; not the paper's)
     vertex_scale: float = 1000.0  # vertices x this before the L1s (1000: mm)
 
     @classmethod
@@ -116,9 +114,6 @@ def emoface_loss(out: dict, batch: dict, weights: EmoFaceWeights | None = None) 
         terms["cls"] = classification_loss(out["emotion_logits"], batch["emotion"])
         if has_cross and out.get("pair_emotion_logits") is not None:
             terms["cls"] = terms["cls"] + classification_loss(out["pair_emotion_logits"], batch["pair_emotion"])
-        if out.get("neutral_logits") is not None and w.neutral_share:  # real voices, heard as neutral (0)
-            neutral = out["neutral_logits"].new_zeros(out["neutral_logits"].shape[0], dtype=torch.long)
-            terms["cls"] = terms["cls"] + w.neutral_share * classification_loss(out["neutral_logits"], neutral)
     lambdas = {"self": w.lambda_self, "cross": w.lambda_cross, "vel": w.lambda_vel, "cls": w.lambda_cls}
     total = sum((lambdas[k] * terms[k] for k in lambdas if lambdas[k]), zero)
     return total, {k: v.detach() for k, v in {**terms, "total": total}.items()}

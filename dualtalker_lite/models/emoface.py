@@ -56,12 +56,14 @@ from ..blocks.feature_windows import FeatureWindows
 from ..blocks.mesh_attention import MeshAttention
 from ..blocks.spiral import PAPER_DELTA, PAPER_DILATION, PAPER_SPIRAL_LENGTH, spiral_indices
 from ..losses.emoface import EmoFaceWeights, emoface_loss
+from ..prosody_features import FEATURES as PROSODY
 
 __all__ = ["EmoFaceConfig", "frame_level_stats", "self_growing_share", "EmoFace", "PAST_MOTION", "FUSIONS",
            "EMOTION_INPUTS"]
 
 PAST_MOTION = ("self_growing", "teacher_forcing", "scheduled_sampling", "dropout")
 EMOTION_INPUTS = ("logmel", "prosody")
+ACTIVE_DB = 30.0  # statistics_logits' span: from the first to the last frame within this many dB of the loud ones
 FUSIONS = ("mesh_attention", "sum")
 
 
@@ -75,8 +77,11 @@ class EmoFaceConfig:
     #                        viseme one-hot) feeds E_c alone, the rest (log-mel) E_e alone; 0: both read all of A
     emotion_input: str = "logmel"  # what E_e reads: "logmel" (per-frame LayerNorm, then z = frame_level_stats) or
     #                        "prosody" (prosody_features, already speaker-normalised: neither; issue 50)
-    neutral_voices: int = 0  # > 0 (with "prosody"): each training step also classifies this many clips of real
-    #                        voices the corpus lacks (ears.neutral_voices), labelled neutral (issue 50)
+    input_statistics: bool = False  # eq. 10's classifier reads the standardised utterance statistics (mean, std
+    #                        over the valid frames) of E_e's inputs instead of F_e's, fitted to convergence before
+    #                        training (init_from_data) and then fixed (issue 50: prosody functionals)
+    neutral_voices: bool = False  # with input_statistics: the fit also hears real voices the corpus lacks
+    #                        (ears.neutral_voices) as neutral (issue 50)
     n_speakers: int = 8  # speaking styles (one-hot s in R^n)
     n_emotions: int = 5  # N_e: emotion categories (corpus.emotions; 0 = neutral)
     n_levels: int = 2  # emotion levels (one-hot l in R^2)
@@ -116,9 +121,11 @@ class EmoFaceConfig:
         for name in ("n_emotions", "n_levels", "n_speakers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.neutral_voices < 0 or (self.neutral_voices and self.emotion_input != "prosody"):
-            raise ValueError(f"neutral_voices must be >= 0, and 0 unless emotion_input is 'prosody' (they ship as "
-                             f"prosody features), got {self.neutral_voices} with {self.emotion_input!r}")
+        if (self.neutral_voices or self.input_statistics) and self.emotion_input != "prosody":
+            raise ValueError(f"input_statistics and neutral_voices need emotion_input 'prosody' (the neutral voices "
+                             f"ship as prosody features), got {self.emotion_input!r}")
+        if self.neutral_voices and not self.input_statistics:
+            raise ValueError("neutral_voices are heard by the fitted statistics classifier: set input_statistics too")
         if self.emotion_input not in EMOTION_INPUTS:
             raise ValueError(f"emotion_input must be one of {EMOTION_INPUTS}, got {self.emotion_input!r}")
         if not 0 <= self.content_dims < self.audio_dim:
@@ -203,7 +210,14 @@ class EmoFace(nn.Module):
         self.emotion_level_stats = nn.Linear(2, d)
         self.emotion_layers = nn.ModuleList(TransformerEncoderLayer(d, cfg.n_heads, 2 * d, cfg.dropout)
                                             for _ in range(cfg.emotion_layers))  # E_e: whole-clip context
-        self.classifier = nn.Linear(2 * d, cfg.n_emotions)  # p_{iφ} of eq. 10, from [mean_t F_e, std_t F_e]
+        pooled = cfg.audio_dim - k if cfg.input_statistics else d  # E_e's inputs, or F_e, pooled
+        self.classifier = nn.Linear(2 * pooled, cfg.n_emotions)  # p_{iφ} of eq. 10, from [mean_t, std_t] of those
+        # input_statistics: the classifier's inputs standardised with the training clips' statistics, its weights
+        # fitted by init_from_data and then fixed
+        self.register_buffer("pooled_mean", torch.zeros(2 * pooled))
+        self.register_buffer("pooled_std", torch.ones(2 * pooled))
+        if cfg.input_statistics:
+            self.classifier.requires_grad_(False)
         self.emotion_type = nn.Linear(cfg.n_emotions, d, bias=False)  # type condition (label or p)
         self.emotion_level = nn.Linear(cfg.n_levels, d, bias=False)  # level one-hot l
         self.emotion_decoder = self._branch_decoder()  # D_e
@@ -218,7 +232,6 @@ class EmoFace(nn.Module):
             self.mesh_attention = MeshAttention(cfg.n_vertices, d, spirals, delta=cfg.spiral_delta,
                                                 n_layers=cfg.mesh_layers)  # ε of eqs. 17-18
         self._share = 1.0  # ground-truth share of the past motion (set_epoch); 1 = teacher forcing
-        self._neutral: list[Tensor] = []  # real voices' emotion features (init_from_data; not in the state dict)
 
     def _branch_decoder(self) -> MotionDecoder:
         """D_c or D_e (eqs. 15-16): a FaceFormer-style decoder (style table S_n, PPE, ALiBi self-attention, diagonal
@@ -268,6 +281,37 @@ class EmoFace(nn.Module):
             fe = layer(fe, key_mask=mask, radius=self.cfg.audio_radius)  # (B, T, d)
         return self.content_encoder(h_c), fe
 
+    def _logits(self, fe: Tensor, audio: Tensor, mask: Tensor | None) -> Tensor:
+        """Eq. 10's logits (B, N_e): from F_e (:meth:`classify`), or with ``input_statistics`` from the utterance
+        statistics of E_e's own inputs (:meth:`statistics_logits`)."""
+        return self.statistics_logits(audio, mask) if self.cfg.input_statistics else self.classify(fe, mask)
+
+    def statistics_logits(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
+        """``input_statistics``: the linear map of eq. 10 on x = [mean_t, std_t] of the prosody (``emotion_audio``)
+        over the utterance's span, standardised -> logits (B, N_e). The span runs from the first to the last valid
+        frame whose energy is within :data:`ACTIVE_DB` of the loud frames, so leading and trailing silence (the
+        training's padding, a recording's lead-in) does not move the statistics. The utterance statistics speech-
+        emotion recognisers use, read by a map fitted to convergence before training (:meth:`fit_classifier`),
+        where a jointly trained one stays at the class prior in a short training (docs/design-notes.md, "EmoFace:
+        an emotion branch that hears people"): a project deviation from eq. 10's classifier on F_e."""
+        return self._head(self.utterance_statistics(audio, mask))
+
+    def utterance_statistics(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
+        """x = [mean_t, std_t] of E_e's inputs over each clip's span (:meth:`statistics_logits`) -> (B, 2 D_e)."""
+        x = self.emotion_audio(audio).to(self.pooled_mean.dtype)  # (B, T, D_e)
+        valid = torch.ones(x.shape[:2], dtype=torch.bool, device=x.device) if mask is None else mask.bool()
+        active = valid & (x[..., PROSODY.index("energy")] > -ACTIVE_DB / 20)  # (B, T)
+        t = torch.arange(x.shape[1], device=x.device)
+        first = torch.where(active, t, x.shape[1]).min(1).values[:, None]  # (B, 1)
+        last = torch.where(active, t, -1).max(1).values[:, None]
+        span = valid & (t >= first) & (t <= last)
+        span = torch.where(active.any(1, keepdim=True), span, valid)  # no loud frame: the whole clip
+        m = span[..., None].to(x.dtype)  # (B, T, 1)
+        n = m.sum(1).clamp(min=1)
+        mean = (x * m).sum(1) / n  # (B, D_e)
+        std = (((x - mean[:, None]) * m).square().sum(1) / n + 1e-6).sqrt()
+        return torch.cat([mean, std], dim=-1)  # (B, 2 D_e)
+
     def classify(self, fe: Tensor, mask: Tensor | None = None) -> Tensor:
         """Emotion logits (B, N_e) from the mean and standard deviation of the emotion features over the valid frames
         (eq. 10's p = softmax): utterance-level statistics, as emotion is a property of the whole sentence."""
@@ -275,7 +319,13 @@ class EmoFace(nn.Module):
         n = m.sum(1).clamp(min=1)  # (B, 1)
         mean = (fe * m).sum(1) / n  # (B, d)
         std = (((fe - mean[:, None]) * m).square().sum(1) / n + 1e-6).sqrt()  # (B, d)
-        return self.classifier(torch.cat([mean, std], dim=-1))  # (B, N_e)
+        return self._head(torch.cat([mean, std], dim=-1))  # (B, N_e)
+
+    def _head(self, pooled: Tensor) -> Tensor:
+        """The linear map of eq. 10 on [mean, std] (B, 2 D) (standardised first with ``input_statistics``)."""
+        if self.cfg.input_statistics:
+            pooled = (pooled - self.pooled_mean) / self.pooled_std
+        return self.classifier(pooled.to(self.classifier.weight.dtype))  # (B, N_e)
 
     def level_one_hot(self, level: Tensor) -> Tensor:
         """Corpus level 0/1/2 (B,) -> one-hot l (B, n_levels): 0 and 1 -> first level, 2 -> second."""
@@ -353,33 +403,11 @@ class EmoFace(nn.Module):
         oe, oc, fused, alpha = self._decode(fe, fc, self._past_motion(fe, fc, motion, speaker, mask), speaker, mask)
         tpl = template[:, None, :]
         out = {"vertices": tpl + fused, "emotion": tpl + oe, "content": tpl + oc, "motion": fused,
-               "attention": alpha, "emotion_logits": self.classify(fe_raw, mask),
+               "attention": alpha, "emotion_logits": self._logits(fe_raw, audio, mask),
                "content_features": fc, "emotion_features": fe_raw}
         if self.cfg.cross_reconstruction and "pair_audio" in batch:
             out.update(self._cross(batch, fc, oc, template, speaker))
-        if self.training and self._neutral:
-            out["neutral_logits"] = self._neutral_logits(audio)
         return out
-
-    def _neutral_logits(self, audio: Tensor, max_frames: int = 90) -> Tensor:
-        """Eq. 10's classifier on ``neutral_voices`` clips of real voices (``ears.neutral_voices``), drawn and
-        cropped to ``max_frames`` with the global RNG (seeded by ``train``) -> logits (N, N_e), labelled neutral by
-        the loss. The content part of A is zero: E_e never reads it."""
-        picks = torch.randint(len(self._neutral), (self.cfg.neutral_voices,)).tolist()
-        clips = []
-        for i in picks:
-            clip = self._neutral[i]
-            start = int(torch.randint(max(1, len(clip) - max_frames + 1), ()))
-            clips.append(clip[start:start + max_frames])
-        T = max(len(c) for c in clips)
-        k = self.cfg.content_dims
-        a = audio.new_zeros(len(clips), T, self.cfg.audio_dim)  # (N, T, D_a)
-        mask = torch.zeros(len(clips), T, dtype=torch.bool, device=audio.device)
-        for j, c in enumerate(clips):
-            a[j, :len(c), k:] = c.to(audio)
-            mask[j, :len(c)] = True
-        _, fe = self.encode(a, mask)  # (N, T, d)
-        return self.classify(fe, mask)  # (N, N_e)
 
     def _cross(self, batch: dict, fc1: Tensor, oc1: Tensor, template: Tensor, speaker: Tensor) -> dict:
         """Eqs. 14-16, 18: clip 2 from clip 1's content and clip 2's emotion (Fig. 5). Eq. 15 as printed:
@@ -396,7 +424,8 @@ class EmoFace(nn.Module):
         oe, oc, fused, _ = self._decode(fe2, fc1, past, speaker, pair_mask, content=oc1)  # M^e, M^c, M of (c1, e2)
         tpl = template[:, None, :]
         return {"cross_vertices": tpl + fused, "cross_emotion": tpl + oe, "cross_content": tpl + oc,
-                "pair_emotion_logits": self.classify(fe2_raw, pair_mask), "pair_emotion_features": fe2_raw}
+                "pair_emotion_logits": self._logits(fe2_raw, pair_audio, pair_mask),
+                "pair_emotion_features": fe2_raw}
 
     def loss(self, out: dict, batch: dict, weights: EmoFaceWeights | None = None):
         """Eq. 11 (``losses.emoface.emoface_loss``) -> (total, detached terms)."""
@@ -420,13 +449,8 @@ class EmoFace(nn.Module):
         training frame of :func:`frame_level_stats`, used to standardise them. ``data``: a dataset of clips
         (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``). Nothing to do
         for ``emotion_input="prosody"`` (no z)."""
-        if self.cfg.neutral_voices:
-            from ..ears.neutral_voices import load
-
-            self._neutral = load()
-            if self._neutral[0].shape[1] != self.cfg.audio_dim - self.cfg.content_dims:
-                raise ValueError(f"EmoFace: the neutral voices have {self._neutral[0].shape[1]} features, the "
-                                 f"emotion branch reads {self.cfg.audio_dim - self.cfg.content_dims}")
+        if self.cfg.input_statistics:
+            self.fit_classifier(data)
         if self.cfg.emotion_input != "logmel":
             return
         items = getattr(data, "items", None)  # the clips of a (Pair|TalkingFace)Dataset: no partner draws used up
@@ -446,6 +470,59 @@ class EmoFace(nn.Module):
         self.level_stats_mean.copy_(stats.mean(0))
         self.level_stats_std.copy_(stats.std(0).clamp(min=1e-3))
 
+    def fit_classifier(self, data, ridge: float = 1e-2, max_iter: int = 500, neutral_weight: float = 1.0) -> dict:
+        """``input_statistics``: fit eq. 10's linear map to convergence -> {"clips", "neutral_voices", "accuracy"}.
+
+        Multinomial logistic regression on x_i = [mean_t, std_t] of each training clip's emotion inputs (the same
+        pooling as :meth:`classify`), standardised with their mean and std (kept in ``pooled_mean``/``pooled_std``),
+        L2 ``ridge`` on the weights, LBFGS; labels the clips' emotions and, with ``neutral_voices``, the shipped
+        real voices (``ears.neutral_voices``) as neutral (0). ``data``: a dataset of clips (items with ``audio``
+        (T, D_a) and ``emotion``). Deterministic; the map stays fixed in training (no parameter of it trains)."""
+        pooled, labels = [], []
+        for i in range(len(data)):
+            item = data[i]
+            pooled.append(self._pooled(item["audio"].float()))
+            labels.append(int(item["emotion"]))
+        n_clips = len(pooled)
+        if self.cfg.neutral_voices:
+            from ..ears.neutral_voices import load
+
+            voices = load()
+            if voices[0].shape[1] != self.cfg.audio_dim - self.cfg.content_dims:
+                raise ValueError(f"EmoFace: the neutral voices have {voices[0].shape[1]} features, the emotion "
+                                 f"branch reads {self.cfg.audio_dim - self.cfg.content_dims}")
+            k = self.cfg.content_dims
+            pooled += [self._pooled(torch.cat([v.new_zeros(len(v), k), v], dim=1)) for v in voices]
+            labels += [0] * len(voices)
+        x, y = torch.stack(pooled).double(), torch.tensor(labels)  # (N, 2 D), (N,)
+        weight = torch.ones(len(y), dtype=torch.float64)
+        weight[n_clips:] = neutral_weight  # each real voice's clip counts this much
+        mean, std = x.mean(0), x.std(0).clamp(min=1e-3)
+        z = (x - mean) / std
+        w = torch.zeros(self.cfg.n_emotions, z.shape[1], dtype=torch.float64, requires_grad=True)
+        b = torch.zeros(self.cfg.n_emotions, dtype=torch.float64, requires_grad=True)
+        opt = torch.optim.LBFGS([w, b], max_iter=max_iter, tolerance_grad=1e-9, line_search_fn="strong_wolfe")
+
+        def objective():
+            opt.zero_grad()
+            loss = (F.cross_entropy(z @ w.T + b, y, reduction="none") * weight).sum() / weight.sum() + \
+                ridge * w.square().sum()
+            loss.backward()
+            return loss
+
+        with torch.enable_grad():
+            opt.step(objective)
+        self.pooled_mean.copy_(mean.float())
+        self.pooled_std.copy_(std.float())
+        self.classifier.weight.copy_(w.detach().float())
+        self.classifier.bias.copy_(b.detach().float())
+        accuracy = float(((z @ w.T + b).argmax(1) == y).double().mean())
+        return {"clips": n_clips, "neutral_voices": len(pooled) - n_clips, "accuracy": accuracy}
+
+    def _pooled(self, audio: Tensor) -> Tensor:
+        """:meth:`utterance_statistics` of one clip's A (T, D_a) -> (2 D_e,) float64."""
+        return self.utterance_statistics(audio[None].float())[0].double()
+
     # ---- inference ---------------------------------------------------------------------------------
     @torch.no_grad()
     def emotion_logits(self, audio: Tensor, mask: Tensor | None = None, chunk: int | None = None) -> Tensor:
@@ -453,6 +530,8 @@ class EmoFace(nn.Module):
 
         ``chunk``: encode F_e in blocks of that many frames (:meth:`streamed_emotion_logits`) instead of whole."""
         audio = zero_padding(audio, mask)
+        if self.cfg.input_statistics:  # the prosody's statistics: no encoder, nothing to stream
+            return self.statistics_logits(audio, mask)
         if chunk is not None:
             return self.streamed_emotion_logits(audio, mask, chunk)
         return self.classify(self.encode(audio, mask)[1], mask)
@@ -482,6 +561,8 @@ class EmoFace(nn.Module):
         see. The pass encodes F_e block by block and accumulates, per clip and channel, n = sum_t m_t,
         S1 = sum_t m_t F_e,t and S2 = sum_t m_t F_e,t^2 (float64); then mean = S1 / n and
         std = sqrt(S2 / n - mean^2 + 1e-6), :meth:`classify`'s numbers to rounding, with one window in memory."""
+        if self.cfg.input_statistics:
+            return self.statistics_logits(audio, mask)
         stream = self._feature_windows(lambda a, m: [self.encode(a, m)[1]], audio, mask)
         s1 = s2 = n = 0.0
         for start, (fe,) in stream.blocks(chunk):  # (B, n_b, d) F_e of frames start..start+n_b-1
@@ -492,12 +573,13 @@ class EmoFace(nn.Module):
         n = n.clamp(min=1)
         mean = s1 / n  # (B, d)
         std = ((s2 / n - mean.square()).clamp(min=0) + 1e-6).sqrt()  # (B, d)
-        return self.classifier(torch.cat([mean, std], dim=-1).to(self.classifier.weight.dtype))  # (B, N_e)
+        return self._head(torch.cat([mean, std], dim=-1))  # (B, N_e)
 
     def _conditions(self, audio: Tensor, mask: Tensor | None, emotion, level) -> tuple[Tensor, Tensor]:
         """Encode the whole clip and condition for generation -> (F_c, conditioned F_e), each (B, T, d)."""
         fc, fe_raw = self.encode(audio, mask)
-        emo, lvl = self._condition_inputs(audio, mask, emotion, level, lambda: self.classify(fe_raw, mask))
+        emo, lvl = self._condition_inputs(audio, mask, emotion, level,
+                                          lambda: self._logits(fe_raw, audio, mask))
         return fc, self.condition(fe_raw, emo, lvl)
 
     def _condition_inputs(self, audio: Tensor, mask: Tensor | None, emotion, level, logits) -> tuple[Tensor, Tensor]:

@@ -130,7 +130,7 @@ def _emoface(n_vertices, audio_dim, n_speakers, overrides, *, features="logmel",
     if features in ("visemes+logmel", "visemes+prosody"):  # E_c reads the viseme one-hot, E_e what follows
         sizes["content_dims"] = len(VISEMES)
     if features == "visemes+prosody":  # the speaker-normalised prosody (issue 50): no per-frame LayerNorm, no z,
-        sizes.update(emotion_input="prosody", neutral_voices=8)  # and real voices heard as neutral
+        sizes.update(emotion_input="prosody", input_statistics=True, neutral_voices=True)  # real voices: neutral
     cfg = EmoFaceConfig.tiny(**sizes, **overrides)
     return EmoFace(cfg, faces=faces, vertices=vertices), cfg
 
