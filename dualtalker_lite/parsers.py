@@ -89,14 +89,15 @@ def _recipe_options(ap: argparse.ArgumentParser) -> None:
     """``train``'s recipe and data: ``--recipe``, ``--epochs``, ``--lip-contact``, ``--clips``, ``--features``."""
     ap.add_argument("--recipe", choices=("tiny", "fast"), default=None,
                     help="fast: the short recipe (TrainConfig.fast: the motion head started at the training motion's "
-                         "principal components, lr 6e-3, the step in their coordinates (not corrtalk), the bilabial "
-                         "contact term; dualtalker 20 epochs by default, faceformer 30, corrtalk 10; closes more lips "
-                         "on real voices than the tiny recipe for less CPU: results/time_to_quality_2core.md); "
+                         "principal components, lr 6e-3, the step in their coordinates (not corrtalk, emoface), the "
+                         "bilabial contact term; dualtalker 20 epochs by default, faceformer 30, corrtalk 10, emoface "
+                         "4; closes more lips on real voices than the tiny recipe for less CPU: "
+                         "results/time_to_quality_2core.md, results/emoface_recipe.md); "
                          "tiny: the tables' recipe (TrainConfig.tiny, 45 epochs by default) (default: fast for the "
-                         "models it was measured on, dualtalker, faceformer and corrtalk; tiny for the others)")
+                         "models it was measured on, dualtalker, faceformer, corrtalk and emoface; tiny for the others)")
     ap.add_argument("--epochs", type=int, default=None,
                     help="passes over the training clips (default: the recipe's; fast: 20 for dualtalker, 30 for "
-                         "faceformer, 10 for corrtalk; tiny: 45)")
+                         "faceformer, 10 for corrtalk, 4 for emoface; tiny: 45)")
     ap.add_argument("--lip-contact", type=float, default=None, metavar="W",
                     help="weight of the bilabial contact term (TrainConfig.lip_contact: the lip midpoints pulled "
                          "together on frames labelled /p b m/, a deviation from the papers' losses, "

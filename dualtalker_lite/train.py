@@ -20,7 +20,7 @@ motion (``mean_init``), 37 epochs = 814 steps on the sample (about 120 CPU s for
 chosen, with the measurements, is in docs/design-notes.md ("The CPU training recipe").
 
 The short recipe (``TrainConfig.fast()``, ``FAST``; ``dualtalker-lite train``'s default for DualTalker, the
-FaceFormer-style baseline and CorrTalk) starts the motion head at the training motion's top 64 principal directions
+FaceFormer-style baseline, CorrTalk and EmoFace) starts the motion head at the training motion's top 64 principal directions
 (``pca_init``, VOCA's initialisation), doubles the learning rate, and trains in those directions' coordinates
 (``basis_space``: each batch goes to 64 numbers per frame, :func:`basis_batch`, and the model's head and motion
 encoder stay in the span, ``MotionDecoder.set_motion_basis``; not CorrTalk's, ``FAST_MODEL``): the vertex loss up to
@@ -114,7 +114,7 @@ class TrainConfig:
         """The short recipe (issue 31, ``FAST``): the tiny recipe with the PCA-initialised motion head at twice the
         learning rate, trained in the basis's coordinates (``basis_space``), with the bilabial contact term
         (``lip_contact``), for the epochs :data:`FAST_EPOCHS` gives ``model`` (results/time_to_quality_2core.md).
-        VOCA-style and EmoFace have no measured budget: only with ``epochs=`` (the tables' one budget for every row)."""
+        VOCA-style has no measured budget: only with ``epochs=`` (the tables' one budget for every row)."""
         if model not in FAST_EPOCHS and not (model in FAST_MODEL and "epochs" in kw):
             raise ValueError(f"no short recipe measured for model {model!r} (measured: {sorted(FAST_EPOCHS)}"
                              f"{'; give epochs=' if model in FAST_MODEL else ''})")
