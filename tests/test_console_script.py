@@ -315,7 +315,7 @@ def test_progress_lines_come_at_most_every_10_s_with_an_honest_estimate():
 
 # The defaults --help must show (a sample per command), and the help's invocation of that option
 HELP_DEFAULTS = {"train": {"--model": "dualtalker", "--epochs": "the recipe's",
-                           "--recipe": "fast for the models it was measured on, dualtalker, faceformer and corrtalk",
+                           "--recipe": "fast for the models it was measured on, dualtalker, faceformer, corrtalk and emoface",
                            "--lip-contact": "the recipe's, fast 0.001, tiny 0",
                            "--seed": "0", "--device": "cpu", "--threads": "1", "--checkpoint-every": "5", "--corpus": "the shipped data_samples/"},
                  "evaluate": {"--split": "test_a", "--corpus": "the shipped data_samples/"},

@@ -315,12 +315,15 @@ def test_train_evaluate_animate_on_the_phonetic_route_from_the_command_line(tmp_
                "--format", "npy")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     assert np.load(tmp_path / "a" / "vertices.npy").shape[1] == torch.load(ckpt, weights_only=True)["n_vertices"] * 3
-    # EmoFace: visemes for its content branch, log-mel for its emotion branch (175 features, content_dims 15)
+    # EmoFace: visemes for its content branch, the speaker-normalised prosody for its emotion branch (70 features,
+    # content_dims 15; issue 50), its classifier fitted on those with the neutral voices
     proc = run("train", "--model", "emoface", "--epochs", "1", "--clips", "8", "--out", tmp_path / "e.pt", "--quiet")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]
     saved = torch.load(tmp_path / "e.pt", weights_only=True)
-    assert (saved["features"]["name"], saved["features"]["settings"]["output"]) == ("visemes+logmel",) * 2
-    assert (saved["model_config"]["audio_dim"], saved["model_config"]["content_dims"]) == (175, 15)
+    assert (saved["features"]["name"], saved["features"]["settings"]["output"]) == ("visemes+prosody",) * 2
+    cfg = saved["model_config"]
+    assert (cfg["audio_dim"], cfg["content_dims"], cfg["emotion_input"], cfg["input_statistics"]) == \
+        (70, 15, "prosody", True)
     proc = run("animate", "--checkpoint", tmp_path / "e.pt", "--wav", wav, "--speaker", "SPK01", "--emotion",
                "happy", "--level", "2", "--out", tmp_path / "e", "--format", "npy")
     assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr[-1500:]

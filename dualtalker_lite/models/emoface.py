@@ -214,9 +214,9 @@ class EmoFace(nn.Module):
         self.classifier = nn.Linear(2 * pooled, cfg.n_emotions)  # p_{iφ} of eq. 10, from [mean_t, std_t] of those
         # input_statistics: the classifier's inputs standardised with the training clips' statistics, its weights
         # fitted by init_from_data and then fixed
-        self.register_buffer("pooled_mean", torch.zeros(2 * pooled))
-        self.register_buffer("pooled_std", torch.ones(2 * pooled))
-        if cfg.input_statistics:
+        if cfg.input_statistics:  # (only then: checkpoints of the other classifier keep their keys)
+            self.register_buffer("pooled_mean", torch.zeros(2 * pooled))
+            self.register_buffer("pooled_std", torch.ones(2 * pooled))
             self.classifier.requires_grad_(False)
         self.emotion_type = nn.Linear(cfg.n_emotions, d, bias=False)  # type condition (label or p)
         self.emotion_level = nn.Linear(cfg.n_levels, d, bias=False)  # level one-hot l
@@ -298,7 +298,7 @@ class EmoFace(nn.Module):
 
     def utterance_statistics(self, audio: Tensor, mask: Tensor | None = None) -> Tensor:
         """x = [mean_t, std_t] of E_e's inputs over each clip's span (:meth:`statistics_logits`) -> (B, 2 D_e)."""
-        x = self.emotion_audio(audio).to(self.pooled_mean.dtype)  # (B, T, D_e)
+        x = self.emotion_audio(audio).to(self.classifier.weight.dtype)  # (B, T, D_e)
         valid = torch.ones(x.shape[:2], dtype=torch.bool, device=x.device) if mask is None else mask.bool()
         active = valid & (x[..., PROSODY.index("energy")] > -ACTIVE_DB / 20)  # (B, T)
         t = torch.arange(x.shape[1], device=x.device)
