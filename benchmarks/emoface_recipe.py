@@ -239,6 +239,7 @@ def report(runs: Path, out: Path) -> None:
     lines = ["# EmoFace: the short recipe and the emotion branch on real voices (issue 50)", "", "Made by:", ""]
     lines += [f"- `{m['command']}` at commit `{m['commit']}` ({m['date']})" for m in made]
     lines += [f"- then `{this['command']}` at commit `{this['commit']}`", "",
+              "A run command's epochs or seeds without a row were stopped before they finished (to free the CPU).", "",
               f"Machine: {machine_line(machine())}; one torch thread per training process, two processes at once.",
               "", "| branch / recipe | epochs | train CPU s | real < 2 mm | real < 1 mm | vowels shut | r | "
               "real heard neutral | other voices neutral | test_emo_b acc. | test_emo_a acc. | test_b neutral | "
