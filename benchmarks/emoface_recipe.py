@@ -202,7 +202,7 @@ def run_job(job: tuple) -> dict:
     path = Path(out) / f"{name}_e{epochs}_s{seed}.json"
     if path.is_file():
         return json.loads(path.read_text())
-    ckpt = Path(out) / f"{name}_e{epochs}_s{seed}.pt"
+    ckpt = Path(os.path.relpath(Path(out) / f"{name}_e{epochs}_s{seed}.pt", ROOT))  # the child runs in ROOT
     cmd = ["dualtalker-lite", "train", "--model", "emoface", "--epochs", str(epochs), "--seed", str(seed),
            "--threads", "1", "--quiet", "--overwrite", "--out", str(ckpt), *extra]
     exe = [sys.executable, "-c", "import sys; from dualtalker_lite.cli import main; sys.exit(main(sys.argv[1:]))"]
@@ -212,7 +212,7 @@ def run_job(job: tuple) -> dict:
     if status != 0:
         raise SystemExit(f"{shlex.join(cmd)}: exit status {status}")
     res = {"name": name, "epochs": epochs, "seed": seed, "command": shlex.join(cmd),
-           "cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": time.time() - t0, **evaluate_checkpoint(ckpt)}
+           "cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": time.time() - t0, **evaluate_checkpoint(ROOT / ckpt)}
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(res, indent=1))
     os.replace(tmp, path)
@@ -232,6 +232,8 @@ def _ms(values, fmt="{:.2f}") -> str:
 def report(runs: Path, out: Path) -> None:
     jobs = sorted((json.loads(p.read_text()) for p in runs.glob("*_e*_s*.json")),
                   key=lambda j: (j["name"], j["epochs"], j["seed"]))
+    for j in jobs:  # the checkout's own path is no one else's: name the files relative to it
+        j["command"] = j["command"].replace(str(ROOT) + os.sep, "")
     if not jobs:
         raise SystemExit(f"{runs}: no runs (step 2 first)")
     made = json.loads((runs / "provenance.json").read_text()) if (runs / "provenance.json").is_file() else []
