@@ -1,5 +1,8 @@
 """Small builders shared by the model test modules (imported as ``from builders import ...``: pytest puts this
 folder on ``sys.path``, it has no ``__init__.py``)."""
+import json
+from pathlib import Path
+
 import torch
 
 
@@ -54,3 +57,19 @@ def short_wav(path):
 
     sf.write(path, 0.2 * np.sin(np.arange(8000) * 0.05), 16000)
     return path
+
+
+def corpus_copy(tmp_path: Path, edit) -> Path:
+    """data_samples/ with an edited metadata.json (``edit(meta)`` changes it in place; everything else linked, not
+    copied) -> the copy's folder."""
+    from dualtalker_lite.data import sample_path
+
+    root = tmp_path / "corpus"
+    root.mkdir()
+    for entry in sample_path().iterdir():
+        if entry.name != "metadata.json":
+            (root / entry.name).symlink_to(entry.resolve())
+    meta = json.loads((sample_path() / "metadata.json").read_text())
+    edit(meta)
+    (root / "metadata.json").write_text(json.dumps(meta))
+    return root

@@ -23,6 +23,7 @@ import soundfile as sf
 
 from dualtalker_lite.data import sample_path
 from dualtalker_lite.data.corpus import Corpus
+from builders import corpus_copy
 
 SCRIPT = Path(sys.executable).with_name("dualtalker-lite")
 COMMANDS = ("animate", "train", "evaluate", "generate", "convert-templates", "prepare-dataset", "live")
@@ -70,19 +71,6 @@ def strict_json(path: Path) -> dict:
     def refuse(constant):
         raise AssertionError(f"{path}: non-standard JSON constant {constant}")
     return json.loads(path.read_text(), parse_constant=refuse)
-
-
-def corpus_copy(tmp_path: Path, edit) -> Path:
-    """data_samples/ with an edited metadata.json (everything else linked, not copied)."""
-    root = tmp_path / "corpus"
-    root.mkdir()
-    for entry in sample_path().iterdir():
-        if entry.name != "metadata.json":
-            (root / entry.name).symlink_to(entry.resolve())
-    meta = json.loads((sample_path() / "metadata.json").read_text())
-    edit(meta)
-    (root / "metadata.json").write_text(json.dumps(meta))
-    return root
 
 
 @pytest.fixture(scope="module")

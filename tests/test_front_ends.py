@@ -14,6 +14,7 @@ import torch
 
 from dualtalker_lite import front_ends
 from dualtalker_lite.audio import LogMelExtractor
+from builders import corpus_copy
 
 
 def test_one_vocabulary_and_one_default_everywhere():
@@ -142,20 +143,13 @@ def test_train_resolves_the_emotion_features(tmp_path, given, resolved):
 def _four_clips(tmp_path) -> Path:
     """data_samples/ linked file by file, its metadata.json cut to one sentence in four emotions (one pair group):
     the train and train_emo splits of 4 clips (computing the prosody of all 560 takes seconds)."""
-    from dualtalker_lite.data import sample_path
+    def one_group(meta):
+        group = {k: meta["pairs"]["SPK01_s00"][k] for k in ("neutral", "happy1", "sad1", "angry1")}
+        meta["pairs"] = {"SPK01_s00": group}
+        meta["splits"]["train"] = [group["neutral"]]
+        meta["splits"]["train_emo"] = [group["happy1"], group["sad1"], group["angry1"]]
 
-    root = tmp_path / "corpus"
-    root.mkdir()
-    for entry in sample_path().iterdir():
-        if entry.name != "metadata.json":
-            (root / entry.name).symlink_to(entry.resolve())
-    meta = json.loads((sample_path() / "metadata.json").read_text())
-    group = {k: meta["pairs"]["SPK01_s00"][k] for k in ("neutral", "happy1", "sad1", "angry1")}
-    meta["pairs"] = {"SPK01_s00": group}
-    meta["splits"]["train"] = [group["neutral"]]
-    meta["splits"]["train_emo"] = [group["happy1"], group["sad1"], group["angry1"]]
-    (root / "metadata.json").write_text(json.dumps(meta))
-    return root
+    return corpus_copy(tmp_path, one_group)
 
 
 @pytest.mark.parametrize("emotion, front_end, extra", [("prosody", "visemes+prosody", 55),
