@@ -447,8 +447,9 @@ class EmoFace(nn.Module):
     def init_from_data(self, data) -> None:
         """Data-dependent init (``train`` calls it when ``mean_init``): the mean and standard deviation over every
         training frame of :func:`frame_level_stats`, used to standardise them. ``data``: a dataset of clips
-        (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``). Nothing to do
-        for ``emotion_input="prosody"`` (no z)."""
+        (items with ``audio`` (T, D_a)) or a list of padded batches (``audio`` (B, T, D_a), ``mask``). With
+        ``input_statistics`` the classifier is fitted here instead (:meth:`fit_classifier`; a dataset then), and the
+        prosody input has no z to standardise."""
         if self.cfg.input_statistics:
             self.fit_classifier(data)
         if self.cfg.emotion_input != "logmel":
@@ -473,8 +474,8 @@ class EmoFace(nn.Module):
     def fit_classifier(self, data, ridge: float = 1e-2, max_iter: int = 500, neutral_weight: float = 1.0) -> dict:
         """``input_statistics``: fit eq. 10's linear map to convergence -> {"clips", "neutral_voices", "accuracy"}.
 
-        Multinomial logistic regression on x_i = [mean_t, std_t] of each training clip's emotion inputs (the same
-        pooling as :meth:`classify`), standardised with their mean and std (kept in ``pooled_mean``/``pooled_std``),
+        Multinomial logistic regression on x_i = [mean_t, std_t] of each training clip's emotion inputs over its
+        span (:meth:`utterance_statistics`, as :meth:`statistics_logits` pools them), standardised with their mean and std (kept in ``pooled_mean``/``pooled_std``),
         L2 ``ridge`` on the weights, LBFGS; labels the clips' emotions and, with ``neutral_voices``, the shipped
         real voices (``ears.neutral_voices``) as neutral (0). ``data``: a dataset of clips (items with ``audio``
         (T, D_a) and ``emotion``). Deterministic; the map stays fixed in training (no parameter of it trains)."""
