@@ -107,7 +107,7 @@ def _emotion_features(model_features: dict):
     from dualtalker_lite.front_ends import at_test
 
     front = at_test(model_features)
-    extra = getattr(front, "_extra", None) or getattr(front, "_logmel", None)
+    extra = getattr(front, "_extra", None)
     if extra is None:
         raise SystemExit(f"front end {model_features.get('name')!r} has no emotion part")
     return extra

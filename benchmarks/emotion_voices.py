@@ -141,12 +141,12 @@ def voice_features(feats: Features, cache: str | None) -> tuple[dict, dict]:
     {voice: prompt names}."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import real_voices as rv
-    from dualtalker_lite.ears.neutral_voices import _prompts
+    from dualtalker_lite.ears.neutral_voices import draw_prompts
     from dualtalker_lite.ears.sources import fetch
 
     prompts = {"Allison (en)": [(p["name"], p["wave"]) for p in rv.read_prompts()]}
     for fetched in fetch(cache=cache, names=tuple(VOICES)):
-        prompts[VOICES[fetched.source["name"]]] = _prompts(fetched.files, PER_VOICE)
+        prompts[VOICES[fetched.source["name"]]] = draw_prompts(fetched.files, PER_VOICE)
     out = {voice: _stack([feats(w) for _, w in items]) for voice, items in prompts.items()}
     return out, {voice: [name for name, _ in items] for voice, items in prompts.items()}
 

@@ -29,7 +29,7 @@ import torch
 
 from ..prosody_features import FEATURES as PROSODY, ProsodyExtractor
 
-__all__ = ["SOURCES", "HELD_OUT", "PER_VOICE", "FEATURES_PATH", "build", "load", "main"]
+__all__ = ["SOURCES", "HELD_OUT", "PER_VOICE", "FEATURES_PATH", "draw_prompts", "build", "load", "main"]
 
 SOURCES = ("asterisk-fr-wav", "asterisk-ru-wav")  # June (f, Canadian French), IvrvoiceRU (f, Russian): CC BY-SA 3.0
 HELD_OUT = ("Allison (asterisk-core-sounds-en)", "Carlo (asterisk-core-sounds-it)", "Menardi (asterisk-prompt-it)")
@@ -38,7 +38,7 @@ FPS = 30
 FEATURES_PATH = Path(__file__).resolve().parent / "weights" / "neutral_voices.npz"
 
 
-def _prompts(files: list[Path], n: int, seed: int = 0) -> list[tuple[str, np.ndarray]]:
+def draw_prompts(files: list[Path], n: int, seed: int = 0) -> list[tuple[str, np.ndarray]]:
     """``n`` prompts of 0.8-12 s drawn from ``files`` with a fixed seed (unreadable or empty files skipped)."""
     from .sources import read_audio
 
@@ -68,7 +68,7 @@ def build(cache: str | Path | None = None, out: Path = FEATURES_PATH, per_voice:
     clips, names, voices, meta = [], [], [], []
     for fetched in fetch(cache=cache, names=SOURCES):
         s = fetched.source
-        for name, wave in _prompts(fetched.files, per_voice):
+        for name, wave in draw_prompts(fetched.files, per_voice):
             n = max(1, int(round(len(wave) * FPS / 16000)))
             clips.append(extractor(wave, n).numpy().astype(np.float16))
             names.append(name)
