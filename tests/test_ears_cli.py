@@ -114,6 +114,26 @@ def test_train_end_to_end_on_small_shards(tmp_path, capsys):
     assert [row["epoch"] for row in info["history"]] == [0, 1]
 
 
+def test_calibrate_writes_the_bias_and_fails_in_one_line(tmp_path, capsys):
+    from dualtalker_lite.ears.model import Student, StudentConfig, save_student
+    trained = save_student(Student(StudentConfig.tiny()), tmp_path / "s.pt", "train")
+    out = tmp_path / "cal" / "c.pt"
+    assert cli.main(["calibrate", "--weights", str(trained), "--pp-bias", "0.5", "--out", str(out)]) == 0
+    assert f"wrote {out} (pp_bias 0.5)" in capsys.readouterr().out
+    student, info = load_student(out)
+    assert student.cfg.pp_bias == 0.5 and info["command"].startswith("python -m dualtalker_lite.ears calibrate")
+    assert cli.main(["calibrate", "--weights", str(tmp_path / "nope.pt"), "--pp-bias", "1", "--out",
+                     str(tmp_path / "x.pt")]) == 1
+    assert cli.main(["calibrate", "--weights", str(trained), "--pp-bias", "inf", "--out", str(tmp_path / "y.pt")]) == 1
+    lines = _error_lines(capsys)
+    assert lines[0].startswith("python -m dualtalker_lite.ears calibrate: error: student weights not found at ")
+    assert lines[1].endswith("error: pp_bias must be a finite number within +-10, got inf") and len(lines) == 2
+    with pytest.raises(SystemExit) as e:
+        cli.main(["calibrate", "--weights", str(trained), "--out", str(tmp_path / "z.pt")])
+    assert e.value.code == 2 and "--pp-bias" in _error_lines(capsys)[0]
+    assert not any((tmp_path / n).exists() for n in ("x.pt", "y.pt", "z.pt"))
+
+
 def test_module_runs_as_a_script(tmp_path):
     """``python -m dualtalker_lite.ears`` itself (the entry point): a bad argument exits 2."""
     proc = subprocess.run([sys.executable, "-m", "dualtalker_lite.ears", "build", "--out", str(tmp_path / "d"),

@@ -17,8 +17,8 @@ import torch
 from dualtalker_lite import front_ends
 from dualtalker_lite.ears import distil as D
 from dualtalker_lite.ears.model import (SILENCE, WEIGHTS_ENV, Student, StudentConfig, StudentExtractor,
-                                        StudentStream, StudentWeightsError, _LogMelStream, load_student,
-                                        save_student, student_features, to_mesh_rate)
+                                        StudentStream, StudentWeightsError, _LogMelStream, calibrate_student,
+                                        load_student, save_student, student_features, to_mesh_rate)
 from dualtalker_lite.face.visemes import VISEMES
 
 torch.set_num_threads(1)
@@ -285,6 +285,30 @@ def test_missing_or_corrupt_weights_are_one_line(tmp_path):
     torch.save({"format": 1, "config": {}, "state_dict": {"x": torch.zeros(1)}}, tmp_path / "other.pt")
     with pytest.raises(StudentWeightsError, match=r"corrupt or not a student's"):
         load_student(tmp_path / "other.pt")
+
+
+def test_the_pp_bias_multiplies_pp_odds_by_exp_b_whole_and_streamed(tmp_path):
+    s = _student(6)
+    path = save_student(s, tmp_path / "s.pt", "train")
+    out = calibrate_student(path, 0.7, tmp_path / "c.pt", "calibrate --pp-bias 0.7")
+    cal, prov = load_student(out)
+    assert cal.cfg.pp_bias == 0.7 and prov["pp_bias"] == 0.7 and prov["trained"]["command"] == "train"
+    assert all(torch.equal(a, b) for a, b in zip(cal.state_dict().values(), s.state_dict().values()))
+    wave = _wave(9000, 3)
+    p, q = s.posteriors(wave).double(), cal.posteriors(wave).double()     # (T, 15) each
+    pp = VISEMES.index("PP")
+    # by hand: q_PP / q_k = e^0.7 p_PP / p_k for every other k; q_j / q_k = p_j / p_k when neither is PP
+    assert torch.allclose((q[:, pp, None] / q) / (p[:, pp, None] / p), torch.full_like(p, math.exp(0.7)).index_fill(
+        1, torch.tensor([pp]), 1.0), rtol=1e-4)
+    assert torch.allclose(q[:, 0] / q[:, 3], p[:, 0] / p[:, 3], rtol=1e-4)
+    stream = StudentStream(cal)
+    streamed = torch.cat([stream.push_audio(wave[:4000]), stream.push_audio(wave[4000:]), stream.finish()])
+    assert torch.allclose(streamed, q.float(), atol=1e-5)
+    again = calibrate_student(out, 0.2, tmp_path / "d.pt", "again")                 # absolute, not added
+    assert load_student(again)[0].cfg.pp_bias == 0.2 and load_student(again)[1]["trained"]["command"] == "train"
+    with pytest.raises(ValueError, match=r"^pp_bias must be a finite number within \+-10, got nan$"):
+        calibrate_student(path, float("nan"), tmp_path / "e.pt", "x")
+    assert not (tmp_path / "e.pt").exists()
 
 
 # ------------------------------------------------------------------------------------------------- front end

@@ -6,6 +6,7 @@
                                          --out runs/ears/student_la3.pt [--lookahead 3] [--cpu-budget-s 1200] ...
     python -m dualtalker_lite.ears all   --out runs/ears/data --weights runs/ears/student_la3.pt [both's options]
     python -m dualtalker_lite.ears evaluate --weights runs/ears/student_la3.pt [...] --audio FILE [FILE ...]
+    python -m dualtalker_lite.ears calibrate --weights runs/ears/student_la3.pt --pp-bias 0.5 --out W
 
 ``build`` fetches the manifest's used sources from their packages (``ears.sources``: apt-get download, dpkg-deb,
 TTS), verifies them against the manifest, and writes the held-out split (``ears.dataset.build_split``): the
@@ -14,7 +15,8 @@ held-out shards in ``<out>/val`` (``--held-out-copies``, clean by default). ``tr
 (``ears.distil``: the same options as ``python -m dualtalker_lite.ears.distil``). ``all`` runs both, the
 training on ``<out>/train`` with ``<out>/val`` held out. ``evaluate`` runs the teacher and each student on
 recordings (``ears.compare``: frame agreement, PP recall against the teacher, the student's CPU s per s whole and
-streamed in 100 ms chunks) and prints one line per weights file. Big outputs go under ``runs/`` (git ignores it).
+streamed in 100 ms chunks) and prints one line per weights file. ``calibrate`` writes the same student with a
+decision bias on PP (``model.calibrate_student``; ``benchmarks/student_gate.py`` chooses it on held-out faces). Big outputs go under ``runs/`` (git ignores it).
 
 Exit status: 0 done; 2 bad arguments (one ``error:`` line from the parser, before anything is fetched, read or
 written); 1 a run that failed (a source that cannot be fetched or does not match the manifest, a damaged shard:
@@ -36,7 +38,7 @@ import torch
 
 from ..audio import load_audio
 from . import compare, dataset, distil, sources
-from .model import StudentWeightsError, load_student
+from .model import StudentWeightsError, calibrate_student, load_student
 from .teacher import Teacher
 
 PROG = "python -m dualtalker_lite.ears"
@@ -77,6 +79,11 @@ def parser() -> argparse.ArgumentParser:
     ev.add_argument("--chunk-ms", type=float, default=100.0, help="the streamed cost's chunk")
     ev.add_argument("--cache", default=None, help="teacher tracks' cache (default: <sources cache>/teacher)")
     ev.add_argument("--threads", type=int, default=None)
+    cal = sub.add_parser("calibrate", help="the same student with a PP decision bias (benchmarks/student_gate.py "
+                                           "chooses it)")
+    cal.add_argument("--weights", required=True, help="the trained student's weights file")
+    cal.add_argument("--pp-bias", type=float, required=True, help="b: log-odds added to the PP logit")
+    cal.add_argument("--out", required=True, help="the calibrated weights file to write")
     return p
 
 
@@ -193,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "evaluate":
             run_evaluate(args)
+        if args.command == "calibrate":
+            print(f"wrote {calibrate_student(args.weights, args.pp_bias, args.out, command)} "
+                  f"(pp_bias {args.pp_bias:g})")
         if args.command in ("build", "all"):
             run_build(args)
         if args.command in ("train", "all"):

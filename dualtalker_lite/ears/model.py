@@ -48,13 +48,14 @@ from ..provenance import provenance
 
 __all__ = ["StudentConfig", "Block", "Student", "StudentStream", "student_features", "SILENCE", "HOP", "HOP_S",
            "WEIGHTS_ENV", "WEIGHTS_FORMAT", "TRAIN_HINT", "StudentWeightsError", "default_weights_path",
-           "save_student", "load_student", "to_mesh_rate", "StudentExtractor"]
+           "save_student", "load_student", "calibrate_student", "to_mesh_rate", "StudentExtractor"]
 
 HOP = 320                           # samples per student frame: 20 ms at 16 kHz, hama's (the teacher's) hop
 HOP_S = HOP / SAMPLE_RATE           # 0.02 s
 SILENCE = math.log(LOG_EPS)         # -13.8: the log-mel of digital silence, the padding after the last frame
 WEIGHTS_ENV = "DUALTALKER_STUDENT_WEIGHTS"   # overrides the shipped weights' path (tests, experiments)
 WEIGHTS_FORMAT = 1
+PP = VISEMES.index("PP")            # the viseme of /p b m/
 TRAIN_HINT = ("train them with `python -m dualtalker_lite.ears.distil --data SHARDS --out PATH` "
               "(docs/ears.md, 'Distillation')")
 
@@ -75,6 +76,7 @@ class StudentConfig:
     dilations: tuple = (1, 2, 4, 8) # one block per dilation
     lookahead: int = 3              # L frames of future input (3 x 20 ms = 60 ms)
     dropout: float = 0.1
+    pp_bias: float = 0.0            # b: log-odds added to the PP logit after training (calibrate_student)
 
     @classmethod
     def tiny(cls, **overrides) -> "StudentConfig":
@@ -129,7 +131,10 @@ class Student(nn.Module):
         for i, block in enumerate(self.blocks):
             h, p = block(h, None if pasts is None else pasts[i])          # (B, n, C)
             new.append(p)
-        return self.head(self.norm(h)), new                                # (B, n, 15)
+        y = self.head(self.norm(h))                                        # (B, n, 15)
+        if self.cfg.pp_bias:     # the calibrated decision: softmax(y + b e_PP), i.e. PP's odds times exp(b)
+            y = y + self.cfg.pp_bias * F.one_hot(torch.tensor(PP), y.shape[-1]).to(y.dtype)
+        return y, new
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x (B, T, n_mels) a whole utterance -> y (B, T, 15), y_t = h_{t+L} (L silence frames padded at the end)."""
@@ -257,6 +262,19 @@ def load_student(path: str | os.PathLike | None = None) -> tuple[Student, dict]:
         raise StudentWeightsError(f"student weights at {path} are corrupt or not a student's ({reason}); "
                                   f"{TRAIN_HINT}") from None
     return student.eval(), dict(record.get("provenance", {}))
+
+
+def calibrate_student(weights: str | os.PathLike, pp_bias: float, out: str | os.PathLike, command: str) -> Path:
+    """Write the student at ``weights`` again with ``cfg.pp_bias = pp_bias`` (the same parameters and
+    normalisation) to ``out``; its provenance keeps the training's (``trained``) and adds this ``command``. The
+    bias moves the decision, not the net: every posterior becomes ``softmax(y + b e_PP)``, PP's odds against each
+    other viseme multiplied by ``exp(b)`` (a prior shift), so more frames near a closure say PP, and some vowel
+    frames too. ``benchmarks/student_gate.py`` measures that trade on the face and chooses b (docs/ears.md)."""
+    if not math.isfinite(pp_bias) or abs(pp_bias) > 10:
+        raise ValueError(f"pp_bias must be a finite number within +-10, got {pp_bias}")
+    student, trained = load_student(weights)
+    student.cfg.pp_bias = float(pp_bias)
+    return save_student(student, out, command, {"pp_bias": float(pp_bias), "trained": trained.get("trained", trained)})
 
 
 def to_mesh_rate(posteriors: torch.Tensor, n_frames: int, fps: float, first: int = 0,
