@@ -53,7 +53,7 @@ from dualtalker_lite.checkpoints import load_checkpoint  # noqa: E402
 from dualtalker_lite.data import sample_path  # noqa: E402
 from dualtalker_lite.data.corpus import Corpus, read_json  # noqa: E402
 from dualtalker_lite.ears import sources  # noqa: E402
-from dualtalker_lite.ears.model import StudentExtractor  # noqa: E402
+from dualtalker_lite.ears.model import StudentExtractor, load_student  # noqa: E402
 from dualtalker_lite.face import FaceRig, Speaker  # noqa: E402
 from dualtalker_lite.face.visemes import VISEMES  # noqa: E402
 from dualtalker_lite.files import atomic_write_text  # noqa: E402
@@ -186,6 +186,12 @@ def part_b(faces: Faces, recs: list[dict], studs: dict, corpus: Corpus) -> dict:
     return out
 
 
+def _trained(weights: str) -> dict:
+    """The training's provenance of a weights file (a calibrated file keeps it under ``trained``)."""
+    prov = load_student(weights)[1]
+    return prov.get("trained", prov)
+
+
 def table(rows: dict, keys: list[str], cols: list[tuple[str, str]]) -> list[str]:
     head = "| path | " + " | ".join(c for c, _ in cols) + " |"
     out = [head, "|" + "---|" * (len(cols) + 1)]
@@ -214,6 +220,8 @@ def write(res: dict, out: Path) -> None:
         lines += table(res["b"][band], keys, [("closure < 2 mm", "closure_2mm"), ("< 1 mm", "closure_1mm"),
                                               ("vowel frames shut", "vowel_shut"), ("r", "r"),
                                               ("/p b m/", "n_bilabials")])
+    lines += ["", "How the students and their data were made (each weights file records its command and commit):", "",
+              "```"] + [f"{m['command']}  # commit {m['commit']}" for m in res["made_with"]] + ["```"]
     if res["b"]["failed_alignments"]:
         lines += ["", f"Alignments that failed (left out): {', '.join(res['b']['failed_alignments'])}."]
     atomic_write_text(out, "\n".join(lines) + "\n")
@@ -228,6 +236,8 @@ def main(argv=None) -> None:
     ap.add_argument("--val", default="runs/ears/data/val", help="the build's held-out split")
     ap.add_argument("--cache", default="runs/ears/sources", help="the build's sources cache")
     ap.add_argument("--out", default=str(ROOT / "results" / "student_gate.md"))
+    ap.add_argument("--data-build", nargs="*", default=[], metavar="COMMIT:COMMAND",
+                    help="the commands that built the data sets the students were trained on, to record")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     made = provenance("python benchmarks/student_gate.py " + " ".join(argv if argv is not None else sys.argv[1:]))
@@ -240,7 +250,10 @@ def main(argv=None) -> None:
     a = part_a(faces, recs, studs)
     print("part A done", flush=True)
     b = part_b(faces, recs, studs, corpus)
-    res = {"made_by": made, "checkpoint": args.checkpoint, "val": args.val, "weights": args.weights,
+    made_with = [{"weights": w, "command": t["command"], "commit": t["commit"]}
+                 for w, t in ((w, _trained(w)) for w in args.weights)]
+    made_with += [{"command": c.split(":", 1)[1], "commit": c.split(":", 1)[0]} for c in args.data_build]
+    res = {"made_by": made, "made_with": made_with, "checkpoint": args.checkpoint, "val": args.val, "weights": args.weights,
            "biases": args.biases, "students": list(studs), "n_recordings": len(recs),
            "minutes": sum(len(r["wave"]) for r in recs) / 16000 / 60, "a": a, "b": b,
            "cpu_s": time.process_time() - c0}
