@@ -35,6 +35,7 @@ import argparse
 import json
 import os
 import re
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -240,7 +241,7 @@ def main(argv=None) -> None:
                     help="the commands that built the data sets the students were trained on, to record")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    made = provenance("python benchmarks/student_gate.py " + " ".join(argv if argv is not None else sys.argv[1:]))
+    made = provenance("python benchmarks/student_gate.py " + shlex.join(argv if argv is not None else sys.argv[1:]))
     c0 = time.process_time()
     corpus = Corpus(sample_path())
     faces = Faces(args.checkpoint)
