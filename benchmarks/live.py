@@ -159,7 +159,7 @@ def main(argv=None) -> None:
         for past, ahead in [(60, 3), (60, 0), (30, 3), (120, 6)]:   # the first: the default until 4868760
             for name, wave in waves.items():
                 session = LiveSession(model, extractor, template, speaker,
-                                      LiveSettings(past_frames=past, ahead_frames=ahead))
+                                      LiveSettings(past_frames=past, ahead_frames=ahead, ears="hama"))
                 out, c, _ = feed(session, wave)
                 live = np.concatenate([v for _, v in out])
                 a, b = lip_distance(live, [up], [lo]), lip_distance(offline_verts[name], [up], [lo])
@@ -187,7 +187,8 @@ def asyncio_run_latency(checkpoint: str, speaker: str, wave: np.ndarray, lookahe
 
     from dualtalker_lite.live.stream import LiveSettings
 
-    config = load_config(checkpoint, speaker, settings=None if lookahead_s is None else LiveSettings(lookahead_s))
+    config = load_config(checkpoint, speaker, settings=LiveSettings(ears="hama") if lookahead_s is None else
+                         LiveSettings(lookahead_s, ears="hama"))
     pcm = np.round(np.clip(wave, -1, 1) * 32767).astype("<i2")
 
     async def main():
@@ -564,7 +565,7 @@ def fig_latency(args) -> dict:
             warnings.simplefilter("ignore")
             clips.append(load_audio(p))
     for la in sorted({0, 100, 200, round(1000 * LiveSettings.lookahead_s)}):     # and the default's
-        s = LiveSettings(lookahead_s=la / 1000)
+        s = LiveSettings(lookahead_s=la / 1000, ears="hama")
         session = LiveSession(config.model, config.front_end, config.template, config.speaker, s)
         sim = simulate(session, wave, clock=args.clock)
         algo = s.latency_s(config.front_end.fps, config.front_end.lag_s, config.front_end.window_s)
@@ -602,7 +603,7 @@ def fig_breakdown(args) -> dict:
     runs = {c: [] for c in configs}
     for rep in range(args.reps):
         for la, piece, hop in configs:
-            s = LiveSettings(lookahead_s=la / 1000, hop_s=hop)
+            s = LiveSettings(lookahead_s=la / 1000, hop_s=hop, ears="hama")
             session = LiveSession(config.model, fe, config.template, config.speaker, s)
             c0 = time.process_time()
             sim = simulate(session, wave, piece=piece, clock=args.clock)
@@ -687,7 +688,7 @@ def fig_diagnose(args) -> dict:
                                                         front_end=lambda w, k: torch.from_numpy(eye[live_ids])),
                                            *lip_mid)[:n])
         session = LiveSession(config.model, config.front_end, config.template, config.speaker,
-                              LiveSettings(lookahead_s=0.2))
+                              LiveSettings(lookahead_s=0.2, ears="hama"))
         out, _, _ = feed(session, wave)
         rows[names[3]].append(lip_distance(np.concatenate([v for _, v in out]), *lip_mid)[:n])
         if (i + 1) % 10 == 0:

@@ -212,7 +212,7 @@ def run_live(waves, piece: int = 1600) -> tuple[list, float]:
     time, then flushed."""
     from dualtalker_lite.live.stream import LiveSettings, StreamingVisemes, new_extractor
 
-    s = LiveSettings()
+    s = LiveSettings(ears="hama")
     out, cpu = [], 0.0
     for w in waves:
         ex = new_extractor()
@@ -540,7 +540,7 @@ def write_report(results: dict, meta: dict, stamp: dict) -> None:
     waits = {k: w for k, (_, w) in ROWS.items()}
     from dualtalker_lite.live.stream import LiveSettings
 
-    waits["live"] = waits["live_curves"] = f"{LiveSettings().latency_s() * 1000:.0f} ms"
+    waits["live"] = waits["live_curves"] = f"{LiveSettings(ears="hama").latency_s() * 1000:.0f} ms"
     if student:
         waits["student"] = waits["student_curves"] = f"{student['lookahead_frames'] * 20 + 16} ms"
     any_row = next(iter(results.values()))

@@ -195,8 +195,9 @@ def live_parser() -> argparse.ArgumentParser:
                          "closed the lips more often than 1 or 3 on the real-voice prompts, sooner, with a little "
                          "less agreement with the offline animation (results/live.md)")
     ap.add_argument("--ears", choices=LIVE_EARS, default=LiveSettings.ears,
-                    help="who hears the visemes: hama or the student (the project's causal recogniser: about "
-                         "100 ms; --lookahead-ms and --context-ms are hama's)")
+                    help="who hears the visemes: the student (the default: the project's causal recogniser, 60 ms "
+                         "of look-ahead, about 90 ms on the page) or hama (windowed, about 0.5 s; --lookahead-ms "
+                         "and --context-ms are its settings)")
     ap.add_argument("--speaker", default="SPK01", help="training speaker whose style and face to use")
     ap.add_argument("--template", default=None, help="neutral mesh (OBJ/PLY) with the model's topology")
     ap.add_argument("--corpus", default=None, help="corpus with the speakers' faces (default: data_samples/)")

@@ -35,7 +35,7 @@ from aiohttp import WSMsgType, WSServerHandshakeError  # noqa: E402
 from aiohttp.test_utils import TestClient, TestServer  # noqa: E402
 
 from dualtalker_lite.live.server import HEADER, Limits, load_config, make_app  # noqa: E402
-from dualtalker_lite.live.stream import StreamingVisemes, new_extractor  # noqa: E402
+from dualtalker_lite.live.stream import LiveSettings, StreamingVisemes, new_extractor  # noqa: E402
 from builders import fake_microphone_args  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,8 @@ def checkpoint(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def config(checkpoint):
-    return load_config(str(checkpoint), "SPK01")
+    """hama's live path (``--ears hama``): these tests hold it to the offline ``animate``, which hama hears too."""
+    return load_config(str(checkpoint), "SPK01", settings=LiveSettings(ears="hama"))
 
 
 @pytest.fixture(scope="module")

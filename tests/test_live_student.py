@@ -168,3 +168,28 @@ def test_front_end_swaps_only_the_ears_of_viseme_models(tmp_path, visemes_checkp
     ex = front_ends.at_test({"name": "visemes", "settings": {"fps": 30}}, "student", "m.pt")
     p = ex(np.zeros(16000, np.float32), 30)
     assert p.shape == (30, 15) and set(p.sum(1).tolist()) == {1.0} and set(p.flatten().tolist()) == {0.0, 1.0}
+
+
+def test_the_students_ears_are_lives_default_with_the_shipped_weights(visemes_checkpoint, monkeypatch):
+    """``live`` hears with the shipped, calibrated student unless ``--ears hama`` (issue 47: it met the live
+    targets, docs/ears.md "A gate on the face"); a LiveSession given no student loads the same weights."""
+    from dualtalker_lite.ears.model import default_weights_path, load_student
+    from dualtalker_lite.live.server import load_config
+    from dualtalker_lite.live.stream import LiveSession
+    from dualtalker_lite.parsers import live_parser
+
+    monkeypatch.delenv(WEIGHTS_ENV, raising=False)
+    assert LiveSettings().ears == "student"
+    assert live_parser().parse_args(["--checkpoint", "x.pt"]).ears == "student"
+    config = load_config(str(visemes_checkpoint), "SPK01")
+    shipped = load_student(default_weights_path())[0]
+    assert config.settings.ears == "student" and config.student.cfg == shipped.cfg
+    assert shipped.cfg.pp_bias == 1.0 and shipped.cfg.lookahead == 3     # the calibration the gate chose
+    session = LiveSession(config.model, config.front_end, config.template, config.speaker)
+    wave = _wave(1.0)
+    first, verts = session.push(wave)
+    rest = session.flush()[1]
+    assert first == 0 and len(verts) + len(rest) == 30                  # every frame of 1 s at 30 fps
+    monkeypatch.setenv(WEIGHTS_ENV, "/nonexistent/student.pt")
+    with pytest.raises(ValueError, match=r"^student weights not found at /nonexistent/student\.pt: train them"):
+        LiveSession(config.model, config.front_end, config.template, config.speaker)

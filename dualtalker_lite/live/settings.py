@@ -27,8 +27,9 @@ class LiveSettings:
     past_frames: int = 60         # audio-encoder context (mesh frames) before a decoded frame
     ahead_frames: int = 0         # audio-encoder look-ahead (mesh frames) after it (was 3: fewer close the lips
                                   # more often live, at a little less agreement with offline; results/live.md)
-    ears: str = "hama"            # who hears the visemes: "hama" (StreamingVisemes, the settings above) or
-                                  # "student" (StreamingStudentVisemes: its own look-ahead, no hop, no past_s)
+    ears: str = "student"         # who hears the visemes: "student" (StreamingStudentVisemes: its own look-ahead,
+                                  # no hop, no past_s; the default since it met the live targets, docs/ears.md) or
+                                  # "hama" (StreamingVisemes, the settings above)
 
     def latency_s(self, fps: float = 30.0, lag_s: float = 0.02, window_s: float = 0.1,
                   student_lookahead: int | None = None) -> float:

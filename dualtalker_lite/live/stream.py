@@ -400,9 +400,10 @@ class LiveSession:
             raise ValueError(f"live decoding needs a model trained on the recogniser's viseme track (front end "
                              f"'visemes'), this one reads {front_end!r}")
         self.settings = s = settings or LiveSettings()
-        if s.ears == "student":   # student: an ears.model.Student (load_student), the track's ears instead of hama
+        if s.ears == "student":   # student: an ears.model.Student (default: the shipped one), the track's ears
             if student is None:
-                raise ValueError("live with ears 'student' needs the student (ears.model.load_student)")
+                from ..ears.model import load_student
+                student = load_student()[0]       # one StudentWeightsError line if the weights are missing
             self.visemes = StreamingStudentVisemes(student, front_end.fps)
         elif s.ears == "hama":
             self.visemes = StreamingVisemes(front_end, s.lookahead_s, s.past_s, s.hop_s)

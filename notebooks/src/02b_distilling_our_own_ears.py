@@ -378,8 +378,9 @@ plt.show()
 #
 # ## 5. The trained student against the teacher on a real recording
 #
-# The package's student (`default_weights_path()`: `dualtalker_lite/ears/weights/student.pt`; its look-ahead and
-# size are printed below) never heard this voice: the two prompts in `data/real/` are Allison's (CC-BY-SA 3.0,
+# The package's student (`default_weights_path()`: `dualtalker_lite/ears/weights/student.pt`; its look-ahead, size
+# and PP decision bias are printed below: the shipped file multiplies PP's odds by $e^b$, $b = 1$, a setting chosen
+# on held-out faces, `docs/ears.md`, "A gate on the face") never heard this voice: the two prompts in `data/real/` are Allison's (CC-BY-SA 3.0,
 # `notebooks/data/real/NOTICE`), the real-voice benchmark's speaker, which is held out of every training source.
 # Their phones were force-aligned by pocketsphinx (the JSON beside each file). We compare three tracks at 20 ms:
 # the teacher's, the student's (streamed in 100 ms chunks, as the live path would), and the aligned phones'.
@@ -392,7 +393,7 @@ plt.show()
 # %%
 student, provenance = load_student(default_weights_path())
 print(f"student: look-ahead {student.cfg.lookahead} ({20 * student.cfg.lookahead + 16} ms of audio), "
-      f"{sum(p.numel() for p in student.parameters()) / 1e3:.0f} k parameters")
+      f"{sum(p.numel() for p in student.parameters()) / 1e3:.0f} k parameters, PP bias {student.cfg.pp_bias:g}")
 REAL = Path("data/real")                      # notebooks/data/real/ (the notebook runs in notebooks/)
 OPENNESS = np.array([0.0 if v in ("sil", "PP") else 1.0 if v in ("aa", "E", "I", "O", "U") else 0.5 for v in VISEMES])
 real = {}
