@@ -540,7 +540,7 @@ def write_report(results: dict, meta: dict, stamp: dict) -> None:
     waits = {k: w for k, (_, w) in ROWS.items()}
     from dualtalker_lite.live.stream import LiveSettings
 
-    waits["live"] = waits["live_curves"] = f"{LiveSettings(ears="hama").latency_s() * 1000:.0f} ms"
+    waits["live"] = waits["live_curves"] = f"{LiveSettings(ears='hama').latency_s() * 1000:.0f} ms"
     if student:
         waits["student"] = waits["student_curves"] = f"{student['lookahead_frames'] * 20 + 16} ms"
     any_row = next(iter(results.values()))
