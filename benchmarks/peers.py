@@ -243,8 +243,10 @@ def run_student(waves, weights: Path) -> tuple[list, float, dict]:
     digest = hashlib.sha256(Path(weights).read_bytes()).hexdigest()[:16]
     shown = Path(weights).resolve()
     shown = shown.relative_to(ROOT) if shown.is_relative_to(ROOT) else Path(weights).name   # no machine's path
+    trained = prov.get("trained", prov)           # a calibrated file keeps its training's provenance there
     return out, cpu, {"weights": str(shown), "sha256": digest, "lookahead_frames": student.cfg.lookahead,
-                      "trained_by": prov.get("command"), "trained_at_commit": prov.get("commit")}
+                      "pp_bias": student.cfg.pp_bias, "trained_by": trained.get("command"),
+                      "trained_at_commit": trained.get("commit")}
 
 
 # ------------------------------------------------------------------------------------------- pylipsync
@@ -571,7 +573,8 @@ def write_report(results: dict, meta: dict, stamp: dict) -> None:
     if student:
         lines += ["", f"Student weights: `{student['weights']}` (sha256 {student['sha256']}..., look-ahead "
                   f"{student['lookahead_frames']} frames of 20 ms; trained by: {student['trained_by']}, at "
-                  f"{student['trained_at_commit']})."]
+                  f"{student['trained_at_commit']}; PP decision bias {student.get('pp_bias', 0.0):g}, "
+                  f"`python -m dualtalker_lite.ears calibrate`)."]
     info = meta["info"]
     if "headaudio" in info:
         h = info["headaudio"]
