@@ -177,6 +177,27 @@ def test_recording_panel_unknown_speaker_and_no_checkpoint(recording_setup):
         RecordingPanel(corpus, [], default_wave=wave)
 
 
+def test_animate_recording_hears_with_other_ears_of_a_viseme_model(recording_setup, tmp_path):
+    from dualtalker_lite import front_ends
+    from dualtalker_lite.checkpoints import load_checkpoint
+    from dualtalker_lite.cli import main
+    from dualtalker_lite.inference import animate_wave
+    from dualtalker_lite.viz.widgets import animate_recording
+
+    corpus, logmel_path, wave = recording_setup
+    with pytest.raises(ValueError, match=r"can only swap the ears of a model trained on viseme labels"):
+        animate_recording(wave, logmel_path, "SPK01", corpus, ears="student")
+    path = tmp_path / "visemes.pt"
+    main(["train", "--clips", "8", "--epochs", "1", "--out", str(path), "--no-progress"])
+    model, info = load_checkpoint(path)
+    _, verts = animate_recording(wave, path, "SPK01", corpus, size=64, ears="student")
+    expected = animate_wave(model, wave, corpus.template("SPK01"), 0,
+                            front_end=front_ends.at_test(info["features"], "student"))   # animate --front-end student
+    np.testing.assert_allclose(verts, expected, atol=1e-6)
+    _, hama = animate_recording(wave, path, "SPK01", corpus, size=64)                 # the recorded ears: hama
+    assert verts.shape == hama.shape and not np.allclose(verts, hama)
+
+
 # ---------------------------------------------------------------------------------- TrainingPanel (notebook 12)
 def test_training_panel_controls_from_defaults_and_run():
     from dualtalker_lite.viz.widgets import TrainingPanel

@@ -201,11 +201,15 @@ class RetrainPanel(TrainingPanel):
         return self.retrain(lambdas, bandwidth_mm, steps, self._step)
 
 
-def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, corpus, size: int = 256):
+def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, corpus, size: int = 256,
+                      ears: str | None = None):
     """16 kHz speech (N,) -> the animation (with the speech) of ``speaker``'s face, predicted as the CLI does.
 
     The speaker names come from the checkpoint (old checkpoints without names: from ``corpus``); the neutral
-    face is the corpus template of that speaker. Returns ``(animation, vertices (T, V*3))``.
+    face is the corpus template of that speaker. ``ears``: ``"student"`` (the project's causal recogniser) or
+    ``"visemes"`` (hama) to hear with other ears than the checkpoint records, for a model trained on the viseme
+    labels (``animate --front-end``, :func:`~dualtalker_lite.front_ends.at_test`); None: the recorded ones.
+    Returns ``(animation, vertices (T, V*3))``.
     """
     from .. import front_ends
     from ..checkpoints import load_checkpoint
@@ -216,7 +220,7 @@ def animate_recording(wave: np.ndarray, checkpoint: str | Path, speaker: str, co
     index, _ = resolve_speaker(info, speaker, corpus)
     if speaker not in corpus.speakers:
         raise ValueError(f"the corpus has no face for speaker {speaker!r}")
-    front_end = front_ends.from_settings(info.get("features"), str(checkpoint))
+    front_end = front_ends.at_test(info.get("features"), ears, str(checkpoint))
     verts = animate_wave(model, wave, corpus.template(speaker), index, front_end=front_end)  # (T, V*3)
     anim = animate_clip(verts.reshape(len(verts), -1, 3), corpus.faces, wave=wave,
                         sample_rate=front_end.sample_rate, size=size)
