@@ -254,8 +254,8 @@ def main(argv=None) -> None:
     made_with = [{"weights": w, "command": t["command"], "commit": t["commit"]}
                  for w, t in ((w, _trained(w)) for w in args.weights)]
     made_with += [{"command": c.split(":", 1)[1], "commit": c.split(":", 1)[0]} for c in args.data_build]
-    res = {"made_by": made, "made_with": made_with, "checkpoint": args.checkpoint, "val": args.val, "weights": args.weights,
-           "biases": args.biases, "students": list(studs), "n_recordings": len(recs),
+    res = {"made_by": made, "made_with": made_with, "checkpoint": args.checkpoint, "val": args.val,
+           "weights": args.weights, "biases": args.biases, "students": list(studs), "n_recordings": len(recs),
            "minutes": sum(len(r["wave"]) for r in recs) / 16000 / 60, "a": a, "b": b,
            "cpu_s": time.process_time() - c0}
     write(res, Path(args.out))

@@ -16,7 +16,8 @@ held-out shards in ``<out>/val`` (``--held-out-copies``, clean by default). ``tr
 training on ``<out>/train`` with ``<out>/val`` held out. ``evaluate`` runs the teacher and each student on
 recordings (``ears.compare``: frame agreement, PP recall against the teacher, the student's CPU s per s whole and
 streamed in 100 ms chunks) and prints one line per weights file. ``calibrate`` writes the same student with a
-decision bias on PP (``model.calibrate_student``; ``benchmarks/student_gate.py`` chooses it on held-out faces). Big outputs go under ``runs/`` (git ignores it).
+decision bias on PP (``model.calibrate_student``; ``benchmarks/student_gate.py`` chooses it on held-out faces).
+Big outputs go under ``runs/`` (git ignores it).
 
 Exit status: 0 done; 2 bad arguments (one ``error:`` line from the parser, before anything is fetched, read or
 written); 1 a run that failed (a source that cannot be fetched or does not match the manifest, a damaged shard:

@@ -274,7 +274,8 @@ def calibrate_student(weights: str | os.PathLike, pp_bias: float, out: str | os.
         raise ValueError(f"pp_bias must be a finite number within +-10, got {pp_bias}")
     student, trained = load_student(weights)
     student.cfg.pp_bias = float(pp_bias)
-    return save_student(student, out, command, {"pp_bias": float(pp_bias), "trained": trained.get("trained", trained)})
+    return save_student(student, out, command,
+                        {"pp_bias": float(pp_bias), "trained": trained.get("trained", trained)})
 
 
 def to_mesh_rate(posteriors: torch.Tensor, n_frames: int, fps: float, first: int = 0,
